@@ -1,0 +1,1 @@
+"""The `neural-bake` command (installed as ``neural_bake.cli``): one thin module per verb."""

@@ -1,0 +1,107 @@
+"""Entry point of the `neural-bake` command.
+
+Verbs are loaded lazily (``name -> module:attribute``) so ``neural-bake --help`` stays fast and each verb
+imports only the library parts it needs. Every user mistake surfaces as one line on stderr,
+``neural-bake: error: <file>: <problem>``, and exit code 2 — never a Python traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import warnings
+
+import click
+
+from neural_bake import __version__
+from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
+
+__all__ = ["main", "LazyGroup"]
+
+
+class LazyGroup(click.Group):
+    """A click group whose sub-commands are imported on first use."""
+
+    def __init__(self, *args, lazy: dict[str, tuple[str, str]] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy = dict(lazy or {})
+
+    def list_commands(self, ctx):
+        return sorted(set(super().list_commands(ctx)) | set(self.lazy))
+
+    def get_command(self, ctx, name):
+        if name in self.lazy:
+            module, attr = self.lazy[name]
+            return getattr(importlib.import_module(module), attr)
+        return super().get_command(ctx, name)
+
+    def format_commands(self, ctx, formatter):
+        rows = []
+        for name in self.list_commands(ctx):
+            try:
+                cmd = self.get_command(ctx, name)
+            except ImportError:  # a verb whose module is not there yet must not break --help
+                continue
+            help_text = cmd.get_short_help_str(70) if cmd else ""
+            rows.append((name, help_text))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+COMMANDS = {
+    "samples": ("neural_bake.cli.samples", "command"),
+    "inspect": ("neural_bake.cli.inspect", "command"),
+    "fit": ("neural_bake.cli.fit", "group"),
+    "bake": ("neural_bake.cli.bake", "command"),
+    "bench": ("neural_bake.cli.bench", "group"),
+}
+
+
+@click.group(cls=LazyGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="neural-bake")
+def cli():
+    """Neural normal and texture baking: fit neural fields to a mesh, bake them onto a coarse mesh.
+
+    \b
+    Typical run:
+      neural-bake samples --out samples/
+      neural-bake inspect samples/bumpy_sphere.obj
+      neural-bake fit sdf samples/bumpy_sphere.obj -o bumpy.sdf
+      neural-bake bake samples/bumpy_sphere.obj --sdf bumpy.sdf --coarse decimate:2000 -o out/
+    """
+
+
+def _format_warning(message, category, filename, lineno, line=None):
+    return f"neural-bake: warning: {message}\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 ok, 1 internal failure, 2 user error)."""
+    warnings.formatwarning = _format_warning
+    warnings.simplefilter("always", NeuralBakeWarning)
+    try:
+        cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("neural-bake: aborted", err=True)
+        return 130
+    except click.exceptions.ClickException as exc:  # usage errors: click's own message, exit 2
+        exc.show()
+        return exc.exit_code
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except NeuralBakeError as exc:
+        click.echo(f"neural-bake: error: {exc}", err=True)
+        return 2
+    except KeyboardInterrupt:
+        click.echo("neural-bake: interrupted", err=True)
+        return 130
+    return 0
+
+
+def entry() -> None:  # pragma: no cover - console script wrapper
+    sys.exit(main())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    entry()

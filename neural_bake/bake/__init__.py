@@ -1,0 +1,1 @@
+"""Baking: per-vertex and per-texel normals and colours, padding, export, baseline, quality report."""

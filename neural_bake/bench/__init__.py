@@ -1,0 +1,1 @@
+"""Benchmarks behind `neural-bake bench …`: each prints accuracy against time beside its baseline."""

@@ -1,0 +1,19 @@
+"""Tolerances and conventions in one place (trimesh's ``constants.py`` idea)."""
+
+from __future__ import annotations
+
+#: Longest side of the normalised bounding box: meshes are scaled so it measures this, centred at 0,
+#: so the unit frame leaves a margin inside the cube [-1, 1]^3 (DESIGN.md, "Frame").
+UNIT_FRAME_EXTENT = 1.8
+
+#: A face whose area (in the unit frame) is below this is degenerate: excluded from sampling.
+DEGENERATE_AREA = 1e-12
+
+#: |∇f| below this is a zero gradient: the normal is invalid (masked), never NaN.
+GRAD_EPS = 1e-8
+
+#: Default ω0 of a SIREN's first layer (Sitzmann et al.).
+DEFAULT_OMEGA_0 = 30.0
+
+#: UV policies for coordinates outside [0, 1].
+UV_POLICIES = ("wrap", "clamp")

@@ -1,0 +1,1 @@
+"""Fitting: sampling, SDF fitting, nested sequences (δ), texture fitting."""

@@ -1,0 +1,1 @@
+"""Reading and writing: meshes (trimesh), images (OpenImageIO), atomic writes, colour spaces."""

@@ -1,0 +1,1 @@
+"""Coarse meshes: decimation, marching cubes, UV unwrap, texel rasterisation, tangent frames."""

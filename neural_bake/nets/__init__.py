@@ -1,0 +1,1 @@
+"""Networks: Siren, GEMM normals (closed-form gradients), range analysis, model files."""

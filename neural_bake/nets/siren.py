@@ -1,0 +1,102 @@
+"""SIREN: the sine MLP of Sitzmann et al. (2020), in the papers' (W, D) notation."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from ..constants import DEFAULT_OMEGA_0
+
+__all__ = ["Siren"]
+
+
+class Siren(nn.Module):
+    """A sine MLP ``R^in_dim -> R^out_dim``.
+
+    ``depth`` hidden ``width``×``width`` matrices, i.e. ``depth + 1`` hidden layers of ``width``:
+    (64, 1) has two hidden layers of 64, (256, 3) has four of 256. Layer i computes
+    ``sin(ω_i (W_i x + b_i))`` with ω_0 = ``omega_0`` on the first layer and ``hidden_omega`` after it;
+    the output layer is linear. Initialisation as Sitzmann et al.: first layer U(-1/in, 1/in), later layers
+    U(-√(6/n)/ω, √(6/n)/ω), so every pre-activation is about unit-variance.
+
+    Works on any device and dtype (``.to(...)``); inputs are (N, in_dim) tensors, outputs (N, out_dim).
+    :meth:`affine_layers` gives the weights with ω folded in — the form GEMM normals and range analysis use,
+    where every hidden layer is plain ``sin(W x + b)``.
+    """
+
+    def __init__(
+        self,
+        width: int = 256,
+        depth: int = 3,
+        in_dim: int = 3,
+        out_dim: int = 1,
+        omega_0: float = DEFAULT_OMEGA_0,
+        hidden_omega: float = DEFAULT_OMEGA_0,
+        *,
+        generator: torch.Generator | None = None,
+    ):
+        super().__init__()
+        for name, v in (("width", width), ("in_dim", in_dim), ("out_dim", out_dim)):
+            if int(v) != v or v < 1:
+                raise ValueError(f"Siren: {name} must be a positive integer, got {v!r}")
+        if int(depth) != depth or depth < 0:
+            raise ValueError(f"Siren: depth must be a non-negative integer, got {depth!r}")
+        if not (math.isfinite(omega_0) and omega_0 > 0 and math.isfinite(hidden_omega) and hidden_omega > 0):
+            raise ValueError(f"Siren: omega_0 and hidden_omega must be positive, got {omega_0!r}, {hidden_omega!r}")
+        self.width, self.depth = int(width), int(depth)
+        self.in_dim, self.out_dim = int(in_dim), int(out_dim)
+        self.omega_0, self.hidden_omega = float(omega_0), float(hidden_omega)
+        dims = [self.in_dim] + [self.width] * (self.depth + 1) + [self.out_dim]
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
+        self.reset_parameters(generator)
+
+    @property
+    def omegas(self) -> list[float]:
+        """ω of each layer (1.0 for the linear output layer)."""
+        return [self.omega_0] + [self.hidden_omega] * self.depth + [1.0]
+
+    @property
+    def architecture(self) -> dict:
+        """The constructor arguments: what a model file stores to rebuild this network."""
+        return {
+            "width": self.width,
+            "depth": self.depth,
+            "in_dim": self.in_dim,
+            "out_dim": self.out_dim,
+            "omega_0": self.omega_0,
+            "hidden_omega": self.hidden_omega,
+        }
+
+    @torch.no_grad()
+    def reset_parameters(self, generator: torch.Generator | None = None) -> None:
+        """Sitzmann et al.'s initialisation (reproducible with ``generator``)."""
+        for i, layer in enumerate(self.layers):
+            fan_in = layer.in_features
+            if i == 0:
+                bound_w = 1.0 / fan_in
+            else:
+                bound_w = math.sqrt(6.0 / fan_in) / self.omegas[i - 1 if i == len(self.layers) - 1 else i]
+            layer.weight.uniform_(-bound_w, bound_w, generator=generator)
+            layer.bias.uniform_(-1.0 / math.sqrt(fan_in), 1.0 / math.sqrt(fan_in), generator=generator)
+
+    def affine_layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """[(W_i, b_i)] with ω folded in: hidden layer i is ``sin(x @ W_i.T + b_i)``, the last is linear.
+
+        Differentiable with respect to the parameters (used inside training losses).
+        """
+        return [(layer.weight * w, layer.bias * w) for layer, w in zip(self.layers, self.omegas)]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.shape[-1] != self.in_dim:
+            raise ValueError(f"Siren: expected points of shape (N, {self.in_dim}), got {tuple(x.shape)}")
+        layers = self.affine_layers()
+        h = x
+        for w, b in layers[:-1]:
+            h = torch.sin(torch.addmm(b, h, w.t()) if h.dim() == 2 else h @ w.t() + b)
+        w, b = layers[-1]
+        return torch.addmm(b, h, w.t()) if h.dim() == 2 else h @ w.t() + b
+
+    def extra_repr(self) -> str:
+        return f"(W, D) = ({self.width}, {self.depth}), in={self.in_dim}, out={self.out_dim}, ω0={self.omega_0:g}"

@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# Set up neural-bake in a virtual environment: the system library open3d needs, the right torch build,
+# then the package with its test extras (editable). Safe to run again: it only installs what is missing.
+#   usage: scripts/setup.sh [VENV_DIR]      (default .venv; PYTHON=python3.11 to choose the interpreter)
+set -euo pipefail
+VENV=${1:-.venv}
+PYTHON=${PYTHON:-python3}
+cd "$(dirname "$0")/.."
+
+say() { printf 'setup: %s\n' "$*"; }
+
+# 1. open3d links against libusb-1.0 (Debian/Ubuntu package libusb-1.0-0).
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    say "installing libusb-1.0-0 (needed by open3d)"
+    $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+  else
+    say "warning: libusb-1.0 not found and no apt-get; install it with your package manager (open3d needs it)"
+  fi
+fi
+
+# 2. The virtual environment.
+if [ ! -x "$VENV/bin/python" ]; then
+  say "creating $VENV with $($PYTHON --version)"
+  "$PYTHON" -m venv "$VENV"
+fi
+PIP=("$VENV/bin/python" -m pip install --disable-pip-version-check -q)
+
+# 3. torch: the CPU build where no NVIDIA GPU is present (an unpinned torch pulls a CUDA build of GBs).
+if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
+  if command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; then
+    say "NVIDIA GPU found: installing torch with CUDA"
+    "${PIP[@]}" "torch>=2.3"
+  else
+    say "no GPU: installing the CPU build torch==2.13.0+cpu"
+    "${PIP[@]}" "torch==2.13.0" --extra-index-url https://download.pytorch.org/whl/cpu
+  fi
+fi
+
+# 4. The package (editable, so the checkout is what runs) and the test tools.
+say "installing neural-bake and its dependencies"
+"${PIP[@]}" -e ".[test]"
+"$VENV/bin/python" -c "import open3d, torch, OpenImageIO, pymeshlab, xatlas; print('setup: ok: torch', torch.__version__)"
