@@ -1,0 +1,46 @@
+"""`neural-bake bench …`: one sub-verb per capability; each takes --quick and --json PATH."""
+
+from __future__ import annotations
+
+import click
+
+from .main import LazyGroup
+
+BENCHES = {
+    "sampling": ("neural_bake.cli.bench_sampling", "command"),
+    "normals": ("neural_bake.cli.bench_normals", "command"),
+    "range": ("neural_bake.cli.bench_range", "command"),
+    "fit": ("neural_bake.cli.bench_fit", "command"),
+    "texture": ("neural_bake.cli.bench_texture", "command"),
+    "bake": ("neural_bake.cli.bench_bake", "command"),
+}
+
+
+@click.group(cls=LazyGroup, lazy=BENCHES)
+def group():
+    """Benchmarks: accuracy against time, beside the baseline a user would otherwise pick."""
+
+
+def bench_options(fn):
+    """The options every bench verb takes: --quick and --json PATH."""
+    fn = click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+                      help="Also write the figures as JSON to this file.")(fn)
+    fn = click.option("--quick", is_flag=True, help="A shrunken run (under two minutes) for smoke checks.")(fn)
+    return fn
+
+
+def report(result: dict, json_path: str | None, columns=None) -> None:
+    """Print a benchmark result's table (and notes) and write its JSON when asked."""
+    from neural_bake.bench.common import format_table, write_json
+
+    title = result.get("title", result.get("name", "benchmark"))
+    click.echo(f"== {title} ==")
+    for table_name, rows in result.get("tables", {"": result.get("rows", [])}).items():
+        if table_name:
+            click.echo(f"-- {table_name}")
+        click.echo(format_table(rows, columns))
+    for note in result.get("notes", []):
+        click.echo(f"note: {note}")
+    if json_path:
+        write_json(json_path, result)
+        click.echo(f"wrote {json_path}")

@@ -1,0 +1,88 @@
+"""Shared pieces of the benchmarks: timing, tables, JSON output, machine description.
+
+Every benchmark returns a dict ``{"name", "machine", "quick", "rows": [...], ...}``; the CLI prints it
+with :func:`format_table` and writes it with :func:`write_json` when ``--json PATH`` is given.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from typing import Callable, Sequence
+
+import torch
+
+from ..io.atomic import atomic_write_text
+
+__all__ = ["timeit", "format_table", "write_json", "machine_info"]
+
+
+def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time: float = 0.0) -> float:
+    """Best wall time in seconds of ``fn()`` over ``repeat`` runs after ``warmup`` runs.
+
+    The best (not the mean) of several runs is the least disturbed by other work on the machine.
+    ``min_time`` > 0 repeats until that many seconds have been spent, at least ``repeat`` times.
+    """
+    for _ in range(warmup):
+        fn()
+    best, spent, n = float("inf"), 0.0, 0
+    while n < repeat or spent < min_time:
+        t0 = time.perf_counter()
+        fn()
+        dt = time.perf_counter() - t0
+        best, spent, n = min(best, dt), spent + dt, n + 1
+    return best
+
+
+def machine_info() -> dict:
+    """What the figures were measured on."""
+    return {
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+    }
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        if v != v:
+            return "nan"
+        a = abs(v)
+        if a == 0:
+            return "0"
+        if a >= 1e5 or a < 1e-3:
+            return f"{v:.3g}"
+        if a >= 100:
+            return f"{v:.0f}"
+        return f"{v:.4g}"
+    return str(v)
+
+
+def format_table(rows: Sequence[dict], columns: Sequence[str] | None = None) -> str:
+    """A plain-text table of ``rows`` (dicts), columns in the given order (default: first row's keys)."""
+    if not rows:
+        return "(no rows)"
+    columns = list(columns or rows[0].keys())
+    cells = [[_fmt(r.get(c, "")) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(columns)]
+    line = "  ".join(c.rjust(w) for c, w in zip(columns, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(v.rjust(w) for v, w in zip(row, widths)) for row in cells]
+    return "\n".join([line, sep, *body])
+
+
+def write_json(path: str | os.PathLike, result: dict) -> None:
+    """Write a benchmark's result atomically as indented JSON."""
+    atomic_write_text(path, json.dumps(result, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(o):
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if hasattr(o, "item"):
+        return o.item()
+    return str(o)
