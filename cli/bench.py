@@ -44,3 +44,22 @@ def report(result: dict, json_path: str | None, columns=None) -> None:
     if json_path:
         write_json(json_path, result)
         click.echo(f"wrote {json_path}")
+
+
+@group.command("all")
+@bench_options
+def run_all(quick: bool, json_path: str | None):
+    """Run every benchmark in turn (use --quick for a smoke check of all of them)."""
+    import importlib
+
+    results = {}
+    for name in BENCHES:
+        bench_module = importlib.import_module(f"neural_bake.bench.{name}")
+        result = bench_module.run(quick=quick)
+        report(result, None)
+        results[name] = result
+    if json_path:
+        from neural_bake.bench.common import write_json
+
+        write_json(json_path, results)
+        click.echo(f"wrote {json_path}")
