@@ -1,0 +1,175 @@
+"""The shared training loop: reproducibility, resume, budgets, divergence recovery, keep-best."""
+
+import math
+
+import pytest
+import torch
+
+from neural_bake.errors import FitError, NeuralBakeWarning
+from neural_bake.fit.training import LoopConfig, load_checkpoint, step_generator, train
+
+
+def _problem(seed=0):
+    """A tiny regression: a 2-layer MLP to sin(3x) on random points drawn per step."""
+    torch.manual_seed(seed)
+    model = torch.nn.Sequential(torch.nn.Linear(1, 16), torch.nn.Tanh(), torch.nn.Linear(16, 1))
+
+    def step_fn(step, gen):
+        x = torch.rand(64, 1, generator=gen) * 2 - 1
+        mse = ((model(x) - torch.sin(3 * x)) ** 2).mean()
+        return {"loss": mse, "mse": mse}
+
+    return model, step_fn
+
+
+def _weights(model):
+    return torch.cat([p.detach().flatten() for p in model.parameters()])
+
+
+def test_loss_decreases_and_history_is_logged():
+    model, step_fn = _problem()
+    res = train(model, step_fn, LoopConfig(steps=300, lr=3e-2, progress=False, log_every=50))
+    assert res.steps == 300 and res.stopped_reason == "steps"
+    assert [h["step"] for h in res.history] == [1, 50, 100, 150, 200, 250, 300]
+    assert res.history[-1]["mse"] < 0.25 * res.history[0]["mse"]
+    assert all(set(h) >= {"step", "seconds", "lr", "loss", "mse"} for h in res.history)
+
+
+def test_seed_reproduces_and_differs():
+    a, fa = _problem()
+    b, fb = _problem()
+    c, fc = _problem()
+    train(a, fa, LoopConfig(steps=40, lr=1e-2, seed=3, progress=False))
+    train(b, fb, LoopConfig(steps=40, lr=1e-2, seed=3, progress=False))
+    train(c, fc, LoopConfig(steps=40, lr=1e-2, seed=4, progress=False))
+    assert torch.equal(_weights(a), _weights(b))
+    assert not torch.equal(_weights(a), _weights(c))
+
+
+def test_step_generator_depends_on_seed_and_step_only():
+    x = torch.rand(5, generator=step_generator(1, 7))
+    assert torch.equal(x, torch.rand(5, generator=step_generator(1, 7)))
+    assert not torch.equal(x, torch.rand(5, generator=step_generator(1, 8)))
+
+
+def test_resume_matches_uninterrupted_run(tmp_path):
+    ck = tmp_path / "run.ckpt"
+    full, ff = _problem()
+    train(full, ff, LoopConfig(steps=60, lr=1e-2, progress=False, lr_schedule="cosine"))
+    part, fp = _problem()
+    r1 = train(part, fp, LoopConfig(steps=60, lr=1e-2, progress=False, checkpoint=str(ck), checkpoint_every=25),
+               fingerprint="x")
+    assert r1.steps == 60
+    # interrupted after 25 steps: rebuild from the step-25 checkpoint written by a run that stops there
+    ck2 = tmp_path / "half.ckpt"
+    half, fh = _problem()
+    cfg = LoopConfig(steps=60, lr=1e-2, progress=False, checkpoint=str(ck2), checkpoint_every=25)
+
+    def interrupting(step, gen):
+        if step == 30:
+            raise KeyboardInterrupt
+        return fh(step, gen)
+
+    with pytest.raises(KeyboardInterrupt):
+        train(half, interrupting, cfg, fingerprint="x")
+    assert load_checkpoint(ck2)[2]["step"] == 25
+    resumed, fr = _problem(seed=99)  # different init: everything must come from the checkpoint
+    r2 = train(resumed, fr, LoopConfig(steps=60, lr=1e-2, progress=False, checkpoint=str(ck2),
+                                       checkpoint_every=25, resume=True), fingerprint="x")
+    assert r2.steps == 60
+    assert torch.allclose(_weights(resumed), _weights(full), atol=1e-6)
+
+
+def test_resume_other_run_is_refused(tmp_path):
+    ck = tmp_path / "run.ckpt"
+    m, f = _problem()
+    train(m, f, LoopConfig(steps=5, progress=False, checkpoint=str(ck)), fingerprint="a")
+    with pytest.raises(FitError, match="belongs to another run"):
+        train(m, f, LoopConfig(steps=10, progress=False, checkpoint=str(ck), resume=True), fingerprint="b")
+
+
+def test_corrupt_checkpoint_is_a_fit_error(tmp_path):
+    ck = tmp_path / "bad.ckpt"
+    ck.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(FitError, match="not a readable checkpoint"):
+        load_checkpoint(ck)
+    with pytest.raises(FitError, match="checkpoint not found"):
+        load_checkpoint(tmp_path / "missing.ckpt")
+
+
+def test_time_budget_stops():
+    m, f = _problem()
+
+    def slow(step, gen):
+        import time
+        time.sleep(0.02)
+        return f(step, gen)
+
+    res = train(m, slow, LoopConfig(steps=100000, minutes=0.5 / 60, progress=False))
+    assert res.stopped_reason == "time budget"
+    assert 0 < res.steps < 100 and res.seconds >= 0.5
+
+
+def test_transient_divergence_restores_and_halves_lr():
+    m, f = _problem()
+    state = {"fired": False}
+
+    def flaky(step, gen):
+        out = f(step, gen)
+        if step == 15 and not state["fired"]:
+            state["fired"] = True
+            return {"loss": out["loss"] * float("nan"), "mse": out["mse"]}
+        return out
+
+    with pytest.warns(NeuralBakeWarning, match=r"diverged at step 15 \(non-finite loss\); restored step 10 and "
+                                               r"halved the learning rate to 0.005"):
+        res = train(m, flaky, LoopConfig(steps=30, lr=1e-2, progress=False, snapshot_every=10,
+                                         lr_schedule="constant"))
+    assert res.restarts == 1 and res.lr == pytest.approx(5e-3) and res.steps == 30
+    assert torch.isfinite(_weights(m)).all()
+
+
+def test_persistent_divergence_raises_and_leaves_finite_weights():
+    m, f = _problem()
+
+    def exploding(step, gen):
+        out = f(step, gen)
+        return {"loss": out["loss"] * (1.0 if step < 3 else 1e9)}
+
+    with pytest.warns(NeuralBakeWarning), pytest.raises(FitError, match=r"diverged at step 3 .*after 2 "
+                                                                         r"learning-rate halvings"):
+        train(m, exploding, LoopConfig(steps=20, lr=1e-2, progress=False, max_restarts=2))
+    assert torch.isfinite(_weights(m)).all()
+
+
+def test_keep_best_restores_best_weights():
+    m, f = _problem()
+    values = iter([3.0, 1.0, 2.0, 5.0])
+    snap = {}
+
+    def evaluate():
+        v = next(values)
+        snap[v] = _weights(m).clone()
+        return v
+
+    res = train(m, f, LoopConfig(steps=40, lr=1e-2, progress=False, eval_every=10), evaluate=evaluate)
+    assert res.best_step == 20 and res.best_value == 1.0
+    assert torch.equal(_weights(m), snap[1.0])
+    assert [e["step"] for e in res.evaluations] == [10, 20, 30, 40]
+
+
+@pytest.mark.parametrize("kw, msg", [
+    ({"steps": -1}, "steps must be"), ({"lr": 0.0}, "learning rate must be positive"),
+    ({"minutes": -2.0}, "minutes must be positive"), ({"lr_schedule": "step"}, "lr_schedule"),
+    ({"resume": True}, "resume needs a checkpoint"), ({"log_every": 0}, "log_every must be"),
+])
+def test_bad_config(kw, msg):
+    m, f = _problem()
+    with pytest.raises(FitError, match=msg):
+        train(m, f, LoopConfig(progress=False, **kw))
+
+
+def test_progress_bar_runs(capsys):
+    m, f = _problem()
+    res = train(m, f, LoopConfig(steps=5, progress=True, log_every=1))
+    assert res.steps == 5 and math.isfinite(res.history[-1]["loss"])
