@@ -1,0 +1,610 @@
+"""Gradient-orthogonal neural texture fitting (§4.2 of the nested-neighbourhoods paper, issue 5).
+
+A colour SIREN ``g: R^3 -> RGB`` (linear RGB, unit frame) is trained with
+
+    L(φ) = mean_surface (g − ĝ)²  +  λ · mean_band Σ_c ⟨∇g_c, n⟩²,
+
+where ĝ is the mesh's texture (bilinear lookup through the UVs, linear RGB), the band is ``|f| ≤ δ`` around
+the zero set of a frozen SDF ``f`` and ``n = ∇f / |∇f|`` (GEMM normals, computed once under no_grad since f
+does not train). ``∇g`` is the differentiable GEMM Jacobian (3 × 3, out × in) of the colour network, so the
+second term makes the colours constant along the normal lines: a coarse surface up to δ away from the fine
+one reads the right colour. The term is real and on by default (λ > 0); λ = 0 is the ablation.
+
+Band samples: surface samples moved along their (mesh) normals by offsets uniform in [−δ, δ], plus uniform
+points of the unit cube kept where ``|f| ≤ δ`` (``band_uniform_fraction`` of each band batch).
+
+Policies for the hard cases:
+- textures with alpha: RGB is fitted and alpha is ignored (straight alpha: the RGB is the colour; a
+  :class:`NeuralBakeWarning` says so when some alpha is below 1). Nothing is premultiplied.
+- 8/16-bit textures given as integer arrays are taken as sRGB and decoded to linear; float textures are
+  linear data, fitted as they are (HDR values above 1 are kept; PSNR then uses peak 1).
+- UVs outside [0, 1] follow ``mesh.uv_policy`` ("wrap" or "clamp"), as :func:`sample_texture` does.
+- meshes without UVs or without a texture: :class:`MeshError`; non-finite texels: :class:`ImageError`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import warnings
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..constants import GRAD_EPS
+from ..errors import FitError, ImageError, MeshError, ModelFileError, NeuralBakeWarning
+from ..io.colour import sample_texture, srgb_to_linear
+from ..nets.siren import Siren
+from ..types import Frame, Mesh
+
+__all__ = [
+    "TextureFitConfig",
+    "TextureFit",
+    "PRESETS",
+    "DEFAULT_DELTA",
+    "fit_texture",
+    "texture_metrics",
+    "texture_targets",
+    "band_orthogonality",
+    "render_views",
+]
+
+#: δ (unit frame) used when neither the config nor the SDF model file gives one: 1/60 of the unit-frame
+#: extent (1.8), about the band half-width of the paper's coarse levels.
+DEFAULT_DELTA = 0.03
+
+#: An SDF as a callable: (N, 3) points -> ((N,) values, (N, 3) gradients), tensors on the points' device.
+SdfCallable = Callable[[torch.Tensor], "tuple[torch.Tensor, torch.Tensor]"]
+
+
+@dataclass
+class TextureFitConfig:
+    """Settings of :func:`fit_texture`; one line per field (the CLI help comes from these)."""
+
+    width: int = 256
+    """W: width of the colour SIREN's hidden layers."""
+    depth: int = 3
+    """D: number of hidden W×W matrices (D + 1 hidden layers); (256, 3) is the paper's fine net."""
+    omega_0: float = 30.0
+    """ω0 of the first layer (frequency of the colour field over the unit frame)."""
+    hidden_omega: float = 30.0
+    """ω of the later hidden layers."""
+    steps: int = 2000
+    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
+    minutes: float | None = None
+    """Wall-time budget in minutes (None: no budget, run ``steps``)."""
+    batch: int = 4096
+    """Surface samples per step (colour term)."""
+    band_batch: int | None = None
+    """Band samples per step (orthogonality term); None: same as ``batch``."""
+    lr: float = 1e-4
+    """Initial Adam learning rate (halved on each divergence recovery)."""
+    lr_schedule: str = "cosine"
+    """"constant" or "cosine" decay over the steps or the time budget."""
+    lam: float = 0.01
+    """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (> 0 by default; 0 switches it off)."""
+    delta: float | None = None
+    """δ: band half-width in the unit frame; None: the SDF model file's "delta", else DEFAULT_DELTA."""
+    band_uniform_fraction: float = 0.25
+    """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
+    pool: int = 200_000
+    """Surface samples drawn once and batched from (the band pool is built from the same points)."""
+    seed: int = 0
+    """Seed of the initialisation, the samples and the batches (same seed, same run)."""
+    checkpoint: str | None = None
+    """Checkpoint file (safetensors, weights + optimiser) written every ``checkpoint_every`` steps; None: none."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints."""
+    resume: bool = False
+    """Continue from ``checkpoint`` if that file exists (same mesh, network and settings)."""
+    log_every: int = 50
+    """Steps between history entries."""
+    max_restarts: int = 4
+    """Divergence recoveries (restore the last snapshot, halve lr) before giving up with FitError."""
+    progress: bool = False
+    """Show a progress bar on stderr."""
+    device: str = "cpu"
+    """Torch device for training."""
+    dtype: str = "float32"
+    """Torch dtype for training ("float32" or "float64")."""
+
+
+#: Named presets (fields overridden on top of the defaults). Times are wall-time budgets on this project's
+#: shared 2-core CPU; ``steps`` is an upper bound that a faster machine reaches first.
+PRESETS: dict[str, dict] = {
+    "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 3000, "batch": 2048, "lr": 5e-4},
+    "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 6000, "batch": 4096, "lr": 2e-4},
+    "fine": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 10000, "batch": 4096, "lr": 1e-4},
+}
+
+
+@dataclass
+class TextureFit:
+    """The result of :func:`fit_texture`.
+
+    - ``model``: the colour :class:`Siren` (in 3, out 3), unit-frame points -> linear RGB.
+    - ``frame``: the mesh's frame (unit <-> source); the model works in the unit frame.
+    - ``delta``, ``lam``: the band half-width and λ used.
+    - ``config``: the full :class:`TextureFitConfig`.
+    - ``history``: one dict per logged step: step, seconds, lr, loss, colour (MSE), orth (mean Σ_c ⟨∇g_c,n⟩²;
+      absent when λ = 0).
+    - ``steps``, ``seconds``: steps done and wall time; ``stopped_reason``: "steps" or "time budget";
+      ``restarts``: divergence recoveries (each halved the learning rate).
+    """
+
+    model: Siren
+    frame: Frame
+    delta: float
+    lam: float
+    config: TextureFitConfig
+    history: list[dict] = field(default_factory=list)
+    steps: int = 0
+    seconds: float = 0.0
+    stopped_reason: str = "steps"
+    restarts: int = 0
+
+    def metadata(self) -> dict:
+        """The JSON metadata stored with the model file."""
+        return _metadata(self.frame, self.delta, self.lam, self.config, self.steps)
+
+    def save(self, path) -> Path:
+        """Write the model file (safetensors + metadata kind="texture", frame, delta, lam, config)."""
+        from ..nets.model_io import save_model
+
+        save_model(self.model, path, **self.metadata())
+        return Path(path)
+
+
+def _metadata(frame: Frame, delta: float, lam: float, config: TextureFitConfig, steps: int) -> dict:
+    cfg = asdict(config)
+    return {"kind": "texture", "frame": frame.to_dict(), "delta": float(delta), "lam": float(lam),
+            "config": cfg, "steps": int(steps)}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# inputs: texture, SDF
+
+
+def _texture_rgb(mesh: Mesh, texture: np.ndarray | None) -> np.ndarray:
+    """The RGB texture to fit, float32/64 linear (H, W, 3); applies the alpha and bit-depth policies."""
+    if mesh.uv is None:
+        raise MeshError(f"{mesh.name}: mesh has no UV coordinates; texture fitting needs UVs and a texture")
+    tex = mesh.texture if texture is None else texture
+    if tex is None:
+        raise MeshError(f"{mesh.name}: mesh has no texture image; pass one (--texture IMG) to fit a texture")
+    tex = np.asarray(tex)
+    if tex.ndim == 2:
+        tex = tex[:, :, None]
+    if tex.ndim != 3 or tex.shape[2] not in (1, 2, 3, 4) or tex.shape[0] < 1 or tex.shape[1] < 1:
+        raise ImageError(f"{mesh.name}: texture must be (H, W, C) with C in 1..4, got shape {tex.shape}")
+    if np.issubdtype(tex.dtype, np.integer):
+        peak = float(np.iinfo(tex.dtype).max)
+        tex = srgb_to_linear(tex.astype(np.float32) / peak)
+    elif not np.issubdtype(tex.dtype, np.floating):
+        raise ImageError(f"{mesh.name}: texture has unsupported dtype {tex.dtype}")
+    c = tex.shape[2]
+    if c in (2, 4):
+        alpha = tex[:, :, -1]
+        if np.isfinite(alpha).all() and float(alpha.min()) < 1.0:
+            warnings.warn(f"{mesh.name}: texture has alpha below 1; fitting RGB only (alpha ignored, "
+                          "not premultiplied)", NeuralBakeWarning, stacklevel=3)
+        tex = tex[:, :, :-1]
+    if tex.shape[2] == 1:
+        tex = np.repeat(tex, 3, axis=2)
+    if not np.isfinite(tex).all():
+        bad = int((~np.isfinite(tex)).any(axis=2).sum())
+        raise ImageError(f"{mesh.name}: texture has {bad} texels with NaN or infinite values")
+    return tex
+
+
+class _Sdf:
+    """A frozen SDF: a Siren (GEMM normals) or a callable returning (values, gradients)."""
+
+    def __init__(self, sdf_model, meta: dict | None = None):
+        self.meta = dict(meta or {})
+        self.model = sdf_model
+        if isinstance(sdf_model, torch.nn.Module):
+            if getattr(sdf_model, "out_dim", 1) != 1 or getattr(sdf_model, "in_dim", 3) != 3:
+                raise FitError(f"sdf model: expected a scalar field of 3-D points, got in={sdf_model.in_dim}, "
+                               f"out={sdf_model.out_dim}")
+            p = next(sdf_model.parameters(), None)
+            self.device = p.device if p is not None else torch.device("cpu")
+            self.dtype = p.dtype if p is not None else torch.float32
+        elif callable(sdf_model):
+            self.device, self.dtype = None, None
+        else:
+            raise FitError(f"sdf model: expected a Siren, a model file path or a callable, got "
+                           f"{type(sdf_model).__name__}")
+
+    @torch.no_grad()
+    def __call__(self, points: torch.Tensor, chunk: int = 65536) -> tuple[torch.Tensor, torch.Tensor]:
+        """(N, 3) points -> ((N,) values, (N, 3) gradients) in the points' dtype and device."""
+        outs_v, outs_g = [], []
+        for i in range(0, points.shape[0], chunk):
+            x = points[i:i + chunk]
+            if self.device is not None:
+                v, g = _gemm_gradient(self.model, x.to(self.device, self.dtype))
+            else:
+                v, g = self.model(x)
+            outs_v.append(v.reshape(-1).to(points.device, points.dtype))
+            outs_g.append(g.reshape(-1, 3).to(points.device, points.dtype))
+        if not outs_v:
+            return points.new_zeros(0), points.new_zeros(0, 3)
+        return torch.cat(outs_v), torch.cat(outs_g)
+
+
+def _load_sdf(sdf_model) -> _Sdf:
+    if isinstance(sdf_model, (str, Path)):
+        from ..nets.model_io import load_model
+
+        model, meta = load_model(sdf_model)
+        kind = meta.get("kind")
+        if kind not in (None, "sdf"):
+            raise ModelFileError(f"{sdf_model}: expected an SDF model file (kind 'sdf'), got kind {kind!r}")
+        return _Sdf(model, meta)
+    return _Sdf(sdf_model)
+
+
+def _gemm_gradient(model, points, *, differentiable=False):
+    from ..nets.gemm import gemm_gradient
+
+    return gemm_gradient(model, points, differentiable=differentiable)
+
+
+def _unit_normals(grads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normalised gradients (N, 3) and the validity mask (N,) (|∇f| ≥ GRAD_EPS); invalid rows are zero."""
+    from ..nets.gemm import normalized_gradient
+
+    return normalized_gradient(grads, GRAD_EPS)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# samples
+
+
+def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None) -> dict:
+    """Area-uniform surface samples of ``mesh`` with their texture colours.
+
+    Returns float32 numpy arrays, unit frame: ``points`` (n, 3), ``normals`` (n, 3) unit outward mesh
+    normals, ``uv`` (n, 2), ``colors`` (n, 3) linear RGB (bilinear lookup, ``mesh.uv_policy`` for UVs outside
+    [0, 1], alpha ignored), ``face_index`` (n,) int64.
+    """
+    rgb = _texture_rgb(mesh, texture)
+    from .sampling import sample_surface
+
+    s = sample_surface(mesh, int(n), seed=seed)
+    colors = sample_texture(rgb, np.asarray(s.uv, dtype=np.float64), mesh.uv_policy).astype(np.float32)
+    return {
+        "points": np.asarray(s.points, dtype=np.float32),
+        "normals": np.asarray(s.normals, dtype=np.float32),
+        "uv": np.asarray(s.uv, dtype=np.float32),
+        "colors": colors,
+        "face_index": np.asarray(s.face_index, dtype=np.int64),
+    }
+
+
+def _band_pool(points, normals, sdf: _Sdf, delta: float, n_uniform: int, gen: torch.Generator):
+    """Band points (surface ± U[−δ, δ]·normal, and uniform points with |f| ≤ δ) with their unit ∇f."""
+    t = (torch.rand(points.shape[0], 1, generator=gen, dtype=points.dtype) * 2 - 1) * delta
+    offset = points + t * normals
+    uni = torch.rand(n_uniform, 3, generator=gen, dtype=points.dtype) * 2 - 1
+    fu, _ = sdf(uni)
+    uni = uni[fu.abs() <= delta]
+    _, g_off = sdf(offset)
+    n_off, v_off = _unit_normals(g_off)
+    if uni.shape[0]:
+        _, g_uni = sdf(uni)
+        n_uni, v_uni = _unit_normals(g_uni)
+    else:
+        n_uni, v_uni = uni.new_zeros(0, 3), torch.zeros(0, dtype=torch.bool)
+    return offset[v_off], n_off[v_off], uni[v_uni], n_uni[v_uni]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# loss
+
+
+def band_orthogonality(model: Siren, points: torch.Tensor, normals: torch.Tensor,
+                       *, differentiable: bool = True) -> torch.Tensor:
+    """Per-point Σ_c ⟨∇g_c(p), n(p)⟩² of the colour net ``model`` (out_dim 3) at ``points``.
+
+    - ``points``: (N, 3) unit frame; ``normals``: (N, 3) the unit ∇f there (zero rows count as 0).
+    - ∇g is the GEMM Jacobian (N, 3, 3) (out, in); ``differentiable=True`` keeps the graph to the weights.
+
+    Returns (N,) in the points' dtype.
+    """
+    _, jac = _gemm_gradient(model, points, differentiable=differentiable)
+    d = torch.einsum("noi,ni->no", jac.reshape(points.shape[0], -1, 3), normals)
+    return (d * d).sum(dim=1)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# fitting
+
+
+def _resolve_config(config: TextureFitConfig | None, overrides: dict) -> TextureFitConfig:
+    config = config or TextureFitConfig()
+    preset = overrides.pop("preset", None)
+    if preset is not None:
+        if preset not in PRESETS:
+            raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        config = replace(config, **PRESETS[preset])
+    names = {f.name for f in fields(TextureFitConfig)}
+    bad = sorted(set(overrides) - names)
+    if bad:
+        raise FitError(f"fit_texture: unknown option {bad[0]!r}")
+    config = replace(config, **overrides)
+    _validate(config)
+    return config
+
+
+def _validate(c: TextureFitConfig) -> None:
+    def positive_int(name):
+        v = getattr(c, name)
+        if isinstance(v, bool) or int(v) != v or v < 1:
+            raise FitError(f"{name}: must be a positive integer, got {v!r}")
+
+    for name in ("width", "steps", "batch", "pool", "checkpoint_every", "log_every"):
+        positive_int(name)
+    if c.band_batch is not None:
+        positive_int("band_batch")
+    if isinstance(c.depth, bool) or int(c.depth) != c.depth or c.depth < 0:
+        raise FitError(f"depth: must be a non-negative integer, got {c.depth!r}")
+    for name in ("omega_0", "hidden_omega", "lr"):
+        v = getattr(c, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise FitError(f"{name}: must be a positive number, got {v!r}")
+    if not (isinstance(c.lam, (int, float)) and math.isfinite(c.lam) and c.lam >= 0):
+        raise FitError(f"lam: must be a finite number >= 0, got {c.lam!r}")
+    if c.delta is not None and not (math.isfinite(c.delta) and 0 < c.delta <= 1):
+        raise FitError(f"delta: must be in (0, 1] (unit frame), got {c.delta!r}")
+    if c.minutes is not None and not (math.isfinite(c.minutes) and c.minutes > 0):
+        raise FitError(f"minutes: must be a positive number, got {c.minutes!r}")
+    if not 0 <= c.band_uniform_fraction <= 1:
+        raise FitError(f"band_uniform_fraction: must be in [0, 1], got {c.band_uniform_fraction!r}")
+    if c.dtype not in ("float32", "float64"):
+        raise FitError(f"dtype: must be 'float32' or 'float64', got {c.dtype!r}")
+    if isinstance(c.max_restarts, bool) or int(c.max_restarts) != c.max_restarts or c.max_restarts < 0:
+        raise FitError(f"max_restarts: must be a non-negative integer, got {c.max_restarts!r}")
+    if c.lr_schedule not in ("constant", "cosine"):
+        raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
+
+
+def _resolve_delta(config: TextureFitConfig, sdf: _Sdf) -> float:
+    if config.delta is not None:
+        return float(config.delta)
+    d = sdf.meta.get("delta")
+    if d is not None:
+        try:
+            d = float(d)
+        except (TypeError, ValueError):
+            d = None
+        if d is not None and math.isfinite(d) and d > 0:
+            return d
+    return DEFAULT_DELTA
+
+
+def _check_frames(mesh: Mesh, sdf: _Sdf, name: str) -> None:
+    fr = sdf.meta.get("frame")
+    if not fr:
+        return
+    try:
+        f = Frame.from_dict(fr)
+    except (KeyError, TypeError, ValueError):
+        raise ModelFileError(f"{name}: model file has an unreadable 'frame' entry") from None
+    if not (np.allclose(f.center, mesh.frame.center, rtol=1e-5, atol=1e-6)
+            and math.isclose(f.scale, mesh.frame.scale, rel_tol=1e-5)):
+        raise FitError(f"{name}: the SDF was fitted in another frame than {mesh.name} "
+                       f"(scale {f.scale:g} vs {mesh.frame.scale:g}); fit the SDF on this mesh")
+
+
+def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *,
+                texture: np.ndarray | None = None, callback: Callable[[dict], None] | None = None,
+                **overrides) -> TextureFit:
+    """Fit a gradient-orthogonal colour SIREN to ``mesh``'s texture in the δ-band of ``sdf_model``.
+
+    - ``mesh``: a :class:`Mesh` (unit frame) with ``uv`` and ``texture`` (else :class:`MeshError`).
+    - ``sdf_model``: the frozen fine SDF f, unit frame: a scalar :class:`Siren`, a model file path (kind
+      "sdf"; its "delta" is the default δ and its "frame" must be the mesh's), or a callable
+      ``points (N, 3) -> (values (N,), grads (N, 3))`` (analytic SDFs, tests).
+    - ``config`` / ``**overrides``: a :class:`TextureFitConfig`, fields overridden by keyword;
+      ``preset="fast" | "medium" | "fine"`` applies :data:`PRESETS` first (then the other overrides).
+    - ``texture``: an (H, W, C) image used instead of ``mesh.texture`` (integer arrays are sRGB, float linear).
+    - ``callback``: called with each logged history row (progress reporting).
+
+    The loop is :func:`neural_bake.fit.training.train` (time budget, per-step seeds, checkpoints and
+    resume, divergence recovery with learning-rate halving). Returns a :class:`TextureFit`; raises
+    :class:`FitError` when training diverges for good or there are no band samples.
+    """
+    from .training import LoopConfig, train
+
+    overrides = dict(overrides)
+    config = _resolve_config(config, overrides)
+    rgb = _texture_rgb(mesh, texture)
+    sdf_name = str(sdf_model) if isinstance(sdf_model, (str, Path)) else "sdf model"
+    sdf = _load_sdf(sdf_model)
+    _check_frames(mesh, sdf, sdf_name)
+    delta = _resolve_delta(config, sdf)
+    device, dtype = torch.device(config.device), getattr(torch, config.dtype)
+
+    init_gen = torch.Generator().manual_seed(int(config.seed))
+    model = Siren(config.width, config.depth, 3, 3, config.omega_0, config.hidden_omega, generator=init_gen)
+    model = model.to(device, dtype)
+
+    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb)
+    pts = torch.as_tensor(samples["points"], dtype=torch.float64)
+    nrm = torch.as_tensor(samples["normals"], dtype=torch.float64)
+    col = torch.as_tensor(samples["colors"]).to(device, dtype)
+    pool_gen = torch.Generator().manual_seed(int(config.seed) + 1)
+    band_off, band_off_n, band_uni, band_uni_n = _band_pool(pts, nrm, sdf, delta, config.pool, pool_gen)
+    if config.lam > 0 and band_off.shape[0] == 0:
+        raise FitError(f"{mesh.name}: no band samples with a valid SDF gradient (is the SDF fitted to this mesh?)")
+    pts = pts.to(device, dtype)
+    band_off, band_off_n = band_off.to(device, dtype), band_off_n.to(device, dtype)
+    band_uni, band_uni_n = band_uni.to(device, dtype), band_uni_n.to(device, dtype)
+
+    bb = config.band_batch or config.batch
+    n_uni = int(round(bb * config.band_uniform_fraction)) if band_uni.shape[0] else 0
+    n_off = bb - n_uni
+    lam = float(config.lam)
+
+    def step_fn(step: int, gen: torch.Generator) -> dict:
+        i = torch.randint(0, pts.shape[0], (config.batch,), generator=gen, device=device)
+        colour = ((model(pts[i]) - col[i]) ** 2).mean()
+        if lam == 0:
+            return {"loss": colour, "colour": colour}
+        j = torch.randint(0, band_off.shape[0], (n_off,), generator=gen, device=device)
+        bp, bn = band_off[j], band_off_n[j]
+        if n_uni:
+            k = torch.randint(0, band_uni.shape[0], (n_uni,), generator=gen, device=device)
+            bp, bn = torch.cat([bp, band_uni[k]]), torch.cat([bn, band_uni_n[k]])
+        orth = band_orthogonality(model, bp, bn).mean()
+        return {"loss": colour + lam * orth, "colour": colour, "orth": orth}
+
+    loop = LoopConfig(
+        steps=int(config.steps), minutes=config.minutes, lr=float(config.lr), lr_schedule=config.lr_schedule,
+        seed=int(config.seed), checkpoint=config.checkpoint, checkpoint_every=int(config.checkpoint_every),
+        resume=bool(config.resume), progress=bool(config.progress), log_every=int(config.log_every),
+        max_restarts=int(config.max_restarts), desc=f"fit texture {mesh.name}",
+    )
+    fingerprint = json.dumps({"kind": "texture", "mesh": mesh.name, "faces": mesh.n_faces,
+                              "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
+                              "pool": config.pool, "seed": config.seed}, sort_keys=True)
+    result = train(model, step_fn, loop, fingerprint=fingerprint,
+                   metadata=_metadata(mesh.frame, delta, lam, config, 0), on_log=callback)
+    model.eval()
+    return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
+                      history=result.history, steps=result.steps, seconds=result.seconds,
+                      stopped_reason=result.stopped_reason, restarts=result.restarts)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# metrics
+
+
+@torch.no_grad()
+def _eval(model, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    """(N, 3) float64 colours of a Siren (its dtype and device) or a callable (float64 CPU tensors)."""
+    p = next(model.parameters()) if isinstance(model, torch.nn.Module) else None
+    dtype, device = (p.dtype, p.device) if p is not None else (torch.float64, torch.device("cpu"))
+    out = []
+    for i in range(0, len(points), chunk):
+        x = torch.as_tensor(np.asarray(points[i:i + chunk]), dtype=dtype, device=device)
+        out.append(torch.as_tensor(model(x)).reshape(-1, 3).to(torch.float64).cpu().numpy())
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _psnr(mse: float) -> float:
+    return float("inf") if mse <= 0 else float(10.0 * math.log10(1.0 / mse))
+
+
+def render_views(mesh: Mesh, n_views: int = 6, resolution: int = 128) -> list[dict]:
+    """Ray-cast the ground-truth mesh (unit frame) from ``n_views`` orthographic views around it.
+
+    Views look at the origin from directions spread on a sphere (Fibonacci lattice); each image covers
+    [-1, 1]² of the view plane. Returns one dict per view: ``direction`` (3,), ``points`` (M, 3) hit points,
+    ``face_index`` (M,), ``bary`` (M, 3) barycentrics, ``pixels`` (M,) flat pixel indices of the hits, and
+    ``resolution``. Uses open3d's ``RaycastingScene``.
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    views = []
+    k = np.arange(n_views) + 0.5
+    z = 1 - 2 * k / n_views
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    dirs = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    s = (np.arange(resolution) + 0.5) / resolution * 2 - 1
+    for d in dirs:
+        d = d / np.linalg.norm(d)
+        up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        right = np.cross(up, d)
+        right /= np.linalg.norm(right)
+        up = np.cross(d, right)
+        yy, xx = np.meshgrid(-s, s, indexing="ij")
+        origins = 2.0 * d + xx[..., None] * right + yy[..., None] * up
+        rays = np.concatenate([origins, np.broadcast_to(-d, origins.shape)], axis=-1).reshape(-1, 6)
+        ans = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+        t = ans["t_hit"].numpy()
+        hit = np.isfinite(t)
+        fid = ans["primitive_ids"].numpy()[hit].astype(np.int64)
+        uv = ans["primitive_uvs"].numpy()[hit].astype(np.float64)
+        bary = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
+        pts = np.einsum("mk,mkj->mj", bary, mesh.vertices[mesh.faces[fid]])
+        views.append({"direction": d, "points": pts, "face_index": fid, "bary": bary,
+                      "pixels": np.flatnonzero(hit), "resolution": resolution})
+    return views
+
+
+def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None = None,
+                    n: int = 20000, seed: int = 0, n_views: int = 6, resolution: int = 128,
+                    texture: np.ndarray | None = None) -> dict:
+    """Quality of a colour net ``texture_model`` (unit frame -> linear RGB) against ``mesh``'s texture.
+
+    - ``texture_model``: a colour :class:`Siren` (in 3, out 3), or a callable (N, 3) float64 tensor -> (N, 3).
+    - ``sdf_model``: the SDF whose unit ∇f gives the normal lines (Siren, model path or callable, as in
+      :func:`fit_texture`); ``delta``: band half-width (default: the SDF file's, else DEFAULT_DELTA).
+
+    Returns floats:
+    - ``surface_mse``, ``surface_psnr``: against the texture at ``n`` surface samples (linear RGB, peak 1).
+    - ``band_change``: mean |g(p ± t·n) − g(p)| (mean over channels) for t in {δ/4, δ/2, 3δ/4, δ}, both
+      signs, n = ∇f/|∇f| at p; ``band_change_at_delta``: the same for t = δ only.
+    - ``render_mse``: mean over ``n_views`` ray-cast views of the ground-truth mesh of the per-view MSE
+      between the texture colour at the hit points (hit triangle + barycentrics -> UV -> bilinear lookup)
+      and g there, over hit pixels; ``render_mse_views``: the per-view list; ``render_mse_band``: the same
+      with g read at the hit points pushed ±δ along n (what a coarse surface in the band shows).
+    - ``delta``, ``n``: what was used.
+    Entries that cannot be computed (no valid ∇f, no view hitting the mesh) are None, never NaN.
+    """
+    rgb = _texture_rgb(mesh, texture)
+    sdf = _load_sdf(sdf_model)
+    if delta is None:
+        delta = _resolve_delta(TextureFitConfig(), sdf)
+    s = texture_targets(mesh, n, seed=seed, texture=rgb)
+    g0 = _eval(texture_model, s["points"])
+    mse = float(np.mean((g0 - s["colors"]) ** 2))
+
+    p = s["points"].astype(np.float64)
+    _, grads = sdf(torch.as_tensor(p))
+    normals, valid = _unit_normals(grads)
+    normals, valid = normals.numpy(), valid.numpy()
+    changes, at_delta = [], None
+    for t in (0.25 * delta, 0.5 * delta, 0.75 * delta, delta):
+        for sign in (1.0, -1.0):
+            gt = _eval(texture_model, p + sign * t * normals)
+            c = np.abs(gt - g0).mean(axis=1)[valid]
+            changes.append(c)
+        if t == delta:
+            at_delta = float(np.mean(np.concatenate(changes[-2:]))) if valid.any() else None
+    band_change = float(np.mean(np.concatenate(changes))) if valid.any() else None
+
+    views = render_views(mesh, n_views, resolution)
+    per_view, per_view_band = [], []
+    for v in views:
+        if len(v["points"]) == 0:
+            continue
+        uv = np.einsum("mk,mkj->mj", v["bary"], mesh.uv[v["face_index"]])
+        truth = sample_texture(rgb, uv, mesh.uv_policy).astype(np.float64)
+        per_view.append(float(np.mean((_eval(texture_model, v["points"]) - truth) ** 2)))
+        _, gv = sdf(torch.as_tensor(v["points"]))
+        nv, _ = _unit_normals(gv)
+        nv = nv.numpy()
+        band = [np.mean((_eval(texture_model, v["points"] + sg * delta * nv) - truth) ** 2) for sg in (1.0, -1.0)]
+        per_view_band.append(float(np.mean(band)))
+    return {
+        "surface_mse": mse,
+        "surface_psnr": _psnr(mse),
+        "band_change": band_change,
+        "band_change_at_delta": at_delta,
+        "render_mse": float(np.mean(per_view)) if per_view else None,
+        "render_mse_views": per_view,
+        "render_mse_band": float(np.mean(per_view_band)) if per_view_band else None,
+        "delta": float(delta),
+        "n": int(n),
+    }
