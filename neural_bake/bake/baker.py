@@ -1,0 +1,361 @@
+"""Baking neural normals and colours per vertex and per texel (neural normal and texture mapping, §4.1–4.2).
+
+``Baker(mesh)`` unwraps (if the mesh has no UVs), computes the tangent frames once and rasterises the UV
+layout once; ``Baker.bake(sdf, texture)`` then evaluates ∇f (GEMM normals) and g at the texel points in
+chunks and writes the maps. ``bake_texels`` is the one-off wrapper, ``bake_vertices`` the per-vertex bake.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..errors import MeshError, NeuralBakeError
+from ..types import Frame, Mesh
+from .fields import ColorField, SdfField
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normals_to_colors, splat
+from .padding import PADDING_METHODS, pad_charts
+
+__all__ = ["Baker", "BakeResult", "bake_texels", "bake_vertices"]
+
+DEFAULT_CHUNK = 1 << 16
+
+
+@dataclass
+class BakeResult:
+    """The maps and per-sample values of one bake (H, W = map size; M = texel samples).
+
+    - ``normal_map``: (H, W, 3) float32 in [0, 1], encoded ``(n + 1) / 2`` (linear data), padded.
+    - ``albedo``: (H, W, C) float32 linear RGB(A), padded; None without a colour field.
+    - ``coverage``: (H, W) bool, texels inside a chart (they received at least one sample).
+    - ``miss``: (H, W) bool, texels with a sample outside the nesting band (|f| > δ); all False without δ.
+    - ``normals``: (M, 3) float64 object-space (unit frame axes) unit normals per sample, after the
+      geometric fallback for invalid gradients, in the order of ``Baker.texels`` (per-sample arrays are
+      None when the bake streamed the texels without keeping them).
+    - ``encoded``: (M, 3) float64 the per-sample vector stored in the map (tangent or object space, before
+      the (x + 1)/2 encoding).
+    - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
+    - ``stats``: counts and seconds per stage (JSON-ready).
+    """
+
+    normal_map: np.ndarray
+    albedo: np.ndarray | None
+    coverage: np.ndarray
+    miss: np.ndarray
+    normals: np.ndarray
+    encoded: np.ndarray
+    valid: np.ndarray
+    values: np.ndarray
+    colors: np.ndarray | None
+    stats: dict = field(default_factory=dict)
+
+
+def _split_uv_seams(mesh: Mesh) -> Mesh:
+    """Duplicate vertices where corners of one vertex carry different UVs, so that per-corner uv equals
+    per-vertex uv (what glTF and tangent frames need). Returns ``mesh`` itself if nothing differs."""
+    if mesh.uv is None:
+        raise MeshError(f"{mesh.name}: mesh has no UVs")
+    corners = mesh.faces.reshape(-1)
+    uvc = mesh.uv.reshape(-1, 2)
+    key = np.concatenate([corners[:, None].astype(np.float64), uvc], axis=1)
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    if len(uniq) == mesh.n_vertices and np.array_equal(uniq[:, 0].astype(np.int64), np.arange(mesh.n_vertices)):
+        return mesh
+    src = uniq[:, 0].astype(np.int64)
+    normals = None if mesh.vertex_normals is None else mesh.vertex_normals[src]
+    return dataclasses.replace(
+        mesh,
+        vertices=mesh.vertices[src],
+        faces=inverse.reshape(-1, 3).astype(np.int64),
+        vertex_normals=normals,
+    )
+
+
+def _tensor_kwargs(f) -> dict:
+    model = getattr(f, "model", None) or (f.fn if isinstance(f.fn, torch.nn.Module) else None)
+    if model is not None:
+        p = next(model.parameters(), None)
+        if p is not None:
+            return {"dtype": p.dtype, "device": p.device}
+    return {"dtype": torch.float64, "device": torch.device("cpu")}
+
+
+def _to_field_frame(points: np.ndarray, mesh_frame: Frame, field_frame: Frame | None) -> np.ndarray:
+    if field_frame is None or field_frame == mesh_frame:
+        return points
+    return field_frame.to_unit(mesh_frame.to_source(points))
+
+
+def _evaluate(
+    points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: ColorField | None, chunk_size: int
+) -> dict:
+    """f, unit ∇f, valid and g at ``points`` (M, 3) (mesh unit frame), in chunks of ``chunk_size``."""
+    m = len(points)
+    out: dict = {"time_sdf": 0.0, "time_texture": 0.0}
+    if sdf is not None:
+        kw = _tensor_kwargs(sdf)
+        values, normals, valid = np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool)
+        pts = _to_field_frame(points, mesh_frame, sdf.frame)
+        t0 = time.perf_counter()
+        for s in range(0, m, chunk_size):
+            p = torch.as_tensor(pts[s : s + chunk_size], **kw)
+            v, n, ok = sdf.value_and_normal(p)
+            values[s : s + chunk_size] = v.double().cpu().numpy()
+            normals[s : s + chunk_size] = n.double().cpu().numpy()
+            valid[s : s + chunk_size] = ok.cpu().numpy()
+        out["time_sdf"] = time.perf_counter() - t0
+        out.update(values=values, normals=normals, valid=valid)
+    if texture is not None:
+        kw = _tensor_kwargs(texture)
+        pts = _to_field_frame(points, mesh_frame, texture.frame)
+        chunks = []
+        t0 = time.perf_counter()
+        for s in range(0, m, chunk_size):
+            chunks.append(texture.color(torch.as_tensor(pts[s : s + chunk_size], **kw)).double().cpu().numpy())
+        out["time_texture"] = time.perf_counter() - t0
+        out["colors"] = np.concatenate(chunks) if chunks else np.zeros((0, 3))
+    return out
+
+
+def _check_chunk(chunk_size) -> int:
+    if int(chunk_size) != chunk_size or chunk_size < 1:
+        raise NeuralBakeError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    return int(chunk_size)
+
+
+def bake_vertices(
+    mesh: Mesh, sdf: SdfField, texture: ColorField | None = None, *, chunk_size: int = DEFAULT_CHUNK
+) -> dict:
+    """Per-vertex neural normal (and texture) mapping.
+
+    Returns ``{"normals": (V, 3) float64 unit (unit frame axes), "colors": (V, C) linear or None,
+    "valid": (V,) bool, "sdf": (V,) f at the vertices, "invalid": count}``. Vertices with an unusable
+    gradient (|∇f| ≈ 0) keep the mesh's own vertex normal.
+    """
+    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size))
+    normals = ev["normals"]
+    valid = ev["valid"]
+    from ..mesh.tangents import vertex_normals
+
+    normals[~valid] = vertex_normals(mesh)[~valid]
+    return {
+        "normals": normals,
+        "colors": ev.get("colors"),
+        "valid": valid,
+        "sdf": ev["values"],
+        "invalid": int((~valid).sum()),
+    }
+
+
+class Baker:
+    """Rasterise a mesh's UV layout once, then bake many fields into texture maps.
+
+    - ``mesh``: the coarse mesh (unit frame). Without UVs it is unwrapped with xatlas
+      (:func:`neural_bake.mesh.unwrap.unwrap`); with UVs its vertices are split at UV seams.
+      ``self.mesh`` is the mesh the maps belong to: export that one, with ``self.tangents`` (V, 4).
+    - ``size``: map side in texels (H = W = size).
+    - ``supersample``: s×s samples per texel, averaged (anti-aliasing).
+    - ``chunk_size``: texel samples per network evaluation.
+    - ``normal_space``: "tangent" (glTF) or "object".
+    - ``y_convention``: "opengl" (glTF, +Y green up) or "directx" (green flipped); tangent space only.
+    - ``padding``: "pull-push", "dilate" or None (no padding); ``padding_pixels``: see :func:`pad_charts`.
+    - ``unwrap_options``: keyword arguments for ``unwrap`` when the mesh has no UVs.
+    - ``cache_texels``: keep the rasterised texels between bakes (``self.texels``); None = only when there
+      are at most ``2**23`` samples (2048² with supersample 2). Without the cache every bake streams the
+      layout band by band (:func:`neural_bake.mesh.texels.iter_texels`), so 4k maps fit in memory.
+    """
+
+    def __init__(
+        self,
+        mesh: Mesh,
+        size: int = 2048,
+        *,
+        supersample: int = 1,
+        chunk_size: int = DEFAULT_CHUNK,
+        normal_space: str = "tangent",
+        y_convention: str = "opengl",
+        padding: str | None = "pull-push",
+        padding_pixels: int | None = None,
+        unwrap_options: dict | None = None,
+        cache_texels: bool | None = None,
+    ):
+        if isinstance(size, bool) or int(size) != size or size < 1:
+            raise NeuralBakeError(f"map size must be a positive integer, got {size!r}")
+        if int(supersample) != supersample or supersample < 1:
+            raise NeuralBakeError(f"supersample must be a positive integer, got {supersample!r}")
+        if normal_space not in NORMAL_SPACES:
+            raise NeuralBakeError(f"normal_space must be one of {NORMAL_SPACES}, got {normal_space!r}")
+        if y_convention not in Y_CONVENTIONS:
+            raise NeuralBakeError(f"y_convention must be one of {Y_CONVENTIONS}, got {y_convention!r}")
+        if padding is not None and padding not in PADDING_METHODS:
+            raise NeuralBakeError(f"padding must be one of {PADDING_METHODS} or None, got {padding!r}")
+        self.size, self.supersample = int(size), int(supersample)
+        self.shape = (self.size, self.size)
+        self.chunk_size = _check_chunk(chunk_size)
+        self.normal_space, self.y_convention = normal_space, y_convention
+        self.padding, self.padding_pixels = padding, padding_pixels
+        self.timings: dict[str, float] = {}
+
+        from ..mesh.tangents import tangent_frames
+
+        t0 = time.perf_counter()
+        self.unwrapped = mesh.uv is None
+        if self.unwrapped:
+            from ..mesh.unwrap import unwrap
+
+            mesh = unwrap(mesh, **(unwrap_options or {}))
+        self.mesh = _split_uv_seams(mesh)
+        self.timings["unwrap"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.tangents = np.asarray(tangent_frames(self.mesh), dtype=np.float64)
+        self.timings["tangents"] = time.perf_counter() - t0
+        n_samples = self.size * self.size * self.supersample**2
+        self.cache = (n_samples <= 1 << 23) if cache_texels is None else bool(cache_texels)
+        self.texels = None
+        if self.cache:
+            from ..mesh.texels import rasterize_texels
+
+            t0 = time.perf_counter()
+            self.texels = rasterize_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
+            self.timings["rasterize"] = time.perf_counter() - t0
+
+    def _bands(self):
+        if self.texels is not None:
+            yield self.texels
+            return
+        from ..mesh.texels import iter_texels
+
+        yield from iter_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
+
+    def bake(
+        self,
+        sdf: SdfField,
+        texture: ColorField | None = None,
+        *,
+        delta: float | None = None,
+        keep_samples: bool | None = None,
+    ) -> BakeResult:
+        """Bake ∇f (and g) at every texel sample into the maps.
+
+        ``delta`` (default ``sdf.delta``) flags samples with |f| > δ as misses. ``keep_samples`` (default:
+        when the texels are cached) returns the per-sample arrays in the result (else they are None).
+        Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and are counted.
+        """
+        if delta is None:
+            delta = sdf.delta
+        if delta is not None and not (np.isfinite(delta) and delta > 0):
+            raise NeuralBakeError(f"delta must be a positive number, got {delta!r}")
+        keep = self.cache if keep_samples is None else bool(keep_samples)
+        h, w = self.shape
+        acc_vec = np.zeros((h, w, 3))
+        acc_col = None
+        wsum = np.zeros((h, w))
+        miss_count = np.zeros((h, w))
+        covered = np.zeros((h, w), dtype=bool)
+        kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors")}
+        counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0}
+        secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0}
+        t_all = time.perf_counter()
+        t_band = time.perf_counter()
+        for tx in self._bands():
+            if self.texels is None:
+                secs["rasterize"] += time.perf_counter() - t_band
+            points = np.asarray(tx.points, dtype=np.float64)
+            ev = _evaluate(points, self.mesh.frame, sdf, texture, self.chunk_size)
+            secs["sdf"] += ev["time_sdf"]
+            secs["texture"] += ev["time_texture"]
+            t0 = time.perf_counter()
+            normals, valid, values = ev["normals"], ev["valid"], ev["values"]
+            if (~valid).any():  # zero gradient: the interpolated geometric normal
+                normals[~valid] = tx.normal[~valid]
+            if self.normal_space == "tangent":
+                encoded, frame_ok = encode_tangent_space(normals, tx.tangent, tx.bitangent, tx.normal, self.y_convention)
+            else:
+                encoded, frame_ok = normals.copy(), np.ones(len(normals), dtype=bool)
+            vec, ws = splat(encoded, tx.pixel, tx.weight, self.shape)
+            acc_vec += vec * ws[:, :, None]
+            wsum += ws
+            covered |= np.asarray(tx.coverage, dtype=bool)
+            miss_s = np.abs(values) > delta if delta is not None else np.zeros(len(values), dtype=bool)
+            if miss_s.any():
+                miss_count += splat(np.ones((int(miss_s.sum()), 1)), tx.pixel[miss_s], None, self.shape)[1]
+            if texture is not None:
+                col, cws = splat(ev["colors"], tx.pixel, tx.weight, self.shape)
+                acc_col = col * cws[:, :, None] if acc_col is None else acc_col + col * cws[:, :, None]
+            counts["samples"] += len(values)
+            counts["invalid"] += int((~valid).sum())
+            counts["singular"] += int((~frame_ok).sum())
+            counts["miss"] += int(miss_s.sum())
+            if keep:
+                for k, v in (("normals", normals), ("encoded", encoded), ("valid", valid), ("values", values)):
+                    kept[k].append(v)
+                if texture is not None:
+                    kept["colors"].append(ev["colors"])
+            secs["maps"] += time.perf_counter() - t0
+            t_band = time.perf_counter()
+        t0 = time.perf_counter()
+        vec = np.divide(acc_vec, wsum[:, :, None], out=np.zeros_like(acc_vec), where=wsum[:, :, None] > 0)
+        norm = np.linalg.norm(vec, axis=2, keepdims=True)
+        vec = np.divide(vec, norm, out=np.zeros_like(vec), where=norm > 1e-12)
+        flat = np.array([0.0, 0.0, 1.0])  # texels whose samples cancel out, and the background
+        vec[norm[:, :, 0] <= 1e-12] = flat
+        normal_map = normals_to_colors(vec)
+        albedo = None
+        if acc_col is not None:
+            albedo = np.divide(acc_col, wsum[:, :, None], out=np.zeros_like(acc_col), where=wsum[:, :, None] > 0)
+        miss = miss_count > 0
+        secs["maps"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if self.padding is not None:
+            normal_map = pad_charts(normal_map, covered, method=self.padding, pixels=self.padding_pixels)
+            if albedo is not None:
+                albedo = pad_charts(albedo, covered, method=self.padding, pixels=self.padding_pixels)
+        secs["padding"] = time.perf_counter() - t0
+        secs["bake"] = time.perf_counter() - t_all
+        n_texels = int(covered.sum())
+        stats = {
+            "size": [h, w],
+            "normal_space": self.normal_space,
+            "y_convention": self.y_convention,
+            "supersample": self.supersample,
+            "samples": counts["samples"],
+            "texels_covered": n_texels,
+            "coverage": float(covered.mean()),
+            "invalid_gradients": counts["invalid"],
+            "singular_frames": counts["singular"],
+            "delta": delta,
+            "miss_samples": counts["miss"],
+            "miss_texels": int(miss.sum()),
+            "seconds": {
+                **{k: float(v) for k, v in self.timings.items()},
+                **{k: float(v) for k, v in secs.items()},
+                "rasterize": float(self.timings.get("rasterize", 0.0) + secs["rasterize"]),
+            },
+            "texels_per_second": float(n_texels / secs["bake"]) if secs["bake"] > 0 else None,
+            "field": sdf.name,
+            "texture_field": None if texture is None else texture.name,
+        }
+        cat = lambda k: np.concatenate(kept[k]) if keep and kept[k] else None  # noqa: E731
+        return BakeResult(
+            normal_map=normal_map.astype(np.float32),
+            albedo=None if albedo is None else albedo.astype(np.float32),
+            coverage=covered,
+            miss=miss,
+            normals=cat("normals"),
+            encoded=cat("encoded"),
+            valid=cat("valid"),
+            values=cat("values"),
+            colors=cat("colors"),
+            stats=stats,
+        )
+
+
+def bake_texels(
+    mesh: Mesh, sdf: SdfField, texture: ColorField | None = None, size: int = 1024, *, delta: float | None = None, **options
+) -> BakeResult:
+    """One-off bake: ``Baker(mesh, size, **options).bake(sdf, texture, delta=delta)``."""
+    return Baker(mesh, size, **options).bake(sdf, texture, delta=delta)

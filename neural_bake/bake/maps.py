@@ -1,0 +1,118 @@
+"""Normal-map encoding and decoding, and assembling per-sample values into images.
+
+Conventions (DESIGN.md, "Tangent space"):
+
+- A *tangent-space* normal map stores the coordinates (x, y, z) of the object-space normal n in the frame
+  a glTF renderer reconstructs at the texel: ``n = normalize(x·T + y·B + z·N)`` with N the normalised
+  interpolated vertex normal, T the normalised interpolated tangent and ``B = w·cross(N, T)``
+  (:class:`neural_bake.mesh.texels.TexelSet` gives these three vectors). The frame may be non-orthogonal,
+  so encoding solves the 3×3 system ``[T B N] x = n`` and renormalises x. glTF / OpenGL convention: +Y
+  (green) points along B ("up" in the image); the DirectX convention flips green.
+- An *object-space* map stores n itself (unit frame axes = source frame axes: the frame is a similarity).
+- Encoding ``x -> (x + 1) / 2`` into [0, 1]; the map is DATA (linear, never sRGB-encoded).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import NeuralBakeError
+
+__all__ = [
+    "NORMAL_SPACES",
+    "Y_CONVENTIONS",
+    "encode_tangent_space",
+    "decode_tangent_space",
+    "normals_to_colors",
+    "colors_to_normals",
+    "splat",
+]
+
+NORMAL_SPACES = ("tangent", "object")
+Y_CONVENTIONS = ("opengl", "directx")
+
+_EPS = 1e-12
+
+
+def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    ok = (norm[..., 0] > _EPS) & np.isfinite(norm[..., 0])
+    out = np.divide(v, norm, out=np.zeros_like(v), where=ok[..., None])
+    return out, ok
+
+
+def encode_tangent_space(
+    normals: np.ndarray,
+    tangent: np.ndarray,
+    bitangent: np.ndarray,
+    normal: np.ndarray,
+    y_convention: str = "opengl",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Object-space unit normals (M, 3) -> unit tangent-space vectors (M, 3) and a valid mask (M,).
+
+    ``tangent``, ``bitangent``, ``normal``: (M, 3) float, the (possibly non-orthogonal) frame the renderer
+    reconstructs at each sample. Solves ``[T B N] x = n`` exactly and renormalises, so that
+    :func:`decode_tangent_space` gives back n. A singular frame (degenerate UVs or normals) gives
+    x = (0, 0, 1) and valid False. ``y_convention="directx"`` negates y (green down).
+    """
+    if y_convention not in Y_CONVENTIONS:
+        raise NeuralBakeError(f"y_convention must be one of {Y_CONVENTIONS}, got {y_convention!r}")
+    n = np.asarray(normals, dtype=np.float64)
+    t, b, g = (np.asarray(v, dtype=np.float64) for v in (tangent, bitangent, normal))
+    # inverse of the matrix with columns T, B, N: rows cross(B, N), cross(N, T), cross(T, B) over det
+    r0, r1, r2 = np.cross(b, g), np.cross(g, t), np.cross(t, b)
+    det = np.einsum("ij,ij->i", t, r0)
+    scale = np.linalg.norm(t, axis=-1) * np.linalg.norm(b, axis=-1) * np.linalg.norm(g, axis=-1)
+    ok = np.isfinite(det) & (np.abs(det) > 1e-8 * np.maximum(scale, _EPS)) & np.isfinite(n).all(axis=-1)
+    x = np.stack([np.einsum("ij,ij->i", r, n) for r in (r0, r1, r2)], axis=-1) * np.sign(det)[:, None]
+    x, ok_norm = _unit(x)
+    ok &= ok_norm
+    x[~ok] = (0.0, 0.0, 1.0)
+    if y_convention == "directx":
+        x[:, 1] *= -1.0
+    return x, ok
+
+
+def decode_tangent_space(
+    x: np.ndarray,
+    tangent: np.ndarray,
+    bitangent: np.ndarray,
+    normal: np.ndarray,
+    y_convention: str = "opengl",
+) -> np.ndarray:
+    """What a renderer does: tangent-space (M, 3) -> ``normalize(x·T + y·B + z·N)`` (M, 3) object space."""
+    x = np.asarray(x, dtype=np.float64)
+    y_sign = -1.0 if y_convention == "directx" else 1.0
+    n = x[:, :1] * tangent + (y_sign * x[:, 1:2]) * bitangent + x[:, 2:3] * normal
+    return _unit(n)[0]
+
+
+def normals_to_colors(x: np.ndarray) -> np.ndarray:
+    """Unit vectors (..., 3) in [-1, 1] -> encoded colours ``(x + 1) / 2`` in [0, 1] (linear data)."""
+    return np.clip((np.asarray(x, dtype=np.float64) + 1.0) * 0.5, 0.0, 1.0)
+
+
+def colors_to_normals(c: np.ndarray) -> np.ndarray:
+    """Encoded colours (..., 3) in [0, 1] -> unit vectors ``normalize(2c - 1)``; zero vectors stay zero."""
+    return _unit(np.asarray(c, dtype=np.float64) * 2.0 - 1.0)[0]
+
+
+def splat(
+    values: np.ndarray, pixel: np.ndarray, weight: np.ndarray | None, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted average of per-sample ``values`` (M, C) into an (H, W, C) image.
+
+    ``pixel``: (M, 2) int (row from the top, column); ``weight``: (M,) or None (all ones). Returns the
+    image (float64; texels without samples are 0) and the per-texel weight sum (H, W).
+    """
+    h, w = size
+    values = np.asarray(values, dtype=np.float64)
+    flat = np.asarray(pixel[:, 0], dtype=np.int64) * w + np.asarray(pixel[:, 1], dtype=np.int64)
+    wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
+    c = values.shape[1]
+    acc = np.zeros((h * w, c))
+    for k in range(c):
+        acc[:, k] = np.bincount(flat, weights=values[:, k] * wt, minlength=h * w)
+    wsum = np.bincount(flat, weights=wt, minlength=h * w)
+    img = np.divide(acc, wsum[:, None], out=np.zeros_like(acc), where=wsum[:, None] > 0)
+    return img.reshape(h, w, c), wsum.reshape(h, w)
