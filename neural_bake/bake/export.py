@@ -1,0 +1,226 @@
+"""glTF 2.0 binary (GLB) export of a baked asset: mesh, UVs, tangents, normal and base-colour textures.
+
+The file is written by hand (JSON + one binary buffer) so that every attribute the baker used goes in
+exactly: POSITION (source frame), NORMAL, TEXCOORD_0, TANGENT (vec4, handedness in w: the renderer's
+bitangent is ``w · cross(N, T)``), COLOR_0 (linear), baseColorTexture (sRGB 8-bit PNG) and normalTexture
+(linear 8-bit PNG, +Y green up as glTF requires). :func:`read_glb` reads such a file back (for tests and
+reports); trimesh loads it too.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MeshError, NeuralBakeError
+from ..io.atomic import atomic_path
+from ..types import Mesh
+
+__all__ = ["export_glb", "read_glb"]
+
+_FLOAT, _UINT32 = 5126, 5125
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
+_NCOMP = {v: k for k, v in _TYPES.items()}
+
+
+def _png_bytes(image: np.ndarray, colour: str) -> bytes:
+    from ..io.images import write_image
+
+    with tempfile.TemporaryDirectory(prefix="neural_bake_glb_") as d:
+        p = Path(d) / "map.png"
+        write_image(p, image, colour=colour, bits=8)
+        return p.read_bytes()
+
+
+def _check_image(name: str, image, channels: tuple[int, ...]) -> np.ndarray:
+    a = np.asarray(image, dtype=np.float32)
+    if a.ndim != 3 or a.shape[2] not in channels or a.shape[0] < 1 or a.shape[1] < 1:
+        raise NeuralBakeError(f"export_glb: {name} must be (H, W, C) with C in {channels}, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise NeuralBakeError(f"export_glb: {name} holds NaN or infinite values")
+    return a
+
+
+def _check_vertex_array(name: str, a, mesh: Mesh, cols: tuple[int, ...]) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[0] != mesh.n_vertices or a.shape[1] not in cols:
+        want = " or ".join(f"({mesh.n_vertices}, {c})" for c in cols)
+        raise NeuralBakeError(f"export_glb: {name} must have shape {want}, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise NeuralBakeError(f"export_glb: {name} holds NaN or infinite values")
+    return a
+
+
+def export_glb(
+    path,
+    mesh: Mesh,
+    *,
+    normal_map: np.ndarray | None = None,
+    albedo: np.ndarray | None = None,
+    tangents: np.ndarray | None = None,
+    vertex_colors: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+    name: str = "neural_bake",
+) -> Path:
+    """Write ``mesh`` and its baked maps as one GLB file at ``path`` (atomically); return the path.
+
+    - ``mesh``: unit-frame mesh; positions are written in the SOURCE frame (``mesh.frame.to_source``).
+      With a texture map its vertices must be split at UV seams (per-corner uv == per-vertex uv, as
+      ``Baker.mesh``); glTF's TEXCOORD_0 is written as (u, 1 − v) (glTF's v points down).
+    - ``normal_map``: (H, W, 3) float in [0, 1], encoded ``(n + 1)/2`` in glTF tangent space (+Y up);
+      stored as linear data. Requires ``tangents``.
+    - ``albedo``: (H, W, 3|4) float linear RGB(A); stored sRGB-encoded.
+    - ``tangents``: (V, 4) glTF tangents, xyz unit, w = ±1 (``Baker.tangents``).
+    - ``vertex_colors``: (V, 3|4) linear RGB(A) in [0, 1] (per-vertex bakes), written as COLOR_0.
+    - ``normals``: (V, 3) unit vertex normals (per-vertex bakes); default the mesh's vertex normals.
+
+    Raises :class:`NeuralBakeError` for arrays of the wrong shape, a normal map without tangents, and
+    :class:`MeshError` for a texture map on a mesh without UVs or not split at seams.
+    """
+    from ..mesh.tangents import vertex_normals, vertex_uv
+
+    path = Path(path)
+    if normal_map is not None and tangents is None:
+        raise NeuralBakeError("export_glb: a tangent-space normal_map needs tangents (Baker.tangents)")
+    textured = normal_map is not None or albedo is not None
+    if textured and mesh.uv is None:
+        raise MeshError(f"{mesh.name}: export_glb: texture maps need a mesh with UVs")
+    if mesh.n_faces == 0:
+        raise MeshError(f"{mesh.name}: export_glb: mesh has no faces")
+    nrm = vertex_normals(mesh) if normals is None else _check_vertex_array("normals", normals, mesh, (3,))
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    attrs: list[tuple[str, np.ndarray]] = [
+        ("POSITION", mesh.frame.to_source(mesh.vertices)),
+        ("NORMAL", nrm),
+    ]
+    if mesh.uv is not None:
+        uv = vertex_uv(mesh)
+        attrs.append(("TEXCOORD_0", np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)))
+    if tangents is not None:
+        t = _check_vertex_array("tangents", tangents, mesh, (4,))
+        t = np.concatenate([t[:, :3], np.where(t[:, 3:] < 0, -1.0, 1.0)], axis=1)
+        attrs.append(("TANGENT", t))
+    if vertex_colors is not None:
+        attrs.append(("COLOR_0", np.clip(_check_vertex_array("vertex_colors", vertex_colors, mesh, (3, 4)), 0, 1)))
+
+    blob = bytearray()
+    views: list[dict] = []
+    accessors: list[dict] = []
+
+    def add_view(data: bytes, target: int | None = None) -> int:
+        while len(blob) % 4:
+            blob.append(0)
+        view = {"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        blob.extend(data)
+        views.append(view)
+        return len(views) - 1
+
+    def add_accessor(a: np.ndarray, ctype: int, target: int, minmax: bool = False) -> int:
+        dt = np.float32 if ctype == _FLOAT else np.uint32
+        a = np.ascontiguousarray(a, dtype=dt)
+        acc = {
+            "bufferView": add_view(a.tobytes(), target),
+            "componentType": ctype,
+            "count": int(a.shape[0]),
+            "type": _TYPES[a.shape[1]] if a.ndim == 2 else "SCALAR",
+        }
+        if minmax:
+            acc["min"] = [float(x) for x in a.min(axis=0)]
+            acc["max"] = [float(x) for x in a.max(axis=0)]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    attributes = {key: add_accessor(a, _FLOAT, _ARRAY_BUFFER, key == "POSITION") for key, a in attrs}
+    indices = add_accessor(mesh.faces.reshape(-1), _UINT32, _ELEMENT_ARRAY_BUFFER)
+
+    gltf: dict = {
+        "asset": {"version": "2.0", "generator": "neural_bake"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": name}],
+        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "mode": 4}]}],
+        "materials": [{"name": name, "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}],
+    }
+    gltf["meshes"][0]["primitives"][0]["material"] = 0
+    images, textures = [], []
+
+    def add_texture(image: np.ndarray, colour: str) -> int:
+        images.append({"bufferView": add_view(_png_bytes(image, colour)), "mimeType": "image/png"})
+        textures.append({"source": len(images) - 1, "sampler": 0})
+        return len(textures) - 1
+
+    if albedo is not None:
+        a = _check_image("albedo", albedo, (3, 4))
+        gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {"index": add_texture(a, "srgb")}
+        if a.shape[2] == 4:
+            gltf["materials"][0]["alphaMode"] = "BLEND"
+    if normal_map is not None:
+        nm = _check_image("normal_map", normal_map, (3,))
+        gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data")}
+    if textures:
+        # linear filtering with mip-maps (the padding makes mip levels safe), repeat wrapping
+        gltf["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]
+        gltf["images"], gltf["textures"] = images, textures
+    while len(blob) % 4:
+        blob.append(0)
+    gltf["buffers"] = [{"byteLength": len(blob)}]
+    gltf["bufferViews"] = views
+    gltf["accessors"] = accessors
+    js = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
+    js += b" " * (-len(js) % 4)
+    total = 12 + 8 + len(js) + 8 + len(blob)
+    data = b"".join(
+        [
+            struct.pack("<4sII", b"glTF", 2, total),
+            struct.pack("<I4s", len(js), b"JSON"),
+            js,
+            struct.pack("<I4s", len(blob), b"BIN\x00"),
+            bytes(blob),
+        ]
+    )
+    if not path.parent.is_dir() and str(path.parent):
+        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def read_glb(path) -> tuple[dict, dict[str, np.ndarray], list[bytes]]:
+    """Read a GLB written by :func:`export_glb`: (glTF JSON, first primitive's arrays, image bytes).
+
+    The arrays dict holds every attribute by its glTF name (float32 / uint32 numpy arrays) and
+    ``"indices"`` as (F, 3). Raises :class:`NeuralBakeError` for a file that is not a GLB.
+    """
+    data = Path(path).read_bytes()
+    if len(data) < 20 or data[:4] != b"glTF":
+        raise NeuralBakeError(f"{path}: not a GLB file")
+    jlen, jtype = struct.unpack_from("<I4s", data, 12)
+    if jtype != b"JSON":
+        raise NeuralBakeError(f"{path}: GLB without a JSON chunk")
+    gltf = json.loads(data[20 : 20 + jlen])
+    off = 20 + jlen
+    blen, _ = struct.unpack_from("<I4s", data, off)
+    blob = data[off + 8 : off + 8 + blen]
+
+    def view_bytes(i: int) -> bytes:
+        v = gltf["bufferViews"][i]
+        return blob[v.get("byteOffset", 0) : v.get("byteOffset", 0) + v["byteLength"]]
+
+    def accessor(i: int) -> np.ndarray:
+        a = gltf["accessors"][i]
+        dt = np.float32 if a["componentType"] == _FLOAT else np.uint32
+        arr = np.frombuffer(view_bytes(a["bufferView"]), dtype=dt, count=a["count"] * _NCOMP[a["type"]])
+        return arr.reshape(a["count"], -1) if a["type"] != "SCALAR" else arr
+
+    prim = gltf["meshes"][0]["primitives"][0]
+    arrays = {k: accessor(i) for k, i in prim["attributes"].items()}
+    arrays["indices"] = accessor(prim["indices"]).reshape(-1, 3)
+    images = [view_bytes(im["bufferView"]) for im in gltf.get("images", [])]
+    return gltf, arrays, images
