@@ -1,0 +1,355 @@
+"""Gradient-orthogonal texture fitting: loss terms against autograd, analytic metrics, quality floors, errors.
+
+Meshes are generated here: a lat-long UV sphere of radius 0.9 (unit frame) with a seam at u = 0 / 1 (vertices
+duplicated there) and a smooth texture periodic in u, and its analytic SDF f(x) = |x| − 0.9 (exact ∇f).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.errors import FitError, ImageError, MeshError, ModelFileError, NeuralBakeWarning
+from neural_bake.fit.texture import (
+    DEFAULT_DELTA,
+    PRESETS,
+    TextureFitConfig,
+    band_orthogonality,
+    fit_texture,
+    render_views,
+    texture_metrics,
+    texture_targets,
+)
+from neural_bake.io.colour import linear_to_srgb
+from neural_bake.nets.model_io import load_model, save_model
+from neural_bake.nets.siren import Siren
+from neural_bake.types import Frame, Mesh
+
+R = 0.9
+TINY = dict(width=32, depth=1, omega_0=5.0, steps=250, batch=1024, lr=1e-3, pool=20000, log_every=50)
+
+
+def uv_sphere(n_lat=24, n_lon=48, tex_hw=(64, 128), radius=R):
+    th = np.linspace(0, np.pi, n_lat + 1)
+    ph = np.linspace(0, 2 * np.pi, n_lon + 1)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    V = radius * np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    UV = np.stack([P / (2 * np.pi), 1 - T / np.pi], -1).reshape(-1, 2)
+    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
+    faces = []
+    for i in range(n_lat):
+        for j in range(n_lon):
+            a, b, c, d = idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]
+            if i > 0:
+                faces.append([a, b, d])
+            if i < n_lat - 1:
+                faces.append([b, c, d])
+    F = np.array(faces, dtype=np.int64)
+    h, w = tex_hw
+    U, Vv = np.meshgrid((np.arange(w) + 0.5) / w, 1 - (np.arange(h) + 0.5) / h)
+    tex = np.stack([0.5 + 0.35 * np.sin(2 * np.pi * U),
+                    0.5 + 0.35 * np.cos(np.pi * Vv),
+                    0.5 + 0.25 * np.sin(2 * np.pi * U) * np.sin(np.pi * Vv)], -1).astype(np.float32)
+    vn = V / np.linalg.norm(V, axis=1, keepdims=True)
+    return Mesh(vertices=V, faces=F, uv=UV[F], texture=tex, vertex_normals=vn, watertight=False)
+
+
+def sphere_sdf(x: torch.Tensor):
+    n = x.norm(dim=1, keepdim=True)
+    return n[:, 0] - R, x / n.clamp_min(1e-12)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return uv_sphere()
+
+
+@pytest.fixture(scope="module")
+def fits(sphere):
+    """λ = 0 and λ > 0 on the same seed and steps (shared by several tests)."""
+    torch.set_num_threads(1)
+    out = {}
+    for lam in (0.0, 0.1):
+        out[lam] = fit_texture(sphere, sphere_sdf, lam=lam, delta=0.03, seed=3, **TINY)
+    return out
+
+
+def constant_net(rgb, dtype=torch.float32) -> Siren:
+    net = Siren(8, 0, 3, 3).to(dtype)
+    with torch.no_grad():
+        net.layers[-1].weight.zero_()
+        net.layers[-1].bias.copy_(torch.tensor(rgb, dtype=dtype))
+    return net
+
+
+# ------------------------------------------------------------------------------------------- loss terms
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-10), (torch.float32, 1e-4)])
+def test_band_orthogonality_matches_autograd_values_and_weight_gradients(dtype, tol):
+    gen = torch.Generator().manual_seed(0)
+    net = Siren(16, 2, 3, 3, omega_0=10.0, generator=gen).to(dtype)
+    x = (torch.rand(64, 3, generator=gen, dtype=torch.float64) * 2 - 1).to(dtype)
+    n = torch.nn.functional.normalize(torch.randn(64, 3, generator=gen, dtype=torch.float64), dim=1).to(dtype)
+
+    got = band_orthogonality(net, x, n)
+    # reference: ∂g_c/∂x by autograd (create_graph for the weight gradient), ⟨·, n⟩², summed over c
+    xr = x.clone().requires_grad_(True)
+    y = net(xr)
+    rows = [torch.autograd.grad(y[:, c].sum(), xr, create_graph=True)[0] for c in range(3)]
+    ref = sum(((r * n).sum(dim=1)) ** 2 for r in rows)
+    scale = float(ref.detach().abs().max())
+    assert torch.allclose(got, ref, atol=tol * scale, rtol=tol)
+
+    w = net.layers[1].weight
+    (g_got,) = torch.autograd.grad(got.mean(), w, retain_graph=True)
+    (g_ref,) = torch.autograd.grad(ref.mean(), w)
+    assert torch.allclose(g_got, g_ref, atol=tol * float(g_ref.abs().max()) * 10, rtol=tol * 10)
+
+
+def test_band_orthogonality_is_zero_for_a_field_constant_along_the_normal():
+    # a net that only depends on x_0, read along normals (0, ±1, 0) / (0, 0, 1): exactly orthogonal
+    net = Siren(16, 1, 3, 3, omega_0=10.0, generator=torch.Generator().manual_seed(1)).double()
+    with torch.no_grad():
+        net.layers[0].weight[:, 1:] = 0
+    x = torch.rand(50, 3, dtype=torch.float64)
+    n = torch.tensor([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]], dtype=torch.float64).repeat(25, 1)
+    assert float(band_orthogonality(net, x, n).detach().abs().max()) < 1e-20
+    along = band_orthogonality(net, x, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64).repeat(50, 1)).detach()
+    assert float(along.mean()) > 1e-3
+
+
+# ------------------------------------------------------------------------------------------- metrics
+
+
+def test_metrics_of_a_constant_net_are_exact(sphere):
+    mesh = replace(sphere, texture=np.full((8, 8, 3), 0.25, np.float32))
+    net = constant_net([0.25, 0.5, 0.75])
+    m = texture_metrics(net, mesh, sphere_sdf, delta=0.05, n=2000, n_views=3, resolution=32)
+    expected = (0.0 + 0.25**2 + 0.5**2) / 3
+    assert m["surface_mse"] == pytest.approx(expected, rel=1e-5)
+    assert m["surface_psnr"] == pytest.approx(10 * math.log10(1 / expected), rel=1e-5)
+    assert m["band_change"] == 0.0 and m["band_change_at_delta"] == 0.0
+    assert m["render_mse"] == pytest.approx(expected, rel=1e-5)
+    assert m["render_mse_band"] == pytest.approx(expected, rel=1e-5)
+    assert len(m["render_mse_views"]) == 3 and m["delta"] == 0.05
+
+
+def test_band_change_of_the_identity_colour_is_analytic(sphere):
+    # g(x) = x on a sphere with radial ∇f: g(p ± t n) − g(p) = ±t n, mean |.| over channels = t·mean|n_i|,
+    # and E|n_i| = 1/2 for directions uniform on the sphere.
+    delta = 0.04
+    m = texture_metrics(lambda x: x, sphere, sphere_sdf, delta=delta, n=20000, n_views=2, resolution=16)
+    assert m["band_change_at_delta"] == pytest.approx(delta / 2, rel=0.02)
+    assert m["band_change"] == pytest.approx(np.mean([0.25, 0.5, 0.75, 1.0]) * delta / 2, rel=0.02)
+
+
+def test_render_views_hit_the_sphere_where_expected(sphere):
+    res = 48
+    views = render_views(sphere, n_views=4, resolution=res)
+    assert len(views) == 4
+    for v in views:
+        r = np.linalg.norm(v["points"], axis=1)
+        assert r.max() <= R + 1e-5 and r.min() > R * 0.98  # on the inscribed facets
+        # orthographic image of side 2: the disc of radius ~R covers π R² / 4 of it
+        frac = len(v["pixels"]) / res**2
+        assert frac == pytest.approx(math.pi * R * R / 4, rel=0.05)
+        assert np.allclose(v["bary"].sum(axis=1), 1.0) and (v["bary"] >= -1e-6).all()
+
+
+# ------------------------------------------------------------------------------------------- fitting
+
+
+def test_smooth_sphere_texture_reaches_a_quality_floor(sphere, fits):
+    fit = fits[0.1]
+    assert fit.steps == TINY["steps"] and fit.delta == 0.03 and fit.lam == 0.1
+    assert fit.history[-1]["colour"] < fit.history[0]["colour"] / 5
+    assert "orth" in fit.history[-1]
+    m = texture_metrics(fit.model, sphere, sphere_sdf, delta=0.03, n=5000, n_views=3, resolution=48)
+    assert m["surface_psnr"] > 28.0
+    assert m["render_mse"] < 2e-3
+
+
+def test_orthogonality_term_reduces_colour_change_across_the_band(sphere, fits):
+    m = {lam: texture_metrics(f.model, sphere, sphere_sdf, delta=0.03, n=5000, n_views=2, resolution=32)
+         for lam, f in fits.items()}
+    assert "orth" not in fits[0.0].history[-1]
+    assert m[0.1]["band_change"] < 0.5 * m[0.0]["band_change"]
+    assert m[0.1]["band_change_at_delta"] < 0.5 * m[0.0]["band_change_at_delta"]
+    # at a comparable surface quality (within 3 dB)
+    assert m[0.1]["surface_psnr"] > m[0.0]["surface_psnr"] - 3.0
+
+
+def test_colour_is_continuous_across_the_uv_seam(sphere, fits):
+    # the texture is periodic in u, so the colour is continuous across the seam u = 0 / 1 in 3-D; so is g
+    net = fits[0.1].model
+    theta = np.linspace(0.3, np.pi - 0.3, 50)
+    eps = 1e-3
+
+    def at(phi):
+        p = R * np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+        with torch.no_grad():
+            return net(torch.as_tensor(p, dtype=torch.float32)).numpy()
+
+    seam = np.abs(at(eps) - at(-eps)).max()
+    elsewhere = np.abs(at(np.pi + eps) - at(np.pi - eps)).max()
+    assert seam < 0.01
+    assert seam < 3 * elsewhere + 2e-3
+    # and the training targets agree across the seam: nearest 3-D neighbours on the other side, same colour
+    from scipy.spatial import cKDTree
+
+    s = texture_targets(sphere, 40000, seed=0)
+    u = s["uv"][:, 0]
+    lo, hi = u < 0.01, u > 0.99
+    dist, j = cKDTree(s["points"][hi]).query(s["points"][lo])
+    close = dist < 0.01
+    assert close.sum() > 20
+    assert np.abs(s["colors"][lo][close] - s["colors"][hi][j[close]]).max() < 0.03
+
+
+def test_same_seed_same_run_and_save_load_roundtrip(sphere, fits, tmp_path):
+    again = fit_texture(sphere, sphere_sdf, lam=0.1, delta=0.03, seed=3, **TINY)
+    x = torch.rand(100, 3) * 2 - 1
+    with torch.no_grad():
+        assert torch.equal(again.model(x), fits[0.1].model(x))
+    path = fits[0.1].save(tmp_path / "tex.safetensors")
+    model, meta = load_model(path)
+    assert meta["kind"] == "texture" and meta["delta"] == 0.03 and meta["lam"] == 0.1
+    assert Frame.from_dict(meta["frame"]) == sphere.frame
+    assert meta["config"]["width"] == 32 and meta["steps"] == TINY["steps"]
+    with torch.no_grad():
+        assert torch.equal(model(x), fits[0.1].model(x))
+
+
+def test_checkpoint_resume_continues_the_same_run(sphere, tmp_path):
+    small = dict(TINY, steps=40, pool=4000, batch=256, lam=0.1, delta=0.03, lr_schedule="constant")
+    full = fit_texture(sphere, sphere_sdf, **small)
+    ck = tmp_path / "run.ckpt"
+    fit_texture(sphere, sphere_sdf, **dict(small, steps=20), checkpoint=str(ck), checkpoint_every=10)
+    resumed = fit_texture(sphere, sphere_sdf, **small, checkpoint=str(ck), resume=True)
+    assert resumed.steps == 40
+    x = torch.rand(100, 3) * 2 - 1
+    with torch.no_grad():
+        assert torch.allclose(resumed.model(x), full.model(x), atol=1e-5)
+
+
+def test_sdf_model_file_gives_delta_and_frame(sphere, tmp_path):
+    # a tiny Siren SDF of the sphere, fitted quickly; stored with kind "sdf", its frame and δ
+    torch.manual_seed(0)
+    sdf = Siren(32, 1, 3, 1, omega_0=5.0)
+    opt = torch.optim.Adam(sdf.parameters(), lr=3e-3)
+    for _ in range(150):
+        x = torch.rand(1024, 3) * 2 - 1
+        loss = ((sdf(x)[:, 0] - (x.norm(dim=1) - R)) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    path = save_model(sdf, tmp_path / "sphere.sdf", kind="sdf", frame=sphere.frame.to_dict(), delta=0.04)
+    fit = fit_texture(sphere, str(path), **dict(TINY, steps=30, pool=4000, batch=256))
+    assert fit.delta == 0.04 and fit.history[-1]["orth"] >= 0
+    # without δ in the file: the stated default
+    path2 = save_model(sdf, tmp_path / "nodelta.sdf", kind="sdf", frame=sphere.frame.to_dict())
+    assert fit_texture(sphere, str(path2), **dict(TINY, steps=2, pool=2000, batch=64)).delta == DEFAULT_DELTA
+    # another frame: refused
+    other = save_model(sdf, tmp_path / "other.sdf", kind="sdf", frame={"center": [0, 0, 0], "scale": 2.0})
+    with pytest.raises(FitError, match="another frame"):
+        fit_texture(sphere, str(other), **dict(TINY, steps=2))
+    # a texture file where an SDF is expected
+    tex = save_model(Siren(8, 0, 3, 3), tmp_path / "t.tex", kind="texture")
+    with pytest.raises(ModelFileError, match="expected an SDF model file"):
+        fit_texture(sphere, str(tex), **dict(TINY, steps=2))
+    with pytest.raises(FitError, match="scalar field"):
+        fit_texture(sphere, Siren(8, 0, 3, 3), **dict(TINY, steps=2))
+
+
+def test_presets_are_valid_and_applied(sphere):
+    for name, values in PRESETS.items():
+        assert values["minutes"] > 0
+        replace(TextureFitConfig(), **values)
+    fit = fit_texture(sphere, sphere_sdf, preset="fast", steps=3, pool=2000, batch=64, minutes=None)
+    assert (fit.model.width, fit.model.depth) == (PRESETS["fast"]["width"], PRESETS["fast"]["depth"])
+    assert fit.steps == 3
+
+
+# ------------------------------------------------------------------------------------------- texture policies
+
+
+def test_alpha_is_ignored_with_a_warning(sphere):
+    rgba = np.concatenate([sphere.texture, np.full(sphere.texture.shape[:2] + (1,), 0.5, np.float32)], axis=2)
+    with pytest.warns(NeuralBakeWarning, match="alpha below 1; fitting RGB only"):
+        s = texture_targets(replace(sphere, texture=rgba), 500, seed=1)
+    ref = texture_targets(sphere, 500, seed=1)
+    assert np.array_equal(s["colors"], ref["colors"])
+
+
+def test_16_bit_textures_are_decoded_from_srgb_and_float_textures_kept(sphere):
+    u16 = np.round(linear_to_srgb(sphere.texture) * 65535).astype(np.uint16)
+    a = texture_targets(sphere, 1000, seed=2, texture=u16)["colors"]
+    b = texture_targets(sphere, 1000, seed=2)["colors"]
+    assert np.abs(a - b).max() < 1e-4
+    hdr = sphere.texture * 4.0  # float: linear data, values above 1 kept
+    c = texture_targets(sphere, 1000, seed=2, texture=hdr)["colors"]
+    assert np.allclose(c, 4 * b, rtol=1e-5) and c.max() > 1.0
+
+
+def test_uvs_outside_unit_square_follow_the_mesh_policy(sphere):
+    shifted = replace(sphere, uv=sphere.uv + np.array([1.0, -2.0]))
+    a = texture_targets(shifted, 1000, seed=4)["colors"]
+    b = texture_targets(sphere, 1000, seed=4)["colors"]
+    assert np.allclose(a, b, atol=1e-5)  # wrap: UV + integers reads the same texel
+    clamped = texture_targets(replace(shifted, uv_policy="clamp"), 1000, seed=4)["colors"]
+    assert not np.allclose(clamped, b, atol=1e-3)
+
+
+# ------------------------------------------------------------------------------------------- errors
+
+
+def test_mesh_without_uvs_or_texture_is_a_clear_error(sphere):
+    with pytest.raises(MeshError, match="no UV coordinates"):
+        fit_texture(replace(sphere, uv=None), sphere_sdf, **TINY)
+    with pytest.raises(MeshError, match="no texture image"):
+        fit_texture(replace(sphere, texture=None), sphere_sdf, **TINY)
+    with pytest.raises(MeshError, match="no UV coordinates"):
+        texture_metrics(constant_net([0, 0, 0]), replace(sphere, uv=None), sphere_sdf)
+
+
+def test_bad_textures_are_clear_errors(sphere):
+    bad = sphere.texture.copy()
+    bad[3, 4, 1] = np.nan
+    with pytest.raises(ImageError, match="1 texels with NaN"):
+        fit_texture(sphere, sphere_sdf, texture=bad, **TINY)
+    with pytest.raises(ImageError, match=r"must be \(H, W, C\)"):
+        fit_texture(sphere, sphere_sdf, texture=np.zeros((4, 4, 5), np.float32), **TINY)
+
+
+@pytest.mark.parametrize("override,message", [
+    ({"lam": -1.0}, "lam: must be a finite number >= 0"),
+    ({"delta": 0.0}, r"delta: must be in \(0, 1\]"),
+    ({"width": 0}, "width: must be a positive integer"),
+    ({"depth": -1}, "depth: must be a non-negative integer"),
+    ({"lr": float("nan")}, "lr: must be a positive number"),
+    ({"minutes": -2.0}, "minutes: must be a positive number"),
+    ({"band_uniform_fraction": 1.5}, r"band_uniform_fraction: must be in \[0, 1\]"),
+    ({"dtype": "float16"}, "dtype: must be 'float32' or 'float64'"),
+    ({"lr_schedule": "step"}, "lr_schedule: must be 'constant' or 'cosine'"),
+    ({"preset": "huge"}, "unknown preset 'huge'"),
+    ({"colour_weight": 2}, "unknown option 'colour_weight'"),
+])
+def test_bad_config_is_a_fit_error(sphere, override, message):
+    with pytest.raises(FitError, match=message):
+        fit_texture(sphere, sphere_sdf, **dict(TINY, **override))
+
+
+def test_wrong_sdf_argument_and_empty_band_are_fit_errors(sphere):
+    with pytest.raises(FitError, match="expected a Siren, a model file path or a callable"):
+        fit_texture(sphere, 3.5, **TINY)
+
+    def far(x):  # an SDF whose zero set is nowhere near the mesh and whose gradient vanishes
+        return torch.full((x.shape[0],), 5.0, dtype=x.dtype), torch.zeros_like(x)
+
+    with pytest.raises(FitError, match="no band samples"):
+        fit_texture(sphere, far, **TINY)
