@@ -8,8 +8,12 @@ import torch
 from torch import nn
 
 from ..constants import DEFAULT_OMEGA_0
+from ..errors import NeuralBakeError
 
-__all__ = ["Siren"]
+__all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK"]
+
+#: Points per chunk of the inference forward pass (chosen by measurement: `neural-bake bench normals`).
+FORWARD_CHUNK = 4096
 
 
 class Siren(nn.Module):
@@ -40,11 +44,11 @@ class Siren(nn.Module):
         super().__init__()
         for name, v in (("width", width), ("in_dim", in_dim), ("out_dim", out_dim)):
             if int(v) != v or v < 1:
-                raise ValueError(f"Siren: {name} must be a positive integer, got {v!r}")
+                raise NeuralBakeError(f"Siren: {name} must be a positive integer, got {v!r}")
         if int(depth) != depth or depth < 0:
-            raise ValueError(f"Siren: depth must be a non-negative integer, got {depth!r}")
+            raise NeuralBakeError(f"Siren: depth must be a non-negative integer, got {depth!r}")
         if not (math.isfinite(omega_0) and omega_0 > 0 and math.isfinite(hidden_omega) and hidden_omega > 0):
-            raise ValueError(f"Siren: omega_0 and hidden_omega must be positive, got {omega_0!r}, {hidden_omega!r}")
+            raise NeuralBakeError(f"Siren: omega_0 and hidden_omega must be positive, got {omega_0!r}, {hidden_omega!r}")
         self.width, self.depth = int(width), int(depth)
         self.in_dim, self.out_dim = int(in_dim), int(out_dim)
         self.omega_0, self.hidden_omega = float(omega_0), float(hidden_omega)
@@ -81,17 +85,37 @@ class Siren(nn.Module):
             layer.weight.uniform_(-bound_w, bound_w, generator=generator)
             layer.bias.uniform_(-1.0 / math.sqrt(fan_in), 1.0 / math.sqrt(fan_in), generator=generator)
 
-    def affine_layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def affine_layers(
+        self, *, dtype: torch.dtype | None = None, device: torch.device | str | None = None
+    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """[(W_i, b_i)] with ω folded in: hidden layer i is ``sin(x @ W_i.T + b_i)``, the last is linear.
 
-        Differentiable with respect to the parameters (used inside training losses).
+        ``W_i`` is (out_i, in_i), ``b_i`` (out_i,). With ``dtype``/``device`` the parameters are converted
+        *before* ω is folded in (so float64 callers get float64-exact products). Differentiable with
+        respect to the parameters (used inside training losses).
         """
-        return [(layer.weight * w, layer.bias * w) for layer, w in zip(self.layers, self.omegas)]
+        return [
+            (layer.weight.to(device=device, dtype=dtype) * w, layer.bias.to(device=device, dtype=dtype) * w)
+            for layer, w in zip(self.layers, self.omegas)
+        ]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Values (N, out_dim) at points ``x`` (N, in_dim) (or (..., in_dim)); dtype and device of ``x``.
+
+        With autograd off (``torch.no_grad()``, or neither ``x`` nor any parameter requiring grad) it runs a
+        chunked in-place path (:func:`siren_forward_inference`) that keeps the working set small; otherwise
+        the plain differentiable path.
+        """
         if x.shape[-1] != self.in_dim:
-            raise ValueError(f"Siren: expected points of shape (N, {self.in_dim}), got {tuple(x.shape)}")
-        layers = self.affine_layers()
+            raise NeuralBakeError(f"Siren: expected points of shape (N, {self.in_dim}), got {tuple(x.shape)}")
+        needs_graph = torch.is_grad_enabled() and (
+            x.requires_grad or any(p.requires_grad for p in self.parameters())
+        )
+        if not needs_graph and x.dim() == 2:
+            with torch.no_grad():
+                layers = self.affine_layers(dtype=x.dtype, device=x.device)
+                return siren_forward_inference(layers, x)
+        layers = self.affine_layers(dtype=x.dtype, device=x.device)
         h = x
         for w, b in layers[:-1]:
             h = torch.sin(torch.addmm(b, h, w.t()) if h.dim() == 2 else h @ w.t() + b)
@@ -100,3 +124,34 @@ class Siren(nn.Module):
 
     def extra_repr(self) -> str:
         return f"(W, D) = ({self.width}, {self.depth}), in={self.in_dim}, out={self.out_dim}, ω0={self.omega_0:g}"
+
+
+def siren_forward_inference(
+    layers: list[tuple[torch.Tensor, torch.Tensor]], x: torch.Tensor, chunk_size: int | None = None
+) -> torch.Tensor:
+    """A SIREN's values without autograd: ``layers`` from :meth:`Siren.affine_layers` (ω folded in).
+
+    ``x``: (N, in_dim) tensor; returns (N, out_dim) of the same dtype and device. Works chunk by chunk of
+    ``chunk_size`` points (default :data:`FORWARD_CHUNK`) with two reused activation buffers: ``addmm`` into
+    a buffer, then ``sin_`` in place, so no temporary is allocated per layer. Call under ``torch.no_grad()``.
+    """
+    n = x.shape[0]
+    w_last, b_last = layers[-1]
+    out = x.new_empty((n, w_last.shape[0]))
+    if n == 0:
+        return out
+    chunk = max(1, int(chunk_size or FORWARD_CHUNK))
+    c0 = min(chunk, n)
+    width = layers[0][0].shape[0]
+    bufs = [x.new_empty((c0, width)), x.new_empty((c0, width))]
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        c = stop - start
+        h = x[start:stop]
+        for i, (w, b) in enumerate(layers[:-1]):
+            a = bufs[i % 2][:c]
+            torch.addmm(b, h, w.t(), out=a)
+            a.sin_()
+            h = a
+        torch.addmm(b_last, h, w_last.t(), out=out[start:stop])
+    return out

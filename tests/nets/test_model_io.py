@@ -1,0 +1,208 @@
+"""Model files: round trips, and one clear ModelFileError for every kind of bad file."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from neural_bake import __version__
+from neural_bake.errors import ModelFileError
+from neural_bake.nets.model_io import MODEL_FORMAT, load_model, read_model_metadata, save_model
+from neural_bake.nets.siren import Siren
+from neural_bake.types import Frame
+
+
+def _siren(width=8, depth=2, in_dim=3, out_dim=1, seed=0, **kw):
+    return Siren(width, depth, in_dim, out_dim, generator=torch.Generator().manual_seed(seed), **kw)
+
+
+def _write_raw(path, tensors, header=None, fmt=MODEL_FORMAT):
+    meta = {"format": fmt}
+    if header is not None:
+        meta["neural_bake"] = json.dumps(header)
+    save_file(tensors, str(path), metadata=meta)
+    return path
+
+
+def _header(model, **changes):
+    h = {"format": MODEL_FORMAT, "format_version": 1, "package_version": __version__,
+         "architecture": model.architecture, "metadata": {}}
+    h.update(changes)
+    return h
+
+
+@pytest.mark.parametrize("in_dim,out_dim,depth", [(3, 1, 0), (4, 1, 3), (3, 3, 1)])
+def test_round_trip_exact(tmp_path, in_dim, out_dim, depth):
+    model = _siren(12, depth, in_dim, out_dim, omega_0=17.5, hidden_omega=25.0)
+    frame = Frame((0.5, -1.0, 2.0), 0.25)
+    path = save_model(model, tmp_path / "f.safetensors", kind="sdf", frame=frame, delta=0.02,
+                      config={"steps": 10, "lr": 1e-4, "layers": (1, 2)}, arr=np.arange(3), t=torch.tensor(1.5))
+    assert path == tmp_path / "f.safetensors" and path.is_file()
+    loaded, meta = load_model(path)
+    assert loaded.architecture == model.architecture
+    assert meta == {"kind": "sdf", "frame": frame.to_dict(), "delta": 0.02,
+                    "config": {"steps": 10, "lr": 1e-4, "layers": [1, 2]}, "arr": [0, 1, 2], "t": 1.5}
+    assert Frame.from_dict(meta["frame"]) == frame
+    for (name, a), (_, b) in zip(model.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(a, b), name
+    x = torch.rand(20, in_dim) * 2 - 1
+    with torch.no_grad():
+        assert torch.equal(model(x), loaded(x))
+    assert not loaded.training
+    header = read_model_metadata(path)
+    assert header["format"] == MODEL_FORMAT and header["format_version"] == 1
+    assert header["package_version"] == __version__ and header["architecture"] == model.architecture
+
+
+def test_load_dtype_and_device(tmp_path):
+    model = _siren().double()
+    path = save_model(model, tmp_path / "d.safetensors")
+    loaded, _ = load_model(path)
+    assert loaded.layers[0].weight.dtype == torch.float64  # stored dtype kept by default
+    loaded32, _ = load_model(path, dtype=torch.float32, device="cpu")
+    assert loaded32.layers[0].weight.dtype == torch.float32
+    assert torch.equal(loaded32.layers[1].weight, model.layers[1].weight.float())
+
+
+def test_save_replaces_atomically_and_keeps_good_file_on_failure(tmp_path):
+    path = tmp_path / "m.safetensors"
+    save_model(_siren(seed=1), path, kind="sdf")
+    good = path.read_bytes()
+    with pytest.raises(ModelFileError, match=r"m.safetensors: metadata is not JSON-serialisable"):
+        save_model(_siren(seed=2), path, bad=object())
+    assert path.read_bytes() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["m.safetensors"]  # no temporary left behind
+    save_model(_siren(seed=2), path, kind="texture")
+    assert load_model(path)[1] == {"kind": "texture"}
+
+
+def test_save_errors(tmp_path):
+    with pytest.raises(ModelFileError, match=r"x.safetensors: metadata is not JSON-serialisable \(a NaN or infinite"):
+        save_model(_siren(), tmp_path / "x.safetensors", delta=float("nan"))
+    with pytest.raises(ModelFileError, match=r"x.safetensors: save_model expects a Siren, got Linear"):
+        save_model(torch.nn.Linear(3, 1), tmp_path / "x.safetensors")
+    with pytest.raises(ModelFileError, match=r"nope/x.safetensors: folder .*nope does not exist"):
+        save_model(_siren(), tmp_path / "nope" / "x.safetensors")
+
+
+def test_missing_and_directory(tmp_path):
+    with pytest.raises(ModelFileError, match=r"absent.safetensors: no such model file"):
+        load_model(tmp_path / "absent.safetensors")
+    with pytest.raises(ModelFileError, match=r": not a file"):
+        load_model(tmp_path)
+
+
+def test_garbage_and_empty(tmp_path):
+    p = tmp_path / "garbage.safetensors"
+    p.write_bytes(b"this is not a model" * 10)
+    with pytest.raises(ModelFileError, match=r"garbage.safetensors: not a readable model file"):
+        load_model(p)
+    p.write_bytes(b"")
+    with pytest.raises(ModelFileError, match=r"garbage.safetensors: not a readable model file"):
+        load_model(p)
+
+
+@pytest.mark.parametrize("cut", [1, 8, 100, 0.5])
+def test_truncated(tmp_path, cut):
+    path = save_model(_siren(16, 2), tmp_path / "t.safetensors")
+    data = path.read_bytes()
+    keep = int(len(data) * cut) if isinstance(cut, float) else len(data) - cut
+    path.write_bytes(data[:keep])
+    with pytest.raises(ModelFileError, match=r"t.safetensors: (not a readable|corrupt or truncated) model file"):
+        load_model(path)
+
+
+def test_corrupted_tensor_bytes_give_nan_error(tmp_path):
+    path = save_model(_siren(8, 1), tmp_path / "c.safetensors")
+    data = bytearray(path.read_bytes())
+    data[-4:] = np.array([np.nan], dtype=np.float32).tobytes()  # last float of the last tensor
+    path.write_bytes(bytes(data))
+    with pytest.raises(ModelFileError, match=r"c.safetensors: tensor layers\.\d\.\w+ holds NaN or infinite"):
+        load_model(path)
+
+
+def test_pickle_file_is_refused_without_running_it(tmp_path):
+    path = tmp_path / "model.pt"
+    torch.save(_siren().state_dict(), path)
+    with pytest.raises(ModelFileError, match=r"model.pt: not a readable model file"):
+        load_model(path)
+
+
+def test_plain_safetensors_is_not_a_model(tmp_path):
+    p = tmp_path / "plain.safetensors"
+    save_file({"a": torch.zeros(3)}, str(p))
+    with pytest.raises(ModelFileError, match=r"plain.safetensors: a safetensors file but not a neural_bake model"):
+        load_model(p)
+
+
+def test_mismatched_shapes(tmp_path):
+    small, big = _siren(8, 2), _siren(16, 2)
+    p = _write_raw(tmp_path / "mm.safetensors", big.state_dict(), _header(small))
+    with pytest.raises(ModelFileError, match=r"mm.safetensors: tensor layers.0.weight has shape \(16, 3\), "
+                                             r"the architecture needs \(8, 3\)"):
+        load_model(p)
+
+
+def test_missing_and_extra_tensors(tmp_path):
+    model = _siren(8, 2)
+    sd = dict(model.state_dict())
+    del sd["layers.3.bias"]
+    sd["extra"] = torch.zeros(2)
+    p = _write_raw(tmp_path / "names.safetensors", sd, _header(model))
+    with pytest.raises(ModelFileError, match=r"names.safetensors: tensors do not match the architecture "
+                                             r"\(missing \['layers.3.bias'\], unexpected \['extra'\]\)"):
+        load_model(p)
+
+
+def test_integer_tensor_refused(tmp_path):
+    model = _siren(4, 0)
+    sd = {k: v.to(torch.int32) for k, v in model.state_dict().items()}
+    p = _write_raw(tmp_path / "int.safetensors", sd, _header(model))
+    with pytest.raises(ModelFileError, match=r"int.safetensors: tensor layers.0.weight has dtype torch.int32"):
+        load_model(p)
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        ({"format_version": 99}, r"model format version 99 is newer than this neural_bake reads \(1\)"),
+        ({"format_version": "1"}, r"corrupt model header \(format_version '1'\)"),
+        ({"architecture": {"width": 8}}, r"corrupt model header \(architecture"),
+        ({"metadata": [1, 2]}, r"corrupt model header \(metadata is not a JSON object\)"),
+    ],
+)
+def test_bad_headers(tmp_path, change, message):
+    model = _siren(8, 2)
+    p = _write_raw(tmp_path / "h.safetensors", model.state_dict(), _header(model, **change))
+    with pytest.raises(ModelFileError, match=r"h.safetensors: " + message):
+        load_model(p)
+
+
+@pytest.mark.parametrize(
+    "key,value,message",
+    [
+        ("width", -8, r"width = -8 is not a valid size"),
+        ("depth", 1.5, r"depth = 1.5 is not a valid size"),
+        ("in_dim", True, r"in_dim = True is not a valid size"),
+        ("omega_0", -30.0, r"omega_0 = -30.0 is not a positive number"),
+        ("hidden_omega", "30", r"hidden_omega = '30' is not a positive number"),
+    ],
+)
+def test_bad_architecture_values(tmp_path, key, value, message):
+    model = _siren(8, 2)
+    arch = dict(model.architecture, **{key: value})
+    p = _write_raw(tmp_path / "a.safetensors", model.state_dict(), _header(model, architecture=arch))
+    with pytest.raises(ModelFileError, match=r"a.safetensors: corrupt model header \(" + message):
+        load_model(p)
+
+
+def test_header_not_json(tmp_path):
+    p = tmp_path / "j.safetensors"
+    save_file(_siren().state_dict(), str(p), metadata={"format": MODEL_FORMAT, "neural_bake": "{not json"})
+    with pytest.raises(ModelFileError, match=r"j.safetensors: corrupt model header"):
+        load_model(p)
+    save_file(_siren().state_dict(), str(p), metadata={"format": MODEL_FORMAT, "neural_bake": "[1]"})
+    with pytest.raises(ModelFileError, match=r"j.safetensors: corrupt model header \(not a JSON object\)"):
+        load_model(p)
