@@ -1,0 +1,729 @@
+"""Mesh files: load (OBJ+MTL, PLY, GLB, glTF), validate, normalise to the unit frame, save.
+
+Conventions of the returned :class:`~neural_bake.types.Mesh`:
+
+- vertices (V, 3) float64 in the unit frame (``Frame.fit``: centred, longest side 1.8) unless
+  ``normalise=False`` (source frame, identity Frame). Vertices at the same position (closer than
+  ``constants.MERGE_DISTANCE`` in the unit frame) are welded and unreferenced vertices dropped, so a mesh
+  whose file splits vertices at UV seams (OBJ ``v/vt`` pairs, glTF) gets its true topology back.
+- faces (F, 3) int64, polygons fan-triangulated; faces outward (a closed mesh of negative volume is flipped).
+- uv (F, 3, 2) float64 per face corner, v = 0 at the *bottom* of the texture (OBJ and glTF-as-read-by-trimesh
+  convention; glTF files store v downward and trimesh flips it on read and write).
+- texture (H, W, 3|4) float32 *linear* RGB(A), row 0 = top row of the image file.
+
+OBJ is parsed here (exact line-numbered errors, per-corner UVs, MTL ``map_Kd``); PLY, GLB and glTF are read
+with trimesh (``process=False``); a multi-geometry scene is concatenated with its transforms applied.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..constants import DEGENERATE_AREA, UV_POLICIES
+from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
+from ..types import Frame, Mesh
+from .atomic import atomic_path, atomic_write_bytes, atomic_write_text
+
+__all__ = ["load_mesh", "mesh_from_arrays", "save_mesh", "MESH_FORMATS", "SAVE_FORMATS", "MERGE_DISTANCE"]
+
+#: Extensions :func:`load_mesh` reads (any case).
+MESH_FORMATS = (".obj", ".ply", ".glb", ".gltf")
+#: Extensions :func:`save_mesh` writes.
+SAVE_FORMATS = (".obj", ".ply", ".glb")
+#: Vertices closer than this (unit frame) are one vertex (welding of UV-seam splits).
+MERGE_DISTANCE = 1e-9
+
+#: Start of the warning issued when a closed mesh was wound inward and flipped (inspect looks for it).
+INWARD_FLIPPED = "faces were wound inward"
+
+_MAX_REASON = 160
+
+
+# --------------------------------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------------------------------
+
+
+def load_mesh(
+    path: str | os.PathLike,
+    texture: str | os.PathLike | None = None,
+    *,
+    uv_policy: str = "wrap",
+    normalise: bool = True,
+) -> Mesh:
+    """Read, validate and normalise a triangle mesh with optional UVs and base-colour texture.
+
+    - ``path``: an OBJ (+MTL), PLY, GLB or glTF file.
+    - ``texture``: an image for a mesh whose file names none (or to replace the one it names); read with
+      :func:`~neural_bake.io.images.read_image` (8/16-bit images are sRGB, decoded to linear).
+    - ``uv_policy``: "wrap" (repeat) or "clamp" for UVs outside [0, 1]; stored in ``Mesh.uv_policy``.
+    - ``normalise``: True puts the mesh in the unit frame (``Mesh.frame`` maps back); False keeps the
+      source coordinates with an identity frame.
+
+    Raises :class:`~neural_bake.errors.MeshError` (one line, naming the file) for a missing file, unknown
+    format, unreadable/corrupt file, empty mesh, non-finite coordinates, out-of-range face indices, faces of
+    fewer than 3 corners, all faces degenerate, or a texture given for a mesh without UVs; and
+    :class:`~neural_bake.errors.ImageError` naming the image for an unreadable texture. Issues
+    :class:`~neural_bake.errors.NeuralBakeWarning` (also kept in ``Mesh.warnings``) for degenerate faces,
+    open meshes, inward winding (fixed), UVs outside [0, 1], a named but missing texture.
+    """
+    _check_uv_policy(uv_policy)
+    p = Path(path)
+    name = str(path)
+    if not p.exists():
+        raise MeshError(f"{name}: no such file")
+    if not p.is_file():
+        raise MeshError(f"{name}: not a file")
+    ext = p.suffix.lower()
+    if ext not in MESH_FORMATS:
+        raise MeshError(f"{name}: unknown mesh format {p.suffix!r} (expected one of {', '.join(MESH_FORMATS)})")
+    notes: list[str] = []
+    if ext == ".obj":
+        vertices, faces, uv, tex_array, tex_path = _read_obj(p, name, notes)
+    else:
+        vertices, faces, uv, tex_array, tex_path = _read_with_trimesh(p, name, ext, notes)
+    tex_label = None
+    if texture is not None:
+        tex_array, tex_label = None, str(texture)
+        tex_path = Path(texture)
+    if uv is None and (tex_array is not None or tex_path is not None):
+        if tex_label is not None:
+            raise MeshError(f"{name}: texture {tex_label} given but the mesh has no UV coordinates")
+        _warn(notes, f"{name}: the file names a texture but has no UV coordinates; texture ignored")
+        tex_array = tex_path = None
+    if tex_array is None and tex_path is not None:
+        from .images import read_image
+
+        tex_array = read_image(tex_path)  # ImageError names the image
+    return _assemble(vertices, faces, uv, tex_array, name=name, uv_policy=uv_policy, normalise=normalise, notes=notes)
+
+
+def mesh_from_arrays(
+    vertices,
+    faces,
+    uv=None,
+    texture=None,
+    *,
+    source: str = "",
+    uv_policy: str = "wrap",
+    normalise: bool = True,
+) -> Mesh:
+    """Build a validated :class:`Mesh` from in-memory arrays (same checks and warnings as :func:`load_mesh`).
+
+    - ``vertices``: (V, 3) float, source frame.
+    - ``faces``: (F, K) integer vertex indices, K >= 3 (polygons are fan-triangulated), counter-clockwise
+      seen from outside (a closed mesh wound the other way is flipped with a warning).
+    - ``uv``: None, (F, K, 2) per face corner or (V, 2) per vertex; v = 0 at the bottom of the texture.
+    - ``texture``: None, a (H, W, C) array (float: linear; uint8/uint16: sRGB, decoded; C = 1..4) or an image
+      path (read with ``read_image``).
+    - ``source``: a name for messages (e.g. the file the arrays came from); "" gives "<generated mesh>".
+    - ``uv_policy``, ``normalise``: as in :func:`load_mesh`.
+
+    Note that welding may make ``Mesh.vertices`` shorter than ``vertices`` (see the module docstring).
+    """
+    _check_uv_policy(uv_policy)
+    name = source or "<generated mesh>"
+    v = np.asarray(vertices)
+    if v.ndim != 2 or v.shape[1] != 3 or v.dtype.kind not in "fiu":
+        raise MeshError(f"{name}: vertices must be a numeric (V, 3) array, got shape {v.shape} dtype {v.dtype}")
+    f = np.asarray(faces)
+    if f.size == 0:
+        raise MeshError(f"{name}: empty mesh (no faces)")
+    if f.ndim != 2 or f.dtype.kind not in "iuf":
+        raise MeshError(f"{name}: faces must be an integer (F, 3) array, got shape {f.shape} dtype {f.dtype}")
+    if f.shape[1] < 3:
+        raise MeshError(f"{name}: faces have {f.shape[1]} corners (a face needs at least 3), shape {f.shape}")
+    if f.dtype.kind == "f":
+        if not np.all(np.isfinite(f)) or not np.all(f == np.round(f)):
+            raise MeshError(f"{name}: faces must hold integer vertex indices")
+    f = f.astype(np.int64)
+    k = f.shape[1]
+    uv_c = None
+    if uv is not None:
+        u = np.asarray(uv, dtype=np.float64)
+        if u.shape == (f.shape[0], k, 2):
+            uv_c = u
+        elif u.ndim == 2 and u.shape == (v.shape[0], 2):
+            _check_range(f, v.shape[0], name)
+            uv_c = u[f]
+        else:
+            raise MeshError(
+                f"{name}: uv must be (F, {k}, 2) per corner or (V, 2) per vertex "
+                f"= ({f.shape[0]}, {k}, 2) or ({v.shape[0]}, 2), got shape {u.shape}"
+            )
+    if k > 3:  # fan triangulation of polygons
+        fan = np.array([[0, i, i + 1] for i in range(1, k - 1)])
+        f = f[:, fan].reshape(-1, 3)
+        if uv_c is not None:
+            uv_c = uv_c[:, fan].reshape(-1, 3, 2)
+    tex = None
+    if texture is not None:
+        if isinstance(texture, (str, os.PathLike)):
+            if uv_c is None:
+                raise MeshError(f"{name}: texture {texture} given but the mesh has no UV coordinates")
+            from .images import read_image
+
+            tex = read_image(texture)
+        else:
+            tex = _texture_array(texture, name)
+    return _assemble(v.astype(np.float64), f, uv_c, tex, name=name, uv_policy=uv_policy, normalise=normalise, notes=[])
+
+
+def save_mesh(mesh: Mesh, path: str | os.PathLike, *, frame: str = "source") -> Path:
+    """Write ``mesh`` to an OBJ (+ MTL + PNG texture), PLY or GLB file, atomically; return the path.
+
+    - ``frame``: "source" (default) writes source-frame coordinates (``mesh.frame.to_source``), so
+      ``load_mesh(save_mesh(load_mesh(p), q))`` has the geometry of ``p``; "unit" writes unit-frame ones.
+    - OBJ: ``<stem>.mtl`` and ``<stem>_basecolor.png`` (8-bit sRGB) beside it when the mesh has a texture;
+      per-corner UVs as ``vt``. PLY (binary): double positions, float normals, per-vertex ``s t`` (vertices
+      split at UV seams) and ``comment TextureFile`` naming the PNG. GLB: PBR base-colour texture embedded.
+
+    Every file goes through :func:`~neural_bake.io.atomic.atomic_path`; the mesh file is written last so it
+    never names a missing texture. Raises :class:`MeshError` for an unknown format or a missing folder.
+    """
+    if frame not in ("source", "unit"):
+        raise ValueError(f"save_mesh: frame must be 'source' or 'unit', got {frame!r}")
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in SAVE_FORMATS:
+        raise MeshError(f"{p}: cannot write mesh format {p.suffix!r} (can write {', '.join(SAVE_FORMATS)})")
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir():
+        raise MeshError(f"{p}: folder {folder} does not exist")
+    vertices = mesh.frame.to_source(mesh.vertices) if frame == "source" else np.asarray(mesh.vertices, np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    uv = None if mesh.uv is None else np.asarray(mesh.uv, dtype=np.float64)
+    normals = mesh.vertex_normals if mesh.vertex_normals is not None else _vertex_normals(vertices, faces)
+    tex_name = f"{p.stem}_basecolor.png"
+    if ext == ".obj":
+        if mesh.texture is not None and uv is not None:
+            from .images import write_image
+
+            write_image(p.with_name(tex_name), mesh.texture, colour="srgb", bits=8)
+            atomic_write_text(p.with_suffix(".mtl"), _mtl_text(tex_name))
+        atomic_write_text(p, _obj_text(vertices, faces, uv, p.with_suffix(".mtl").name if mesh.texture is not None and uv is not None else None))
+    elif ext == ".ply":
+        has_tex = mesh.texture is not None and uv is not None
+        if has_tex:
+            from .images import write_image
+
+            write_image(p.with_name(tex_name), mesh.texture, colour="srgb", bits=8)
+        atomic_write_bytes(p, _ply_bytes(vertices, faces, uv, normals, tex_name if has_tex else None))
+    else:
+        atomic_write_bytes(p, _glb_bytes(vertices, faces, uv, mesh.texture))
+    return p
+
+
+# --------------------------------------------------------------------------------------------------------------
+# validation, welding, normalisation
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _check_uv_policy(uv_policy: str) -> None:
+    if uv_policy not in UV_POLICIES:
+        raise NeuralBakeError(f"uv_policy must be one of {UV_POLICIES}, got {uv_policy!r}")
+
+
+def _warn(notes: list[str], message: str) -> None:
+    notes.append(message)
+    warnings.warn(message, NeuralBakeWarning, stacklevel=4)
+
+
+def _check_range(faces: np.ndarray, n_vertices: int, name: str) -> None:
+    bad = (faces < 0) | (faces >= n_vertices)
+    if bad.any():
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        idx = int(faces[i][bad[i]][0])
+        raise MeshError(f"{name}: face {i}: vertex index {idx} out of range (mesh has {n_vertices} vertices)")
+
+
+def _texture_array(texture, name: str) -> np.ndarray:
+    """An in-memory texture as (H, W, 3|4) float32 linear; integer arrays are sRGB-encoded."""
+    from .colour import srgb_to_linear
+
+    t = np.asarray(texture)
+    if t.ndim == 2:
+        t = t[:, :, None]
+    if t.ndim != 3 or not 1 <= t.shape[2] <= 4 or t.shape[0] == 0 or t.shape[1] == 0 or t.dtype.kind not in "fiub":
+        raise MeshError(f"{name}: texture must be a (H, W, C) array with C in 1..4, got shape {np.shape(texture)}")
+    if t.dtype.kind in "iub":
+        scale = 255.0 if t.dtype.itemsize == 1 else 65535.0
+        t = t.astype(np.float32) / scale
+        k = 1 if t.shape[2] <= 2 else 3
+        t[..., :k] = srgb_to_linear(t[..., :k])
+    t = t.astype(np.float32)
+    if not np.isfinite(t).all():
+        raise MeshError(f"{name}: texture has non-finite values")
+    return t
+
+
+def _rgb_texture(t: np.ndarray) -> np.ndarray:
+    """Grey -> RGB, grey+alpha -> RGBA (Mesh.texture holds 3 or 4 channels)."""
+    t = np.asarray(t, dtype=np.float32)
+    if t.shape[2] == 1:
+        return np.repeat(t, 3, axis=2)
+    if t.shape[2] == 2:
+        return np.concatenate([np.repeat(t[..., :1], 3, axis=2), t[..., 1:]], axis=2)
+    return t[..., :4]
+
+
+def _weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices closer than ``tol``; returns (kept indices in original order, old -> new index map)."""
+    n = len(vertices)
+    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    rep = first[inverse.reshape(-1)]  # exact duplicates -> first occurrence
+    uniq = np.unique(rep)
+    if tol > 0 and len(uniq) > 1:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        pairs = cKDTree(vertices[uniq]).query_pairs(r=tol, output_type="ndarray")
+        if len(pairs):
+            m = len(uniq)
+            graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+            _, label = connected_components(graph, directed=False)
+            first_of_label = np.full(label.max() + 1, n, dtype=np.int64)
+            np.minimum.at(first_of_label, label, uniq)
+            rep_u = first_of_label[label]  # uniq position -> representative original index
+            lookup = np.empty(n, dtype=np.int64)
+            lookup[uniq] = rep_u
+            rep = lookup[rep]
+    kept = np.unique(rep)
+    new_index = np.full(n, -1, dtype=np.int64)
+    new_index[kept] = np.arange(len(kept))
+    return kept, new_index[rep]
+
+
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3); zero rows where every incident face is degenerate."""
+    t = vertices[faces]
+    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 * area
+    if mask is not None:
+        fn = np.where(mask[:, None], 0.0, fn)
+    vn = np.zeros_like(vertices, dtype=np.float64)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    norm = np.linalg.norm(vn, axis=1, keepdims=True)
+    return np.divide(vn, norm, out=np.zeros_like(vn), where=norm > 0)
+
+
+def _edge_report(faces: np.ndarray) -> dict:
+    """Edge statistics of the faces with 3 distinct corners: boundary, non-manifold, inconsistent edges."""
+    ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    f = faces[ok]
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    undirected = np.sort(directed, axis=1)
+    _, counts = np.unique(undirected, axis=0, return_counts=True)
+    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    return {
+        "edges": int(len(counts)),
+        "boundary": int((counts == 1).sum()),
+        "non_manifold": int((counts > 2).sum()),
+        "inconsistent": int((dcounts > 1).sum()),
+    }
+
+
+def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes) -> Mesh:
+    """Shared validation + normalisation of triangle data (source frame) into a Mesh."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        raise MeshError(f"{name}: empty mesh (no faces)")
+    _check_range(faces, len(vertices), name)
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise MeshError(f"{name}: vertex {i} has a non-finite coordinate {tuple(vertices[i].tolist())}")
+    if uv is not None:
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+        badf = ~np.isfinite(uv).all(axis=(1, 2))
+        if badf.any():
+            raise MeshError(f"{name}: face {int(np.flatnonzero(badf)[0])} has a non-finite texture coordinate")
+    if texture is not None and uv is None:
+        raise MeshError(f"{name}: a texture was given but the mesh has no UV coordinates")
+    # drop unreferenced vertices, fit the frame, weld
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    vertices, faces = vertices[used], remap[faces]
+    unit = Frame.fit(vertices)
+    kept, new_index = _weld(vertices, MERGE_DISTANCE / unit.scale)
+    vertices, faces = vertices[kept], new_index[faces]
+    # degenerate faces (area measured in the unit frame)
+    t = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1) * unit.scale**2
+    degenerate = area < DEGENERATE_AREA
+    if degenerate.all():
+        raise MeshError(f"{name}: all {len(faces)} faces are degenerate (zero area)")
+    if degenerate.any():
+        _warn(notes, f"{name}: {int(degenerate.sum())} degenerate faces (area < {DEGENERATE_AREA:g} in the unit frame); "
+              "kept but excluded from sampling")
+    # topology and winding
+    edges = _edge_report(faces)
+    watertight = edges["boundary"] == 0 and edges["non_manifold"] == 0 and edges["inconsistent"] == 0
+    if not watertight:
+        parts = [f"{edges[k]} {label}" for k, label in (("boundary", "boundary edges"), ("non_manifold", "non-manifold edges"),
+                 ("inconsistent", "edges with inconsistent winding")) if edges[k]]
+        _warn(notes, f"{name}: mesh is not watertight ({', '.join(parts)}); inside/outside is ill-defined")
+    else:
+        c = Frame(unit.center, 1.0).to_unit(vertices)[faces]
+        volume = float(np.einsum("ij,ij->i", c[:, 0], np.cross(c[:, 1], c[:, 2])).sum() / 6.0)
+        if volume < 0:
+            faces = faces[:, ::-1].copy()
+            if uv is not None:
+                uv = uv[:, ::-1].copy()
+            _warn(notes, f"{name}: {INWARD_FLIPPED} (negative volume); flipped all faces to face outward")
+    # UV range
+    if uv is not None:
+        outside = (uv < 0) | (uv > 1)
+        if outside.any():
+            n_out = int(outside.any(axis=2).sum())
+            _warn(notes, f"{name}: {n_out} face corners have UVs outside [0, 1] (u in [{uv[..., 0].min():.4g}, {uv[..., 0].max():.4g}], "
+                  f"v in [{uv[..., 1].min():.4g}, {uv[..., 1].max():.4g}]); policy {uv_policy!r}")
+    frame = unit if normalise else Frame()
+    out_vertices = frame.to_unit(vertices) if normalise else vertices.copy()
+    return Mesh(
+        vertices=out_vertices,
+        faces=np.ascontiguousarray(faces, dtype=np.int64),
+        uv=None if uv is None else np.ascontiguousarray(uv, dtype=np.float64),
+        texture=None if texture is None else np.ascontiguousarray(_rgb_texture(texture)),
+        vertex_normals=_vertex_normals(out_vertices, faces, degenerate),
+        frame=frame,
+        degenerate=degenerate,
+        uv_policy=uv_policy,
+        watertight=watertight,
+        source=name if name != "<generated mesh>" else "",
+        warnings=list(notes),
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# OBJ + MTL
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _read_obj(p: Path, name: str, notes: list[str]):
+    """Parse an OBJ file: (vertices, faces, uv or None, texture array or None, texture path or None)."""
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise MeshError(f"{name}: unreadable file ({exc.strerror})") from None
+    if b"\x00" in data[:65536]:
+        raise MeshError(f"{name}: unreadable OBJ file (binary data, not OBJ text)")
+    text = data.decode("utf-8", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
+    verts: list[tuple[float, float, float]] = []
+    tcs: list[tuple[float, float]] = []
+    tri_v: list[tuple[int, int, int]] = []
+    tri_t: list[tuple[int, int, int] | None] = []
+    tri_line: list[int] = []
+    tri_mat: list[str | None] = []
+    mtllibs: list[str] = []
+    material = None
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        head, _, rest = line.partition(" ")
+        if head == "v":
+            tok = rest.split()
+            try:
+                verts.append((float(tok[0]), float(tok[1]), float(tok[2])))
+            except (ValueError, IndexError):
+                raise MeshError(f"{name}:{lineno}: cannot parse vertex {line!r}") from None
+        elif head == "vt":
+            tok = rest.split()
+            try:
+                tcs.append((float(tok[0]), float(tok[1]) if len(tok) > 1 else 0.0))
+            except (ValueError, IndexError):
+                raise MeshError(f"{name}:{lineno}: cannot parse texture coordinate {line!r}") from None
+        elif head == "f":
+            tok = rest.split()
+            if len(tok) < 3:
+                raise MeshError(f"{name}:{lineno}: face with {len(tok)} vertices (a face needs at least 3)")
+            vi, ti = [], []
+            try:
+                for t in tok:
+                    parts = t.split("/")
+                    a = int(parts[0])
+                    vi.append(a + len(verts) + 1 if a < 0 else a)
+                    if len(parts) > 1 and parts[1]:
+                        b = int(parts[1])
+                        ti.append(b + len(tcs) + 1 if b < 0 else b)
+            except ValueError:
+                raise MeshError(f"{name}:{lineno}: cannot parse face {line!r}") from None
+            has_t = len(ti) == len(vi)
+            for i in range(1, len(vi) - 1):
+                tri_v.append((vi[0], vi[i], vi[i + 1]))
+                tri_t.append((ti[0], ti[i], ti[i + 1]) if has_t else None)
+                tri_line.append(lineno)
+                tri_mat.append(material)
+        elif head == "mtllib":
+            mtllibs.append(rest.strip())
+        elif head == "usemtl":
+            material = rest.strip()
+    if not tri_v:
+        what = f"{len(verts)} vertices but no faces" if verts else "no vertices or faces"
+        raise MeshError(f"{name}: empty mesh ({what})")
+    faces = np.asarray(tri_v, dtype=np.int64) - 1
+    nv = len(verts)
+    bad = (faces < 0) | (faces >= nv)
+    if bad.any():
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise MeshError(f"{name}:{tri_line[i]}: face index {int(faces[i][bad[i]][0]) + 1} out of range "
+                        f"(file has {nv} vertices)")
+    vertices = np.asarray(verts, dtype=np.float64)
+    uv = None
+    has = np.array([t is not None for t in tri_t])
+    if has.any():
+        nt = len(tcs)
+        tidx = np.zeros((len(tri_t), 3), dtype=np.int64)
+        tidx[has] = np.asarray([t for t in tri_t if t is not None], dtype=np.int64) - 1
+        badt = has[:, None] & ((tidx < 0) | (tidx >= nt))
+        if badt.any():
+            i = int(np.flatnonzero(badt.any(axis=1))[0])
+            raise MeshError(f"{name}:{tri_line[i]}: texture coordinate index {int(tidx[i][badt[i]][0]) + 1} out of "
+                            f"range (file has {nt} texture coordinates)")
+        uv = np.asarray(tcs, dtype=np.float64).reshape(-1, 2)[np.where(has[:, None], tidx, 0)]
+        if not has.all():
+            uv[~has] = 0.0
+            _warn(notes, f"{name}: {int((~has).sum())} faces have no texture coordinates; they get uv (0, 0)")
+    tex_path = _obj_texture(p, name, mtllibs, [m for m in dict.fromkeys(tri_mat) if m is not None], notes)
+    return vertices, faces, uv, None, tex_path
+
+
+_MAP_OPTIONS_ONE = {"-blendu", "-blendv", "-cc", "-clamp", "-imfchan", "-type"}
+_MAP_OPTIONS_NUM = {"-bm", "-boost", "-mm", "-o", "-s", "-t", "-texres"}
+
+
+def _map_file(args: str) -> str:
+    """File name of an MTL ``map_Kd`` statement, skipping its options."""
+    tok = args.split()
+    i = 0
+    while i < len(tok) and tok[i].startswith("-") and tok[i] in _MAP_OPTIONS_ONE | _MAP_OPTIONS_NUM:
+        opt = tok[i]
+        i += 1
+        if opt in _MAP_OPTIONS_ONE:
+            i += 1
+        else:
+            while i < len(tok) - 1:
+                try:
+                    float(tok[i])
+                except ValueError:
+                    break
+                i += 1
+    return " ".join(tok[i:])
+
+
+def _obj_texture(p: Path, name: str, mtllibs: list[str], used: list[str], notes: list[str]) -> Path | None:
+    """The base-colour texture path of the first used material that has a ``map_Kd`` (warn when missing)."""
+    maps: dict[str, tuple[str, Path]] = {}  # material -> (map name as written, mtl file)
+    for lib in mtllibs:
+        candidates = [lib] + ([] if (p.parent / lib).exists() else lib.split())
+        for c in candidates:
+            mtl = p.parent / c.replace("\\", "/")
+            if not mtl.is_file():
+                if c == candidates[-1]:
+                    _warn(notes, f"{name}: material library {c} not found; loading without its textures")
+                continue
+            current = None
+            for raw in mtl.read_text(encoding="utf-8", errors="replace").splitlines():
+                line = raw.split("#", 1)[0].strip()
+                head, _, rest = line.partition(" ")
+                if head == "newmtl":
+                    current = rest.strip()
+                elif head.lower() == "map_kd" and current is not None and current not in maps:
+                    maps[current] = (_map_file(rest), mtl)
+            break
+    order = [m for m in used if m in maps] or list(maps)
+    if not order:
+        return None
+    files = {maps[m][0] for m in order}
+    if len(files) > 1:
+        _warn(notes, f"{name}: materials use {len(files)} different textures; only {maps[order[0]][0]} is used")
+    written, mtl = maps[order[0]]
+    rel = written.replace("\\", "/")
+    for cand in (mtl.parent / rel, mtl.parent / Path(rel).name):
+        if cand.is_file():
+            return cand
+    _warn(notes, f"{name}: texture {written} named by {mtl.name} not found; loading without texture")
+    return None
+
+
+def _fmt_rows(prefix: str, rows: np.ndarray, fmt: str) -> str:
+    if len(rows) == 0:
+        return ""
+    line = prefix + " " + " ".join([fmt] * (rows.shape[1] // fmt.count("%")))
+    return "\n".join(line % tuple(r) for r in rows.tolist()) + "\n"
+
+
+def _obj_text(vertices, faces, uv, mtl_name) -> str:
+    from .. import __version__
+
+    out = [f"# written by neural_bake {__version__}\n"]
+    if mtl_name:
+        out.append(f"mtllib {mtl_name}\nusemtl material0\n")
+    out.append(_fmt_rows("v", vertices, "%.17g"))
+    if uv is None:
+        out.append(_fmt_rows("f", faces + 1, "%d"))
+    else:
+        uniq, inv = np.unique(uv.reshape(-1, 2), axis=0, return_inverse=True)
+        out.append(_fmt_rows("vt", uniq, "%.17g"))
+        pairs = np.stack([faces + 1, inv.reshape(-1, 3) + 1], axis=2).reshape(-1, 6)
+        out.append(_fmt_rows("f", pairs, "%d/%d"))
+    return "".join(out)
+
+
+def _mtl_text(tex_name: str) -> str:
+    return f"# written by neural_bake\nnewmtl material0\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {tex_name}\n"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# PLY, GLB, glTF (trimesh)
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _short(exc: BaseException) -> str:
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    return msg if len(msg) <= _MAX_REASON else msg[: _MAX_REASON - 3] + "..."
+
+
+def _pil_to_linear(img) -> np.ndarray:
+    from .colour import srgb_to_linear
+
+    has_alpha = img.mode in ("RGBA", "LA", "PA") or "transparency" in getattr(img, "info", {})
+    arr = np.asarray(img.convert("RGBA" if has_alpha else "RGB"), dtype=np.float32) / 255.0
+    arr[..., :3] = srgb_to_linear(arr[..., :3])
+    return arr
+
+
+def _ply_texture_name(p: Path) -> str | None:
+    """The ``comment TextureFile`` of a PLY header, if any."""
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header")
+    for raw in head[: end if end >= 0 else len(head)].decode("latin-1").splitlines():
+        tok = raw.strip().split(None, 2)
+        if len(tok) == 3 and tok[0] == "comment" and tok[1] == "TextureFile":
+            return tok[2].strip()
+    return None
+
+
+def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
+    import trimesh
+
+    kind = ext[1:].upper()
+    named_texture = _ply_texture_name(p) if ext == ".ply" else None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise MeshError(f"{name}: unreadable {kind} file ({_short(exc)})") from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
+    elif isinstance(loaded, trimesh.Trimesh):
+        geoms = [loaded]
+    else:
+        geoms = []
+    geoms = [g for g in geoms if len(g.faces)]
+    if not geoms:
+        raise MeshError(f"{name}: empty mesh (no faces)")
+    vs, fs, uvs, images = [], [], [], []
+    offset = 0
+    for g in geoms:
+        v = np.asarray(g.vertices, dtype=np.float64)
+        f = np.asarray(g.faces, dtype=np.int64)
+        _check_range(f, len(v), name)
+        guv = getattr(g.visual, "uv", None) if getattr(g.visual, "kind", None) == "texture" else None
+        guv = None if guv is None or len(guv) != len(v) else np.asarray(guv, dtype=np.float64)[:, :2]
+        uvs.append(None if guv is None else guv[f])
+        mat = getattr(g.visual, "material", None)
+        img = getattr(mat, "baseColorTexture", None) if mat is not None else None
+        if img is None and mat is not None:
+            img = getattr(mat, "image", None)
+        images.append(img)
+        vs.append(v)
+        fs.append(f + offset)
+        offset += len(v)
+    vertices, faces = np.concatenate(vs), np.concatenate(fs)
+    uv = None
+    if any(u is not None for u in uvs):
+        missing = sum(len(f) for f, u in zip(fs, uvs) if u is None)
+        uv = np.concatenate([u if u is not None else np.zeros((len(f), 3, 2)) for f, u in zip(fs, uvs)])
+        if missing:
+            _warn(notes, f"{name}: {missing} faces have no texture coordinates; they get uv (0, 0)")
+    texture = None
+    imgs = [im for im in images if im is not None]
+    if imgs:
+        texture = _pil_to_linear(imgs[0])
+        if len({id(im) for im in imgs}) > 1:
+            _warn(notes, f"{name}: geometries use {len({id(im) for im in imgs})} textures; only the first is used")
+    tex_path = None
+    if named_texture is not None and texture is None:
+        cand = p.parent / named_texture.replace("\\", "/")
+        if cand.is_file():
+            tex_path = cand
+        else:
+            _warn(notes, f"{name}: texture {named_texture} named by the file not found; loading without texture")
+    return vertices, faces, uv, texture, tex_path
+
+
+def _split_seams(vertices, faces, uv, normals=None):
+    """One output vertex per distinct (vertex, uv) corner: (vertices, faces, per-vertex uv, normals)."""
+    if uv is None:
+        return vertices, faces, None, normals
+    keys = np.column_stack([faces.reshape(-1).astype(np.float64), uv.reshape(-1, 2)])
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    vid = uniq[:, 0].astype(np.int64)
+    n = None if normals is None else normals[vid]
+    return vertices[vid], inv.reshape(-1, 3), uniq[:, 1:], n
+
+
+def _ply_bytes(vertices, faces, uv, normals, tex_name) -> bytes:
+    from .. import __version__
+
+    v, f, u, n = _split_seams(vertices, faces, uv, normals)
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if u is not None:
+        fields += [("s", "<f4"), ("t", "<f4")]
+    vert = np.zeros(len(v), dtype=fields)
+    vert["x"], vert["y"], vert["z"] = v.T
+    vert["nx"], vert["ny"], vert["nz"] = n.T
+    if u is not None:
+        vert["s"], vert["t"] = u.T
+    face = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    face["n"], face["i"] = 3, f
+    types = {"<f8": "double", "<f4": "float"}
+    header = ["ply", "format binary_little_endian 1.0", f"comment written by neural_bake {__version__}"]
+    if tex_name:
+        header.append(f"comment TextureFile {tex_name}")
+    header.append(f"element vertex {len(v)}")
+    header += [f"property {types[t]} {k}" for k, t in fields]
+    header += [f"element face {len(f)}", "property list uchar int vertex_indices", "end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
+
+
+def _glb_bytes(vertices, faces, uv, texture) -> bytes:
+    import trimesh
+
+    v, f, u, _ = _split_seams(vertices, faces, uv)
+    visual = None
+    if u is not None:
+        material = None
+        if texture is not None:
+            from PIL import Image
+
+            from .colour import linear_to_srgb
+
+            t = np.asarray(texture, dtype=np.float32).copy()
+            t[..., :3] = linear_to_srgb(t[..., :3])
+            img = Image.fromarray(np.round(np.clip(t, 0, 1) * 255).astype(np.uint8))
+            material = trimesh.visual.material.PBRMaterial(baseColorTexture=img, metallicFactor=0.0, roughnessFactor=1.0)
+        visual = trimesh.visual.TextureVisuals(uv=u, material=material)
+    tm = trimesh.Trimesh(vertices=v, faces=f, visual=visual, process=False)
+    return tm.export(file_type="glb")
