@@ -207,7 +207,7 @@ class Baker:
         if self.unwrapped:
             from ..mesh.unwrap import unwrap
 
-            mesh = unwrap(mesh, **(unwrap_options or {}))
+            mesh = unwrap(mesh, **{"resolution": self.size, **(unwrap_options or {})})
         self.mesh = _split_uv_seams(mesh)
         self.timings["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
