@@ -41,11 +41,23 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             raise OSError(f"{dest}: writer produced no data")
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        # mkstemp makes the file private (0600): give it the replaced file's mode, else the umask default
+        os.chmod(tmp, _target_mode(dest))
         os.replace(tmp, dest)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
+
+
+def _target_mode(dest: Path) -> int:
+    """Permission bits for the written file: those of the file it replaces, else 0o666 minus the umask."""
+    try:
+        return dest.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def _allow_empty(dest: Path) -> bool:
