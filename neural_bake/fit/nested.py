@@ -1,0 +1,521 @@
+"""Nested sequences of neural SDFs h_1, …, h_k, f with thresholds δ (paper §3.2–3.3, Prop. 1).
+
+Coarser levels are distilled from finer ones: the finest coarse level h_k learns f, h_{k−1} learns h_k,
+and so on (each teacher is the next finer level). Training minimises the mean squared difference on points
+in a band around the teacher's zero level set (plus uniform points, so that h stays a usable distance
+bound away from the surface) and keeps the training step whose estimated sup-norm |h − teacher| is smallest.
+
+Thresholds (Prop. 1: |h − g|∞ < ε ⇒ [|h| < δ] ⊂ [|g| < ε + δ]). With the sequence h_1, …, h_k, h_{k+1} = f:
+
+- ``sup_i`` = |h_i − h_{i+1}|∞ over the Δ-band ``{x ∈ [-1, 1]³ : |h_i(x)| < Δ or |h_{i+1}(x)| < Δ}``;
+- δ_{k+1} = ``eps`` (the fine surface itself, with a margin), and δ_i = sup_i + δ_{i+1} (+ ``eps`` through
+  δ_{k+1}), so that [|h_{i+1}| ≤ δ_{i+1}] ⊂ [|h_i| ≤ δ_i]: sphere tracing h_i to its δ_i level set never
+  steps over the finer band. This holds where δ_i ≤ Δ (the sup is only measured in the band); a δ above Δ
+  is reported with a warning.
+
+The sup-norm is
+- **estimated** by sampling (paper Table 5): ``n_estimate`` points uniform in [-1, 1]³ kept when inside the
+  Δ-band; the estimate's stability over sample sizes and Δ is recorded in ``NestedSequence.stability``;
+- **certified** by range analysis (:func:`~neural_bake.nets.range_analysis.difference_bound`, affine
+  arithmetic with shared input noise symbols) over boxes covering the band: boxes are pruned when the range
+  of both networks over them misses [-Δ, Δ] and subdivided (largest bound first) until every box's bound is
+  within ``certify_rel_tol`` of the estimate or the box budget is spent. The certified value is the largest
+  box bound: a guaranteed upper bound of |h − g| on the band. A :class:`NeuralBakeWarning` is issued when
+  it exceeds the estimate by more than ``warn_ratio``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..errors import FitError, ModelFileError, NeuralBakeWarning
+from ..io.atomic import atomic_path
+from ..nets.siren import Siren
+from ..types import Frame, Mesh
+from .training import LoopConfig, train
+
+__all__ = ["NestedSequence", "fit_nested", "band_samples", "estimate_sup_norm", "certify_sup_norm",
+           "parse_levels", "NESTED_FORMAT"]
+
+#: The ``format`` value of a nested-sequence file.
+NESTED_FORMAT = "neural_bake.nested"
+NESTED_FORMAT_VERSION = 1
+
+
+# ----------------------------------------------------------------------------------------------- the object
+@dataclass
+class NestedSequence:
+    """Neural SDFs ``levels = [h_1, …, h_k, f]`` (coarse to fine) with their nesting thresholds.
+
+    All networks map unit-frame points (N, 3) to (N, 1) signed distances; ``frame`` maps back to the
+    source frame. ``levels_info[i]`` describes level i (coarse levels only have δ entries):
+    ``{"width", "depth", "steps", "best_step", "seconds", "sup_estimated", "sup_certified",
+    "delta_estimated", "delta_certified", "certify": {...}}``; the fine level's δ is ``eps``.
+    """
+
+    levels: list[Siren]
+    """Networks coarse to fine; the last one is the fine SDF f."""
+    frame: Frame = field(default_factory=Frame)
+    """Source ↔ unit frame transform."""
+    levels_info: list[dict] = field(default_factory=list)
+    """Per level: architecture, training iterations, sup-norms and δ (see the class docstring)."""
+    band: float = 0.1
+    """Δ: half-width of the band (unit frame) where the sup-norms are measured."""
+    eps: float = 1e-3
+    """ε of Prop. 1 added to the sup-norms (and the fine level's δ)."""
+    stability: list[list[dict]] = field(default_factory=list)
+    """Per coarse level: rows ``{"samples", "band", "sup"}`` of the estimate over sample sizes and Δ."""
+    metadata: dict = field(default_factory=dict)
+    """Free JSON metadata (source model, settings, package version)."""
+
+    @property
+    def deltas(self) -> list[float]:
+        """δ per level (coarse to fine): the certified value where there is one, else the estimate."""
+        out = []
+        for info in self.levels_info:
+            c = info.get("delta_certified")
+            out.append(float(c) if c is not None else float(info["delta_estimated"]))
+        return out
+
+    @property
+    def deltas_estimated(self) -> list[float]:
+        """δ per level from the sampled sup-norms."""
+        return [float(i["delta_estimated"]) for i in self.levels_info]
+
+    @property
+    def deltas_certified(self) -> list[float | None]:
+        """δ per level from the certified sup-norms (None where certification was not run)."""
+        return [None if i.get("delta_certified") is None else float(i["delta_certified"]) for i in self.levels_info]
+
+    @property
+    def iterations(self) -> list[int]:
+        """Training steps of each level (0 for the fine level, trained elsewhere)."""
+        return [int(i.get("steps", 0)) for i in self.levels_info]
+
+    def save(self, path) -> Path:
+        """Write ONE safetensors file: tensors ``levels.<i>.layers.<j>.{weight,bias}`` + JSON metadata."""
+        from safetensors.torch import save_file
+
+        path = Path(path)
+        if not path.parent.is_dir():
+            raise ModelFileError(f"{path}: folder {path.parent} does not exist")
+        tensors = {}
+        for i, m in enumerate(self.levels):
+            for k, v in m.state_dict().items():
+                tensors[f"levels.{i}.{k}"] = v.detach().to("cpu").contiguous()
+        header = {
+            "format": NESTED_FORMAT, "format_version": NESTED_FORMAT_VERSION, "package_version": __version__,
+            "architectures": [m.architecture for m in self.levels], "frame": self.frame.to_dict(),
+            "levels_info": self.levels_info, "band": self.band, "eps": self.eps, "stability": self.stability,
+            "metadata": self.metadata,
+        }
+        try:
+            text = json.dumps(header, allow_nan=False, default=_json_default)
+        except ValueError as exc:
+            raise ModelFileError(f"{path}: metadata is not JSON-serialisable ({exc})") from None
+        with atomic_path(path) as tmp:
+            save_file(tensors, str(tmp), metadata={"format": NESTED_FORMAT, "neural_bake": text})
+        return path
+
+    @classmethod
+    def load(cls, path, *, device=None) -> "NestedSequence":
+        """Read a file written by :meth:`save`; ModelFileError (one line) for anything wrong with it."""
+        from safetensors import safe_open
+
+        path = Path(path)
+        if not path.is_file():
+            raise ModelFileError(f"{path}: no such nested-sequence file")
+        try:
+            with safe_open(str(path), framework="pt", device="cpu") as fh:
+                meta = fh.metadata() or {}
+                if meta.get("format") != NESTED_FORMAT:
+                    raise ModelFileError(f"{path}: not a nested-sequence file (format {meta.get('format')!r})")
+                header = json.loads(meta["neural_bake"])
+                if int(header.get("format_version", 0)) > NESTED_FORMAT_VERSION:
+                    raise ModelFileError(f"{path}: format version {header['format_version']} is newer than "
+                                         f"this neural_bake reads ({NESTED_FORMAT_VERSION})")
+                names = set(fh.keys())
+                levels = []
+                for i, arch in enumerate(header["architectures"]):
+                    try:
+                        m = Siren(**arch)
+                    except (TypeError, ValueError) as exc:
+                        raise ModelFileError(f"{path}: level {i} has an invalid architecture ({exc})") from None
+                    state = {}
+                    for k, ref in m.state_dict().items():
+                        key = f"levels.{i}.{k}"
+                        if key not in names:
+                            raise ModelFileError(f"{path}: tensor {key} is missing")
+                        t = fh.get_tensor(key)
+                        if tuple(t.shape) != tuple(ref.shape):
+                            raise ModelFileError(f"{path}: tensor {key} has shape {tuple(t.shape)}, "
+                                                 f"expected {tuple(ref.shape)}")
+                        if not t.is_floating_point() or not torch.isfinite(t).all():
+                            raise ModelFileError(f"{path}: tensor {key} is not finite floating point")
+                        state[k] = t
+                    m = m.to(state["layers.0.weight"].dtype)
+                    m.load_state_dict(state)
+                    levels.append(m.to(device or "cpu").eval())
+        except ModelFileError:
+            raise
+        except Exception as exc:  # corrupt, truncated, bad JSON
+            msg = " ".join(str(exc).split())[:200]
+            raise ModelFileError(f"{path}: corrupt or truncated nested-sequence file ({type(exc).__name__}: {msg})") from None
+        return cls(levels=levels, frame=Frame.from_dict(header["frame"]), levels_info=header["levels_info"],
+                   band=float(header["band"]), eps=float(header["eps"]), stability=header.get("stability", []),
+                   metadata=header.get("metadata", {}))
+
+
+def _json_default(o):
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if hasattr(o, "to_dict"):
+        return o.to_dict()
+    return str(o)
+
+
+# ----------------------------------------------------------------------------------------------- band & sup
+def parse_levels(text: str) -> list[tuple[int, int]]:
+    """"64x1,256x1" → [(64, 1), (256, 1)]; FitError naming the bad item."""
+    out = []
+    for item in str(text).split(","):
+        item = item.strip().lower()
+        try:
+            w, d = item.split("x")
+            w, d = int(w), int(d)
+            if w < 1 or d < 0:
+                raise ValueError
+        except ValueError:
+            raise FitError(f"--levels: {item!r} is not WIDTHxDEPTH (e.g. 64x1)") from None
+        out.append((w, d))
+    if not out:
+        raise FitError("--levels: give at least one level, e.g. 64x1,256x1")
+    return out
+
+
+@torch.no_grad()
+def _eval(model, x: torch.Tensor, chunk: int = 65536) -> torch.Tensor:
+    p = next(model.parameters())
+    x = x.to(p.device, p.dtype)
+    return torch.cat([model(x[s:s + chunk])[:, 0] for s in range(0, x.shape[0], chunk)]) if x.shape[0] else x[:, 0]
+
+
+@torch.no_grad()
+def band_samples(models, n: int, band: float, *, seed: int = 0, max_tries: int = 200) -> torch.Tensor:
+    """``n`` points uniform in [-1, 1]³ restricted to ``{x : min_m |m(x)| < band}`` (rejection sampling).
+
+    ``models``: one network or a list (union of their bands). Returns (n, 3) in the first model's dtype;
+    fewer than ``n`` rows only if ``max_tries`` batches found too few (a network with no zero set nearby).
+    """
+    models = models if isinstance(models, (list, tuple)) else [models]
+    p = next(models[0].parameters())
+    gen = torch.Generator().manual_seed(int(seed))
+    got, total = [], 0
+    batch = max(4 * n, 65536)
+    for _ in range(max_tries):
+        x = (torch.rand(batch, 3, generator=gen, dtype=torch.float64) * 2 - 1).to(p.dtype)
+        keep = torch.zeros(batch, dtype=torch.bool)
+        for m in models:
+            keep |= (_eval(m, x).abs() < band).cpu()
+        got.append(x[keep])
+        total += int(keep.sum())
+        if total >= n:
+            break
+    out = torch.cat(got)[:n] if got else torch.zeros(0, 3, dtype=p.dtype)
+    return out.to(p.device)
+
+
+@torch.no_grad()
+def estimate_sup_norm(h, g, *, band: float = 0.1, n: int = 100_000, seed: int = 0) -> float:
+    """max |h − g| over ``n`` uniform samples of the Δ-band ``{|h| < band or |g| < band}`` (paper Table 5).
+
+    Raises FitError when the band holds no sample (neither network has a zero level set in [-1, 1]³).
+    """
+    x = band_samples([h, g], n, band, seed=seed)
+    if x.shape[0] == 0:
+        raise FitError(f"sup-norm estimate: no point of [-1, 1]^3 lies within {band} of either zero level set")
+    return float((_eval(h, x).double() - _eval(g, x).double()).abs().max())
+
+
+def _box_ranges(models, center, axes, method):
+    """Guaranteed ``(lo, hi)`` of each model over each box ``center`` (B, 3) + axes (B, 3, 3) · [-1, 1]³."""
+    from ..nets.range_analysis import range_bound
+
+    return [range_bound(m, center, axes, method=method) for m in models]
+
+
+def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, rel_tol: float = 0.25,
+                     max_boxes: int = 20_000, min_half: float = 1.0 / 256, initial: int = 8,
+                     method: str = "affine-fixed", batch: int = 2048) -> dict:
+    """A guaranteed upper bound of |h − g| on the band ``{|h| < band or |g| < band}`` ∩ [-1, 1]³.
+
+    Boxes (axis-aligned cubes) start as an ``initial``³ grid of [-1, 1]³; a box is dropped when the
+    guaranteed ranges of h and g over it both miss [-band, band]; otherwise its bound is
+    ``max(|lo|, |hi|)`` of :func:`~neural_bake.nets.range_analysis.difference_bound`. The box with the largest
+    bound is split into 8 while that bound exceeds ``max(estimate × (1 + rel_tol), 1e-9)``, the box is larger
+    than ``min_half`` and fewer than ``max_boxes`` boxes have been bounded.
+
+    Returns ``{"sup_certified", "boxes_bounded", "boxes_final", "complete"}`` where ``complete`` says every
+    final box met the target (False: the budget or the minimum size stopped the refinement first).
+    """
+    from ..nets.range_analysis import difference_bound
+
+    p = next(h.parameters())
+    dtype, device = p.dtype, p.device
+    target = max((estimate or 0.0) * (1.0 + rel_tol), 1e-9)
+    k = int(initial)
+    axis = (torch.arange(k, dtype=dtype) * 2 + 1) / k - 1
+    cx, cy, cz = torch.meshgrid(axis, axis, axis, indexing="ij")
+    centers = torch.stack([cx.reshape(-1), cy.reshape(-1), cz.reshape(-1)], 1).to(device)
+    halves = torch.full((centers.shape[0],), 1.0 / k, dtype=dtype, device=device)
+    heap: list[tuple[float, int, tuple, float]] = []  # (-bound, id, center, half)
+    counter, bounded = 0, 0
+
+    def bound_boxes(c: torch.Tensor, hf: torch.Tensor) -> None:
+        nonlocal counter, bounded
+        for s in range(0, c.shape[0], batch):
+            cc, hh = c[s:s + batch], hf[s:s + batch]
+            axes = torch.diag_embed(hh[:, None].expand(-1, 3))
+            with torch.no_grad():
+                in_band = torch.zeros(cc.shape[0], dtype=torch.bool, device=device)
+                for lo, hi in _box_ranges([h, g], cc, axes, method):
+                    in_band |= (lo <= band) & (hi >= -band)
+                if not bool(in_band.any()):
+                    bounded += cc.shape[0]
+                    continue
+                cc, hh, axes = cc[in_band], hh[in_band], axes[in_band]
+                lo, hi = difference_bound(h, g, cc, axes, method=method)
+            bounded += int(in_band.numel())
+            b = torch.maximum(lo.abs(), hi.abs()).reshape(-1).double().cpu().numpy()
+            for i in range(cc.shape[0]):
+                counter += 1
+                heapq.heappush(heap, (-float(b[i]), counter, tuple(cc[i].tolist()), float(hh[i])))
+
+    bound_boxes(centers, halves)
+    unit = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=dtype,
+                        device=device)
+    while heap:
+        split = []  # the worst boxes that still miss the target, up to 32 per batch of range analysis
+        while (heap and len(split) < 32 and -heap[0][0] > target and heap[0][3] > min_half
+               and bounded + 8 * (len(split) + 1) <= max_boxes):
+            split.append(heapq.heappop(heap))
+        if not split:
+            break
+        cs = torch.tensor([e[2] for e in split], dtype=dtype, device=device)
+        qs = torch.tensor([e[3] / 2 for e in split], dtype=dtype, device=device)
+        bound_boxes((cs[:, None, :] + unit[None] * qs[:, None, None]).reshape(-1, 3), qs.repeat_interleave(8))
+    worst = -heap[0][0] if heap else 0.0
+    complete = worst <= target
+    return {"sup_certified": float(worst), "boxes_bounded": int(bounded), "boxes_final": len(heap),
+            "complete": bool(complete), "target": float(target)}
+
+
+# ----------------------------------------------------------------------------------------------- fitting
+def _distill(student: Siren, teacher, *, steps, minutes, lr, seed, band, batch, pool, eval_n, eval_every,
+             progress, desc, surface_points=None) -> tuple[dict, object]:
+    p = next(student.parameters())
+    dtype, device = p.dtype, p.device
+    n_band = int(pool * 0.8)
+    xb = band_samples(teacher, n_band, 2 * band, seed=seed * 31 + 1)
+    gen = torch.Generator().manual_seed(seed * 31 + 2)
+    xu = (torch.rand(pool - xb.shape[0], 3, generator=gen, dtype=torch.float64) * 2 - 1).to(device, dtype)
+    parts = [xb.to(device, dtype), xu]
+    if surface_points is not None and len(surface_points):
+        parts.append(torch.as_tensor(surface_points, dtype=dtype, device=device))
+    x = torch.cat(parts)
+    y = _eval(teacher, x).to(dtype)
+    # validation: teacher-band points plus uniform points, so that spurious near-zero regions of the student
+    # (its own band) are seen too; the sup is taken over {|teacher| < band or |student| < band}
+    gv = torch.Generator().manual_seed(seed * 31 + 4)
+    xv = torch.cat([band_samples(teacher, eval_n, band, seed=seed * 31 + 3).to(device, dtype),
+                    (torch.rand(eval_n, 3, generator=gv, dtype=torch.float64) * 2 - 1).to(device, dtype)])
+    yv = _eval(teacher, xv).to(dtype)
+
+    def step_fn(step, g):
+        idx = torch.randint(0, x.shape[0], (batch,), generator=g).to(device)
+        d = student(x[idx])[:, 0] - y[idx]
+        mse = (d * d).mean()
+        return {"loss": mse, "mse": mse}
+
+    def evaluate():
+        hv = _eval(student, xv)
+        mask = (yv.abs() < band) | (hv.abs() < band)
+        return float((hv - yv)[mask].abs().max()) if bool(mask.any()) else float("inf")
+
+    cfg = LoopConfig(steps=steps, minutes=minutes, lr=lr, seed=seed, progress=progress, eval_every=eval_every,
+                     log_every=max(1, min(100, steps // 10 or 1)), desc=desc)
+    res = train(student, step_fn, cfg, evaluate=evaluate)
+    return {"steps": res.steps, "best_step": res.best_step, "best_eval_sup": res.best_value,
+            "seconds": round(res.seconds, 3), "stopped_reason": res.stopped_reason, "restarts": res.restarts,
+            "final_mse": res.history[-1]["mse"] if res.history else None}, res
+
+
+def fit_nested(
+    fine_model,
+    levels=((64, 1), (256, 1)),
+    *,
+    mesh: Mesh | None = None,
+    frame: Frame | None = None,
+    steps: int = 2000,
+    minutes: float | None = None,
+    seed: int = 0,
+    lr: float = 2e-4,
+    batch: int = 4096,
+    pool: int = 200_000,
+    band: float = 0.1,
+    eps: float = 1e-3,
+    omega_0: float | None = None,
+    eval_every: int = 100,
+    eval_samples: int = 20_000,
+    n_estimate: int = 100_000,
+    stability_samples=(1_000, 10_000, 100_000),
+    stability_bands=(0.1, 0.2, 0.3),
+    certify: bool = True,
+    certify_max_boxes: int = 20_000,
+    certify_rel_tol: float = 0.25,
+    warn_ratio: float = 2.0,
+    progress: bool = True,
+) -> NestedSequence:
+    """Distil coarser Sirens from ``fine_model`` and set their nesting thresholds δ (module docstring).
+
+    Args:
+        fine_model: the fine SDF f — a :class:`Siren` or an :class:`~neural_bake.fit.sdf.SdfFit` (its frame
+            is then used).
+        levels: coarse levels as (W, D), coarse to fine, e.g. ``[(64, 1), (256, 1)]``.
+        mesh: optional source mesh; its surface samples join the training points and its frame is used.
+        frame: the frame to store (default: the SdfFit's or the mesh's, else identity).
+        steps: training steps per level. minutes: wall-clock budget per level (None: none).
+        seed: seeds initial weights, samples and per-step draws.
+        lr, batch, pool: Adam learning rate, points per step, training points per level.
+        band: Δ of the sup-norm (unit frame). eps: ε of Prop. 1.
+        omega_0: ω0 of the coarse levels (default: f's).
+        eval_every, eval_samples: the kept step is the one with the smallest sup-norm over ``eval_samples``
+            band points, evaluated every ``eval_every`` steps.
+        n_estimate: band samples of the final sup-norm estimate.
+        stability_samples, stability_bands: the grid of the stability table (sizes × Δ); empty: none.
+        certify: run the range-analysis certification. certify_max_boxes, certify_rel_tol: its budget.
+        warn_ratio: warn when certified sup > warn_ratio × estimated sup.
+        progress: show progress bars.
+
+    Returns:
+        A :class:`NestedSequence` ``[h_1, …, h_k, f]``.
+
+    Raises:
+        FitError: bad levels or settings, a network without a zero level set in [-1, 1]³, divergence.
+    """
+    from .sdf import SdfFit
+
+    if isinstance(fine_model, SdfFit):
+        frame = frame or fine_model.frame
+        fine_model = fine_model.model
+    if not isinstance(fine_model, Siren):
+        raise FitError(f"fit_nested: fine_model must be a Siren or an SdfFit, got {type(fine_model).__name__}")
+    if fine_model.in_dim != 3 or fine_model.out_dim != 1:
+        raise FitError(f"fit_nested: the fine model must map R^3 to R (got R^{fine_model.in_dim} -> "
+                       f"R^{fine_model.out_dim})")
+    levels = parse_levels(levels) if isinstance(levels, str) else [tuple(lv) for lv in levels]
+    for lv in levels:
+        if len(lv) != 2 or int(lv[0]) != lv[0] or int(lv[1]) != lv[1] or lv[0] < 1 or lv[1] < 0:
+            raise FitError(f"fit_nested: level {lv!r} is not (width >= 1, depth >= 0)")
+    if not levels:
+        raise FitError("fit_nested: give at least one coarse level")
+    if not (math.isfinite(band) and band > 0):
+        raise FitError(f"fit_nested: band must be positive, got {band!r}")
+    if not (math.isfinite(eps) and eps >= 0):
+        raise FitError(f"fit_nested: eps must be non-negative, got {eps!r}")
+    for name, v in (("steps", steps), ("batch", batch), ("pool", pool), ("n_estimate", n_estimate),
+                    ("eval_samples", eval_samples)):
+        if int(v) != v or v < 1:
+            raise FitError(f"fit_nested: {name} must be a positive integer, got {v!r}")
+    if mesh is not None:
+        frame = frame or mesh.frame
+    frame = frame or Frame()
+    fine_model.eval()
+    p = next(fine_model.parameters())
+    surface = None
+    if mesh is not None:
+        from .sampling import sample_surface
+
+        surface = sample_surface(mesh, min(pool // 10, 50_000), seed=seed).points
+
+    coarse: list[Siren | None] = [None] * len(levels)
+    infos: list[dict] = [{} for _ in levels]
+    teacher = fine_model
+    for i in range(len(levels) - 1, -1, -1):
+        w, d = levels[i]
+        gen = torch.Generator().manual_seed(int(seed) * 101 + i)
+        student = Siren(int(w), int(d), omega_0=omega_0 or fine_model.omega_0, generator=gen).to(p.device, p.dtype)
+        info, _ = _distill(student, teacher, steps=int(steps), minutes=minutes, lr=lr, seed=int(seed) * 101 + i,
+                           band=band, batch=int(batch), pool=int(pool), eval_n=int(eval_samples),
+                           eval_every=int(eval_every), progress=progress, desc=f"nested level {w}x{d}",
+                           surface_points=surface)
+        student.eval()
+        info.update(width=int(w), depth=int(d))
+        coarse[i], infos[i] = student, info
+        teacher = student
+
+    seq_levels = [m for m in coarse if m is not None] + [fine_model]
+    stability: list[list[dict]] = []
+    for i in range(len(levels)):
+        h, g = seq_levels[i], seq_levels[i + 1]
+        est = estimate_sup_norm(h, g, band=band, n=int(n_estimate), seed=int(seed) + 17 * i)
+        infos[i]["sup_estimated"] = est
+        rows = []
+        for s in stability_samples:
+            for b in stability_bands:
+                rows.append({"samples": int(s), "band": float(b),
+                             "sup": estimate_sup_norm(h, g, band=float(b), n=int(s), seed=int(seed) + 1000 + i)})
+        stability.append(rows)
+        infos[i]["sup_certified"] = None
+        infos[i]["certify"] = None
+        if certify:
+            try:
+                cert = certify_sup_norm(h, g, band=band, estimate=est, rel_tol=certify_rel_tol,
+                                        max_boxes=int(certify_max_boxes))
+            except ImportError:
+                warnings.warn("fit_nested: range analysis (neural_bake.nets.range_analysis) is not available; "
+                              "δ is estimated only", NeuralBakeWarning, stacklevel=2)
+                cert = None
+            if cert is not None:
+                # a sampled value is a lower bound of the sup: the certified bound can never be below it
+                cert["sup_certified"] = max(cert["sup_certified"], est)
+                infos[i]["sup_certified"] = cert["sup_certified"]
+                infos[i]["certify"] = cert
+                if cert["sup_certified"] > warn_ratio * max(est, 1e-12):
+                    warnings.warn(
+                        f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}): certified |h - g| bound "
+                        f"{cert['sup_certified']:.4g} is {cert['sup_certified'] / max(est, 1e-12):.1f}x the sampled "
+                        f"estimate {est:.4g} (range analysis over {cert['boxes_bounded']} boxes"
+                        f"{'' if cert['complete'] else ', budget reached'}); using the certified δ",
+                        NeuralBakeWarning, stacklevel=2)
+
+    # thresholds, fine to coarse (Prop. 1)
+    fine_info = {"width": fine_model.width, "depth": fine_model.depth, "steps": 0, "delta_estimated": eps,
+                 "delta_certified": eps if certify and all(i["sup_certified"] is not None for i in infos) else None}
+    d_est, d_cert = eps, fine_info["delta_certified"]
+    for i in range(len(levels) - 1, -1, -1):
+        d_est = infos[i]["sup_estimated"] + d_est
+        infos[i]["delta_estimated"] = d_est
+        if d_cert is not None and infos[i]["sup_certified"] is not None:
+            d_cert = infos[i]["sup_certified"] + d_cert
+        else:
+            d_cert = None
+        infos[i]["delta_certified"] = d_cert
+        worst = d_cert if d_cert is not None else d_est
+        if worst > band:
+            warnings.warn(f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}) has δ = {worst:.4g} above the "
+                          f"band Δ = {band} where |h - g| was measured; rerun with a larger band or more steps",
+                          NeuralBakeWarning, stacklevel=2)
+    metadata = {"package_version": __version__, "seed": int(seed), "steps": int(steps), "minutes": minutes,
+                "lr": lr, "batch": int(batch), "pool": int(pool), "n_estimate": int(n_estimate)}
+    return NestedSequence(levels=seq_levels, frame=frame, levels_info=infos + [fine_info], band=float(band),
+                          eps=float(eps), stability=stability, metadata=metadata)

@@ -1,0 +1,367 @@
+"""Fit a fine SIREN SDF to a mesh (Novello et al. 2022 losses; paper Appendix A.2).
+
+The network f: R³ → R (unit frame) is trained on points drawn each step from precomputed pools:
+
+- surface samples p with outward normals n: ``f(p)²`` (the surface is a zero level set) and
+  ``1 − <∇f(p)/|∇f(p)|, n>`` (the gradient points along the normal; the paper's ``1 − <∇f, n>`` is
+  unbounded below when |∇f| > 1 and fought the eikonal term in our runs, so we use the cosine);
+- near-surface samples (Gaussian offsets, several σ) and uniform samples in [-1, 1]³ with their ground-truth
+  signed distance d: ``(f(x) − d)²``;
+- every point: the eikonal term ``(1 − |∇f|)²``.
+
+∇f is computed in the loss by :func:`~neural_bake.nets.gemm.gemm_gradient` with ``differentiable=True``
+(the closed-form GEMM gradient on the autograd graph of the weights): the values and gradients of all the
+step's points come from ONE pass, and the loss needs ONE ordinary ``backward()`` — no double-backward.
+Pools are drawn from the mesh once per ``refresh_every`` steps (seeded by ``(seed, refresh index)`` so a
+resumed run rebuilds exactly the same pools); the loop (:mod:`neural_bake.fit.training`) gives budgets,
+progress, checkpoints/resume, seeds and divergence recovery.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..errors import FitError, ModelFileError
+from ..nets.gemm import gemm_gradient
+from ..nets.siren import Siren
+from ..types import Frame, Mesh
+from .training import LoopConfig, train
+
+__all__ = ["SdfFitConfig", "SdfFit", "PRESETS", "fit_sdf", "load_sdf", "sdf_loss_terms"]
+
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
+
+
+@dataclass
+class SdfFitConfig:
+    """Settings of :func:`fit_sdf`. Presets: :data:`PRESETS`."""
+
+    width: int = 256
+    """Hidden width W of the Siren (papers' (W, D) notation)."""
+    depth: int = 3
+    """Number D of hidden W×W matrices (D + 1 hidden layers)."""
+    omega_0: float = 30.0
+    """ω0 of the first layer (hidden layers use 30); stored in the model file."""
+    steps: int = 5000
+    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
+    minutes: float | None = None
+    """Wall-clock budget in minutes (None: no budget)."""
+    batch: int = 4096
+    """Surface points per step."""
+    batch_near: int = 4096
+    """Near-surface points (with ground-truth SDF) per step."""
+    batch_uniform: int = 1024
+    """Uniform points in [-1, 1]³ (with ground-truth SDF) per step."""
+    lr: float = 1e-4
+    """Initial Adam learning rate (cosine decay to 5 % of it over the steps or the time budget)."""
+    lr_schedule: str = "cosine"
+    """"cosine" or "constant"."""
+    w_surface: float = 3000.0
+    """Weight of mean f² on surface samples."""
+    w_normal: float = 100.0
+    """Weight of mean (1 − <∇f/|∇f|, n>) on surface samples (cosine form: bounded, |∇f| is left to eikonal)."""
+    w_eikonal: float = 50.0
+    """Weight of mean (1 − |∇f|)² on every point of the step."""
+    w_sdf: float = 3000.0
+    """Weight of mean (f − d)² on near and uniform samples (d: ground-truth signed distance)."""
+    pool_surface: int = 200_000
+    """Surface samples per pool."""
+    pool_near: int = 200_000
+    """Near-surface samples per pool."""
+    pool_uniform: int = 50_000
+    """Uniform samples per pool."""
+    sigmas: tuple[float, ...] = (0.003, 0.01, 0.05)
+    """Standard deviations (unit frame) of the near-surface offsets, mixed in equal parts."""
+    refresh_every: int = 2000
+    """Steps between pool refreshes (0: never refresh)."""
+    seed: int = 0
+    """Seeds the initial weights, the pools and the per-step draws: the same seed gives the same model."""
+    checkpoint: str | None = None
+    """Checkpoint file written during training (None: no checkpoint)."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints."""
+    resume: bool = False
+    """Continue from ``checkpoint`` if it exists (same mesh and settings)."""
+    progress: bool = True
+    """Show a progress bar with the losses."""
+    log_every: int = 100
+    """Steps between history entries."""
+    device: str | None = None
+    """torch device ("cpu", "cuda", …); None: CPU."""
+    dtype: str = "float32"
+    """"float32" or "float64"."""
+
+    def loop_config(self, desc: str = "fit sdf") -> LoopConfig:
+        """The training-loop part of this config."""
+        return LoopConfig(steps=self.steps, minutes=self.minutes, lr=self.lr, lr_schedule=self.lr_schedule,
+                          seed=self.seed, checkpoint=self.checkpoint, checkpoint_every=self.checkpoint_every,
+                          resume=self.resume, progress=self.progress, log_every=self.log_every, desc=desc)
+
+    def fingerprint_dict(self) -> dict:
+        """The settings that define the training trajectory (not budgets, paths or display)."""
+        skip = {"steps", "minutes", "checkpoint", "checkpoint_every", "resume", "progress", "log_every"}
+        return {k: v for k, v in asdict(self).items() if k not in skip}
+
+
+#: Architecture presets ``"WxD"``. Measured on the project's shared 2-core CPU (noisy: other jobs ran),
+#: one training step at the default batch (4096 surface + 4096 near + 1024 uniform points, ∇f on all):
+#: (64, 1) ≈ 0.03 s, (128, 2) ≈ 0.09 s, (256, 2) ≈ 0.25 s, (256, 3) ≈ 0.35 s — i.e. in a 2-minute budget
+#: (64, 1) does ~4000 steps and in 10 minutes (256, 3) ~1700 steps. See ``neural-bake bench fit``.
+PRESETS: dict[str, dict] = {
+    "64x1": {"width": 64, "depth": 1, "lr": 5e-4, "minutes": 2.0, "steps": 100_000},
+    "128x2": {"width": 128, "depth": 2, "lr": 2e-4, "minutes": 5.0, "steps": 100_000},
+    "256x2": {"width": 256, "depth": 2, "lr": 1e-4, "minutes": 8.0, "steps": 100_000},
+    "256x3": {"width": 256, "depth": 3, "lr": 1e-4, "minutes": 10.0, "steps": 100_000},
+}
+
+
+def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None, **overrides) -> SdfFitConfig:
+    """A config from a preset name and/or overrides; FitError for an unknown preset or field."""
+    cfg = config or SdfFitConfig()
+    if preset is not None:
+        if preset not in PRESETS:
+            raise FitError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+        cfg = replace(cfg, **PRESETS[preset])
+    names = {f.name for f in fields(SdfFitConfig)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise FitError(f"fit_sdf: unknown setting(s) {', '.join(unknown)}")
+    cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None})  # None: keep the preset's
+    if isinstance(cfg.sigmas, (int, float)):
+        cfg = replace(cfg, sigmas=(float(cfg.sigmas),))
+    cfg = replace(cfg, sigmas=tuple(float(s) for s in cfg.sigmas))
+    _check_config(cfg)
+    return cfg
+
+
+def _check_config(cfg: SdfFitConfig) -> None:
+    for name in ("width", "batch", "pool_surface"):
+        v = getattr(cfg, name)
+        if int(v) != v or v < 1:
+            raise FitError(f"fit_sdf: {name} must be a positive integer, got {v!r}")
+    for name in ("depth", "batch_near", "batch_uniform", "pool_near", "pool_uniform", "refresh_every"):
+        v = getattr(cfg, name)
+        if int(v) != v or v < 0:
+            raise FitError(f"fit_sdf: {name} must be a non-negative integer, got {v!r}")
+    if (cfg.batch_near and not cfg.pool_near) or (cfg.batch_uniform and not cfg.pool_uniform):
+        raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
+    if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):
+        raise FitError(f"fit_sdf: omega_0 must be positive, got {cfg.omega_0!r}")
+    for name in ("w_surface", "w_normal", "w_eikonal", "w_sdf"):
+        v = getattr(cfg, name)
+        if not (math.isfinite(v) and v >= 0):
+            raise FitError(f"fit_sdf: {name} must be a non-negative number, got {v!r}")
+    if not cfg.sigmas or not all(math.isfinite(s) and s > 0 for s in cfg.sigmas):
+        raise FitError(f"fit_sdf: sigmas must be positive numbers, got {cfg.sigmas!r}")
+    if cfg.dtype not in _DTYPES:
+        raise FitError(f"fit_sdf: dtype must be one of {', '.join(_DTYPES)}, got {cfg.dtype!r}")
+
+
+@dataclass
+class SdfFit:
+    """A fitted SDF: the network, the frame it lives in, and how it was trained."""
+
+    model: Siren
+    """The Siren f: (N, 3) unit-frame points → (N, 1) signed distance (unit-frame units; negative inside)."""
+    frame: Frame
+    """Source ↔ unit frame transform of the mesh it was fitted to."""
+    history: list[dict] = field(default_factory=list)
+    """Logged steps: ``step``, ``seconds``, ``lr``, ``loss`` and each loss term."""
+    steps: int = 0
+    """Optimiser steps done."""
+    seconds: float = 0.0
+    """Training wall time (pool sampling included)."""
+    config: SdfFitConfig = field(default_factory=SdfFitConfig)
+    """The settings used."""
+    stopped_reason: str = "steps"
+    """"steps", "time budget" or "resumed finished run"."""
+    restarts: int = 0
+    """Divergence recoveries (learning-rate halvings)."""
+
+    def save(self, path) -> Path:
+        """Write the model file (safetensors + JSON metadata: kind="sdf", frame, config, history summary)."""
+        from ..nets.model_io import save_model
+
+        summary = self.history[-1] if self.history else {}
+        return save_model(
+            self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
+            training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
+                      "restarts": self.restarts, "final": summary, "history": self.history[-200:]},
+            package_version=__version__,
+        )
+
+    @classmethod
+    def load(cls, path, *, device=None) -> "SdfFit":
+        """Read a file written by :meth:`save` (ModelFileError if it is not an SDF model file)."""
+        return load_sdf(path, device=device)
+
+
+def load_sdf(path, *, device=None) -> SdfFit:
+    """Read an SDF model file written by :meth:`SdfFit.save` into an :class:`SdfFit`."""
+    from ..nets.model_io import load_model
+
+    model, meta = load_model(path, device=device)
+    if meta.get("kind") != "sdf":
+        raise ModelFileError(f"{path}: not an SDF model file (kind {meta.get('kind')!r})")
+    if model.in_dim != 3 or model.out_dim != 1:
+        raise ModelFileError(f"{path}: an SDF maps R^3 to R, this network maps R^{model.in_dim} to R^{model.out_dim}")
+    names = {f.name for f in fields(SdfFitConfig)}
+    cfg_dict = {k: v for k, v in meta.get("config", {}).items() if k in names}
+    if "sigmas" in cfg_dict:
+        cfg_dict["sigmas"] = tuple(cfg_dict["sigmas"])
+    training = meta.get("training", {})
+    try:
+        frame = Frame.from_dict(meta["frame"])
+    except (KeyError, TypeError, ValueError):
+        raise ModelFileError(f"{path}: SDF model file without a valid frame") from None
+    return SdfFit(model=model, frame=frame, history=list(training.get("history", [])),
+                  steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
+                  config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
+                  restarts=int(training.get("restarts", 0)))
+
+
+def _jsonable(d):
+    return json.loads(json.dumps(d, default=str))
+
+
+# ----------------------------------------------------------------------------------------------- losses
+def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig) -> dict:
+    """The loss terms of one step (scalar tensors) and their weighted sum ``"loss"``.
+
+    Args:
+        model: the Siren being trained.
+        surf_p, surf_n: (S, 3) surface points and unit outward normals (unit frame).
+        vol_p, vol_d: (V, 3) off-surface points and (V,) their ground-truth signed distances.
+        cfg: weights ``w_surface``, ``w_normal``, ``w_eikonal``, ``w_sdf``.
+
+    ∇f of all S + V points comes from one differentiable GEMM pass (no double-backward).
+    """
+    s = surf_p.shape[0]
+    pts = torch.cat([surf_p, vol_p], dim=0) if vol_p.shape[0] else surf_p
+    values, grads = gemm_gradient(model, pts, "reverse", differentiable=True)
+    f = values[:, 0]
+    gnorm = torch.linalg.vector_norm(grads, dim=1)
+    terms = {
+        "surface": (f[:s] ** 2).mean(),
+        "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(1e-6)).mean(),
+        "eikonal": ((1.0 - gnorm) ** 2).mean(),
+    }
+    terms["sdf"] = ((f[s:] - vol_d) ** 2).mean() if vol_p.shape[0] else f.new_zeros(())
+    terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
+                     + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
+    return terms
+
+
+# ----------------------------------------------------------------------------------------------- pools
+class _Pools:
+    """Sample pools drawn from the mesh, rebuilt for every refresh index (deterministic in (seed, index))."""
+
+    def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype):
+        self.mesh, self.cfg, self.device, self.dtype = mesh, cfg, device, dtype
+        self.index = None
+
+    def get(self, step: int):
+        idx = step // self.cfg.refresh_every if self.cfg.refresh_every else 0
+        if idx != self.index:
+            self._build(idx)
+        return self.data
+
+    def _build(self, idx: int) -> None:
+        from .sampling import sample_near, sample_surface, sample_uniform
+
+        cfg, mesh = self.cfg, self.mesh
+        seed = int(cfg.seed) * 10_007 + idx
+        try:
+            surf = sample_surface(mesh, cfg.pool_surface, seed=seed)
+            near = sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1) if cfg.pool_near else None
+            uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
+        except (ValueError, RuntimeError) as exc:
+            raise FitError(f"{mesh.name}: cannot sample the mesh for fitting ({exc})") from None
+
+        def t(a):
+            return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)
+
+        vol_p = [v.points for v in (near, uni) if v is not None]
+        vol_d = [v.sdf for v in (near, uni) if v is not None]
+        if surf.points.shape[0] == 0:
+            raise FitError(f"{mesh.name}: no surface samples (every face is degenerate)")
+        vp = np.concatenate(vol_p) if vol_p else np.zeros((0, 3), np.float32)
+        vd = np.concatenate(vol_d) if vol_d else np.zeros(0, np.float32)
+        finite = np.isfinite(vd) & np.isfinite(vp).all(axis=1)
+        n_near = int(finite[: near.points.shape[0]].sum()) if near is not None else 0
+        self.data = {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]),
+                     "vol_d": t(vd[finite]), "n_near": n_near}
+        self.index = idx
+
+
+def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator):
+    dev = pools["surf_p"].device
+    si = torch.randint(0, pools["surf_p"].shape[0], (cfg.batch,), generator=gen).to(dev)
+    n_near, n_vol = pools["n_near"], pools["vol_p"].shape[0]
+    parts = []
+    if cfg.batch_near and n_near:
+        parts.append(torch.randint(0, n_near, (cfg.batch_near,), generator=gen))
+    if cfg.batch_uniform and n_vol > n_near:
+        parts.append(torch.randint(n_near, n_vol, (cfg.batch_uniform,), generator=gen))
+    vi = torch.cat(parts).to(dev) if parts else torch.zeros(0, dtype=torch.long, device=dev)
+    return pools["surf_p"][si], pools["surf_n"][si], pools["vol_p"][vi], pools["vol_d"][vi]
+
+
+def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    h.update(json.dumps(_jsonable(cfg.fingerprint_dict()), sort_keys=True).encode())
+    return h.hexdigest()[:32]
+
+
+# ----------------------------------------------------------------------------------------------- fitting
+def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None, **overrides) -> SdfFit:
+    """Train a Siren SDF of ``mesh`` (unit frame) and return an :class:`SdfFit`.
+
+    Args:
+        mesh: a :class:`~neural_bake.types.Mesh` (unit frame; e.g. from ``load_mesh``). Open meshes are
+            signed by the generalised winding number (see :mod:`neural_bake.fit.sampling`).
+        config: the settings (default :class:`SdfFitConfig`).
+        preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), applied before
+            ``overrides``.
+        **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
+
+    Returns:
+        An :class:`SdfFit` whose ``model`` is in eval mode on ``config.device``.
+
+    Raises:
+        FitError: invalid settings, a mesh with nothing to sample, a checkpoint of another run, or
+            divergence that learning-rate halvings did not cure (weights are never left non-finite).
+    """
+    if not isinstance(mesh, Mesh):
+        raise FitError(f"fit_sdf: expected a neural_bake Mesh, got {type(mesh).__name__}")
+    if mesh.n_faces == 0 or mesh.n_vertices == 0:
+        raise FitError(f"{mesh.name}: the mesh has no faces to fit")
+    if not np.isfinite(mesh.vertices).all():
+        raise FitError(f"{mesh.name}: the mesh has non-finite vertex coordinates")
+    cfg = config_from(config, preset=preset, **overrides)
+    device = torch.device(cfg.device or "cpu")
+    dtype = _DTYPES[cfg.dtype]
+    gen = torch.Generator().manual_seed(int(cfg.seed))
+    model = Siren(cfg.width, cfg.depth, omega_0=cfg.omega_0, generator=gen).to(device=device, dtype=dtype)
+    model.train()
+    pools = _Pools(mesh, cfg, device, dtype)
+
+    def step_fn(step: int, g: torch.Generator) -> dict:
+        sp, sn, vp, vd = _draw(pools.get(step), cfg, g)
+        return sdf_loss_terms(model, sp, sn, vp, vd, cfg)
+
+    res = train(model, step_fn, cfg.loop_config(f"fit sdf {cfg.width}x{cfg.depth}"),
+                fingerprint=_fingerprint(mesh, cfg), metadata={"mesh": mesh.name})
+    model.eval()
+    return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=res.seconds,
+                  config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts)
