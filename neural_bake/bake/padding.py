@@ -11,6 +11,9 @@ __all__ = ["pad_charts", "PADDING_METHODS"]
 
 PADDING_METHODS = ("pull-push", "dilate")
 
+#: Rings around the charts that "pull-push" fills by dilation before the pyramid fills the rest.
+PULL_PUSH_DILATE = 4
+
 
 def pad_charts(
     image: np.ndarray,
@@ -23,8 +26,8 @@ def pad_charts(
 
     - ``image``: (H, W, C) or (H, W) float array; the values at covered texels are kept bit for bit.
     - ``coverage``: (H, W) bool or float; texels with coverage > 0 are *covered* (inside a chart).
-    - ``method``: "pull-push" (a mip pyramid of coverage-weighted averages, pushed back down into the
-      holes: smooth, fills everything) or "dilate" (each step gives an empty texel the mean of its filled
+    - ``method``: "pull-push" (the first :data:`PULL_PUSH_DILATE` rings by dilation, the rest from a mip
+      pyramid of coverage-weighted averages pushed back down into the holes: smooth, fills everything) or "dilate" (each step gives an empty texel the mean of its filled
       8-neighbours, like texture bakers' "edge padding").
     - ``pixels``: fill only texels within this many texels (chessboard distance) of a chart; None fills
       every texel for "pull-push" and 16 texels for "dilate".
@@ -52,6 +55,11 @@ def pad_charts(
         out = _dilate(work, covered, 16 if pixels is None else int(pixels))
     else:
         out = _pull_push(work, covered)
+        # the first rings come from dilation (values of the nearest chart only), so that bilinear and the
+        # first mip levels at a chart's edge never mix in a neighbouring chart's pushed-down colours
+        rings = PULL_PUSH_DILATE if pixels is None else min(int(pixels), PULL_PUSH_DILATE)
+        near, near_mask = _dilate(work, covered, rings, return_mask=True)
+        out[near_mask] = near[near_mask]
         if pixels is not None:
             dist = ndimage.distance_transform_cdt(~covered, metric="chessboard")
             far = dist > pixels
@@ -61,7 +69,7 @@ def pad_charts(
     return out[:, :, 0] if squeeze else out
 
 
-def _dilate(img: np.ndarray, filled: np.ndarray, steps: int) -> np.ndarray:
+def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool = False):
     img = img.copy()
     filled = filled.copy()
     kernel = np.ones((3, 3))
@@ -77,7 +85,7 @@ def _dilate(img: np.ndarray, filled: np.ndarray, steps: int) -> np.ndarray:
             s = ndimage.convolve(img[:, :, c] * w, kernel, mode="constant")
             img[:, :, c][grow] = s[grow] / count[grow]
         filled |= grow
-    return img
+    return (img, filled) if return_mask else img
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
