@@ -89,6 +89,8 @@ class TextureFitConfig:
     """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (> 0 by default; 0 switches it off)."""
     delta: float | None = None
     """δ: band half-width in the unit frame; None: the SDF model file's "delta", else DEFAULT_DELTA."""
+    orth_method: str = "jacobian"
+    """How ⟨∇g_c, n⟩ is computed: "jacobian" (differentiable GEMM Jacobian) or "directional" (same values, ~2× cheaper)."""
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 200_000
@@ -309,16 +311,33 @@ def _band_pool(points, normals, sdf: _Sdf, delta: float, n_uniform: int, gen: to
 
 
 def band_orthogonality(model: Siren, points: torch.Tensor, normals: torch.Tensor,
-                       *, differentiable: bool = True) -> torch.Tensor:
+                       *, differentiable: bool = True, method: str = "jacobian") -> torch.Tensor:
     """Per-point Σ_c ⟨∇g_c(p), n(p)⟩² of the colour net ``model`` (out_dim 3) at ``points``.
 
     - ``points``: (N, 3) unit frame; ``normals``: (N, 3) the unit ∇f there (zero rows count as 0).
-    - ∇g is the GEMM Jacobian (N, 3, 3) (out, in); ``differentiable=True`` keeps the graph to the weights.
+    - ``method="jacobian"``: ∇g is the GEMM Jacobian (N, 3, 3) (out, in) of :func:`gemm_gradient`, then
+      contracted with n. ``"directional"``: the same numbers as one forward-mode tangent stream along n
+      (``t_0 = n``, ``t_i = cos A_i ⊙ (W_i t_{i-1})``, ``J n = W_out t_D``): one GEMM stream instead of three.
+    - ``differentiable=True`` keeps the graph to the weights (one ordinary backward, no double-backward).
 
     Returns (N,) in the points' dtype.
     """
-    _, jac = _gemm_gradient(model, points, differentiable=differentiable)
-    d = torch.einsum("noi,ni->no", jac.reshape(points.shape[0], -1, 3), normals)
+    if method == "jacobian":
+        _, jac = _gemm_gradient(model, points, differentiable=differentiable)
+        d = torch.einsum("noi,ni->no", jac.reshape(points.shape[0], -1, 3), normals)
+    elif method == "directional":
+        with torch.set_grad_enabled(differentiable and torch.is_grad_enabled()):
+            layers = [(w.to(points.dtype), b.to(points.dtype)) for w, b in model.affine_layers()]
+            if not differentiable:
+                layers = [(w.detach(), b.detach()) for w, b in layers]
+            h, t = points, normals
+            for w, b in layers[:-1]:
+                a = torch.addmm(b, h, w.t())
+                t = torch.cos(a) * (t @ w.t())
+                h = torch.sin(a)
+            d = t @ layers[-1][0].t()
+    else:
+        raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {method!r}")
     return (d * d).sum(dim=1)
 
 
@@ -370,6 +389,8 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"dtype: must be 'float32' or 'float64', got {c.dtype!r}")
     if isinstance(c.max_restarts, bool) or int(c.max_restarts) != c.max_restarts or c.max_restarts < 0:
         raise FitError(f"max_restarts: must be a non-negative integer, got {c.max_restarts!r}")
+    if c.orth_method not in ("jacobian", "directional"):
+        raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {c.orth_method!r}")
     if c.lr_schedule not in ("constant", "cosine"):
         raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
 
@@ -462,7 +483,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
         if n_uni:
             k = torch.randint(0, band_uni.shape[0], (n_uni,), generator=gen, device=device)
             bp, bn = torch.cat([bp, band_uni[k]]), torch.cat([bn, band_uni_n[k]])
-        orth = band_orthogonality(model, bp, bn).mean()
+        orth = band_orthogonality(model, bp, bn, method=config.orth_method).mean()
         return {"loss": colour + lam * orth, "colour": colour, "orth": orth}
 
     loop = LoopConfig(

@@ -111,6 +111,26 @@ def test_band_orthogonality_matches_autograd_values_and_weight_gradients(dtype, 
     assert torch.allclose(g_got, g_ref, atol=tol * float(g_ref.abs().max()) * 10, rtol=tol * 10)
 
 
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-11), (torch.float32, 1e-5)])
+def test_directional_method_matches_the_jacobian(dtype, tol):
+    gen = torch.Generator().manual_seed(5)
+    net = Siren(24, 2, 3, 3, generator=gen).to(dtype)
+    x = (torch.rand(80, 3, generator=gen, dtype=torch.float64) * 2 - 1).to(dtype)
+    n = torch.nn.functional.normalize(torch.randn(80, 3, generator=gen, dtype=torch.float64), dim=1).to(dtype)
+    a = band_orthogonality(net, x, n, method="jacobian")
+    b = band_orthogonality(net, x, n, method="directional")
+    scale = float(a.detach().abs().max())
+    assert torch.allclose(a, b, atol=tol * scale, rtol=tol * 10)
+    ga = torch.autograd.grad(a.mean(), net.layers[0].weight)[0]
+    gb = torch.autograd.grad(b.mean(), net.layers[0].weight)[0]
+    assert torch.allclose(ga, gb, atol=tol * 10 * float(ga.abs().max()), rtol=tol * 10)
+    with torch.no_grad():
+        assert torch.allclose(band_orthogonality(net, x, n, method="directional", differentiable=False),
+                              b.detach(), atol=tol * scale)
+    with pytest.raises(FitError, match="orth_method: must be 'jacobian' or 'directional'"):
+        band_orthogonality(net, x, n, method="autograd")
+
+
 def test_band_orthogonality_is_zero_for_a_field_constant_along_the_normal():
     # a net that only depends on x_0, read along normals (0, ±1, 0) / (0, 0, 1): exactly orthogonal
     net = Siren(16, 1, 3, 3, omega_0=10.0, generator=torch.Generator().manual_seed(1)).double()
@@ -336,6 +356,7 @@ def test_bad_textures_are_clear_errors(sphere):
     ({"band_uniform_fraction": 1.5}, r"band_uniform_fraction: must be in \[0, 1\]"),
     ({"dtype": "float16"}, "dtype: must be 'float32' or 'float64'"),
     ({"lr_schedule": "step"}, "lr_schedule: must be 'constant' or 'cosine'"),
+    ({"orth_method": "autograd"}, "orth_method: must be 'jacobian' or 'directional'"),
     ({"preset": "huge"}, "unknown preset 'huge'"),
     ({"colour_weight": 2}, "unknown option 'colour_weight'"),
 ])
