@@ -613,6 +613,19 @@ def _ply_texture_name(p: Path) -> str | None:
     return None
 
 
+def _gltf_missing_images(p: Path) -> list[str]:
+    """External image URIs of a .gltf file that do not exist (trimesh silently drops them)."""
+    import json
+    from urllib.parse import unquote
+
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+        uris = [im.get("uri") for im in doc.get("images", []) if isinstance(im, dict)]
+    except (ValueError, OSError, AttributeError):
+        return []
+    return [u for u in uris if isinstance(u, str) and not u.startswith("data:") and not (p.parent / unquote(u)).is_file()]
+
+
 def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
     import trimesh
 
@@ -642,7 +655,9 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
         guv = getattr(g.visual, "uv", None) if getattr(g.visual, "kind", None) == "texture" else None
         guv = None if guv is None or len(guv) != len(v) else np.asarray(guv, dtype=np.float64)[:, :2]
         uvs.append(None if guv is None else guv[f])
-        mat = getattr(g.visual, "material", None)
+        # PLY: the texture is the header's ``comment TextureFile``, read below with read_image (trimesh puts
+        # a placeholder image in when that file is missing); glTF: the material's base-colour image
+        mat = getattr(g.visual, "material", None) if ext != ".ply" else None
         img = getattr(mat, "baseColorTexture", None) if mat is not None else None
         if img is None and mat is not None:
             img = getattr(mat, "image", None)
@@ -663,8 +678,11 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
         texture = _pil_to_linear(imgs[0])
         if len({id(im) for im in imgs}) > 1:
             _warn(notes, f"{name}: geometries use {len({id(im) for im in imgs})} textures; only the first is used")
+    if ext == ".gltf":
+        for uri in _gltf_missing_images(p):
+            _warn(notes, f"{name}: texture {uri} named by the file not found; loading without it")
     tex_path = None
-    if named_texture is not None and texture is None:
+    if named_texture is not None:
         cand = p.parent / named_texture.replace("\\", "/")
         if cand.is_file():
             tex_path = cand

@@ -1,0 +1,491 @@
+"""load_mesh / mesh_from_arrays / save_mesh: formats, round trips, frame, validation errors and warnings."""
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_bake.constants import UNIT_FRAME_EXTENT
+from neural_bake.errors import ImageError, MeshError, NeuralBakeError, NeuralBakeWarning
+from neural_bake.io.colour import sample_texture, srgb_to_linear
+from neural_bake.io.images import read_image, write_image
+from neural_bake.io.mesh_io import load_mesh, mesh_from_arrays, save_mesh
+from neural_bake.types import Frame
+
+SPOT = Path("/work/shared/data/spot")
+
+# four quadrants, 8-bit sRGB levels so that 8-bit files store them exactly; row 0 = top of the image
+QUAD_COLOURS = {  # (u, v) centre of the quadrant, v up -> sRGB colour
+    (0.25, 0.75): (1.0, 0.0, 0.0),  # top-left: red
+    (0.75, 0.75): (0.0, 1.0, 0.0),  # top-right: green
+    (0.25, 0.25): (0.0, 0.0, 1.0),  # bottom-left: blue
+    (0.75, 0.25): (1.0, 1.0, 128 / 255),  # bottom-right: yellow-ish
+}
+
+
+def quadrant_texture(n=8):
+    t = np.zeros((n, n, 3), np.float32)
+    h = n // 2
+    t[:h, :h] = QUAD_COLOURS[(0.25, 0.75)]
+    t[:h, h:] = QUAD_COLOURS[(0.75, 0.75)]
+    t[h:, :h] = QUAD_COLOURS[(0.25, 0.25)]
+    t[h:, h:] = QUAD_COLOURS[(0.75, 0.25)]
+    return srgb_to_linear(t)  # linear, as Mesh.texture holds it
+
+
+def painted_sphere():
+    """An icosphere whose faces each sit in one texture quadrant (UVs per corner around the quadrant centre)."""
+    s = trimesh.creation.icosphere(subdivisions=1)
+    centres = np.array(list(QUAD_COLOURS))
+    which = np.arange(len(s.faces)) % 4
+    offsets = np.array([[-0.1, -0.1], [0.1, -0.1], [0.0, 0.1]])
+    uv = centres[which][:, None, :] + offsets[None]
+    return s.vertices * 3.0 + [1.0, -2.0, 0.5], s.faces, uv, which
+
+
+def check_painted(mesh, which):
+    """The colour at each face's UV centroid is the one painted in its quadrant (linear)."""
+    centroid = mesh.uv.mean(axis=1)
+    got = sample_texture(mesh.texture, centroid, mesh.uv_policy)
+    want = srgb_to_linear(np.array([QUAD_COLOURS[tuple(c)] for c in np.array(list(QUAD_COLOURS))[which]], np.float32))
+    np.testing.assert_allclose(got[:, :3], want, atol=2e-3)
+
+
+def write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+
+
+def quiet(fn, *a, **k):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NeuralBakeWarning)
+        return fn(*a, **k)
+
+
+# --- in-memory meshes, frame, normals ------------------------------------------------------------------------
+
+
+def test_sphere_unit_frame_and_normals():
+    s = trimesh.creation.icosphere(subdivisions=3)
+    src = s.vertices * 2.5 + [10.0, -3.0, 7.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clean closed sphere gives no warning
+        m = mesh_from_arrays(src, s.faces)
+    assert m.vertices.dtype == np.float64 and m.faces.dtype == np.int64
+    lo, hi = m.vertices.min(0), m.vertices.max(0)
+    assert np.isclose((hi - lo).max(), UNIT_FRAME_EXTENT)
+    np.testing.assert_allclose((hi + lo) / 2, 0, atol=1e-12)
+    # to_source(to_unit(x)) == x, and the stored vertices map back to the input exactly (same order)
+    np.testing.assert_allclose(m.frame.to_source(m.vertices), src, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(m.frame.to_source(m.frame.to_unit(src)), src, rtol=0, atol=1e-12)
+    # analytic oracle: a sphere's normals are its unit positions (tolerance of the polyhedral approximation)
+    radial = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    assert np.einsum("ij,ij->i", m.vertex_normals, radial).min() > 0.999
+    np.testing.assert_allclose(np.linalg.norm(m.vertex_normals, axis=1), 1.0)
+    assert m.watertight and not m.degenerate.any() and m.warnings == [] and m.uv is None
+    assert m.source == "" and m.name == "<generated mesh>"
+
+
+def test_normalise_false_keeps_source_frame():
+    s = trimesh.creation.box(extents=(2, 4, 6))
+    m = mesh_from_arrays(s.vertices, s.faces, normalise=False)
+    assert m.frame == Frame()
+    np.testing.assert_array_equal(m.vertices, s.vertices)
+
+
+def test_seam_split_vertices_are_welded():
+    box = trimesh.creation.box()
+    v = box.vertices[box.faces].reshape(-1, 3)  # 36 vertices, every corner its own
+    f = np.arange(36).reshape(-1, 3)
+    v[5] += 1e-13  # near-duplicate, within MERGE_DISTANCE
+    m = mesh_from_arrays(v, f)
+    assert m.n_vertices == 8 and m.n_faces == 12 and m.watertight
+
+
+def test_unreferenced_vertices_dropped():
+    v = np.array([[0, 0, 0], [9, 9, 9], [1, 0, 0], [0, 1, 0.0]])
+    m = quiet(mesh_from_arrays, v, [[0, 2, 3]], normalise=False)
+    np.testing.assert_array_equal(m.vertices, v[[0, 2, 3]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+
+
+def test_quads_are_fan_triangulated_with_uvs():
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])
+    uv = np.array([[[0, 0], [1, 0], [1, 1], [0, 1.0]]])
+    m = quiet(mesh_from_arrays, v, [[0, 1, 2, 3]], uv=uv, normalise=False)
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2], [0, 2, 3]])
+    np.testing.assert_array_equal(m.uv, [[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]])
+    np.testing.assert_allclose(m.vertex_normals, [[0, 0, 1]] * 4)
+
+
+def test_per_vertex_uv_and_uint8_texture():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])
+    tex8 = np.full((2, 2, 3), 128, np.uint8)
+    m = quiet(mesh_from_arrays, v, [[0, 1, 2]], uv=v[:, :2], texture=tex8)
+    np.testing.assert_array_equal(m.uv[0], v[:, :2])
+    assert m.texture.dtype == np.float32
+    np.testing.assert_allclose(m.texture, srgb_to_linear(np.float32(128 / 255)), rtol=1e-6)
+
+
+def test_grey_alpha_texture_becomes_rgba(tmp_path):
+    v, f, uv, _ = painted_sphere()
+    ga = np.zeros((2, 2, 2), np.float32)
+    ga[..., 1] = 0.5
+    m = mesh_from_arrays(v, f, uv=uv, texture=ga)
+    assert m.texture.shape == (2, 2, 4)
+    np.testing.assert_array_equal(m.texture[..., 3], 0.5)
+
+
+def test_texture_path_for_arrays(tmp_path):
+    v, f, uv, which = painted_sphere()
+    write_image(tmp_path / "t.png", quadrant_texture())
+    m = mesh_from_arrays(v, f, uv=uv, texture=tmp_path / "t.png", source="painted")
+    check_painted(m, which)
+    assert m.source == "painted"
+
+
+# --- round trips ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("ext", [".obj", ".ply", ".glb"])
+def test_round_trip_textured(tmp_path, ext):
+    v, f, uv, which = painted_sphere()
+    m = mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture(), source="painted")
+    check_painted(m, which)
+    out = save_mesh(m, tmp_path / f"m{ext}")
+    assert out == tmp_path / f"m{ext}"
+    m2 = load_mesh(out)
+    assert m2.n_vertices == m.n_vertices and m2.n_faces == m.n_faces
+    np.testing.assert_array_equal(m2.faces, m.faces)
+    tol = 1e-6 if ext == ".glb" else 1e-12  # GLB stores float32 positions
+    np.testing.assert_allclose(m2.frame.to_source(m2.vertices), v, rtol=0, atol=tol * 10)
+    np.testing.assert_allclose(m2.uv, m.uv, atol=1e-7)
+    np.testing.assert_allclose(m2.texture, m.texture, atol=1e-6)  # 8-bit levels survive exactly
+    check_painted(m2, which)  # texel lookup at each face's UV gives the painted colour
+    assert m2.watertight and m2.warnings == []
+    assert not [q.name for q in tmp_path.iterdir() if q.name.startswith(".")]  # no temporaries
+
+
+def test_obj_files_written(tmp_path):
+    v, f, uv, _ = painted_sphere()
+    m = mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture())
+    save_mesh(m, tmp_path / "a.obj")
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.mtl", "a.obj", "a_basecolor.png"]
+    assert "map_Kd a_basecolor.png" in (tmp_path / "a.mtl").read_text()
+    np.testing.assert_allclose(read_image(tmp_path / "a_basecolor.png"), m.texture, atol=1e-6)
+
+
+@pytest.mark.parametrize("ext", [".obj", ".ply", ".glb"])
+def test_round_trip_plain_and_unit_frame(tmp_path, ext):
+    s = trimesh.creation.icosphere(subdivisions=2)
+    src = s.vertices * 0.01 + 5.0
+    m = mesh_from_arrays(src, s.faces)
+    m2 = load_mesh(save_mesh(m, tmp_path / f"a{ext}"))
+    assert m2.uv is None and m2.texture is None
+    tol = 1e-7 if ext == ".glb" else 1e-14
+    np.testing.assert_allclose(m2.frame.to_source(m2.vertices), src, atol=tol * 10)
+    np.testing.assert_allclose(m2.vertices, m.vertices, atol=1e-4 if ext == ".glb" else 1e-12)
+    m3 = load_mesh(save_mesh(m, tmp_path / f"u{ext}", frame="unit"), normalise=False)
+    np.testing.assert_allclose(m3.vertices, m.vertices, atol=1e-6)
+
+
+def test_gltf_external_texture(tmp_path):
+    v, f, uv, which = painted_sphere()
+    m = mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture())
+    save_mesh(m, tmp_path / "a.glb")
+    scene = trimesh.load(tmp_path / "a.glb", process=False)
+    files = scene.export(file_type="gltf")
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    m2 = load_mesh(tmp_path / "model.gltf")
+    check_painted(m2, which)
+    assert m2.n_vertices == m.n_vertices and m2.watertight
+
+
+def test_gltf_missing_external_image(tmp_path):
+    v, f, uv, _ = painted_sphere()
+    save_mesh(mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture()), tmp_path / "a.glb")
+    files = trimesh.load(tmp_path / "a.glb", process=False).export(file_type="gltf")
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    doc = json.loads((tmp_path / "model.gltf").read_text())
+    doc["images"] = [{"uri": "gone%20away.png"}]
+    (tmp_path / "model.gltf").write_text(json.dumps(doc))
+    with pytest.warns(NeuralBakeWarning, match=r"model\.gltf: texture gone%20away\.png named by the file not found"):
+        m = load_mesh(tmp_path / "model.gltf")
+    assert m.texture is None and m.uv is not None
+
+
+def test_multi_geometry_scene_is_concatenated(tmp_path):
+    a = trimesh.creation.box()
+    b = trimesh.creation.icosphere(subdivisions=1)
+    b.apply_translation([5, 0, 0])
+    trimesh.Scene([a, b]).export(tmp_path / "two.glb")
+    m = load_mesh(tmp_path / "two.glb", normalise=False)
+    assert m.n_faces == len(a.faces) + len(b.faces)
+    assert m.n_vertices == len(a.vertices) + len(b.vertices)
+    assert m.vertices[:, 0].max() == pytest.approx(6.0) and m.watertight
+
+
+def test_obj_quads_negative_indices_and_comments(tmp_path):
+    corners = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
+    quads = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (4, 8, 7, 3), (1, 5, 8, 4), (2, 3, 7, 6)]  # outward
+    lines = ["# a unit cube of quads", "o box", "s off", "g g1"] + [f"v {x} {y} {z}" for x, y, z in corners]
+    lines += ["f " + " ".join(str(k - 9) for k in q) + "  # quad, negative indices" for q in quads]
+    p = write(tmp_path, "box.obj", "\n".join(lines) + "\n")
+    m = load_mesh(p, normalise=False)
+    assert m.n_faces == 12 and m.watertight and m.warnings == []
+    assert trimesh.Trimesh(m.vertices, m.faces).volume == pytest.approx(1.0)
+    assert np.einsum("ij,ij->i", m.face_normals, m.triangles.mean(1) - 0.5).min() > 0  # outward
+
+
+def test_obj_texture_convention(tmp_path):
+    """Hand-written OBJ: a face whose UVs sit in the top-left quadrant (v up) reads the top-left texels."""
+    write_image(tmp_path / "tex.png", quadrant_texture())
+    write(tmp_path, "m.mtl", "newmtl mat\nKd 1 1 1\nmap_Kd -s 1 1 1 -o 0 0 tex.png\n")
+    p = write(tmp_path, "m.obj", "mtllib m.mtl\nusemtl mat\n" + TRI + "vt 0.2 0.7\nvt 0.3 0.7\nvt 0.25 0.8\nf 1/1 2/2 3/3\n")
+    m = quiet(load_mesh, p)
+    np.testing.assert_allclose(sample_texture(m.texture, m.uv.mean(axis=1)), srgb_to_linear(np.float32([[1, 0, 0]])))
+
+
+def test_explicit_texture_overrides(tmp_path):
+    write_image(tmp_path / "t.png", quadrant_texture())
+    p = write(tmp_path, "m.obj", TRI + "vt 0.75 0.25\nf 1/1 2/1 3/1\n")
+    m = quiet(load_mesh, p, texture=tmp_path / "t.png")
+    assert m.texture.shape == (8, 8, 3)
+
+
+@pytest.mark.skipif(not (SPOT / "spot_triangulated.obj").exists(), reason="shared data absent")
+def test_spot():
+    with pytest.warns(NeuralBakeWarning, match=r"12 face corners have UVs outside \[0, 1\].*policy 'clamp'"):
+        m = load_mesh(SPOT / "spot_triangulated.obj", SPOT / "spot_texture.png", uv_policy="clamp")
+    assert (m.n_vertices, m.n_faces) == (2930, 5856)
+    assert m.watertight and m.texture.shape == (1024, 1024, 3) and m.uv.shape == (5856, 3, 2)
+    assert m.uv_policy == "clamp" and len(m.warnings) == 1
+    assert m.uv[..., 1].max() > 1.0 and m.uv[..., 0].min() == pytest.approx(-0.05224, abs=1e-5)
+
+
+# --- errors --------------------------------------------------------------------------------------------------
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(MeshError, match=r"nope\.obj: no such file"):
+        load_mesh(tmp_path / "nope.obj")
+    with pytest.raises(MeshError, match=r"d\.obj: not a file"):
+        (tmp_path / "d.obj").mkdir()
+        load_mesh(tmp_path / "d.obj")
+
+
+def test_unknown_format(tmp_path):
+    p = write(tmp_path, "m.stl2", "solid")
+    with pytest.raises(MeshError, match=r"m\.stl2: unknown mesh format '\.stl2' \(expected one of \.obj, \.ply"):
+        load_mesh(p)
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("", r"empty mesh \(no vertices or faces\)"),
+        (TRI, r"empty mesh \(3 vertices but no faces\)"),
+        (TRI + "f 1 2\n", r"m\.obj:4: face with 2 vertices \(a face needs at least 3\)"),
+        (TRI + "f 1 2 5\n", r"m\.obj:4: face index 5 out of range \(file has 3 vertices\)"),
+        (TRI + "f 1 2 0\n", r"m\.obj:4: face index 0 out of range"),
+        (TRI + "f -1 -2 -4\n", r"m\.obj:4: face index -?\d+ out of range"),
+        (TRI + "vt 0 0\nf 1/1 2/1 3/2\n", r"m\.obj:5: texture coordinate index 2 out of range \(file has 1 texture"),
+        ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"m\.obj: vertex 0 has a non-finite coordinate"),
+        ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"vertex 0 has a non-finite coordinate"),
+        ("v 0 zero 0\n", r"m\.obj:1: cannot parse vertex 'v 0 zero 0'"),
+        ("v 0 0\n", r"m\.obj:1: cannot parse vertex"),
+        (TRI + "f 1 2 x\n", r"m\.obj:4: cannot parse face 'f 1 2 x'"),
+        (TRI + "vt a b\n", r"m\.obj:4: cannot parse texture coordinate"),
+        (TRI + "f 1 1 2\n", r"m\.obj: all 1 faces are degenerate"),
+        ("v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", r"all 1 faces are degenerate"),
+    ],
+)
+def test_obj_errors(tmp_path, text, match):
+    p = write(tmp_path, "m.obj", text)
+    with pytest.raises(MeshError, match=match):
+        load_mesh(p)
+
+
+def test_binary_junk_obj(tmp_path):
+    (tmp_path / "m.obj").write_bytes(b"\x00\x01\x02garbage")
+    with pytest.raises(MeshError, match=r"m\.obj: unreadable OBJ file \(binary data"):
+        load_mesh(tmp_path / "m.obj")
+
+
+@pytest.mark.parametrize("ext", [".ply", ".glb", ".gltf"])
+def test_corrupt_binary_formats(tmp_path, ext):
+    (tmp_path / f"m{ext}").write_bytes(b"\x00\x01 definitely not a mesh")
+    with pytest.raises(MeshError, match=rf"m\{ext}: unreadable {ext[1:].upper()} file \(.+\)"):
+        load_mesh(tmp_path / f"m{ext}")
+
+
+def test_empty_ply(tmp_path):
+    p = tmp_path / "e.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                 "element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+    with pytest.raises(MeshError, match=r"e\.ply: empty mesh \(no faces\)"):
+        load_mesh(p)
+
+
+def test_ply_index_out_of_range(tmp_path):
+    p = tmp_path / "e.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                 "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(MeshError, match=r"e\.ply: (face 0: vertex index 7 out of range \(mesh has 3 vertices\)|unreadable)"):
+        load_mesh(p)
+
+
+def test_texture_for_mesh_without_uvs(tmp_path):
+    write_image(tmp_path / "t.png", np.zeros((2, 2, 3)))
+    p = write(tmp_path, "m.obj", TRI + "f 1 2 3\n")
+    with pytest.raises(MeshError, match=r"m\.obj: texture .*t\.png given but the mesh has no UV coordinates"):
+        quiet(load_mesh, p, texture=tmp_path / "t.png")
+    v = np.eye(3)
+    with pytest.raises(MeshError, match=r"<generated mesh>: texture .*t\.png given but the mesh has no UV"):
+        mesh_from_arrays(v, [[0, 1, 2]], texture=tmp_path / "t.png")
+    with pytest.raises(MeshError, match=r"cow: a texture was given but the mesh has no UV coordinates"):
+        mesh_from_arrays(v, [[0, 1, 2]], texture=np.zeros((2, 2, 3)), source="cow")
+
+
+def test_unreadable_texture_is_image_error(tmp_path):
+    (tmp_path / "t.png").write_bytes(b"not a png")
+    p = write(tmp_path, "m.obj", TRI + "vt 0 0\nf 1/1 2/1 3/1\n")
+    with pytest.raises(ImageError, match=r"t\.png: unreadable image"):
+        quiet(load_mesh, p, texture=tmp_path / "t.png")
+    write(tmp_path, "m.mtl", "newmtl a\nmap_Kd t.png\n")
+    p = write(tmp_path, "n.obj", "mtllib m.mtl\nusemtl a\n" + TRI + "vt 0 0\nf 1/1 2/1 3/1\n")
+    with pytest.raises(ImageError, match=r"t\.png: unreadable image"):
+        quiet(load_mesh, p)
+
+
+@pytest.mark.parametrize(
+    "vertices,faces,kw,match",
+    [
+        (np.zeros((3, 2)), [[0, 1, 2]], {}, r"vertices must be a numeric \(V, 3\) array, got shape \(3, 2\)"),
+        (np.eye(3), np.zeros((0, 3), int), {}, r"empty mesh \(no faces\)"),
+        (np.eye(3), [[0, 1]], {}, r"faces have 2 corners \(a face needs at least 3\)"),
+        (np.eye(3), [[0, 1, 3]], {}, r"face 0: vertex index 3 out of range \(mesh has 3 vertices\)"),
+        (np.eye(3), [[0, -1, 2]], {}, r"face 0: vertex index -1 out of range"),
+        (np.eye(3), [[0.5, 1, 2]], {}, r"faces must hold integer vertex indices"),
+        (np.eye(3), [[0, 1, 2]], {"uv": np.zeros((2, 2))}, r"uv must be \(F, 3, 2\) per corner or \(V, 2\) per vertex"),
+        (np.eye(3), [[0, 1, 2]], {"uv": np.full((1, 3, 2), np.nan)}, r"face 0 has a non-finite texture coordinate"),
+        (np.eye(3), [[0, 1, 2]], {"uv": np.zeros((3, 2)), "texture": np.zeros((2, 2, 5))}, r"texture must be a \(H, W, C\)"),
+        (np.eye(3), [[0, 1, 2]], {"uv_policy": "mirror"}, r"uv_policy must be one of \('wrap', 'clamp'\), got 'mirror'"),
+    ],
+)
+def test_array_errors(vertices, faces, kw, match):
+    with pytest.raises(NeuralBakeError, match=match):
+        quiet(mesh_from_arrays, vertices, faces, source="", **kw)
+
+
+def test_save_errors(tmp_path):
+    m = quiet(mesh_from_arrays, np.eye(3), [[0, 1, 2]])
+    with pytest.raises(MeshError, match=r"a\.stl: cannot write mesh format '\.stl'"):
+        save_mesh(m, tmp_path / "a.stl")
+    with pytest.raises(MeshError, match=r"folder .*nowhere does not exist"):
+        save_mesh(m, tmp_path / "nowhere" / "a.obj")
+    with pytest.raises(ValueError, match="frame must be 'source' or 'unit'"):
+        save_mesh(m, tmp_path / "a.obj", frame="world")
+    assert not list(tmp_path.iterdir())
+
+
+# --- warnings ------------------------------------------------------------------------------------------------
+
+
+def test_degenerate_faces_flagged_and_kept():
+    s = trimesh.creation.icosphere(subdivisions=1)
+    f = np.vstack([s.faces, [[0, 0, 1]], [[2, 3, 3]]])  # two zero-area faces, closed mesh otherwise
+    with pytest.warns(NeuralBakeWarning, match=r"<generated mesh>: 2 degenerate faces \(area < 1e-12 in the unit frame\)"):
+        m = mesh_from_arrays(s.vertices, f)
+    assert m.n_faces == len(f) and m.degenerate.sum() == 2 and m.degenerate[-2:].all()
+    assert np.isfinite(m.vertex_normals).all() and m.watertight
+    assert any("degenerate" in w for w in m.warnings)
+
+
+def test_open_mesh_warns():
+    s = trimesh.creation.icosphere(subdivisions=1)
+    with pytest.warns(NeuralBakeWarning, match=r"mesh is not watertight \(3 boundary edges\)"):
+        m = mesh_from_arrays(s.vertices, s.faces[1:])
+    assert not m.watertight and len(m.warnings) == 1
+
+
+def test_inconsistent_winding_is_not_watertight():
+    s = trimesh.creation.icosphere(subdivisions=1)
+    f = s.faces.copy()
+    f[0] = f[0, ::-1]
+    with pytest.warns(NeuralBakeWarning, match=r"3 edges with inconsistent winding"):
+        m = mesh_from_arrays(s.vertices, f)
+    assert not m.watertight
+
+
+def test_inward_winding_is_flipped():
+    s = trimesh.creation.icosphere(subdivisions=2)
+    uv = np.random.default_rng(0).random((len(s.faces), 3, 2))
+    with pytest.warns(NeuralBakeWarning, match=r"faces were wound inward \(negative volume\); flipped all faces"):
+        m = mesh_from_arrays(s.vertices, s.faces[:, ::-1], uv=uv)
+    np.testing.assert_array_equal(m.faces, s.faces)
+    np.testing.assert_array_equal(m.uv, uv[:, ::-1])  # corners follow their vertices
+    radial = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    assert np.einsum("ij,ij->i", m.vertex_normals, radial).min() > 0.99
+    assert np.einsum("ij,ij->i", m.face_normals, m.triangles.mean(1)).min() > 0
+
+
+def test_uv_outside_range_and_policy():
+    v, f, uv, _ = painted_sphere()
+    uv = uv.copy()
+    uv[0, 0] = [1.25, -0.5]
+    with pytest.warns(NeuralBakeWarning, match=r"1 face corners have UVs outside \[0, 1\] \(u in \[.*, 1\.25\], v in \[-0\.5, .*policy 'wrap'"):
+        m = mesh_from_arrays(v, f, uv=uv)
+    assert m.uv_policy == "wrap"
+    m = quiet(mesh_from_arrays, v, f, uv=uv, uv_policy="clamp")
+    assert m.uv_policy == "clamp"
+
+
+def test_missing_texture_named_by_mtl(tmp_path):
+    write(tmp_path, "m.mtl", "newmtl a\nKd 1 1 1\nmap_Kd gone.png\n")
+    p = write(tmp_path, "m.obj", "mtllib m.mtl\nusemtl a\n" + TRI + "vt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    with pytest.warns(NeuralBakeWarning, match=r"m\.obj: texture gone\.png named by m\.mtl not found; loading without texture"):
+        m = load_mesh(p)
+    assert m.texture is None and m.uv is not None
+
+
+def test_missing_mtl(tmp_path):
+    p = write(tmp_path, "m.obj", "mtllib nothere.mtl\n" + TRI + "f 1 2 3\n")
+    with pytest.warns(NeuralBakeWarning, match=r"m\.obj: material library nothere\.mtl not found"):
+        m = load_mesh(p)
+    assert m.texture is None
+
+
+def test_missing_texture_named_by_ply(tmp_path):
+    v, f, uv, _ = painted_sphere()
+    save_mesh(mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture()), tmp_path / "a.ply")
+    (tmp_path / "a_basecolor.png").unlink()
+    with pytest.warns(NeuralBakeWarning, match=r"a\.ply: texture a_basecolor\.png named by the file not found"):
+        m = load_mesh(tmp_path / "a.ply")
+    assert m.texture is None and m.uv is not None
+
+
+def test_faces_without_uvs_in_a_uv_mesh(tmp_path):
+    p = write(tmp_path, "m.obj", TRI + "v 1 1 0\nvt 0.5 0.5\nf 1/1 2/1 3/1\nf 2 4 3\n")
+    with pytest.warns(NeuralBakeWarning, match=r"m\.obj: 1 faces have no texture coordinates; they get uv \(0, 0\)"):
+        m = load_mesh(p)
+    np.testing.assert_array_equal(m.uv[1], 0.0)
+    np.testing.assert_array_equal(m.uv[0], 0.5)
+
+
+def test_named_texture_without_uvs(tmp_path):
+    write_image(tmp_path / "t.png", np.zeros((2, 2, 3)))
+    write(tmp_path, "m.mtl", "newmtl a\nmap_Kd t.png\n")
+    p = write(tmp_path, "m.obj", "mtllib m.mtl\nusemtl a\n" + TRI + "f 1 2 3\n")
+    with pytest.warns(NeuralBakeWarning, match=r"m\.obj: the file names a texture but has no UV coordinates; texture ignored"):
+        m = load_mesh(p)
+    assert m.texture is None
