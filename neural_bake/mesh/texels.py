@@ -1,0 +1,472 @@
+"""Texel rasterisation: every covered texel centre of a UV layout -> its 3-D point and tangent frame."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
+from ..types import Mesh
+from .tangents import tangent_frames, vertex_normals, vertex_uv
+
+__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points"]
+
+#: Barycentric tolerance for "texel centre inside the triangle" (in units of barycentric coordinates).
+_INSIDE_EPS = 1e-9
+#: Twice the UV-pixel area below which a UV triangle is degenerate and covers no sample.
+_UV_AREA_EPS = 1e-12
+#: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
+_MAX_CANDIDATES = 1 << 21
+
+
+@dataclass
+class TexelSet:
+    """Samples of a UV layout on a texel grid, with the 3-D point and shading frame of each.
+
+    M samples; with ``supersample = s`` a texel has up to s² samples (each texel's weights sum to 1).
+    All arrays are numpy; float arrays are float64.
+
+    The frame is what a glTF renderer reconstructs at that point from the exported mesh:
+    ``normal = normalize(interp vertex normal)``, ``tangent = normalize(interp TANGENT.xyz)``,
+    ``bitangent = w · cross(normal, tangent)`` with ``w`` the sign of the interpolated handedness.
+    Tangent-space normal map convention: glTF / OpenGL, +Y (green) along the bitangent, v up.
+    """
+
+    size: tuple[int, int]
+    """(H, W) of the texel grid."""
+    pixel: np.ndarray
+    """(M, 2) int64 (row from the TOP, column) of the texel each sample belongs to."""
+    points: np.ndarray
+    """(M, 3) float64 sample points on the mesh, unit frame."""
+    normal: np.ndarray
+    """(M, 3) float64 unit interpolated vertex normal (outward)."""
+    tangent: np.ndarray
+    """(M, 3) float64 unit interpolated tangent (towards increasing u)."""
+    bitangent: np.ndarray
+    """(M, 3) float64 ``w · cross(normal, tangent)`` (towards increasing v)."""
+    face: np.ndarray
+    """(M,) int64 face of the mesh each sample lies on."""
+    bary: np.ndarray
+    """(M, 3) float64 barycentric coordinates in that face (non-negative, sum 1)."""
+    weight: np.ndarray
+    """(M,) float64 supersampling weight; the weights of one texel sum to 1."""
+    texel: np.ndarray
+    """(M,) int64 index ``row * W + col`` of the sample's texel in the flattened (H * W) grid."""
+    coverage: np.ndarray
+    """(H, W) bool: texels that received at least one sample (border texels included)."""
+    border: np.ndarray
+    """(M,) bool: sample assigned by the conservative rule (texel touched by a triangle but no sample
+    inside one): its point is the closest point of the nearest triangle (clamped barycentrics)."""
+    supersample: int = 1
+    """s: samples per texel along each axis."""
+    overlaps: int = 0
+    """Samples strictly inside more than one UV triangle (overlapping charts); the lowest face index wins."""
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.face.shape[0])
+
+    @property
+    def n_texels(self) -> int:
+        return int(self.coverage.sum())
+
+    def resolve(self, values: np.ndarray) -> np.ndarray:
+        """Weighted average of per-sample ``values`` (M, C) per texel -> (H, W, C) float64 image (0 where
+        not covered). Works for any float values (colours, normals before renormalisation, …)."""
+        values = np.asarray(values, dtype=np.float64)
+        flat = values.reshape(self.n_samples, -1)
+        h, w = self.size
+        out = np.zeros((h * w, flat.shape[1]))
+        np.add.at(out, self.texel, flat * self.weight[:, None])
+        return out.reshape(h, w, *values.shape[1:])
+
+
+def _parse_size(size) -> tuple[int, int]:
+    if isinstance(size, (int, np.integer)):
+        h = w = int(size)
+    else:
+        try:
+            h, w = (int(s) for s in size)
+        except (TypeError, ValueError):
+            raise NeuralBakeError(f"size: expected an int or (H, W), got {size!r}") from None
+    if h < 1 or w < 1:
+        raise NeuralBakeError(f"size: texel grid must be at least 1x1, got {h}x{w}")
+    return h, w
+
+
+def _face_uv_copies(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) face index and (K, 3, 2) UVs of the face copies to rasterise.
+
+    ``uv_policy == "wrap"``: a face is moved by the integer offset that brings its centroid into [0, 1)²,
+    and a face that still crosses the border is also rasterised shifted by ±1 (the texture repeats).
+    ``"clamp"``: UVs are used as they are; parts outside [0, 1]² cover no texel.
+    A :class:`NeuralBakeWarning` says how many faces have UVs outside [0, 1].
+    """
+    uv = np.asarray(mesh.uv, dtype=np.float64)
+    nf = uv.shape[0]
+    outside = ((uv < 0) | (uv > 1)).any(axis=(1, 2))
+    if not outside.any():
+        return np.arange(nf), uv
+    if mesh.uv_policy == "wrap":
+        uv = uv - np.floor(uv.mean(axis=1, keepdims=True))
+        faces, uvs = [np.arange(nf)], [uv]
+        lo, hi = uv.min(axis=1), uv.max(axis=1)  # (F, 2)
+        for du in (-1, 0, 1):
+            for dv in (-1, 0, 1):
+                if du == dv == 0:
+                    continue
+                d = np.array([du, dv], dtype=np.float64)
+                hit = ((lo + d) < 1).all(axis=1) & ((hi + d) > 0).all(axis=1)
+                if hit.any():
+                    faces.append(np.flatnonzero(hit))
+                    uvs.append(uv[hit] + d)
+        warnings.warn(
+            f"{mesh.name}: {int(outside.sum())} faces have UVs outside [0, 1]; wrapped (uv_policy 'wrap')",
+            NeuralBakeWarning,
+            stacklevel=3,
+        )
+        return np.concatenate(faces), np.concatenate(uvs)
+    warnings.warn(
+        f"{mesh.name}: {int(outside.sum())} faces have UVs outside [0, 1]; the parts outside cover no texel"
+        " (uv_policy 'clamp')",
+        NeuralBakeWarning,
+        stacklevel=3,
+    )
+    return np.arange(nf), uv
+
+
+def _enumerate(r0, nr, c0, nc):
+    """All (row, col) of the per-face boxes [r0, r0+nr) x [c0, c0+nc): returns (face_slot, row, col)."""
+    nb = nr * nc
+    total = int(nb.sum())
+    slot = np.repeat(np.arange(len(nb)), nb)
+    start = np.cumsum(nb) - nb
+    local = np.arange(total, dtype=np.int64) - np.repeat(start, nb)
+    ncs = nc[slot]
+    return slot, r0[slot] + local // ncs, c0[slot] + local % ncs
+
+
+def _chunks_by_budget(counts: np.ndarray, budget: int) -> Iterator[slice]:
+    """Consecutive slices of ``counts`` whose sums stay under ``budget`` (a slice holds at least one)."""
+    csum = np.cumsum(counts)
+    i, n = 0, len(counts)
+    while i < n:
+        base = csum[i - 1] if i else 0
+        j = int(np.searchsorted(csum, base + budget, side="right"))
+        j = max(j, i + 1)
+        yield slice(i, j)
+        i = j
+
+
+def _bary(x, y, px, py):
+    """Barycentrics of points (px, py) (K,) in triangles x, y (K, 3); (K, 3), and 2 x signed area (K,)."""
+    x0, y0 = x[:, 0], y[:, 0]
+    e1x, e1y = x[:, 1] - x0, y[:, 1] - y0
+    e2x, e2y = x[:, 2] - x0, y[:, 2] - y0
+    d = e1x * e2y - e2x * e1y
+    qx, qy = px - x0, py - y0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (qx * e2y - e2x * qy) / d
+        b2 = (e1x * qy - qx * e1y) / d
+    return np.stack([1.0 - b1 - b2, b1, b2], axis=1), d
+
+
+def _sample_hits(xs, ys, hs, ws, rows):
+    """Sample centres inside UV triangles for sample rows ``rows`` = [a, b).
+
+    ``xs, ys`` (K, 3) triangle corners in sample-pixel coordinates (sample (r, c) centre at x = c, y = r).
+    Returns (copy index (N,), sample row, sample col, bary (N, 3), overlaps) with one hit per sample.
+    """
+    a, b = rows
+    xmin, xmax = xs.min(axis=1), xs.max(axis=1)
+    ymin, ymax = ys.min(axis=1), ys.max(axis=1)
+    c0 = np.maximum(np.ceil(xmin), 0).astype(np.int64)
+    c1 = np.minimum(np.floor(xmax), ws - 1).astype(np.int64)
+    r0 = np.maximum(np.ceil(ymin), a).astype(np.int64)
+    r1 = np.minimum(np.floor(ymax), b - 1).astype(np.int64)
+    area2 = (xs[:, 1] - xs[:, 0]) * (ys[:, 2] - ys[:, 0]) - (xs[:, 2] - xs[:, 0]) * (ys[:, 1] - ys[:, 0])
+    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > _UV_AREA_EPS))
+    if live.size == 0:
+        e = np.zeros(0, np.int64)
+        return e, e, e, np.zeros((0, 3)), 0
+    nr, nc = r1[live] - r0[live] + 1, c1[live] - c0[live] + 1
+    out_k, out_r, out_c, out_b = [], [], [], []
+    strict_ids = []
+    for sl in _chunks_by_budget(nr * nc, _MAX_CANDIDATES):
+        ids = live[sl]
+        slot, rr, cc = _enumerate(r0[ids], nr[sl], c0[ids], nc[sl])
+        k = ids[slot]
+        bary, _ = _bary(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
+        inside = (bary >= -_INSIDE_EPS).all(axis=1)
+        strict = (bary > 1e-7).all(axis=1)
+        strict_ids.append((rr[strict] - a) * ws + cc[strict])
+        out_k.append(k[inside])
+        out_r.append(rr[inside])
+        out_c.append(cc[inside])
+        out_b.append(bary[inside])
+    k, rr, cc, bary = (np.concatenate(v) for v in (out_k, out_r, out_c, out_b))
+    sid = (rr - a) * ws + cc
+    order = np.argsort(sid, kind="stable")  # stable: within a sample, the lowest copy (face) index first
+    sid_sorted = sid[order]
+    first = np.ones(len(order), bool)
+    first[1:] = sid_sorted[1:] != sid_sorted[:-1]
+    keep = order[first]
+    s_ids = np.concatenate(strict_ids)
+    _, cnt = np.unique(s_ids, return_counts=True)
+    overlaps = int((cnt > 1).sum())
+    bary = np.clip(bary[keep], 0.0, None)
+    bary /= bary.sum(axis=1, keepdims=True)
+    return k[keep], rr[keep], cc[keep], bary, overlaps
+
+
+def _closest_on_triangles(x, y, px, py):
+    """Closest point of 2-D triangles (K, 3) to points (K,): (distance (K,), clamped bary (K, 3))."""
+    bary, d = _bary(x, y, px, py)
+    inside = (bary >= 0).all(axis=1) & (np.abs(d) > _UV_AREA_EPS)
+    best_d = np.full(len(px), np.inf)
+    best_b = np.zeros((len(px), 3))
+    for i in range(3):
+        j = (i + 1) % 3
+        ex, ey = x[:, j] - x[:, i], y[:, j] - y[:, i]
+        ll = ex * ex + ey * ey
+        t = np.divide((px - x[:, i]) * ex + (py - y[:, i]) * ey, ll, out=np.zeros_like(ll), where=ll > 0)
+        t = np.clip(t, 0.0, 1.0)
+        dist = np.hypot(x[:, i] + t * ex - px, y[:, i] + t * ey - py)
+        better = dist < best_d
+        best_d = np.where(better, dist, best_d)
+        bb = np.zeros((len(px), 3))
+        bb[:, i], bb[:, j] = 1.0 - t, t
+        best_b[better] = bb[better]
+    best_d[inside] = 0.0
+    best_b[inside] = bary[inside]
+    return best_d, best_b
+
+
+def _border_hits(xs, ys, h, w, rows, covered):
+    """Conservative pass on the texel grid: uncovered texels in rows [a, b) that some UV triangle overlaps
+    (separating-axis test, touching excluded) get the nearest such triangle and its clamped closest point.
+    ``xs, ys`` (K, 3) in texel-pixel coordinates; ``covered`` (b - a, W) bool. Returns (copy, row, col, bary)."""
+    a, b = rows
+    c0 = np.maximum(np.ceil(xs.min(axis=1) - 0.5), 0).astype(np.int64)
+    c1 = np.minimum(np.floor(xs.max(axis=1) + 0.5), w - 1).astype(np.int64)
+    r0 = np.maximum(np.ceil(ys.min(axis=1) - 0.5), a).astype(np.int64)
+    r1 = np.minimum(np.floor(ys.max(axis=1) + 0.5), b - 1).astype(np.int64)
+    area2 = (xs[:, 1] - xs[:, 0]) * (ys[:, 2] - ys[:, 0]) - (xs[:, 2] - xs[:, 0]) * (ys[:, 1] - ys[:, 0])
+    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > _UV_AREA_EPS))
+    ks, rs, cs, ds, bs = [], [], [], [], []
+    if live.size:
+        nr, nc = r1[live] - r0[live] + 1, c1[live] - c0[live] + 1
+        for sl in _chunks_by_budget(nr * nc, _MAX_CANDIDATES):
+            ids = live[sl]
+            slot, rr, cc = _enumerate(r0[ids], nr[sl], c0[ids], nc[sl])
+            free = ~covered[rr - a, cc]
+            k, rr, cc = ids[slot][free], rr[free], cc[free]
+            if k.size == 0:
+                continue
+            x, y = xs[k], ys[k]
+            px, py = cc.astype(np.float64), rr.astype(np.float64)
+            sgn = np.sign(area2[k])
+            overlap = (np.maximum(x.min(1), px - 0.5) < np.minimum(x.max(1), px + 0.5)) & (
+                np.maximum(y.min(1), py - 0.5) < np.minimum(y.max(1), py + 0.5)
+            )
+            for i in range(3):
+                j = (i + 1) % 3
+                ex, ey = x[:, j] - x[:, i], y[:, j] - y[:, i]
+                # edge function, positive inside; its largest value over the texel square must be > 0
+                e = sgn * (ex * (py - y[:, i]) - ey * (px - x[:, i]))
+                overlap &= e + 0.5 * (np.abs(ex) + np.abs(ey)) > 1e-12
+            k, rr, cc = k[overlap], rr[overlap], cc[overlap]
+            if k.size == 0:
+                continue
+            dist, bary = _closest_on_triangles(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
+            ks.append(k), rs.append(rr), cs.append(cc), ds.append(dist), bs.append(bary)
+    if not ks:
+        e = np.zeros(0, np.int64)
+        return e, e, e, np.zeros((0, 3))
+    k, rr, cc, dist, bary = (np.concatenate(v) for v in (ks, rs, cs, ds, bs))
+    tid = (rr - a) * w + cc
+    order = np.lexsort((k, dist, tid))
+    first = np.ones(len(order), bool)
+    first[1:] = tid[order][1:] != tid[order][:-1]
+    keep = order[first]
+    return k[keep], rr[keep], cc[keep], bary[keep]
+
+
+def _prepare_tangents(mesh: Mesh, tangents) -> np.ndarray:
+    """Per-corner (F, 3, 4) tangents from ``tangents`` (V, 4) / (F, 3, 4) or computed from the mesh."""
+    if tangents is None:
+        try:
+            vertex_uv(mesh)
+            return tangent_frames(mesh)[mesh.faces]
+        except MeshError:
+            if mesh.uv is None:
+                raise
+            from .unwrap import split_uv_seams
+
+            split, _ = split_uv_seams(mesh)
+            return tangent_frames(split)[split.faces]
+    t = np.asarray(tangents, dtype=np.float64)
+    if t.shape == (mesh.n_vertices, 4):
+        return t[mesh.faces]
+    if t.shape == (mesh.n_faces, 3, 4):
+        return t
+    raise NeuralBakeError(
+        f"tangents: expected shape ({mesh.n_vertices}, 4) or ({mesh.n_faces}, 3, 4), got {t.shape}"
+    )
+
+
+def _unit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = np.linalg.norm(x, axis=1, keepdims=True)
+    ok = n[:, 0] > 1e-300
+    return np.divide(x, n, out=np.zeros_like(x), where=n > 1e-300), ok
+
+
+def iter_texels(
+    mesh: Mesh,
+    size,
+    *,
+    supersample: int = 1,
+    tangents=None,
+    conservative: bool = True,
+    max_samples: int = 1 << 22,
+) -> Iterator[TexelSet]:
+    """:func:`rasterize_texels` in bands of texel rows, for maps too large for one :class:`TexelSet`.
+
+    Yields one :class:`TexelSet` per band of about ``max_samples`` sample positions; each one's
+    ``coverage`` is the full (H, W) grid but only its own rows are set. ``pixel`` and ``texel`` are
+    global. Concatenating the bands gives exactly :func:`rasterize_texels`' result.
+    """
+    if mesh.uv is None:
+        raise MeshError(f"{mesh.name}: mesh has no UVs; unwrap it first (neural_bake.unwrap)")
+    h, w = _parse_size(size)
+    if int(supersample) != supersample or supersample < 1:
+        raise NeuralBakeError(f"supersample: must be a positive integer, got {supersample!r}")
+    s = int(supersample)
+    uv_faces, uv = _face_uv_copies(mesh)
+    corner_t = _prepare_tangents(mesh, tangents)
+    vn = vertex_normals(mesh)
+    fnorm = mesh.face_normals
+    tri = mesh.triangles
+    # texel-pixel coordinates: u right, v up; texel (r, c) centre at x = c, y = r
+    xt = uv[..., 0] * w - 0.5
+    yt = (1.0 - uv[..., 1]) * h - 0.5
+    # sample-pixel coordinates (s x s samples per texel)
+    xs = uv[..., 0] * (w * s) - 0.5
+    ys = (1.0 - uv[..., 1]) * (h * s) - 0.5
+    band = max(1, int(max_samples) // (w * s * s))
+    ymin_t, ymax_t = yt.min(axis=1), yt.max(axis=1)
+    for a in range(0, h, band):
+        b = min(h, a + band)
+        sel = np.flatnonzero((ymax_t >= a - 1) & (ymin_t <= b))  # copies that may touch rows [a, b)
+        k, rr, cc, bary, overlaps = _sample_hits(xs[sel], ys[sel], h * s, w * s, (a * s, b * s))
+        k = sel[k]
+        tr, tc = rr // s, cc // s
+        border = np.zeros(len(k), bool)
+        if conservative:
+            covered = np.zeros((b - a, w), bool)
+            covered[tr - a, tc] = True
+            kb, rb, cb, bb = _border_hits(xt[sel], yt[sel], h, w, (a, b), covered)
+            k = np.concatenate([k, sel[kb]])
+            tr, tc = np.concatenate([tr, rb]), np.concatenate([tc, cb])
+            bary = np.concatenate([bary, bb])
+            border = np.concatenate([border, np.ones(len(kb), bool)])
+        face = uv_faces[k]
+        texel = tr * w + tc
+        order = np.argsort(texel, kind="stable")
+        face, bary, texel, border, tr, tc = (v[order] for v in (face, bary, texel, border, tr, tc))
+        uniq, inv, cnt = np.unique(texel, return_inverse=True, return_counts=True)
+        weight = 1.0 / cnt[inv]
+        points = np.einsum("mk,mkd->md", bary, tri[face])
+        n, ok = _unit(np.einsum("mk,mkd->md", bary, vn[mesh.faces[face]]))
+        fb = fnorm[face]
+        n[~ok] = fb[~ok]
+        n[~ok & (np.abs(fb).sum(1) == 0)] = (0.0, 0.0, 1.0)
+        ct = corner_t[face]  # (M, 3, 4)
+        t, ok = _unit(np.einsum("mk,mkd->md", bary, ct[..., :3]))
+        if (~ok).any():
+            from .tangents import _orthonormal_fallback
+
+            t[~ok] = _orthonormal_fallback(n[~ok])
+        wsign = np.where(np.einsum("mk,mk->m", bary, ct[..., 3]) < 0, -1.0, 1.0)
+        coverage = np.zeros((h, w), bool)
+        coverage.reshape(-1)[uniq] = True
+        yield TexelSet(
+            size=(h, w),
+            pixel=np.stack([tr, tc], axis=1).astype(np.int64),
+            points=points,
+            normal=n,
+            tangent=t,
+            bitangent=wsign[:, None] * np.cross(n, t),
+            face=face.astype(np.int64),
+            bary=bary,
+            weight=weight,
+            texel=texel.astype(np.int64),
+            coverage=coverage,
+            border=border,
+            supersample=s,
+            overlaps=overlaps,
+        )
+
+
+def rasterize_texels(
+    mesh: Mesh,
+    size,
+    *,
+    supersample: int = 1,
+    tangents=None,
+    conservative: bool = True,
+) -> TexelSet:
+    """Rasterise the UV layout of ``mesh`` on an (H, W) texel grid.
+
+    Every texel centre (or each of its s × s subsample centres with ``supersample = s``) inside a UV
+    triangle becomes a sample with its 3-D point (unit frame) and the glTF shading frame there (see
+    :class:`TexelSet`). UV -> pixel follows glTF: u right, v up; texel (row, col) has its centre at
+    ``u = (col + 0.5) / W``, ``v = 1 - (row + 0.5) / H`` (row 0 is the top of the image).
+
+    ``conservative``: a texel that a triangle overlaps but whose samples are all outside every triangle
+    (chart borders) gets one sample at the closest point of the nearest overlapping triangle (clamped
+    barycentrics), flagged in ``border``. UVs outside [0, 1] are wrapped or clamped by ``mesh.uv_policy``
+    (with a :class:`NeuralBakeWarning`). Faces with degenerate UVs cover nothing; degenerate normals or
+    tangents fall back to the face normal / any orthogonal vector: the output never holds NaN.
+
+    ``tangents``: (V, 4) or per-corner (F, 3, 4) glTF tangents; default :func:`tangent_frames` (on a copy
+    split at UV seams if the mesh is not split). For maps above ~2048² use :func:`iter_texels`.
+    Raises :class:`MeshError` if the mesh has no UVs, :class:`NeuralBakeError` for a bad size.
+    """
+    parts = list(
+        iter_texels(mesh, size, supersample=supersample, tangents=tangents, conservative=conservative)
+    )
+    if len(parts) == 1:
+        return parts[0]
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    coverage = np.zeros(parts[0].size, bool)
+    for p in parts:
+        coverage |= p.coverage
+    return TexelSet(
+        size=parts[0].size,
+        pixel=cat("pixel"),
+        points=cat("points"),
+        normal=cat("normal"),
+        tangent=cat("tangent"),
+        bitangent=cat("bitangent"),
+        face=cat("face"),
+        bary=cat("bary"),
+        weight=cat("weight"),
+        texel=cat("texel"),
+        coverage=coverage,
+        border=cat("border"),
+        supersample=parts[0].supersample,
+        overlaps=sum(p.overlaps for p in parts),
+    )
+
+
+def texel_grid_points(size) -> np.ndarray:
+    """(H, W, 2) float64 UV coordinates of every texel centre of an (H, W) grid (glTF: v up, row 0 top)."""
+    h, w = _parse_size(size)
+    u = (np.arange(w) + 0.5) / w
+    v = 1.0 - (np.arange(h) + 0.5) / h
+    uu, vv = np.meshgrid(u, v)
+    return np.stack([uu, vv], axis=-1)

@@ -1,0 +1,230 @@
+"""Texel rasterisation: plane oracle, supersampling, conservative borders, wrap/clamp, chunks, errors."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_bake.errors import MeshError, NeuralBakeError, NeuralBakeWarning
+from neural_bake.mesh.texels import TexelSet, iter_texels, rasterize_texels, texel_grid_points
+from neural_bake.types import Mesh
+
+
+def plane(uv_shift=(0.0, 0.0), policy="wrap", flip_u=False):
+    """Square [-1, 1]² at z = 0 (normal +z) mapped to [0, 1]² (u = (x+1)/2, v = (y+1)/2), two triangles."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+    uv = (v[:, :2] + 1) / 2 + np.asarray(uv_shift)
+    if flip_u:
+        uv[:, 0] = 1 - uv[:, 0]
+        f = f.copy()
+    return Mesh(vertices=v, faces=f, uv=uv[f], uv_policy=policy)
+
+
+def expected_points(h, w):
+    r, c = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    x = 2 * (c + 0.5) / w - 1
+    y = 2 * (1 - (r + 0.5) / h) - 1
+    return x.ravel(), y.ravel()
+
+
+@pytest.mark.parametrize("size", [(8, 8), (16, 12), (1, 1)])
+def test_plane_every_texel_centre_maps_to_its_point(size):
+    h, w = size
+    ts = rasterize_texels(plane(), size)
+    assert isinstance(ts, TexelSet) and ts.size == (h, w)
+    assert ts.coverage.all() and ts.n_samples == h * w and not ts.border.any() and ts.overlaps == 0
+    order = np.argsort(ts.texel)
+    np.testing.assert_array_equal(ts.texel[order], np.arange(h * w))
+    np.testing.assert_array_equal(ts.pixel[order], np.stack(np.divmod(np.arange(h * w), w), axis=1))
+    x, y = expected_points(h, w)
+    np.testing.assert_allclose(ts.points[order], np.stack([x, y, np.zeros_like(x)], 1), atol=1e-12)
+    np.testing.assert_allclose(ts.normal, np.tile([0, 0, 1.0], (h * w, 1)))
+    np.testing.assert_allclose(ts.tangent, np.tile([1.0, 0, 0], (h * w, 1)), atol=1e-12)
+    np.testing.assert_allclose(ts.bitangent, np.tile([0, 1.0, 0], (h * w, 1)), atol=1e-12)
+    np.testing.assert_allclose(ts.weight, 1.0)
+    assert (ts.bary >= 0).all()
+    np.testing.assert_allclose(ts.bary.sum(1), 1.0)
+    # the barycentrics reproduce the points
+    np.testing.assert_allclose(np.einsum("mk,mkd->md", ts.bary, plane().triangles[ts.face]), ts.points)
+
+
+def test_texel_grid_points_agree_with_rasterised_uv():
+    m = plane()
+    ts = rasterize_texels(m, (6, 10))
+    uv = np.einsum("mk,mkd->md", ts.bary, m.uv[ts.face])
+    grid = texel_grid_points((6, 10))
+    np.testing.assert_allclose(uv, grid[ts.pixel[:, 0], ts.pixel[:, 1]], atol=1e-12)
+
+
+def test_flipped_u_flips_tangent_keeps_bitangent():
+    ts = rasterize_texels(plane(flip_u=True), 8)
+    np.testing.assert_allclose(ts.tangent, np.tile([-1.0, 0, 0], (64, 1)), atol=1e-12)
+    np.testing.assert_allclose(ts.bitangent, np.tile([0, 1.0, 0], (64, 1)), atol=1e-12)
+
+
+@pytest.mark.parametrize("s", [2, 3])
+def test_supersampling_weights_and_mean_point(s):
+    h, w = 5, 7
+    ts = rasterize_texels(plane(), (h, w), supersample=s)
+    assert ts.n_samples == h * w * s * s and ts.supersample == s
+    np.testing.assert_allclose(np.bincount(ts.texel, weights=ts.weight, minlength=h * w), 1.0)
+    mean = ts.resolve(ts.points).reshape(-1, 3)
+    x, y = expected_points(h, w)
+    np.testing.assert_allclose(mean, np.stack([x, y, np.zeros_like(x)], 1), atol=1e-12)
+    # subsample positions are distinct, inside their texel
+    uv = np.einsum("mk,mkd->md", ts.bary, plane().uv[ts.face])
+    col = uv[:, 0] * w - 0.5
+    row = (1 - uv[:, 1]) * h - 0.5
+    assert np.abs(col - ts.pixel[:, 1]).max() < 0.5 and np.abs(row - ts.pixel[:, 0]).max() < 0.5
+
+
+def one_triangle():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2]], dtype=np.int64)
+    uv = np.array([[[0.13, 0.11], [0.87, 0.2], [0.3, 0.91]]])
+    return Mesh(vertices=v, faces=f, uv=uv)
+
+
+def _brute_overlap(uvtri, h, w, n=24):
+    """(H, W) bool: texels whose square contains one of n×n interior sub-points inside the UV triangle."""
+    out = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            g = (np.arange(n) + 0.5) / n
+            uu = (c + g[None, :]) / w + 0 * g[:, None]
+            vv = 1 - (r + g[:, None]) / h + 0 * g[None, :]
+            p = np.stack([uu.ravel(), vv.ravel()], 1)
+            a, b, cc = uvtri
+            m = np.array([b - a, cc - a]).T
+            lam = np.linalg.solve(m, (p - a).T).T
+            out[r, c] = ((lam >= 0).all(1) & (lam.sum(1) <= 1)).any()
+    return out
+
+
+def test_conservative_border_texels_cover_every_touched_texel():
+    m = one_triangle()
+    h = w = 16
+    inner = rasterize_texels(m, 16, conservative=False)
+    full = rasterize_texels(m, 16)
+    assert not inner.border.any() and full.border.any()
+    touched = _brute_overlap(m.uv[0], h, w)
+    assert not (touched & ~full.coverage).any()  # every touched texel is covered
+    assert not (inner.coverage & ~full.coverage).any()
+    # border samples: clamped barycentrics, points on the triangle, one per texel
+    b = full.border
+    assert (full.bary[b] >= 0).all()
+    np.testing.assert_allclose(full.bary[b].sum(1), 1.0)
+    assert len(np.unique(full.texel)) == full.n_samples
+    # a border texel's sample is the triangle's closest point to its centre: within half a texel diagonal
+    uv = np.einsum("mk,mkd->md", full.bary[b], m.uv[full.face[b]])
+    centre = texel_grid_points(16)[full.pixel[b, 0], full.pixel[b, 1]]
+    assert (np.linalg.norm(uv - centre, axis=1) <= np.sqrt(2) / 2 / 16 + 1e-12).all()
+
+
+def _slow_centres(m, h, w):
+    """Texel centres inside any UV triangle (per-texel loop reference)."""
+    cov = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            p = np.array([(c + 0.5) / w, 1 - (r + 0.5) / h])
+            for tri in m.uv:
+                a, b, cc = tri
+                mat = np.array([b - a, cc - a]).T
+                if abs(np.linalg.det(mat)) < 1e-14:
+                    continue
+                lam = np.linalg.solve(mat, p - a)
+                if lam.min() >= -1e-9 and lam.sum() <= 1 + 1e-9:
+                    cov[r, c] = True
+                    break
+    return cov
+
+
+def test_centres_match_slow_reference_on_random_triangles(rng):
+    uv = rng.uniform(0.02, 0.98, size=(12, 3, 2))
+    v = rng.normal(size=(36, 3))
+    m = Mesh(vertices=v, faces=np.arange(36).reshape(12, 3), uv=uv)
+    ts = rasterize_texels(m, (13, 17), conservative=False, tangents=np.tile([1.0, 0, 0, 1], (36, 1)))
+    np.testing.assert_array_equal(ts.coverage, _slow_centres(m, 13, 17))
+    assert np.isfinite(ts.points).all() and np.isfinite(ts.normal).all() and np.isfinite(ts.tangent).all()
+
+
+def test_degenerate_face_gives_finite_output():
+    m = plane()
+    # add a face with zero 3-D area and zero UV area, and one with zero 3-D area but a real UV triangle
+    m.vertices = np.concatenate([m.vertices, [[0.5, 0.5, 0.5]] * 3])
+    m.faces = np.concatenate([m.faces, [[4, 5, 6], [4, 4, 5]]])
+    m.uv = np.concatenate([m.uv, [[[0.5, 0.5]] * 3, [[0.1, 0.1], [0.4, 0.1], [0.1, 0.4]]]])
+    tang = np.tile([1.0, 0, 0, 1], (7, 1))
+    ts = rasterize_texels(m, 16, tangents=tang)
+    for name in ("points", "normal", "tangent", "bitangent", "bary", "weight"):
+        assert np.isfinite(getattr(ts, name)).all(), name
+    np.testing.assert_allclose(np.linalg.norm(ts.normal, axis=1), 1.0)
+    np.testing.assert_allclose(np.linalg.norm(ts.tangent, axis=1), 1.0)
+    assert ts.overlaps > 0  # the degenerate-in-3-D face overlaps the plane's UV triangles
+
+
+def test_uvs_outside_unit_square_wrap():
+    with pytest.warns(NeuralBakeWarning, match="outside \\[0, 1\\]; wrapped"):
+        ts = rasterize_texels(plane(uv_shift=(0.25, 0.0)), 8)
+    assert ts.coverage.all() and ts.n_samples == 64
+    # u = (x + 1)/2 + 0.25 (mod 1): texel column c has u = (c + .5)/8
+    u = (ts.pixel[:, 1] + 0.5) / 8
+    x = ((u - 0.25) % 1.0) * 2 - 1
+    np.testing.assert_allclose(ts.points[:, 0], x, atol=1e-12)
+
+
+def test_uvs_outside_unit_square_clamp_reports_and_skips():
+    with pytest.warns(NeuralBakeWarning, match="cover no texel"):
+        ts = rasterize_texels(plane(uv_shift=(0.25, 0.0), policy="clamp"), 8)
+    np.testing.assert_array_equal(ts.coverage[:, :2], False)
+    assert ts.coverage[:, 2:].all()
+
+
+def test_iter_texels_bands_concatenate_to_the_whole():
+    s = trimesh.creation.icosphere(2)
+    from neural_bake.mesh.unwrap import unwrap
+
+    m = unwrap(Mesh(vertices=s.vertices * 0.8, faces=s.faces.astype(np.int64)), resolution=64, padding=2)
+    whole = rasterize_texels(m, 64, supersample=2)
+    parts = list(iter_texels(m, 64, supersample=2, max_samples=2000))
+    assert len(parts) > 4
+    cat = {k: np.concatenate([getattr(p, k) for p in parts]) for k in ("texel", "points", "face", "border", "weight")}
+    for k, v in cat.items():
+        np.testing.assert_array_equal(v, getattr(whole, k), err_msg=k)
+    cov = np.zeros((64, 64), bool)
+    for p in parts:
+        assert not (cov & p.coverage).any()
+        cov |= p.coverage
+    np.testing.assert_array_equal(cov, whole.coverage)
+    # points lie on the sphere (radius 0.8, chordal error of an icosphere(2) is small)
+    r = np.linalg.norm(whole.points, axis=1)
+    assert r.max() <= 0.8 + 1e-9 and r.min() > 0.75
+    assert np.abs(np.sum(whole.normal * whole.tangent, axis=1)).max() < 0.1
+
+
+def test_errors():
+    m = plane()
+    with pytest.raises(NeuralBakeError, match="size: texel grid must be at least 1x1"):
+        rasterize_texels(m, 0)
+    with pytest.raises(NeuralBakeError, match="size: expected an int or"):
+        rasterize_texels(m, "big")
+    with pytest.raises(NeuralBakeError, match="supersample: must be a positive integer"):
+        rasterize_texels(m, 8, supersample=0)
+    with pytest.raises(NeuralBakeError, match="tangents: expected shape \\(4, 4\\) or \\(2, 3, 4\\)"):
+        rasterize_texels(m, 8, tangents=np.zeros((3, 4)))
+    m.uv = None
+    with pytest.raises(MeshError, match="no UVs"):
+        rasterize_texels(m, 8)
+
+
+def test_unsplit_uvs_use_per_corner_tangents():
+    # a seam: the same vertex with different UVs on its two faces; tangents come from a split copy
+    m = plane()
+    m.uv = m.uv.copy()
+    m.uv[0, :, 0] = 0.5 * m.uv[0, :, 0]  # face 0 in the left half
+    m.uv[1, :, 0] = 1 - 0.5 * m.uv[1, :, 0]  # face 1 mirrored into the right half
+    ts = rasterize_texels(m, 8)
+    assert np.isfinite(ts.tangent).all() and ts.overlaps == 0
+    w = np.sign(np.einsum("md,md->m", np.cross(ts.normal, ts.tangent), ts.bitangent))
+    np.testing.assert_array_equal(w, np.where(ts.face == 0, 1.0, -1.0))
+    np.testing.assert_allclose(ts.tangent, np.where(ts.face[:, None] == 0, [1.0, 0, 0], [-1.0, 0, 0]), atol=1e-12)
