@@ -7,14 +7,13 @@ chunks and writes the maps. ``bake_texels`` is the one-off wrapper, ``bake_verti
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from ..errors import MeshError, NeuralBakeError
+from ..errors import NeuralBakeError
 from ..types import Frame, Mesh
 from .fields import ColorField, SdfField
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normals_to_colors, splat
@@ -52,27 +51,6 @@ class BakeResult:
     values: np.ndarray
     colors: np.ndarray | None
     stats: dict = field(default_factory=dict)
-
-
-def _split_uv_seams(mesh: Mesh) -> Mesh:
-    """Duplicate vertices where corners of one vertex carry different UVs, so that per-corner uv equals
-    per-vertex uv (what glTF and tangent frames need). Returns ``mesh`` itself if nothing differs."""
-    if mesh.uv is None:
-        raise MeshError(f"{mesh.name}: mesh has no UVs")
-    corners = mesh.faces.reshape(-1)
-    uvc = mesh.uv.reshape(-1, 2)
-    key = np.concatenate([corners[:, None].astype(np.float64), uvc], axis=1)
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    if len(uniq) == mesh.n_vertices and np.array_equal(uniq[:, 0].astype(np.int64), np.arange(mesh.n_vertices)):
-        return mesh
-    src = uniq[:, 0].astype(np.int64)
-    normals = None if mesh.vertex_normals is None else mesh.vertex_normals[src]
-    return dataclasses.replace(
-        mesh,
-        vertices=mesh.vertices[src],
-        faces=inverse.reshape(-1, 3).astype(np.int64),
-        vertex_normals=normals,
-    )
 
 
 def _tensor_kwargs(f) -> dict:
@@ -208,7 +186,9 @@ class Baker:
             from ..mesh.unwrap import unwrap
 
             mesh = unwrap(mesh, **{"resolution": self.size, **(unwrap_options or {})})
-        self.mesh = _split_uv_seams(mesh)
+        from ..mesh.unwrap import split_uv_seams
+
+        self.mesh = split_uv_seams(mesh)[0]
         self.timings["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         self.tangents = np.asarray(tangent_frames(self.mesh), dtype=np.float64)

@@ -1,0 +1,253 @@
+"""Baking with analytic oracles: plane, sphere, bumpy sphere; conventions, fallbacks, misses, streaming."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.bake.baker import Baker, bake_texels, bake_vertices
+from neural_bake.bake.export import export_glb, read_glb
+from neural_bake.bake.fields import ColorField, SdfField
+from neural_bake.bake.maps import colors_to_normals, decode_tangent_space
+from neural_bake.errors import NeuralBakeError
+from neural_bake.io.images import read_image
+from neural_bake.mesh.decimate import decimate
+from neural_bake.mesh.unwrap import unwrap
+from neural_bake.types import Mesh
+
+R = 0.7
+
+
+def angle_deg(a, b):
+    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)))
+
+
+def sphere_mesh(subdivisions=2, radius=R, uv=True):
+    ico = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    m = Mesh(vertices=np.asarray(ico.vertices, dtype=np.float64), faces=np.asarray(ico.faces, dtype=np.int64))
+    return unwrap(m, resolution=256) if uv else m
+
+
+def sphere_sdf():
+    return SdfField(lambda p: p.norm(dim=1) - R)
+
+
+def unit_normals(p):
+    return p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+# bumpy sphere: f(p) = |p| - R - A·b(p/|p|), its zero set is p = (R + A·b(u)) u
+A, K = 0.04, 8.0
+
+
+def bump(u):
+    s = torch.sin if isinstance(u, torch.Tensor) else np.sin
+    return s(K * u[:, 0]) * s(K * u[:, 1]) * s(K * u[:, 2])
+
+
+def bumpy_sdf():
+    return SdfField(lambda p: p.norm(dim=1) - R - A * bump(p / p.norm(dim=1, keepdim=True)))
+
+
+def bumpy_normals(p):
+    t = torch.as_tensor(p).requires_grad_(True)
+    v, n, ok = bumpy_sdf().value_and_normal(t.detach())
+    return n.numpy()
+
+
+def bumpy_mesh(faces=800):
+    ico = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    u = np.asarray(ico.vertices)
+    v = (R + A * bump(u))[:, None] * u
+    fine = Mesh(vertices=v, faces=np.asarray(ico.faces, dtype=np.int64))
+    return fine, decimate(fine, faces=faces)
+
+
+def plane_mesh(n=4):
+    xs = np.linspace(-0.5, 0.5, n + 1)
+    gx, gy = np.meshgrid(xs, xs)
+    v = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    f = []
+    for i in range(n):
+        for j in range(n):
+            a = i * (n + 1) + j
+            f += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
+    f = np.array(f, dtype=np.int64)
+    uv = (v[:, :2] + 0.5)[f]
+    return Mesh(vertices=v, faces=f, uv=uv, vertex_normals=np.tile([0.0, 0.0, 1.0], (len(v), 1)))
+
+
+def test_plane_bakes_to_flat_tangent_colour():
+    baker = Baker(plane_mesh(), 32, padding=None)
+    res = baker.bake(SdfField(lambda p: p[:, 2]))
+    assert res.coverage.all()
+    assert np.allclose(res.normal_map, (0.5, 0.5, 1.0), atol=1e-6)
+    assert res.stats["invalid_gradients"] == 0 and res.stats["texels_covered"] == 32 * 32
+
+
+def test_tilted_field_on_plane_encodes_tangent_coordinates():
+    # ∇f = (1, 0, 1)/√2 in object space; the plane's tangent is +x (u), bitangent +y (v): x = 1/√2, z = 1/√2
+    baker = Baker(plane_mesh(2), 16, padding=None)
+    res = baker.bake(SdfField(lambda p: p[:, 0] + p[:, 2]))
+    s = 1 / np.sqrt(2)
+    assert np.allclose(res.normal_map, ((s + 1) / 2, 0.5, (s + 1) / 2), atol=1e-6)
+    res = Baker(plane_mesh(2), 16, padding=None).bake(SdfField(lambda p: p[:, 1] + p[:, 2]))
+    assert np.allclose(res.normal_map, (0.5, (s + 1) / 2, (s + 1) / 2), atol=1e-6)  # +v is green up
+
+
+def test_directx_flips_green_only():
+    mesh = sphere_mesh()
+    mesh.vertex_normals = None  # area-weighted normals: the map is not flat
+    f = sphere_sdf()
+    gl = Baker(mesh, 64).bake(f)
+    dx = Baker(mesh, 64, y_convention="directx").bake(f)
+    assert np.allclose(dx.normal_map[..., 1], 1.0 - gl.normal_map[..., 1], atol=1e-6)
+    assert np.allclose(dx.normal_map[..., [0, 2]], gl.normal_map[..., [0, 2]], atol=1e-6)
+    assert np.abs(gl.normal_map[..., 1] - 0.5).max() > 0.01  # the test is not vacuous
+
+
+def test_object_space_map_is_encoded_normal():
+    baker = Baker(sphere_mesh(), 64, normal_space="object", padding=None)
+    res = baker.bake(sphere_sdf())
+    tx = baker.texels
+    got = res.normal_map[tx.pixel[:, 0], tx.pixel[:, 1]]
+    # one sample per texel: the texel holds exactly (n + 1) / 2 of its sample (float32 map)
+    assert np.allclose(got, (unit_normals(tx.points) + 1) / 2, atol=1e-6)
+
+
+@pytest.mark.parametrize("supersample", [1, 2])
+def test_sphere_normals_within_one_degree(supersample):
+    mesh = sphere_mesh(1)  # 80 faces, coarse
+    mesh.vertex_normals = None
+    baker = Baker(mesh, 96, supersample=supersample)
+    res = baker.bake(sphere_sdf())
+    tx = baker.texels
+    assert angle_deg(res.normals, unit_normals(tx.points)).max() < 1e-4
+    dec = decode_tangent_space(
+        colors_to_normals(res.normal_map[tx.pixel[:, 0], tx.pixel[:, 1]]), tx.tangent, tx.bitangent, tx.normal
+    )
+    err = angle_deg(dec, unit_normals(tx.points))
+    tol = 1e-3 if supersample == 1 else 1.0  # a supersampled texel averages its samples' normals
+    assert err.max() < tol
+    # the map is far from flat: the geometric normals of 80 faces are several degrees off
+    assert angle_deg(tx.normal, unit_normals(tx.points)).max() > 3.0
+
+
+def test_bumpy_sphere_decoded_from_exported_glb_matches_gradient(tmp_path):
+    fine, coarse = bumpy_mesh(600)
+    baker = Baker(coarse, 128)
+    assert baker.unwrapped  # decimation dropped UVs: unwrapped automatically
+    res = baker.bake(bumpy_sdf())
+    path = export_glb(tmp_path / "a.glb", baker.mesh, normal_map=res.normal_map, tangents=baker.tangents)
+    gltf, arr, images = read_glb(path)
+    (tmp_path / "n.png").write_bytes(images[0])
+    nmap = read_image(tmp_path / "n.png", colour="data")  # what the renderer samples (8-bit)
+    tx = baker.texels
+    # renderer: interpolate the exported NORMAL / TANGENT with the texel's barycentrics
+    corners = arr["indices"][tx.face]
+    interp = lambda a: np.einsum("mk,mkd->md", tx.bary, a[corners].astype(np.float64))  # noqa: E731
+    n = unit_normals(interp(arr["NORMAL"]))
+    tan = interp(arr["TANGENT"])
+    t = unit_normals(tan[:, :3])
+    b = np.where(tan[:, 3:] < 0, -1.0, 1.0) * np.cross(n, t)
+    x = colors_to_normals(nmap[tx.pixel[:, 0], tx.pixel[:, 1]])
+    dec = decode_tangent_space(x, t, b, n)
+    grad = bumpy_normals(tx.points)
+    inner = ~tx.border  # texel centres (border texels hold a clamped nearby point)
+    err = angle_deg(dec, grad)
+    assert np.percentile(err[inner], 99.5) < 1.0 and np.median(err) < 0.5
+    # and neural normal mapping matters: the coarse geometry alone is much worse
+    assert np.median(angle_deg(tx.normal, grad)) > 3.0
+
+
+def test_bumpy_sphere_baked_normals_match_analytic_on_fine_surface():
+    fine, coarse = bumpy_mesh(400)
+    baker = Baker(coarse, 64)
+    res = baker.bake(bumpy_sdf())
+    pts = baker.texels.points
+    # the analytic surface normal at the radial projection onto the fine surface
+    u = unit_normals(pts)
+    on_surface = (R + A * bump(u))[:, None] * u
+    truth = bumpy_normals(on_surface)
+    assert np.median(angle_deg(res.normals, truth)) < 2.0
+
+
+def test_zero_gradient_falls_back_to_geometric_normal():
+    baker = Baker(sphere_mesh(), 32)
+    res = baker.bake(SdfField(lambda p: p[:, 0] * 0.0))
+    assert np.isfinite(res.normal_map).all() and not res.valid.any()
+    assert res.stats["invalid_gradients"] == res.stats["samples"] > 0
+    assert np.allclose(res.normals, baker.texels.normal)
+    tx = baker.texels
+    assert np.allclose(res.normal_map[tx.pixel[:, 0], tx.pixel[:, 1]], (0.5, 0.5, 1.0), atol=1e-6)
+
+
+def test_miss_map_flags_texels_outside_the_band():
+    baker = Baker(sphere_mesh(), 32)
+    shifted = SdfField(lambda p: p.norm(dim=1) - (R - 0.1), delta=0.05)  # |f| ≈ 0.1 on the mesh
+    res = baker.bake(shifted)
+    assert np.array_equal(res.miss, res.coverage) and res.stats["miss_texels"] == res.stats["texels_covered"]
+    res = baker.bake(shifted, delta=0.2)
+    assert not res.miss.any() and res.stats["miss_samples"] == 0
+    res = baker.bake(sphere_sdf())
+    assert not res.miss.any() and res.stats["delta"] is None
+
+
+def test_streaming_bake_equals_cached_bake():
+    mesh = sphere_mesh()
+    f = sphere_sdf()
+    tex = ColorField(lambda p: torch.stack([p[:, 0] ** 2, p[:, 1] ** 2, p[:, 2] ** 2], dim=1))
+    cached = Baker(mesh, 48).bake(f, tex)
+    streamed = Baker(mesh, 48, cache_texels=False).bake(f, tex)
+    assert streamed.normals is None and cached.normals is not None
+    assert np.allclose(cached.normal_map, streamed.normal_map, atol=1e-6)
+    assert np.allclose(cached.albedo, streamed.albedo, atol=1e-6)
+    assert np.array_equal(cached.coverage, streamed.coverage)
+
+
+def test_albedo_is_the_colour_field_at_texels():
+    baker = Baker(plane_mesh(), 16, padding=None)
+    res = baker.bake(SdfField(lambda p: p[:, 2]), ColorField(lambda p: torch.stack([p[:, 0] + 0.5, p[:, 1] + 0.5, 0 * p[:, 0]], 1)))
+    tx = baker.texels
+    assert res.albedo.shape == (16, 16, 3)
+    assert np.allclose(res.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :2], tx.points[:, :2] + 0.5, atol=1e-6)
+
+
+def test_bake_texels_wrapper_and_siren_field():
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(0))
+    res = bake_texels(sphere_mesh(), SdfField.from_model(model), size=32)
+    assert res.normal_map.shape == (32, 32, 3) and np.isfinite(res.normal_map).all()
+    assert res.normals.dtype == np.float64 and np.allclose(np.linalg.norm(res.normals, axis=1), 1.0)
+
+
+def test_bake_vertices_sphere():
+    mesh = sphere_mesh(uv=False)
+    out = bake_vertices(
+        mesh, sphere_sdf(), ColorField(lambda p: p.abs()), chunk_size=7
+    )
+    assert out["valid"].all() and out["invalid"] == 0
+    assert angle_deg(out["normals"], unit_normals(mesh.vertices)).max() < 1e-4
+    assert np.allclose(out["colors"], np.abs(mesh.vertices))
+    assert np.allclose(out["sdf"], 0.0, atol=1e-12)
+    out = bake_vertices(mesh, SdfField(lambda p: p[:, 0] * 0))
+    assert out["invalid"] == mesh.n_vertices and np.isfinite(out["normals"]).all()
+
+
+def test_errors():
+    mesh = plane_mesh(1)
+    with pytest.raises(NeuralBakeError, match="map size must be a positive integer"):
+        Baker(mesh, 0)
+    with pytest.raises(NeuralBakeError, match="normal_space must be one of"):
+        Baker(mesh, 8, normal_space="world")
+    with pytest.raises(NeuralBakeError, match="y_convention must be one of"):
+        Baker(mesh, 8, y_convention="up")
+    with pytest.raises(NeuralBakeError, match="padding must be one of"):
+        Baker(mesh, 8, padding="smear")
+    with pytest.raises(NeuralBakeError, match="supersample must be a positive integer"):
+        Baker(mesh, 8, supersample=0)
+    with pytest.raises(NeuralBakeError, match="chunk_size must be a positive integer"):
+        Baker(mesh, 8, chunk_size=0)
+    with pytest.raises(NeuralBakeError, match="delta must be a positive number"):
+        Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), delta=-1.0)
