@@ -1,0 +1,160 @@
+"""fit_sdf: quality floor on a sphere, seeds, resume, divergence handling, model files, CLI."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.cli.main import main
+from neural_bake.errors import FitError, ModelFileError, NeuralBakeWarning
+from neural_bake.fit.sdf import PRESETS, SdfFit, SdfFitConfig, fit_sdf, load_sdf
+from neural_bake.io.mesh_io import mesh_from_arrays
+
+R = 0.8
+TINY = dict(width=32, depth=1, omega_0=15.0, lr=1e-3, batch=512, batch_near=512, batch_uniform=128, pool_surface=4000,
+            pool_near=4000, pool_uniform=1000, progress=False, log_every=20)
+
+
+def sphere(r=R, sub=3, center=(0.0, 0.0, 0.0)):
+    m = trimesh.creation.icosphere(subdivisions=sub, radius=r)
+    return mesh_from_arrays(np.asarray(m.vertices) + np.asarray(center), np.asarray(m.faces), normalise=False)
+
+
+def weights(model):
+    return torch.cat([p.detach().flatten() for p in model.parameters()])
+
+
+@pytest.fixture(scope="module")
+def sphere_fit():
+    return fit_sdf(sphere(), steps=200, seed=0, **TINY)
+
+
+def test_sphere_zero_level_set_near_radius(sphere_fit):
+    d = torch.randn(2000, 3, generator=torch.Generator().manual_seed(1))
+    d = d / d.norm(dim=1, keepdim=True)
+    with torch.no_grad():
+        on = sphere_fit.model(d * R)[:, 0]
+        inside = sphere_fit.model(d * 0.5)[:, 0]
+        outside = sphere_fit.model(d * 0.95)[:, 0]
+    assert on.abs().max() < 0.03 and on.abs().mean() < 0.008
+    assert (inside < -0.1).all() and (outside > 0.05).all()  # the sign is right everywhere
+    assert abs(inside.mean() + 0.3) < 0.05 and abs(outside.mean() - 0.15) < 0.03  # true SDF: -0.3, 0.15
+    assert sphere_fit.steps == 200 and sphere_fit.stopped_reason == "steps"
+    h = sphere_fit.history
+    assert h[-1]["loss"] < 0.2 * h[0]["loss"] and {"surface", "normal", "eikonal", "sdf"} <= set(h[-1])
+
+
+def test_save_load_round_trip(sphere_fit, tmp_path):
+    path = sphere_fit.save(tmp_path / "sphere.sdf")
+    back = load_sdf(path)
+    assert isinstance(back, SdfFit) and back.frame == sphere_fit.frame and back.steps == 200
+    assert back.config == sphere_fit.config
+    x = torch.rand(100, 3) * 2 - 1
+    with torch.no_grad():
+        assert torch.equal(back.model(x), sphere_fit.model(x))
+    assert SdfFit.load(path).config.width == 32
+
+
+def test_load_refuses_non_sdf_model(tmp_path):
+    from neural_bake.nets.model_io import save_model
+    from neural_bake.nets.siren import Siren
+
+    save_model(Siren(8, 0), tmp_path / "tex.model", kind="texture")
+    with pytest.raises(ModelFileError, match="not an SDF model file"):
+        load_sdf(tmp_path / "tex.model")
+
+
+def test_seed_reproduces():
+    kw = dict(TINY, steps=15)
+    a, b, c = fit_sdf(sphere(), seed=5, **kw), fit_sdf(sphere(), seed=5, **kw), fit_sdf(sphere(), seed=6, **kw)
+    assert torch.equal(weights(a.model), weights(b.model))
+    assert not torch.equal(weights(a.model), weights(c.model))
+
+
+def test_resume_equals_uninterrupted(tmp_path):
+    kw = dict(TINY, lr_schedule="constant", refresh_every=10, checkpoint_every=10)
+    full = fit_sdf(sphere(), steps=30, **kw)
+    ck = str(tmp_path / "run.ckpt")
+    first = fit_sdf(sphere(), steps=20, checkpoint=ck, **kw)
+    assert first.steps == 20
+    resumed = fit_sdf(sphere(), steps=30, checkpoint=ck, resume=True, **kw)
+    assert resumed.steps == 30
+    assert torch.allclose(weights(resumed.model), weights(full.model), atol=1e-6)
+    with pytest.raises(FitError, match="belongs to another run"):
+        fit_sdf(sphere(r=0.7), steps=40, checkpoint=ck, resume=True, **kw)
+
+
+def test_divergence_is_detected_and_reported():
+    with pytest.warns(NeuralBakeWarning, match="halved the learning rate"), \
+            pytest.raises(FitError, match="diverged"):
+        fit_sdf(sphere(), steps=100, **dict(TINY, lr=1e4))
+
+
+def test_far_from_origin_and_huge_scale_fit_in_unit_frame():
+    m = trimesh.creation.icosphere(subdivisions=2, radius=5000.0)
+    mesh = mesh_from_arrays(np.asarray(m.vertices) + 1e6, np.asarray(m.faces))  # normalised on build
+    fit = fit_sdf(mesh, steps=30, **TINY)
+    assert torch.isfinite(weights(fit.model)).all()
+    assert fit.frame.scale == pytest.approx(1.8 / 10000.0, rel=1e-3)
+
+
+def test_open_mesh_fits_without_nan():
+    m = trimesh.creation.icosphere(subdivisions=2, radius=0.8)
+    keep = m.triangles_center[:, 2] < 0.6  # cut a hole at the top
+    with pytest.warns(NeuralBakeWarning):
+        mesh = mesh_from_arrays(m.vertices, m.faces[keep], normalise=False)
+    fit = fit_sdf(mesh, steps=30, **TINY)
+    assert torch.isfinite(weights(fit.model)).all() and fit.steps == 30
+
+
+def test_presets_and_config():
+    assert set(PRESETS) == {"64x1", "128x2", "256x2", "256x3"}
+    from neural_bake.fit.sdf import config_from
+
+    c = config_from(preset="64x1", seed=3)
+    assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
+    assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
+
+
+@pytest.mark.parametrize("kw, msg", [
+    ({"preset": "512x9"}, "unknown preset '512x9'"),
+    ({"bogus": 1}, "unknown setting"),
+    ({"batch": 0}, "batch must be a positive integer"),
+    ({"w_eikonal": -1.0}, "w_eikonal must be a non-negative"),
+    ({"sigmas": (0.0,)}, "sigmas must be positive"),
+    ({"dtype": "float16"}, "dtype must be one of"),
+    ({"omega_0": 0.0}, "omega_0 must be positive"),
+    ({"batch_near": 8, "pool_near": 0}, "non-empty batch needs a non-empty pool"),
+])
+def test_bad_settings(kw, msg):
+    with pytest.raises(FitError, match=msg):
+        fit_sdf(sphere(sub=1), **kw)
+
+
+def test_not_a_mesh():
+    with pytest.raises(FitError, match="expected a neural_bake Mesh"):
+        fit_sdf(np.zeros((3, 3)))
+
+
+def test_cli_fit_sdf(tmp_path, capsys):
+    m = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    src = tmp_path / "ball.obj"
+    m.export(src)
+    out = tmp_path / "ball.sdf"
+    code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
+                 "--no-metrics", "--seed", "2"])
+    assert code == 0, capsys.readouterr().err
+    assert "5 steps" in capsys.readouterr().out
+    fit = load_sdf(out)
+    assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
+
+
+def test_cli_fit_sdf_errors(tmp_path, capsys):
+    assert main(["fit", "sdf", str(tmp_path / "missing.obj"), "-o", str(tmp_path / "x.sdf")]) == 2
+    assert "missing.obj" in capsys.readouterr().err
+    m = trimesh.creation.icosphere(subdivisions=1)
+    src = tmp_path / "ball.obj"
+    m.export(src)
+    assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "nodir" / "x.sdf")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--preset", "1x1"]) == 2
