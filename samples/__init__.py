@@ -1,1 +1,15 @@
-"""Generator of small UV-textured meshes with analytic ground truth (installed as ``neural_bake.samples``)."""
+"""Generator of small UV-textured meshes with analytic ground truth (installed as ``neural_bake.samples``).
+
+>>> from neural_bake.samples import SAMPLES, sample_path, generate
+>>> mesh = neural_bake.load_mesh(sample_path("bumpy_sphere"))   # bundled OBJ + MTL + PNG
+>>> s = SAMPLES["bumpy_sphere"]; s.normal(mesh.frame.to_source(mesh.vertices))   # analytic normals
+
+See :mod:`neural_bake.samples.shapes` for the shapes and their analytic functions, and
+:mod:`neural_bake.samples.generate` for the files.
+"""
+
+from .generate import DATA_DIR, generate, sample_path
+from .shapes import SAMPLES, BumpySphere, Jack, SampleMesh, Sphere, Torus, get_sample
+
+__all__ = ["SAMPLES", "SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "get_sample", "generate",
+           "sample_path", "DATA_DIR"]
