@@ -1,0 +1,86 @@
+"""cli/main.py: help, version, exit codes and the one-line error format."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import click
+import pytest
+
+from neural_bake import __version__
+from neural_bake.cli import main as main_module
+from neural_bake.cli.main import _format_warning, main
+from neural_bake.errors import MeshError, NeuralBakeWarning
+
+EXE = Path(sys.executable).with_name("neural-bake")
+
+
+def test_help_lists_verbs(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("Usage: neural-bake [OPTIONS] COMMAND [ARGS]...")
+    assert "Commands:" in out and "inspect" in out and "Typical run:" in out
+    assert main(["-h"]) == 0
+    assert capsys.readouterr().out == out
+
+
+def test_no_arguments_shows_help(capsys):
+    assert main([]) == 2  # click: a group without a command shows its help, usage exit code
+    assert "Commands:" in capsys.readouterr().err  # as a usage error: on stderr
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"neural-bake, version {__version__}"
+
+
+def test_unknown_verb_and_missing_argument(capsys):
+    assert main(["frobnicate"]) == 2
+    assert "No such command 'frobnicate'" in capsys.readouterr().err
+    assert main(["inspect"]) == 2
+    assert "Missing argument 'MESH'" in capsys.readouterr().err
+    assert main(["inspect", "--bogus", "x.obj"]) == 2
+    assert "No such option '--bogus'" in capsys.readouterr().err
+
+
+def test_verb_help(capsys):
+    assert main(["inspect", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "Usage: neural-bake inspect [OPTIONS] MESH" in out and "--json" in out
+
+
+def test_user_error_is_one_line_exit_2(capsys, monkeypatch):
+    @click.command()
+    def boom():
+        raise MeshError("cow.obj: face index 812 out of range\n(mesh has 400 vertices)")
+
+    monkeypatch.setitem(main_module.cli.lazy, "boom", ("neural_bake.cli.main", "_boom_for_test"))
+    monkeypatch.setattr(main_module, "_boom_for_test", boom, raising=False)
+    assert main(["boom"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == "neural-bake: error: cow.obj: face index 812 out of range (mesh has 400 vertices)\n"
+    assert captured.out == ""
+
+
+def test_keyboard_interrupt_exit_130(capsys, monkeypatch):
+    @click.command()
+    def stop():
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(main_module.cli.lazy, "stop", ("neural_bake.cli.main", "_stop_for_test"))
+    monkeypatch.setattr(main_module, "_stop_for_test", stop, raising=False)
+    assert main(["stop"]) == 130
+    assert capsys.readouterr().err.strip() == "neural-bake: aborted"  # click turns Ctrl-C into Abort
+
+
+def test_warning_format():
+    assert _format_warning("a.obj: mesh is open", NeuralBakeWarning, "x.py", 1) == "neural-bake: warning: a.obj: mesh is open\n"
+
+
+@pytest.mark.skipif(not EXE.exists(), reason="console script not installed")
+def test_console_script(tmp_path):
+    r = subprocess.run([str(EXE), "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "inspect" in r.stdout
+    r = subprocess.run([str(EXE), "inspect", str(tmp_path / "none.obj")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == f"neural-bake: error: {tmp_path / 'none.obj'}: no such file\n"
