@@ -398,17 +398,25 @@ class Jack:
         tri = verts[faces]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         faces = faces[area > 1e-10]
-        uv = _xatlas_uv(verts, faces)
         w = int(texture_size or self.texture_size)
+        uv = _xatlas_uv(verts, faces, w)
         tex = _paint(verts, faces, uv, self.albedo, w, w)
         return SampleMesh(verts, faces, uv, tex)
 
 
-def _xatlas_uv(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Per-corner uv (F, 3, 2) of an xatlas parametrisation of the mesh (v = 0 at the bottom)."""
+def _xatlas_uv(verts: np.ndarray, faces: np.ndarray, size: int) -> np.ndarray:
+    """Per-corner uv (F, 3, 2) of an xatlas parametrisation packed for a ``size``² texture with 4 texels of
+    padding between charts (v = 0 at the bottom)."""
     import xatlas
 
-    vmapping, indices, uvs = xatlas.parametrize(verts.astype(np.float32), faces.astype(np.uint32))
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(verts.astype(np.float32), faces.astype(np.uint32))
+    pack = xatlas.PackOptions()
+    pack.padding = 4
+    pack.resolution = size
+    pack.bilinear = True
+    atlas.generate(pack_options=pack)
+    vmapping, indices, uvs = atlas[0]
     # xatlas keeps the face order; its per-vertex uvs index through the new vertices
     uv = uvs.astype(np.float64)[indices.astype(np.int64)]
     return uv
