@@ -1,0 +1,103 @@
+"""sdf_metrics and mesh_distances against analytic cases (concentric spheres, a mesh against itself)."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.errors import FitError
+from neural_bake.fit.metrics import grid_values, mesh_distances, sdf_metrics, zero_level_mesh
+from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.nets.siren import Siren
+
+
+def sphere(r, sub=4):
+    m = trimesh.creation.icosphere(subdivisions=sub, radius=r)
+    return mesh_from_arrays(m.vertices, m.faces, normalise=False)
+
+
+def test_mesh_against_itself_is_zero():
+    s = sphere(0.8)
+    d = mesh_distances(s.vertices, s.faces, s.vertices, s.faces, n=5000)
+    assert d["chamfer_l1"] < 1e-6 and d["hausdorff"] < 1e-6
+
+
+def test_concentric_spheres_distance_is_the_radius_gap():
+    a, b = sphere(0.8), sphere(0.83)
+    d = mesh_distances(a.vertices, a.faces, b.vertices, b.faces, n=5000)
+    # both are inscribed polyhedra of subdivision 4: the gap is 0.03 up to the faceting (< 1e-3 here)
+    assert d["chamfer_l1"] == pytest.approx(0.03, abs=1e-3)
+    assert d["hausdorff"] == pytest.approx(0.03, abs=1.5e-3)
+    assert d["a_to_b_mean"] == pytest.approx(d["b_to_a_mean"], abs=1e-3)
+
+
+def _sphere_net(r):
+    """An exact 'network' |x| - r (a module with parameters and forward only: for grid/marching-cubes tests)."""
+    class Net(torch.nn.Module):
+        in_dim, out_dim = 3, 1
+
+        def __init__(self):
+            super().__init__()
+            self.dummy = torch.nn.Parameter(torch.zeros(1, dtype=torch.float64))
+
+        def forward(self, x):
+            return (x.norm(dim=1, keepdim=True) - r) + 0 * self.dummy
+
+    return Net()
+
+
+def test_grid_values_layout():
+    net = _sphere_net(0.5)
+    vol = grid_values(net, 9)
+    axis = np.linspace(-1, 1, 9)
+    i, j, k = 1, 4, 7
+    assert vol[i, j, k] == pytest.approx(np.sqrt(axis[i] ** 2 + axis[j] ** 2 + axis[k] ** 2) - 0.5, abs=1e-6)
+
+
+def test_zero_level_mesh_of_a_sphere():
+    v, f = zero_level_mesh(_sphere_net(0.6), 48)
+    r = np.linalg.norm(v, axis=1)
+    assert np.abs(r - 0.6).max() < 2.0 / 47 * 0.1 and len(f) > 100
+
+
+def test_sdf_metrics_of_trained_sphere_network():
+    # a tiny Siren fitted to |x| - r in a few hundred Adam steps: metrics must see a close, well-oriented surface
+    torch.manual_seed(0)
+    net = Siren(32, 1, omega_0=10.0, generator=torch.Generator().manual_seed(0))
+    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(300):
+        x = torch.rand(1024, 3, generator=gen) * 2 - 1
+        loss = ((net(x)[:, 0] - (x.norm(dim=1) - 0.7)) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    net.eval()
+    mesh = sphere(0.7)
+    res = sdf_metrics(net, mesh, n=5000, resolution=64)
+    x = torch.randn(4000, 3, generator=gen)
+    x = 0.7 * x / x.norm(dim=1, keepdim=True)
+    with torch.no_grad():
+        sup_on_sphere = float(net(x).abs().max())
+    assert res["chamfer_l1"] < 0.006 and res["hausdorff"] < 0.02
+    # a lower bound of the mesh -> network distance: the mesh vertices lie on the sphere, where |f| is
+    # about the distance to the zero set (|∇f| ≈ 1)
+    assert res["mesh_to_net_max"] <= 1.5 * sup_on_sphere + 0.002
+    assert res["chamfer_l1"] == pytest.approx(0.5 * (res["net_to_mesh_mean"] + res["mesh_to_net_mean"]))
+    assert res["normal_median_deg"] < 3 and res["normal_p95_deg"] < 6
+    assert res["normal_median_deg"] <= res["normal_p95_deg"]
+
+
+def test_sdf_metrics_errors():
+    mesh = sphere(0.7, sub=2)
+    net = Siren(8, 0)
+    with pytest.raises(FitError, match="n must be a positive integer"):
+        sdf_metrics(net, mesh, n=0)
+    with pytest.raises(FitError, match="resolution must be an integer >= 8"):
+        sdf_metrics(net, mesh, resolution=4)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.zero_()
+        net.layers[-1].bias.fill_(1.0)  # f = 1 everywhere: no surface
+    with pytest.raises(FitError, match="does not cross the grid"):
+        sdf_metrics(net, mesh, n=100, resolution=16)
