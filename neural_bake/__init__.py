@@ -67,6 +67,9 @@ _EXPORTS = {
     "TexelSet": ".mesh.texels",
     "rasterize_texels": ".mesh.texels",
     "tangent_frames": ".mesh.tangents",
+    "clean_mesh": ".mesh.cleanup",
+    "iter_texels": ".mesh.texels",
+    "vertex_uv": ".mesh.tangents",
     # bake
     "Baker": ".bake.baker",
     "bake_vertices": ".bake.baker",
