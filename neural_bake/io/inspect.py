@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -69,7 +68,7 @@ def inspect_mesh(mesh_or_path: Mesh | str | os.PathLike, texture: str | os.PathL
     else:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NeuralBakeWarning)
-            mesh = load_mesh(Path(mesh_or_path) if not isinstance(mesh_or_path, str) else mesh_or_path, texture)
+            mesh = load_mesh(mesh_or_path, texture)
     topo = topology(mesh.faces, mesh.n_vertices)
     src = mesh.frame.to_source(mesh.vertices)
     lo, hi = src.min(axis=0), src.max(axis=0)

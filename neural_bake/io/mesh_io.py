@@ -417,6 +417,7 @@ def _read_obj(p: Path, name: str, notes: list[str]):
         raise MeshError(f"{name}: unreadable OBJ file (binary data, not OBJ text)")
     text = data.decode("utf-8", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
     verts: list[tuple[float, float, float]] = []
+    vert_line: list[int] = []
     tcs: list[tuple[float, float]] = []
     tri_v: list[tuple[int, int, int]] = []
     tri_t: list[tuple[int, int, int] | None] = []
@@ -433,6 +434,7 @@ def _read_obj(p: Path, name: str, notes: list[str]):
             tok = rest.split()
             try:
                 verts.append((float(tok[0]), float(tok[1]), float(tok[2])))
+                vert_line.append(lineno)
             except (ValueError, IndexError):
                 raise MeshError(f"{name}:{lineno}: cannot parse vertex {line!r}") from None
         elif head == "vt":
@@ -477,6 +479,10 @@ def _read_obj(p: Path, name: str, notes: list[str]):
         raise MeshError(f"{name}:{tri_line[i]}: face index {int(faces[i][bad[i]][0]) + 1} out of range "
                         f"(file has {nv} vertices)")
     vertices = np.asarray(verts, dtype=np.float64)
+    bad_v = ~np.isfinite(vertices).all(axis=1)
+    if bad_v.any():
+        i = int(np.flatnonzero(bad_v)[0])
+        raise MeshError(f"{name}:{vert_line[i]}: vertex {i + 1} has a non-finite coordinate {tuple(vertices[i].tolist())}")
     uv = None
     has = np.array([t is not None for t in tri_t])
     if has.any():
@@ -523,12 +529,12 @@ def _obj_texture(p: Path, name: str, mtllibs: list[str], used: list[str], notes:
     """The base-colour texture path of the first used material that has a ``map_Kd`` (warn when missing)."""
     maps: dict[str, tuple[str, Path]] = {}  # material -> (map name as written, mtl file)
     for lib in mtllibs:
-        candidates = [lib] + ([] if (p.parent / lib).exists() else lib.split())
-        for c in candidates:
+        # one statement may name several libraries; a single name may contain spaces
+        names = [lib] if (p.parent / lib.replace("\\", "/")).is_file() else lib.split()
+        for c in names:
             mtl = p.parent / c.replace("\\", "/")
             if not mtl.is_file():
-                if c == candidates[-1]:
-                    _warn(notes, f"{name}: material library {c} not found; loading without its textures")
+                _warn(notes, f"{name}: material library {c} not found; loading without its textures")
                 continue
             current = None
             for raw in mtl.read_text(encoding="utf-8", errors="replace").splitlines():
@@ -538,7 +544,6 @@ def _obj_texture(p: Path, name: str, mtllibs: list[str], used: list[str], notes:
                     current = rest.strip()
                 elif head.lower() == "map_kd" and current is not None and current not in maps:
                     maps[current] = (_map_file(rest), mtl)
-            break
     order = [m for m in used if m in maps] or list(maps)
     if not order:
         return None

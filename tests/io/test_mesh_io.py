@@ -196,6 +196,42 @@ def test_round_trip_plain_and_unit_frame(tmp_path, ext):
     np.testing.assert_allclose(m3.vertices, m.vertices, atol=1e-6)
 
 
+def test_glb_file_follows_gltf_uv_convention(tmp_path):
+    """Independent of trimesh's reader: in the GLB, raw TEXCOORD_0 (v down from the image's top row) must
+    address the texel painted with the face's colour."""
+    import struct
+
+    v, f, uv, which = painted_sphere()
+    save_mesh(mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture()), tmp_path / "a.glb")
+    data = (tmp_path / "a.glb").read_bytes()
+    magic, version, _ = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2
+    jlen, _ = struct.unpack_from("<II", data, 12)
+    doc = json.loads(data[20 : 20 + jlen])
+    blen, _ = struct.unpack_from("<II", data, 20 + jlen)
+    binary = data[28 + jlen : 28 + jlen + blen]
+
+    def accessor(i):
+        acc = doc["accessors"][i]
+        view = doc["bufferViews"][acc["bufferView"]]
+        start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+        width = {"VEC2": 2, "VEC3": 3, "SCALAR": 1}[acc["type"]]
+        dtype = {5126: np.float32, 5125: np.uint32, 5123: np.uint16}[acc["componentType"]]
+        return np.frombuffer(binary, dtype, acc["count"] * width, start).reshape(acc["count"], width)
+
+    prim = doc["meshes"][0]["primitives"][0]
+    tc = accessor(prim["attributes"]["TEXCOORD_0"])
+    idx = accessor(prim["indices"]).reshape(-1, 3)
+    img_view = doc["bufferViews"][doc["images"][0]["bufferView"]]
+    (tmp_path / "raw.png").write_bytes(binary[img_view.get("byteOffset", 0) : img_view.get("byteOffset", 0) + img_view["byteLength"]])
+    img = read_image(tmp_path / "raw.png", colour="data")  # sRGB levels as stored
+    h, w, _ = img.shape
+    centroid = tc[idx].mean(axis=1)  # raw glTF uv: (0, 0) = top-left of the image
+    texel = img[(centroid[:, 1] * h).astype(int), (centroid[:, 0] * w).astype(int)]
+    want = np.array([QUAD_COLOURS[tuple(c)] for c in np.array(list(QUAD_COLOURS))[which]])
+    np.testing.assert_allclose(texel, want, atol=1 / 255)
+
+
 def test_gltf_external_texture(tmp_path):
     v, f, uv, which = painted_sphere()
     m = mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture())
@@ -299,8 +335,8 @@ def test_unknown_format(tmp_path):
         (TRI + "f 1 2 0\n", r"m\.obj:4: face index 0 out of range"),
         (TRI + "f -1 -2 -4\n", r"m\.obj:4: face index -?\d+ out of range"),
         (TRI + "vt 0 0\nf 1/1 2/1 3/2\n", r"m\.obj:5: texture coordinate index 2 out of range \(file has 1 texture"),
-        ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"m\.obj: vertex 0 has a non-finite coordinate"),
-        ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"vertex 0 has a non-finite coordinate"),
+        ("v 0 0 0\nv 0 0 nan\nv 0 1 0\nf 1 2 3\n", r"m\.obj:2: vertex 2 has a non-finite coordinate \(0\.0, 0\.0, nan\)"),
+        ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"m\.obj:1: vertex 1 has a non-finite coordinate"),
         ("v 0 zero 0\n", r"m\.obj:1: cannot parse vertex 'v 0 zero 0'"),
         ("v 0 0\n", r"m\.obj:1: cannot parse vertex"),
         (TRI + "f 1 2 x\n", r"m\.obj:4: cannot parse face 'f 1 2 x'"),
@@ -379,6 +415,7 @@ def test_unreadable_texture_is_image_error(tmp_path):
         (np.eye(3), [[0, 1, 2]], {"uv": np.zeros((2, 2))}, r"uv must be \(F, 3, 2\) per corner or \(V, 2\) per vertex"),
         (np.eye(3), [[0, 1, 2]], {"uv": np.full((1, 3, 2), np.nan)}, r"face 0 has a non-finite texture coordinate"),
         (np.eye(3), [[0, 1, 2]], {"uv": np.zeros((3, 2)), "texture": np.zeros((2, 2, 5))}, r"texture must be a \(H, W, C\)"),
+        (np.array([[0, 0, 0], [1, np.nan, 0], [0, 1, 0]]), [[0, 1, 2]], {}, r"vertex 1 has a non-finite coordinate"),
         (np.eye(3), [[0, 1, 2]], {"uv_policy": "mirror"}, r"uv_policy must be one of \('wrap', 'clamp'\), got 'mirror'"),
     ],
 )
@@ -456,6 +493,15 @@ def test_missing_texture_named_by_mtl(tmp_path):
     with pytest.warns(NeuralBakeWarning, match=r"m\.obj: texture gone\.png named by m\.mtl not found; loading without texture"):
         m = load_mesh(p)
     assert m.texture is None and m.uv is not None
+
+
+def test_two_material_libraries_on_one_line(tmp_path):
+    write_image(tmp_path / "t.png", quadrant_texture())
+    write(tmp_path, "b.mtl", "newmtl second\nmap_Kd t.png\n")
+    p = write(tmp_path, "m.obj", "mtllib a.mtl b.mtl\nusemtl second\n" + TRI + "vt 0.25 0.75\nf 1/1 2/1 3/1\n")
+    with pytest.warns(NeuralBakeWarning, match=r"m\.obj: material library a\.mtl not found"):
+        m = load_mesh(p)
+    assert m.texture.shape == (8, 8, 3)
 
 
 def test_missing_mtl(tmp_path):
