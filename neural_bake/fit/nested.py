@@ -441,6 +441,9 @@ def fit_nested(
     frame = frame or Frame()
     fine_model.eval()
     p = next(fine_model.parameters())
+    if band_samples(fine_model, 64, band, seed=int(seed), max_tries=16).shape[0] == 0:
+        raise FitError(f"fit_nested: the fine model has no point of [-1, 1]^3 within {band} of its zero level set "
+                       f"(is it an SDF of a surface in the unit frame?)")
     surface = None
     if mesh is not None:
         from .sampling import sample_surface
