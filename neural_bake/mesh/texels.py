@@ -18,6 +18,8 @@ __all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points"]
 _INSIDE_EPS = 1e-9
 #: Twice the UV-pixel area below which a UV triangle is degenerate and covers no sample.
 _UV_AREA_EPS = 1e-12
+#: Slack (in pixels) of the scanline spans; samples found are then tested with barycentrics.
+_SPAN_TOL = 1e-6
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
 
@@ -174,6 +176,25 @@ def _bary(x, y, px, py):
     return np.stack([1.0 - b1 - b2, b1, b2], axis=1), d
 
 
+def _row_spans(x, y, py):
+    """x-extent [xl, xr] of triangles x, y (K, 3) on the horizontal lines y = py (K,); xl > xr: empty."""
+    xl = np.full(len(py), np.inf)
+    xr = np.full(len(py), -np.inf)
+    for i in range(3):
+        j = (i + 1) % 3
+        xi, xj, yi, yj = x[:, i], x[:, j], y[:, i], y[:, j]
+        dy = yj - yi
+        on = (py >= np.minimum(yi, yj) - _SPAN_TOL) & (py <= np.maximum(yi, yj) + _SPAN_TOL)
+        flat = np.abs(dy) < 1e-12
+        t = np.clip(np.divide(py - yi, dy, out=np.zeros_like(dy), where=~flat), 0.0, 1.0)
+        xa = xi + t * (xj - xi)
+        lo = np.where(flat, np.minimum(xi, xj), xa)
+        hi = np.where(flat, np.maximum(xi, xj), xa)
+        xl = np.where(on, np.minimum(xl, lo), xl)
+        xr = np.where(on, np.maximum(xr, hi), xr)
+    return xl, xr
+
+
 def _sample_hits(xs, ys, hs, ws, rows):
     """Sample centres inside UV triangles for sample rows ``rows`` = [a, b).
 
@@ -192,21 +213,39 @@ def _sample_hits(xs, ys, hs, ws, rows):
     if live.size == 0:
         e = np.zeros(0, np.int64)
         return e, e, e, np.zeros((0, 3)), 0
-    nr, nc = r1[live] - r0[live] + 1, c1[live] - c0[live] + 1
+    # scanlines: for every (face, sample row) the exact x-span of the triangle on that row, then only the
+    # sample centres inside the span are enumerated (no rejected bounding-box candidates)
+    nr = r1[live] - r0[live] + 1
     out_k, out_r, out_c, out_b = [], [], [], []
     strict_ids = []
-    for sl in _chunks_by_budget(nr * nc, _MAX_CANDIDATES):
+    for sl in _chunks_by_budget(nr, _MAX_CANDIDATES // 4):
         ids = live[sl]
-        slot, rr, cc = _enumerate(r0[ids], nr[sl], c0[ids], nc[sl])
-        k = ids[slot]
-        bary, _ = _bary(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
-        inside = (bary >= -_INSIDE_EPS).all(axis=1)
-        strict = (bary > 1e-7).all(axis=1)
-        strict_ids.append((rr[strict] - a) * ws + cc[strict])
-        out_k.append(k[inside])
-        out_r.append(rr[inside])
-        out_c.append(cc[inside])
-        out_b.append(bary[inside])
+        slot = np.repeat(np.arange(len(ids)), nr[sl])
+        start = np.cumsum(nr[sl]) - nr[sl]
+        rowv = r0[ids][slot] + np.arange(len(slot), dtype=np.int64) - np.repeat(start, nr[sl])
+        kr = ids[slot]
+        xl, xr = _row_spans(xs[kr], ys[kr], rowv.astype(np.float64))
+        cl = np.maximum(np.ceil(xl - _SPAN_TOL), 0).astype(np.int64)
+        cr = np.minimum(np.floor(xr + _SPAN_TOL), ws - 1).astype(np.int64)
+        ncol = np.maximum(cr - cl + 1, 0)
+        for sl2 in _chunks_by_budget(ncol, _MAX_CANDIDATES):
+            n2 = ncol[sl2]
+            slot2 = np.repeat(np.arange(sl2.start, sl2.stop), n2)
+            st2 = np.cumsum(n2) - n2
+            cc = cl[slot2] + np.arange(len(slot2), dtype=np.int64) - np.repeat(st2, n2)
+            rr = rowv[slot2]
+            k = kr[slot2]
+            bary, _ = _bary(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
+            inside = (bary >= -_INSIDE_EPS).all(axis=1)
+            strict = (bary > 1e-7).all(axis=1)
+            strict_ids.append((rr[strict] - a) * ws + cc[strict])
+            out_k.append(k[inside])
+            out_r.append(rr[inside])
+            out_c.append(cc[inside])
+            out_b.append(bary[inside])
+    if not out_k:
+        e = np.zeros(0, np.int64)
+        return e, e, e, np.zeros((0, 3)), 0
     k, rr, cc, bary = (np.concatenate(v) for v in (out_k, out_r, out_c, out_b))
     sid = (rr - a) * ws + cc
     order = np.argsort(sid, kind="stable")  # stable: within a sample, the lowest copy (face) index first
@@ -331,7 +370,7 @@ def iter_texels(
     supersample: int = 1,
     tangents=None,
     conservative: bool = True,
-    max_samples: int = 1 << 22,
+    max_samples: int = 1 << 20,
 ) -> Iterator[TexelSet]:
     """:func:`rasterize_texels` in bands of texel rows, for maps too large for one :class:`TexelSet`.
 
@@ -377,8 +416,12 @@ def iter_texels(
         texel = tr * w + tc
         order = np.argsort(texel, kind="stable")
         face, bary, texel, border, tr, tc = (v[order] for v in (face, bary, texel, border, tr, tc))
-        uniq, inv, cnt = np.unique(texel, return_inverse=True, return_counts=True)
-        weight = 1.0 / cnt[inv]
+        new = np.ones(len(texel), bool)  # texel is sorted: runs of equal values are one texel's samples
+        new[1:] = texel[1:] != texel[:-1]
+        starts = np.flatnonzero(new)
+        uniq = texel[starts]
+        cnt = np.diff(np.append(starts, len(texel)))
+        weight = np.repeat(1.0 / cnt, cnt)
         points = np.einsum("mk,mkd->md", bary, tri[face])
         n, ok = _unit(np.einsum("mk,mkd->md", bary, vn[mesh.faces[face]]))
         fb = fnorm[face]
