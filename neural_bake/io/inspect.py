@@ -39,7 +39,9 @@ def topology(faces: np.ndarray, n_vertices: int) -> dict:
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     f = faces[ok]
     fc = np.searchsorted(comp_ids, label[f[:, 0]])
-    und = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    pairs = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    keys = np.unique(pairs[:, 0] * np.int64(n_vertices) + pairs[:, 1])
+    und = np.stack([keys // n_vertices, keys % n_vertices], axis=1)
     ec = np.searchsorted(comp_ids, label[und[:, 0]])
     vc = np.searchsorted(comp_ids, label[np.unique(f)])
     euler = (np.bincount(vc, minlength=n_comp) - np.bincount(ec, minlength=n_comp) + np.bincount(fc, minlength=n_comp))

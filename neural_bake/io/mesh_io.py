@@ -271,11 +271,26 @@ def _rgb_texture(t: np.ndarray) -> np.ndarray:
     return t[..., :4]
 
 
+def _first_of_equal_rows(a: np.ndarray) -> np.ndarray:
+    """For each row of ``a`` (N, K), the index of the first row equal to it (a lexsort, no void views)."""
+    n = len(a)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    order = np.lexsort(a.T[::-1])  # stable: equal rows keep index order
+    s = a[order]
+    new_group = np.ones(n, dtype=bool)
+    new_group[1:] = np.any(s[1:] != s[:-1], axis=1)
+    group = np.cumsum(new_group) - 1
+    first = order[new_group]  # first (smallest) index of each group
+    out = np.empty(n, dtype=np.int64)
+    out[order] = first[group]
+    return out
+
+
 def _weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices closer than ``tol``; returns (kept indices in original order, old -> new index map)."""
     n = len(vertices)
-    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
-    rep = first[inverse.reshape(-1)]  # exact duplicates -> first occurrence
+    rep = _first_of_equal_rows(vertices)  # exact duplicates -> first occurrence
     uniq = np.unique(rep)
     if tol > 0 and len(uniq) > 1:
         from scipy.sparse import coo_matrix
@@ -317,9 +332,10 @@ def _edge_report(faces: np.ndarray) -> dict:
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     f = faces[ok]
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    base = int(faces.max()) + 1 if len(faces) else 1
     undirected = np.sort(directed, axis=1)
-    _, counts = np.unique(undirected, axis=0, return_counts=True)
-    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    _, counts = np.unique(undirected[:, 0] * base + undirected[:, 1], return_counts=True)
+    _, dcounts = np.unique(directed[:, 0] * base + directed[:, 1], return_counts=True)
     return {
         "edges": int(len(counts)),
         "boundary": int((counts == 1).sum()),

@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neural_bake.constants import UNIT_FRAME_EXTENT
 from neural_bake.errors import ImageError, MeshError, NeuralBakeError, NeuralBakeWarning
@@ -535,3 +537,17 @@ def test_named_texture_without_uvs(tmp_path):
     with pytest.warns(NeuralBakeWarning, match=r"m\.obj: the file names a texture but has no UV coordinates; texture ignored"):
         m = load_mesh(p)
     assert m.texture is None
+
+
+# --- welding against a slow reference ------------------------------------------------------------------------
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 40))
+def test_first_of_equal_rows_matches_reference(seed, n):
+    from neural_bake.io.mesh_io import _first_of_equal_rows
+
+    rng = np.random.default_rng(seed)
+    a = rng.integers(0, 3, (n, 3)).astype(np.float64)  # many repeats
+    want = [next(j for j in range(n) if (a[j] == a[i]).all()) for i in range(n)]
+    np.testing.assert_array_equal(_first_of_equal_rows(a), want)
