@@ -12,7 +12,7 @@ __all__ = ["command"]
 @click.command()
 @bench_options
 @click.option("--case", "cases", multiple=True,
-              help="Cases to run: sphere, checker<k> (e.g. checker16), spot (repeatable; default: all).")
+              help="Cases to run: sphere, torus, checker<k> (e.g. checker16), spot (repeatable; default: all).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit and metric.")
 @click.option("--delta", type=float, default=None, help="Band half-width δ (unit frame); default 0.03.")
 def command(quick, json_path, cases, seed, delta):

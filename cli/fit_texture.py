@@ -85,12 +85,7 @@ def command(mesh, sdf_path, output, preset, texture_path, uv_policy, lam, delta,
     from neural_bake.fit.texture import fit_texture, texture_metrics
     from neural_bake.io.mesh_io import load_mesh
 
-    m = load_mesh(mesh, uv_policy=uv_policy)
-    texture = None
-    if texture_path is not None:
-        from neural_bake.io.images import read_image
-
-        texture = read_image(texture_path)
+    m = load_mesh(mesh, texture_path, uv_policy=uv_policy)
     overrides = {k: v for k, v in dict(lam=lam, delta=delta, minutes=minutes, steps=steps, width=width,
                                        depth=depth, batch=batch, lr=lr, seed=seed, checkpoint=checkpoint).items()
                  if v is not None}
@@ -98,13 +93,13 @@ def command(mesh, sdf_path, output, preset, texture_path, uv_policy, lam, delta,
         overrides["resume"] = True
     if preset is not None:
         overrides["preset"] = preset
-    fit = fit_texture(m, sdf_path, texture=texture, progress=progress, **overrides)
+    fit = fit_texture(m, sdf_path, progress=progress, **overrides)
     fit.save(output)
     cfg = fit.config
     click.echo(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
                f"({fit.stopped_reason}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame)")
     if metrics:
-        q = texture_metrics(fit.model, m, sdf_path, delta=fit.delta, texture=texture, n=20000, n_views=4,
+        q = texture_metrics(fit.model, m, sdf_path, delta=fit.delta, n=20000, n_views=4,
                             resolution=96)
         change = "n/a" if q["band_change"] is None else f"{q['band_change']:.4g}"
         render = "n/a" if q["render_mse"] is None else f"{q['render_mse']:.4g}"

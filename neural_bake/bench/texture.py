@@ -11,7 +11,8 @@ The frozen f used here is the exact signed distance of the mesh itself (closest 
 ray parity): the benchmark measures texture fitting alone, not the quality of a fitted SDF. Cases:
 
 - ``sphere``: the lat-long colour sphere (the bundled sample when present, else generated here);
-- ``checker<k>``: the same sphere with a k × k/2 checkerboard texture (high frequency: the PSNR ceiling
+- ``torus``: the bundled torus sample (checker/stripe texture) when present;
+- ``checker<k>``: the generated lat-long sphere with a k × k/2 checkerboard texture (high frequency: the PSNR ceiling
   that a given network reaches in the budget, reported rather than hidden);
 - ``spot``: ``/work/shared/data/spot`` (textured cow) when present.
 """
@@ -97,6 +98,10 @@ def _cases(names, quick: bool) -> dict[str, Mesh]:
     for name in names:
         if name == "sphere":
             out[name] = _bundled("sphere") or latlong_sphere(24 if quick else 48, 48 if quick else 96)
+        elif name == "torus":
+            m = _bundled("torus")
+            if m is not None:
+                out[name] = m
         elif name.startswith("checker"):
             k = int(name[len("checker"):] or 16)
             out[name] = latlong_sphere(24 if quick else 48, 48 if quick else 96, (256, 512), checker=k)
@@ -104,7 +109,8 @@ def _cases(names, quick: bool) -> dict[str, Mesh]:
             if SPOT.is_file():
                 from ..io.mesh_io import load_mesh
 
-                out[name] = load_mesh(SPOT)
+                tex = SPOT.parent / "spot_texture.png"
+                out[name] = load_mesh(SPOT, tex if tex.is_file() else None)
         else:
             raise ValueError(f"bench texture: unknown case {name!r}")
     return out
@@ -165,8 +171,8 @@ def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta:
         progress: bool = False) -> dict:
     """Fit and measure texture nets; returns the benchmark dict (see the module docstring).
 
-    - ``cases``: names among "sphere", "checker<k>", "spot" (default: sphere, checker16, spot; quick: sphere
-      and checker16).
+    - ``cases``: names among "sphere", "torus", "checker<k>", "spot" (default: all four with checker16;
+      quick: sphere and checker16).
     - ``settings``: list of dicts of :class:`TextureFitConfig` overrides with a "label" and λ > 0 (default:
       the presets fast / medium / fine with the default λ; quick: (64, 1) for 9 s). Each setting is run
       three times: with its λ in its budget, then the λ = 0 baseline for the same number of steps ("equal
@@ -177,7 +183,7 @@ def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta:
 
     default_lam = TextureFitConfig().lam
     if cases is None:
-        cases = ["sphere", "checker16"] if quick else ["sphere", "checker16", "spot"]
+        cases = ["sphere", "checker16"] if quick else ["sphere", "torus", "checker16", "spot"]
     if settings is None:
         if quick:
             settings = [{"label": "(64,1) 9s", "width": 64, "depth": 1, "minutes": 0.15, "steps": 100000,
@@ -191,7 +197,8 @@ def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta:
     rows, notes = [], []
     for name in cases:
         if name not in meshes:
-            notes.append(f"case {name!r} skipped: {SPOT} not found" if name == "spot" else f"case {name!r} skipped")
+            notes.append(f"case {name!r} skipped: {SPOT} not found" if name == "spot"
+                         else f"case {name!r} skipped: bundled sample not found")
             continue
         mesh = meshes[name]
         sdf = mesh_sdf(mesh)

@@ -374,3 +374,68 @@ def test_wrong_sdf_argument_and_empty_band_are_fit_errors(sphere):
 
     with pytest.raises(FitError, match="no band samples"):
         fit_texture(sphere, far, **TINY)
+
+
+# ------------------------------------------------------------------------------------------- CLI
+
+
+@pytest.fixture(scope="module")
+def sphere_files(tmp_path_factory):
+    """The bundled sphere sample and a tiny Siren SDF of it (kind "sdf", its frame, δ = 0.04)."""
+    from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.samples import sample_path
+
+    path = sample_path("sphere")
+    mesh = load_mesh(path)
+    torch.manual_seed(0)
+    sdf = Siren(32, 1, 3, 1, omega_0=5.0)
+    opt = torch.optim.Adam(sdf.parameters(), lr=3e-3)
+    radius = float(np.linalg.norm(mesh.vertices, axis=1).max())
+    for _ in range(150):
+        x = torch.rand(1024, 3) * 2 - 1
+        loss = ((sdf(x)[:, 0] - (x.norm(dim=1) - radius)) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    folder = tmp_path_factory.mktemp("cli")
+    sdf_path = save_model(sdf, folder / "sphere.sdf", kind="sdf", frame=mesh.frame.to_dict(), delta=0.04)
+    return path, sdf_path, folder
+
+
+def test_cli_fit_texture_writes_a_texture_model(sphere_files, capsys):
+    from neural_bake.cli.main import main
+
+    mesh_path, sdf_path, folder = sphere_files
+    out = folder / "sphere.tex"
+    code = main(["fit", "texture", str(mesh_path), "--sdf", str(sdf_path), "-o", str(out), "--width", "32",
+                 "--depth", "1", "--steps", "40", "--batch", "256", "--lam", "0.05", "--no-progress"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "fitted (32, 1) texture" in text and "40 steps" in text and "δ = 0.04" in text
+    assert "surface PSNR" in text and "render MSE" in text and f"wrote {out}" in text
+    model, meta = load_model(out)
+    assert meta["kind"] == "texture" and meta["lam"] == 0.05 and meta["delta"] == 0.04
+    assert (model.in_dim, model.out_dim, model.width) == (3, 3, 32)
+
+
+def test_cli_fit_texture_user_errors_are_one_line(sphere_files, tmp_path, capsys):
+    from neural_bake.cli.main import main
+
+    mesh_path, sdf_path, _ = sphere_files
+    out = tmp_path / "x.tex"
+    code = main(["fit", "texture", str(mesh_path), "--sdf", str(sdf_path), "-o", str(out), "--lam", "-1",
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "neural-bake: error: lam: must be a finite number >= 0" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+    code = main(["fit", "texture", str(mesh_path), "--sdf", str(tmp_path / "missing.sdf"), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "missing.sdf" in err and not out.exists()
+    # a mesh without UVs
+    import trimesh
+
+    plain = tmp_path / "plain.ply"
+    trimesh.creation.icosphere(2).export(plain)
+    code = main(["fit", "texture", str(plain), "--sdf", str(sdf_path), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "no UV coordinates" in err and "plain.ply" in err
