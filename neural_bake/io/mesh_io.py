@@ -18,6 +18,7 @@ with trimesh (``process=False``); a multi-geometry scene is concatenated with it
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -228,9 +229,16 @@ def _check_uv_policy(uv_policy: str) -> None:
         raise NeuralBakeError(f"uv_policy must be one of {UV_POLICIES}, got {uv_policy!r}")
 
 
+_PACKAGE_DIR = str(Path(__file__).resolve().parent.parent)
+
+
 def _warn(notes: list[str], message: str) -> None:
+    """Record ``message`` in ``notes`` and issue it, attributed to the first caller outside neural_bake."""
     notes.append(message)
-    warnings.warn(message, NeuralBakeWarning, stacklevel=4)
+    frame, level = sys._getframe(0), 1
+    while frame is not None and str(Path(frame.f_code.co_filename).resolve()).startswith(_PACKAGE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, NeuralBakeWarning, stacklevel=level)
 
 
 def _check_range(faces: np.ndarray, n_vertices: int, name: str) -> None:

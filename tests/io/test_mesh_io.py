@@ -506,6 +506,14 @@ def test_two_material_libraries_on_one_line(tmp_path):
     assert m.texture.shape == (8, 8, 3)
 
 
+def test_warnings_point_at_the_caller(tmp_path):
+    p = write(tmp_path, "m.obj", "mtllib nothere.mtl\n" + TRI + "f 1 2 3\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_mesh(p)
+    assert len(caught) == 2 and all(w.filename == __file__ for w in caught)
+
+
 def test_missing_mtl(tmp_path):
     p = write(tmp_path, "m.obj", "mtllib nothere.mtl\n" + TRI + "f 1 2 3\n")
     with pytest.warns(NeuralBakeWarning, match=r"m\.obj: material library nothere\.mtl not found"):
