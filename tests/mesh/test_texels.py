@@ -228,3 +228,16 @@ def test_unsplit_uvs_use_per_corner_tangents():
     w = np.sign(np.einsum("md,md->m", np.cross(ts.normal, ts.tangent), ts.bitangent))
     np.testing.assert_array_equal(w, np.where(ts.face == 0, 1.0, -1.0))
     np.testing.assert_allclose(ts.tangent, np.where(ts.face[:, None] == 0, [1.0, 0, 0], [-1.0, 0, 0]), atol=1e-12)
+
+
+def test_tiny_chart_smaller_than_a_texel_still_gets_a_sample():
+    # a UV triangle 0.3 texel across that contains no texel centre
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    uv = (np.array([[[3.6, 4.1], [3.9, 4.1], [3.6, 4.4]]]) / 8.0)  # texel-space corners / size
+    m = Mesh(vertices=v, faces=np.array([[0, 1, 2]]), uv=uv)
+    assert rasterize_texels(m, 8, conservative=False).n_samples == 0
+    ts = rasterize_texels(m, 8)
+    assert ts.n_samples >= 1 and ts.border.all()
+    assert ts.coverage.sum() == ts.n_samples
+    np.testing.assert_allclose(ts.points[:, 2], 0.0)
+    assert (ts.bary >= 0).all() and np.isfinite(ts.normal).all()

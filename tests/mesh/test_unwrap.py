@@ -109,3 +109,13 @@ def test_split_by_handedness_at_a_mirror_line():
     m = Mesh(vertices=v, faces=f, uv=uv)
     assert split_uv_seams(m, by_handedness=False)[0].n_vertices == 4
     assert split_uv_seams(m)[0].n_vertices == 6
+
+
+def test_unwrap_non_manifold_mesh():
+    # three triangles on one edge: xatlas still gives a valid layout with the same faces
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]], dtype=np.int64)
+    m, vmap = unwrap_with_mapping(Mesh(vertices=v, faces=f), resolution=32, padding=1)
+    np.testing.assert_array_equal(vmap[m.faces], f)
+    assert (m.uv >= 0).all() and (m.uv <= 1).all()
+    assert rasterize_texels(m, 32, conservative=False).overlaps == 0
