@@ -439,7 +439,7 @@ def _read_obj(p: Path, name: str, notes: list[str]):
         raise MeshError(f"{name}: unreadable file ({exc.strerror})") from None
     if b"\x00" in data[:65536]:
         raise MeshError(f"{name}: unreadable OBJ file (binary data, not OBJ text)")
-    text = data.decode("utf-8", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
+    text = data.decode("utf-8-sig", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
     verts: list[tuple[float, float, float]] = []
     vert_line: list[int] = []
     tcs: list[tuple[float, float]] = []
@@ -453,7 +453,7 @@ def _read_obj(p: Path, name: str, notes: list[str]):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
-        head, _, rest = line.partition(" ")
+        head, _, rest = line.replace("\t", " ").partition(" ")
         if head == "v":
             tok = rest.split()
             try:
@@ -563,7 +563,7 @@ def _obj_texture(p: Path, name: str, mtllibs: list[str], used: list[str], notes:
             current = None
             for raw in mtl.read_text(encoding="utf-8", errors="replace").splitlines():
                 line = raw.split("#", 1)[0].strip()
-                head, _, rest = line.partition(" ")
+                head, _, rest = line.replace("\t", " ").partition(" ")
                 if head == "newmtl":
                     current = rest.strip()
                 elif head.lower() == "map_kd" and current is not None and current not in maps:

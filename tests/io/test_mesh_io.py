@@ -284,6 +284,14 @@ def test_obj_quads_negative_indices_and_comments(tmp_path):
     assert np.einsum("ij,ij->i", m.face_normals, m.triangles.mean(1) - 0.5).min() > 0  # outward
 
 
+def test_obj_bom_tabs_crlf_and_continuation(tmp_path):
+    text = "\ufeffv\t0 0 0\r\nv 1 0 0\r\nv 0\t1 0\r\nf 1 \\\r\n 2 3\r\n"
+    (tmp_path / "m.obj").write_bytes(text.encode("utf-8"))
+    m = quiet(load_mesh, tmp_path / "m.obj", normalise=False)
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+
+
 def test_obj_texture_convention(tmp_path):
     """Hand-written OBJ: a face whose UVs sit in the top-left quadrant (v up) reads the top-left texels."""
     write_image(tmp_path / "tex.png", quadrant_texture())
