@@ -53,6 +53,23 @@ class BakeResult:
     stats: dict = field(default_factory=dict)
 
 
+def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
+    """(V, 3) area-weighted unit vertex normals computed over vertices welded by position, so the copies of
+    a vertex split at a UV seam get the same normal. A vertex without usable faces gets +Z."""
+    _, pid = np.unique(mesh.vertices, axis=0, return_inverse=True)
+    pid = pid.reshape(-1)
+    t = mesh.triangles
+    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    acc = np.zeros((int(pid.max()) + 1 if len(pid) else 0, 3))
+    for k in range(3):
+        np.add.at(acc, pid[mesh.faces[:, k]], fn)
+    n = acc[pid]
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > 1e-300)
+    out[norm[:, 0] <= 1e-300] = (0.0, 0.0, 1.0)
+    return out
+
+
 def _tensor_kwargs(f) -> dict:
     model = getattr(f, "model", None) or (f.fn if isinstance(f.fn, torch.nn.Module) else None)
     if model is not None:
@@ -188,7 +205,10 @@ class Baker:
             mesh = unwrap(mesh, **{"resolution": self.size, **(unwrap_options or {})})
         from ..mesh.unwrap import split_uv_seams
 
+        had_normals = mesh.vertex_normals is not None
         self.mesh = split_uv_seams(mesh)[0]
+        if not had_normals:  # normals shared across seams, or the seams would show in shading
+            self.mesh.vertex_normals = welded_vertex_normals(self.mesh)
         self.timings["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         self.tangents = np.asarray(tangent_frames(self.mesh), dtype=np.float64)

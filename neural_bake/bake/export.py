@@ -164,7 +164,9 @@ def export_glb(
     if normal_map is not None:
         nm = _check_image("normal_map", normal_map, (3,))
         gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data")}
-    if textures:
+    if not textures:  # no maps: glTF's default material (trimesh then shows COLOR_0 as vertex colours)
+        del gltf["materials"], gltf["meshes"][0]["primitives"][0]["material"]
+    else:
         # linear filtering with mip-maps (the padding makes mip levels safe), repeat wrapping
         gltf["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]
         gltf["images"], gltf["textures"] = images, textures

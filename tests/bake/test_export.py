@@ -1,0 +1,108 @@
+"""GLB export: round trip through trimesh and through the raw glTF accessors; source frame; errors."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_bake.bake.export import export_glb, read_glb
+from neural_bake.errors import MeshError, NeuralBakeError
+from neural_bake.io.colour import linear_to_srgb
+from neural_bake.mesh.tangents import tangent_frames, vertex_normals, vertex_uv
+from neural_bake.mesh.unwrap import unwrap
+from neural_bake.types import Frame, Mesh
+
+
+@pytest.fixture
+def asset(rng):
+    ico = trimesh.creation.icosphere(subdivisions=1, radius=0.6)
+    m = Mesh(vertices=np.asarray(ico.vertices), faces=np.asarray(ico.faces, dtype=np.int64),
+             frame=Frame((10.0, -2.0, 3.0), 0.25))
+    m = unwrap(m, resolution=64)
+    normal_map = rng.uniform(0, 1, size=(16, 24, 3)).astype(np.float32)
+    albedo = rng.uniform(0, 1, size=(20, 12, 3)).astype(np.float32)
+    return m, tangent_frames(m), normal_map, albedo
+
+
+def test_round_trip_in_trimesh(tmp_path, asset):
+    m, tangents, normal_map, albedo = asset
+    path = export_glb(tmp_path / "a.glb", m, normal_map=normal_map, albedo=albedo, tangents=tangents)
+    scene = trimesh.load(path, process=False)
+    (geom,) = scene.geometry.values()
+    # positions in the source frame, same order and faces
+    assert np.allclose(geom.vertices, m.frame.to_source(m.vertices), atol=1e-4)
+    assert np.array_equal(geom.faces, m.faces)
+    assert np.allclose(geom.vertex_normals, vertex_normals(m), atol=1e-6)
+    assert np.allclose(geom.visual.uv, vertex_uv(m), atol=1e-6)  # trimesh flips glTF's v back
+    mat = geom.visual.material
+    base = np.asarray(mat.baseColorTexture.convert("RGB"), dtype=np.float64) / 255
+    assert base.shape == (20, 12, 3)
+    assert np.abs(base - linear_to_srgb(albedo)).max() <= 0.5 / 255 + 1e-6  # sRGB-encoded 8-bit
+    nrm = np.asarray(mat.normalTexture.convert("RGB"), dtype=np.float64) / 255
+    assert np.abs(nrm - normal_map).max() <= 0.5 / 255 + 1e-6  # linear data, not sRGB
+
+
+def test_raw_accessors_hold_tangents_and_glTF_uv(tmp_path, asset):
+    m, tangents, normal_map, _ = asset
+    path = export_glb(tmp_path / "a.glb", m, normal_map=normal_map, tangents=tangents)
+    gltf, arr, images = read_glb(path)
+    assert np.allclose(arr["TANGENT"], tangents, atol=1e-6)
+    assert set(np.unique(arr["TANGENT"][:, 3])) <= {-1.0, 1.0}
+    uv = vertex_uv(m)
+    assert np.allclose(arr["TEXCOORD_0"], np.stack([uv[:, 0], 1 - uv[:, 1]], axis=1), atol=1e-6)
+    pos = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    assert np.allclose(pos["min"], arr["POSITION"].min(axis=0)) and np.allclose(pos["max"], arr["POSITION"].max(axis=0))
+    mat = gltf["materials"][0]
+    assert "normalTexture" in mat and "baseColorTexture" not in mat["pbrMetallicRoughness"]
+    assert len(images) == 1 and images[0][:8] == b"\x89PNG\r\n\x1a\n"
+    # the file is a valid GLB: declared length, 4-byte aligned chunks
+    data = path.read_bytes()
+    assert int.from_bytes(data[8:12], "little") == len(data) and len(data) % 4 == 0
+
+
+def test_vertex_colours_and_normals_without_uv(tmp_path):
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    m = Mesh(vertices=np.asarray(ico.vertices), faces=np.asarray(ico.faces, dtype=np.int64))
+    cols = np.abs(m.vertices)
+    normals = -m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    path = export_glb(tmp_path / "v.glb", m, vertex_colors=cols, normals=normals)
+    _, arr, images = read_glb(path)
+    assert images == [] and "TEXCOORD_0" not in arr
+    assert np.allclose(arr["COLOR_0"], np.clip(cols, 0, 1), atol=1e-6)
+    assert np.allclose(arr["NORMAL"], normals, atol=1e-6)
+    (geom,) = trimesh.load(path, process=False).geometry.values()
+    assert np.allclose(geom.visual.vertex_colors[:, :3] / 255, np.clip(cols, 0, 1), atol=1 / 255)
+
+
+def test_failed_export_keeps_the_good_file(tmp_path, asset):
+    m, tangents, normal_map, _ = asset
+    path = export_glb(tmp_path / "a.glb", m, normal_map=normal_map, tangents=tangents)
+    good = path.read_bytes()
+    bad = normal_map.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(NeuralBakeError, match="normal_map holds NaN"):
+        export_glb(path, m, normal_map=bad, tangents=tangents)
+    assert path.read_bytes() == good and sorted(p.name for p in tmp_path.iterdir()) == ["a.glb"]
+
+
+def test_errors(tmp_path, asset):
+    m, tangents, normal_map, albedo = asset
+    with pytest.raises(NeuralBakeError, match="normal_map needs tangents"):
+        export_glb(tmp_path / "x.glb", m, normal_map=normal_map)
+    with pytest.raises(NeuralBakeError, match=r"tangents must have shape \(\d+, 4\)"):
+        export_glb(tmp_path / "x.glb", m, normal_map=normal_map, tangents=tangents[:, :3])
+    with pytest.raises(NeuralBakeError, match="albedo must be"):
+        export_glb(tmp_path / "x.glb", m, albedo=albedo[:, :, 0])
+    with pytest.raises(NeuralBakeError, match="vertex_colors must have shape"):
+        export_glb(tmp_path / "x.glb", m, vertex_colors=np.zeros((3, 3)))
+    no_uv = Mesh(vertices=m.vertices, faces=m.faces)
+    with pytest.raises(MeshError, match="texture maps need a mesh with UVs"):
+        export_glb(tmp_path / "x.glb", no_uv, albedo=albedo)
+    with pytest.raises(NeuralBakeError, match="folder .* does not exist"):
+        export_glb(tmp_path / "nope" / "x.glb", m)
+    (tmp_path / "t.txt").write_text("hello")
+    with pytest.raises(NeuralBakeError, match="not a GLB file"):
+        read_glb(tmp_path / "t.txt")
+    assert not (tmp_path / "x.glb").exists()
+    json.dumps(read_glb(export_glb(tmp_path / "ok.glb", m))[0])  # the JSON chunk is plain JSON
