@@ -292,6 +292,17 @@ def test_obj_bom_tabs_crlf_and_continuation(tmp_path):
     np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
 
 
+@pytest.mark.parametrize("face,has_uv", [("f 1 2 3", False), ("f 1//1 2//1 3//1", False),
+                                         ("f 1/2/1 2/1/1 3/3/1", True), ("f 1/2 2/1 3/3", True)])
+def test_obj_face_formats(tmp_path, face, has_uv):
+    p = write(tmp_path, "m.obj", TRI + "vt 0.1 0.2\nvt 0.3 0.4\nvt 0.5 0.6\nvn 0 0 1\n" + face + "\n")
+    m = quiet(load_mesh, p)
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+    assert (m.uv is not None) == has_uv
+    if has_uv:
+        np.testing.assert_array_equal(m.uv[0], [[0.3, 0.4], [0.1, 0.2], [0.5, 0.6]])
+
+
 def test_obj_texture_convention(tmp_path):
     """Hand-written OBJ: a face whose UVs sit in the top-left quadrant (v up) reads the top-left texels."""
     write_image(tmp_path / "tex.png", quadrant_texture())
