@@ -95,7 +95,8 @@ def decimate(
     (``meshing_decimation_quadric_edge_collapse_with_texture``) keeps per-corner UVs, and the result is
     split at UV seams (one UV per vertex) with its texture; otherwise UVs are dropped (unwrap the result).
     The result is in the same unit frame with the same ``frame``; vertex normals are recomputed
-    (area-weighted); ``degenerate`` marks faces below ``DEGENERATE_AREA``. The face count reached may be
+    (area-weighted); ``watertight`` is recomputed; ``degenerate`` marks faces below ``DEGENERATE_AREA``.
+    The face count reached may be
     a little off the target (the collapse stops when no valid collapse is left).
 
     Raises :class:`NeuralBakeError` for a bad target, :class:`MeshError` for an empty mesh. Asking for at
@@ -160,11 +161,13 @@ def decimate(
         vertex_normals=None,
         frame=mesh.frame,
         uv_policy=mesh.uv_policy,
-        watertight=mesh.watertight,
         source=mesh.source,
         warnings=list(mesh.warnings),
     )
+    from .cleanup import edge_report
     from .tangents import vertex_normals
+
+    out.watertight = edge_report(out.faces)["watertight"]
 
     out.vertex_normals = vertex_normals(out)
     out.degenerate = out.face_areas < DEGENERATE_AREA

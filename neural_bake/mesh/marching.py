@@ -124,19 +124,6 @@ def _prune(model, resolution, bound, level, method, leaf_cells, chunk):
     return leaves, np.concatenate(pruned), np.concatenate(signs), n_bounds
 
 
-def _watertight(faces: np.ndarray) -> bool:
-    if len(faces) == 0:
-        return False
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    und = np.sort(e, axis=1)
-    _, c = np.unique(und, axis=0, return_counts=True)
-    if (c != 2).any():
-        return False
-    # consistent winding: every directed edge appears once
-    _, cd = np.unique(e, axis=0, return_counts=True)
-    return bool((cd == 1).all())
-
-
 def march(
     field,
     resolution: int = 64,
@@ -244,7 +231,9 @@ def march(
 
     mesh.vertex_normals = vertex_normals(mesh)
     mesh.degenerate = mesh.face_areas < DEGENERATE_AREA
-    mesh.watertight = _watertight(faces)
+    from .cleanup import edge_report
+
+    mesh.watertight = edge_report(faces)["watertight"]
     stats["seconds"] = time.perf_counter() - t0
     stats["vertices"], stats["faces"] = mesh.n_vertices, mesh.n_faces
     return mesh, stats

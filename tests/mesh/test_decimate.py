@@ -115,3 +115,12 @@ def test_errors_and_warnings():
     empty = Mesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), np.int64))
     with pytest.raises(MeshError, match="no faces to decimate"):
         decimate(empty, faces=10)
+
+
+def test_watertight_flag_is_recomputed():
+    m = bumpy_grid(8)
+    m.watertight = True  # wrong on purpose: an open grid
+    assert not decimate(m, faces=40).watertight
+    s = trimesh.creation.icosphere(2)
+    closed = Mesh(vertices=s.vertices, faces=s.faces.astype(np.int64), watertight=False)
+    assert decimate(closed, faces=100).watertight
