@@ -96,8 +96,7 @@ def decimate(
     split at UV seams (one UV per vertex) with its texture; otherwise UVs are dropped (unwrap the result).
     The result is in the same unit frame with the same ``frame``; vertex normals are recomputed
     (area-weighted); ``watertight`` is recomputed; ``degenerate`` marks faces below ``DEGENERATE_AREA``.
-    The face count reached may be
-    a little off the target (the collapse stops when no valid collapse is left).
+    The face count reached may be a little off the target (the collapse stops when no valid collapse is left).
 
     Raises :class:`NeuralBakeError` for a bad target, :class:`MeshError` for an empty mesh. Asking for at
     least as many faces as the mesh has returns the welded mesh with a :class:`NeuralBakeWarning`.
