@@ -12,7 +12,8 @@ Conventions of the returned :class:`~neural_bake.types.Mesh`:
 - texture (H, W, 3|4) float32 *linear* RGB(A), row 0 = top row of the image file.
 
 OBJ is parsed here (exact line-numbered errors, per-corner UVs, MTL ``map_Kd``); PLY, GLB and glTF are read
-with trimesh (``process=False``); a multi-geometry scene is concatenated with its transforms applied.
+with trimesh (``process=False``); a multi-geometry scene is concatenated with its transforms applied. A glTF
+base-colour texture is multiplied by the material's ``baseColorFactor``; vertex colours are not read.
 """
 
 from __future__ import annotations
@@ -690,7 +691,8 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
         img = getattr(mat, "baseColorTexture", None) if mat is not None else None
         if img is None and mat is not None:
             img = getattr(mat, "image", None)
-        images.append(img)
+        factor = getattr(mat, "baseColorFactor", None) if img is not None else None
+        images.append((img, None if factor is None else np.asarray(factor, dtype=np.float32).reshape(-1)[:4] / 255.0))
         vs.append(v)
         fs.append(f + offset)
         offset += len(v)
@@ -702,9 +704,15 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
         if missing:
             _warn(notes, f"{name}: {missing} faces have no texture coordinates; they get uv (0, 0)")
     texture = None
-    imgs = [im for im in images if im is not None]
+    imgs = [im for im, _ in images if im is not None]
     if imgs:
         texture = _pil_to_linear(imgs[0])
+        factor = next(fa for im, fa in images if im is not None)
+        if factor is not None and len(factor) == 4 and not np.all(factor == 1.0):
+            # glTF: base colour = texture (linear) * baseColorFactor (linear; trimesh keeps it as 8-bit)
+            texture[..., :3] *= factor[:3]
+            if texture.shape[2] == 4:
+                texture[..., 3] *= factor[3]
         if len({id(im) for im in imgs}) > 1:
             _warn(notes, f"{name}: geometries use {len({id(im) for im in imgs})} textures; only the first is used")
     if ext == ".gltf":

@@ -261,6 +261,18 @@ def test_gltf_missing_external_image(tmp_path):
     assert m.texture is None and m.uv is not None
 
 
+def test_glb_base_colour_factor_multiplies_texture(tmp_path):
+    from PIL import Image
+
+    s = trimesh.creation.icosphere(subdivisions=1)
+    img = Image.new("RGBA", (2, 2), (255, 255, 255, 255))
+    mat = trimesh.visual.material.PBRMaterial(baseColorTexture=img, baseColorFactor=[0.5, 1.0, 0.25, 0.5])
+    s.visual = trimesh.visual.TextureVisuals(uv=np.full((len(s.vertices), 2), 0.5), material=mat)
+    s.export(tmp_path / "f.glb")
+    m = load_mesh(tmp_path / "f.glb")
+    np.testing.assert_allclose(m.texture[0, 0], [128 / 255, 1.0, 64 / 255, 128 / 255], atol=1e-6)
+
+
 def test_multi_geometry_scene_is_concatenated(tmp_path):
     a = trimesh.creation.box()
     b = trimesh.creation.icosphere(subdivisions=1)
