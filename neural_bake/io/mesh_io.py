@@ -85,9 +85,9 @@ def load_mesh(
         raise MeshError(f"{name}: unknown mesh format {p.suffix!r} (expected one of {', '.join(MESH_FORMATS)})")
     notes: list[str] = []
     if ext == ".obj":
-        vertices, faces, uv, tex_array, tex_path = _read_obj(p, name, notes)
+        vertices, faces, uv, tex_array, tex_path = _read_obj(p, name, notes, texture is None)
     else:
-        vertices, faces, uv, tex_array, tex_path = _read_with_trimesh(p, name, ext, notes)
+        vertices, faces, uv, tex_array, tex_path = _read_with_trimesh(p, name, ext, notes, texture is None)
     tex_label = None
     if texture is not None:
         tex_array, tex_label = None, str(texture)
@@ -432,8 +432,10 @@ def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes
 # --------------------------------------------------------------------------------------------------------------
 
 
-def _read_obj(p: Path, name: str, notes: list[str]):
-    """Parse an OBJ file: (vertices, faces, uv or None, texture array or None, texture path or None)."""
+def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True):
+    """Parse an OBJ file: (vertices, faces, uv or None, texture array or None, texture path or None).
+
+    ``want_texture=False`` (a texture is given by the caller) skips the MTL files and their warnings."""
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -523,7 +525,9 @@ def _read_obj(p: Path, name: str, notes: list[str]):
         if not has.all():
             uv[~has] = 0.0
             _warn(notes, f"{name}: {int((~has).sum())} faces have no texture coordinates; they get uv (0, 0)")
-    tex_path = _obj_texture(p, name, mtllibs, [m for m in dict.fromkeys(tri_mat) if m is not None], notes)
+    tex_path = None
+    if want_texture:
+        tex_path = _obj_texture(p, name, mtllibs, [m for m in dict.fromkeys(tri_mat) if m is not None], notes)
     return vertices, faces, uv, None, tex_path
 
 
@@ -656,7 +660,7 @@ def _gltf_missing_images(p: Path) -> list[str]:
     return [u for u in uris if isinstance(u, str) and not u.startswith("data:") and not (p.parent / unquote(u)).is_file()]
 
 
-def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
+def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_texture: bool = True):
     import trimesh
 
     kind = ext[1:].upper()
@@ -715,6 +719,8 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str]):
                 texture[..., 3] *= factor[3]
         if len({id(im) for im in imgs}) > 1:
             _warn(notes, f"{name}: geometries use {len({id(im) for im in imgs})} textures; only the first is used")
+    if not want_texture:
+        return vertices, faces, uv, None, None
     if ext == ".gltf":
         for uri in _gltf_missing_images(p):
             _warn(notes, f"{name}: texture {uri} named by the file not found; loading without it")

@@ -326,9 +326,11 @@ def test_obj_texture_convention(tmp_path):
 
 def test_explicit_texture_overrides(tmp_path):
     write_image(tmp_path / "t.png", quadrant_texture())
-    p = write(tmp_path, "m.obj", TRI + "vt 0.75 0.25\nf 1/1 2/1 3/1\n")
+    write(tmp_path, "m.mtl", "newmtl a\nmap_Kd gone.png\n")
+    p = write(tmp_path, "m.obj", "mtllib m.mtl\nusemtl a\n" + TRI + "vt 0.75 0.25\nf 1/1 2/1 3/1\n")
     m = quiet(load_mesh, p, texture=tmp_path / "t.png")
     assert m.texture.shape == (8, 8, 3)
+    assert not [w for w in m.warnings if "gone.png" in w]  # the file's own (missing) texture is not looked at
 
 
 @pytest.mark.skipif(not (SPOT / "spot_triangulated.obj").exists(), reason="shared data absent")
