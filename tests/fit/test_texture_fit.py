@@ -439,3 +439,35 @@ def test_cli_fit_texture_user_errors_are_one_line(sphere_files, tmp_path, capsys
     code = main(["fit", "texture", str(plain), "--sdf", str(sdf_path), "-o", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and "no UV coordinates" in err and "plain.ply" in err
+
+
+# ------------------------------------------------------------------------------------------- benchmark parts
+
+
+def test_bench_mesh_sdf_is_the_exact_distance_of_the_sphere():
+    from neural_bake.bench.texture import latlong_sphere, mesh_sdf
+
+    mesh = latlong_sphere(48, 96, (16, 32))
+    f = mesh_sdf(mesh)
+    x = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (500, 3)))
+    x = x[(x.norm(dim=1) - R).abs() > 0.02]
+    v, g = f(x)
+    r = x.norm(dim=1)
+    # the polyhedron is inscribed: its distance is within the chord sag (R (1 − cos(π/48)) ≈ 0.0019) of |x| − R
+    assert torch.allclose(v, r - R, atol=2.5e-3)
+    assert float((g * (x / r[:, None])).sum(dim=1).min()) > 0.99
+    assert x.dtype == v.dtype == g.dtype
+
+
+def test_bench_run_with_tiny_settings_reports_the_lam0_baselines():
+    from neural_bake.bench.texture import run
+
+    res = run(quick=True, cases=["sphere", "checker8"], settings=[{"label": "tiny", "width": 16, "depth": 0, "steps": 30,
+                                                       "batch": 128, "pool": 3000, "lam": 0.05, "lr": 1e-3}])
+    rows = res["tables"]["accuracy"]
+    assert [(r["case"], r["baseline"]) for r in rows] == [
+        (c, b) for c in ("sphere", "checker8") for b in ("", "λ=0 equal steps", "λ=0 equal time")]
+    for main_row, base in zip(rows[::3], rows[1::3]):
+        assert main_row["steps"] == base["steps"] == 30 and base["lam"] == 0.0
+        assert main_row["band_ratio"] == pytest.approx(base["band_change"] / main_row["band_change"])
+    assert res["name"] == "texture" and res["machine"]["cores"] and res["tables"]["orthogonality term cost per step"]
