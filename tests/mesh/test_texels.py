@@ -241,3 +241,31 @@ def test_tiny_chart_smaller_than_a_texel_still_gets_a_sample():
     assert ts.coverage.sum() == ts.n_samples
     np.testing.assert_allclose(ts.points[:, 2], 0.0)
     assert (ts.bary >= 0).all() and np.isfinite(ts.normal).all()
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    h=st.integers(1, 11),
+    w=st.integers(1, 11),
+    n=st.integers(1, 6),
+    f32=st.booleans(),
+)
+def test_property_centres_match_slow_reference_and_frames_finite(seed, h, w, n, f32):
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(0.0, 1.0, size=(n, 3, 2)).astype(np.float32 if f32 else np.float64)
+    m = Mesh(vertices=rng.normal(size=(3 * n, 3)), faces=np.arange(3 * n).reshape(n, 3), uv=uv)
+    ts = rasterize_texels(m, (h, w), conservative=False)
+    m64 = Mesh(vertices=m.vertices, faces=m.faces, uv=uv.astype(np.float64))
+    np.testing.assert_array_equal(ts.coverage, _slow_centres(m64, h, w))
+    full = rasterize_texels(m, (h, w))
+    assert not (ts.coverage & ~full.coverage).any()
+    for name in ("points", "normal", "tangent", "bitangent", "bary", "weight"):
+        assert np.isfinite(getattr(full, name)).all()
+    sums = np.bincount(full.texel, weights=full.weight, minlength=h * w)
+    np.testing.assert_allclose(sums[full.coverage.ravel()], 1.0)
+    np.testing.assert_array_equal(sums[~full.coverage.ravel()], 0.0)
