@@ -19,7 +19,7 @@ from .fields import ColorField, SdfField
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normals_to_colors, splat
 from .padding import PADDING_METHODS, pad_charts
 
-__all__ = ["Baker", "BakeResult", "bake_texels", "bake_vertices"]
+__all__ = ["Baker", "BakeResult", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
 
 DEFAULT_CHUNK = 1 << 16
 
@@ -359,3 +359,59 @@ def bake_texels(
 ) -> BakeResult:
     """One-off bake: ``Baker(mesh, size, **options).bake(sdf, texture, delta=delta)``."""
     return Baker(mesh, size, **options).bake(sdf, texture, delta=delta)
+
+
+COARSE_KINDS = ("decimate", "march", "keep")
+
+
+def parse_coarse(spec: str) -> tuple[str, float | int | None]:
+    """Parse a coarse-mesh spec: ``"decimate:2000"`` (faces), ``"decimate:0.1"`` (ratio), ``"march:64"``
+    (grid resolution) or ``"keep"``. Raises :class:`NeuralBakeError` naming ``--coarse`` otherwise."""
+    kind, _, arg = str(spec).partition(":")
+    usage = "expected decimate:FACES, decimate:RATIO, march:RESOLUTION or keep"
+    if kind not in COARSE_KINDS:
+        raise NeuralBakeError(f"--coarse {spec!r}: unknown kind {kind!r} ({usage})")
+    if kind == "keep":
+        if arg:
+            raise NeuralBakeError(f"--coarse {spec!r}: keep takes no value ({usage})")
+        return kind, None
+    try:
+        value = float(arg)
+    except ValueError:
+        raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs a number ({usage})") from None
+    if kind == "decimate" and 0 < value < 1:
+        return kind, value
+    if value != int(value) or (kind == "decimate" and value < 4) or (kind == "march" and not 4 <= value <= 1024):
+        limits = "a face count >= 4 or a ratio in (0, 1)" if kind == "decimate" else "a resolution in [4, 1024]"
+        raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs {limits}")
+    return kind, int(value)
+
+
+def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mesh, dict]:
+    """The coarse mesh a bake targets, from a :func:`parse_coarse` spec; returns (mesh, info).
+
+    ``decimate``: quadric edge collapse of ``mesh`` (UVs dropped: the Baker unwraps). ``march``: marching
+    cubes of ``sdf`` (a Siren field; range-pruned) at that resolution, in the field's frame. ``keep``:
+    ``mesh`` itself (its own UVs, if any, are kept).
+    """
+    kind, value = parse_coarse(spec)
+    t0 = time.perf_counter()
+    info: dict = {"spec": spec}
+    if kind == "keep":
+        out = mesh
+    elif kind == "decimate":
+        from ..mesh.decimate import decimate
+
+        out = decimate(mesh, **({"ratio": value} if isinstance(value, float) else {"faces": value}))
+    else:
+        from ..mesh.marching import march
+
+        field = getattr(sdf, "model", None) if sdf is not None else None
+        if field is None:
+            raise NeuralBakeError(f"--coarse {spec!r}: march needs an SDF model (a Siren)")
+        out, stats = march(field, value, pruned=True, frame=sdf.frame or mesh.frame)
+        info["march"] = {k: v for k, v in stats.items() if isinstance(v, (int, float, str, bool))}
+        if out.n_faces == 0:
+            raise NeuralBakeError(f"--coarse {spec!r}: the SDF has no surface at resolution {value}")
+    info.update(faces=out.n_faces, vertices=out.n_vertices, seconds=time.perf_counter() - t0)
+    return out, info
