@@ -64,15 +64,22 @@ def _texel_uv(width: int, height: int) -> np.ndarray:
     return np.stack([uu, vv], axis=-1)
 
 
-def _latlong_dirs(uv: np.ndarray) -> np.ndarray:
-    """Directions (…, 3) of lat-long texture coordinates: φ = 2π u around +z, polar angle θ = π (1 - v)."""
+def _v_of_theta(theta, height: int):
+    """Lat-long v of the polar angle θ for a texture ``height`` rows high: the poles sit on the centres of
+    the top and bottom rows (v = 1 - 0.5/H and 0.5/H), so bilinear lookups never wrap across the poles."""
+    return (0.5 + (1.0 - np.asarray(theta) / math.pi) * (height - 1)) / height
+
+
+def _latlong_dirs(uv: np.ndarray, height: int) -> np.ndarray:
+    """Directions (…, 3) of lat-long texture coordinates: φ = 2π u around +z, θ from v (:func:`_v_of_theta`)."""
     phi = 2 * math.pi * uv[..., 0]
-    theta = math.pi * (1.0 - uv[..., 1])
+    theta = np.clip(math.pi * (1.0 - (uv[..., 1] * height - 0.5) / (height - 1)), 0.0, math.pi)
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
 
 
-def _latlong_mesh(nlat: int, nlon: int, radius_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A UV sphere (poles on ±z) with vertex radius ``radius_fn(dirs)``; lat-long per-corner uv."""
+def _latlong_mesh(nlat: int, nlon: int, radius_fn, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A UV sphere (poles on ±z) with vertex radius ``radius_fn(dirs)``; lat-long per-corner uv for a
+    texture ``height`` rows high (u = φ / 2π, v = :func:`_v_of_theta`)."""
     i = np.arange(1, nlat)
     j = np.arange(nlon)
     theta = math.pi * i / nlat
@@ -88,13 +95,13 @@ def _latlong_mesh(nlat: int, nlon: int, radius_fn) -> tuple[np.ndarray, np.ndarr
 
     def uvc(ii, jj):
         jj = np.asarray(jj, dtype=np.float64)
-        return np.stack([jj / nlon, np.broadcast_to(1.0 - ii / nlat, jj.shape)], axis=-1)
+        return np.stack([jj / nlon, np.broadcast_to(_v_of_theta(math.pi * ii / nlat, height), jj.shape)], axis=-1)
 
     faces, uvs = [], []
     jj = np.arange(nlon)
     # north cap: (N, (1, j), (1, j+1))
     faces.append(np.stack([np.full(nlon, north), vid(1, jj), vid(1, jj + 1)], axis=1))
-    uvs.append(np.stack([np.stack([(jj + 0.5) / nlon, np.ones(nlon)], -1), uvc(1, jj), uvc(1, jj + 1)], axis=1))
+    uvs.append(np.stack([np.stack([(jj + 0.5) / nlon, np.full(nlon, _v_of_theta(0.0, height))], -1), uvc(1, jj), uvc(1, jj + 1)], axis=1))
     for ii in range(1, nlat - 1):
         a, b, c, d = vid(ii, jj), vid(ii + 1, jj), vid(ii + 1, jj + 1), vid(ii, jj + 1)
         ua, ub, uc, ud = uvc(ii, jj), uvc(ii + 1, jj), uvc(ii + 1, jj + 1), uvc(ii, jj + 1)
@@ -103,7 +110,7 @@ def _latlong_mesh(nlat: int, nlon: int, radius_fn) -> tuple[np.ndarray, np.ndarr
     # south cap: ((n-1, j), S, (n-1, j+1))
     ii = nlat - 1
     faces.append(np.stack([vid(ii, jj), np.full(nlon, south), vid(ii, jj + 1)], axis=1))
-    uvs.append(np.stack([uvc(ii, jj), np.stack([(jj + 0.5) / nlon, np.zeros(nlon)], -1), uvc(ii, jj + 1)], axis=1))
+    uvs.append(np.stack([uvc(ii, jj), np.stack([(jj + 0.5) / nlon, np.full(nlon, _v_of_theta(math.pi, height))], -1), uvc(ii, jj + 1)], axis=1))
     return verts, np.concatenate(faces).astype(np.int64), np.concatenate(uvs).astype(np.float64)
 
 
@@ -145,9 +152,10 @@ class Sphere:
 
     def mesh(self, resolution: int | None = None, texture_size: int | None = None) -> SampleMesh:
         nlat = max(3, round(math.sqrt(_faces_for(resolution, self.faces) / 4)))
-        v, f, uv = _latlong_mesh(nlat, 2 * nlat, lambda d: np.full(len(d), self.radius))
         w = int(texture_size or self.texture_size)
-        return SampleMesh(v, f, uv, self.albedo_uv(_texel_uv(w, w // 2).reshape(-1, 2)).reshape(w // 2, w, 3).astype(np.float32))
+        v, f, uv = _latlong_mesh(nlat, 2 * nlat, lambda d: np.full(len(d), self.radius), w // 2)
+        tex = self.albedo_uv(_texel_uv(w, w // 2).reshape(-1, 2), w).reshape(w // 2, w, 3)
+        return SampleMesh(v, f, uv, tex.astype(np.float32))
 
     def sdf(self, points) -> np.ndarray:
         return np.linalg.norm(_points(points), axis=1) - self.radius
@@ -160,9 +168,13 @@ class Sphere:
         """Colour of the direction of ``points`` (any distance from the centre)."""
         return _smooth_colour(_unit(_points(points)))
 
-    def albedo_uv(self, uv) -> np.ndarray:
-        """Colour at lat-long texture coordinates (N, 2)."""
-        return _smooth_colour(_latlong_dirs(np.asarray(uv, dtype=np.float64)))
+    def albedo_uv(self, uv, texture_size: int | None = None) -> np.ndarray:
+        """Colour at the lat-long texture coordinates (N, 2) of a mesh made with ``texture_size``.
+
+        u = φ / 2π; v maps the poles to the centres of the top and bottom texel rows (so it depends on
+        the texture's height, ``texture_size // 2``)."""
+        h = int(texture_size or self.texture_size) // 2
+        return _smooth_colour(_latlong_dirs(np.asarray(uv, dtype=np.float64), h))
 
 
 # -------------------------------------------------------------------------------------------------- bumpy
@@ -206,9 +218,9 @@ class BumpySphere:
 
     def mesh(self, resolution: int | None = None, texture_size: int | None = None) -> SampleMesh:
         nlat = max(3, round(math.sqrt(_faces_for(resolution, self.faces) / 4)))
-        v, f, uv = _latlong_mesh(nlat, 2 * nlat, self.surface_radius)
         w = int(texture_size or self.texture_size)
-        tex = self.albedo_uv(_texel_uv(w, w // 2).reshape(-1, 2)).reshape(w // 2, w, 3)
+        v, f, uv = _latlong_mesh(nlat, 2 * nlat, self.surface_radius, w // 2)
+        tex = self.albedo_uv(_texel_uv(w, w // 2).reshape(-1, 2), w).reshape(w // 2, w, 3)
         return SampleMesh(v, f, uv, tex.astype(np.float32))
 
     def implicit(self, points) -> np.ndarray:
@@ -240,8 +252,10 @@ class BumpySphere:
     def albedo(self, points) -> np.ndarray:
         return _smooth_colour(_unit(_points(points)))
 
-    def albedo_uv(self, uv) -> np.ndarray:
-        return _smooth_colour(_latlong_dirs(np.asarray(uv, dtype=np.float64)))
+    def albedo_uv(self, uv, texture_size: int | None = None) -> np.ndarray:
+        """As :meth:`Sphere.albedo_uv`."""
+        h = int(texture_size or self.texture_size) // 2
+        return _smooth_colour(_latlong_dirs(np.asarray(uv, dtype=np.float64), h))
 
 
 # -------------------------------------------------------------------------------------------------- torus
@@ -311,7 +325,8 @@ class Torus:
     def albedo(self, points) -> np.ndarray:
         return self.albedo_uv(self.uv_of(points))
 
-    def albedo_uv(self, uv) -> np.ndarray:
+    def albedo_uv(self, uv, texture_size: int | None = None) -> np.ndarray:
+        """Checker colour at texture coordinates (N, 2) (independent of the texture size)."""
         uv = np.asarray(uv, dtype=np.float64)
         iu = np.floor(uv[:, 0] * self.checks).astype(np.int64)
         iv = np.floor(uv[:, 1] * (self.checks // 2)).astype(np.int64)

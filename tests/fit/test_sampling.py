@@ -1,0 +1,334 @@
+"""Sampling: area-uniform surface points, colours, signed distance and its sign, determinism, errors."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import stats
+
+from neural_bake.errors import MeshError
+from neural_bake.fit import sampling as S
+from neural_bake.fit.sampling import (
+    SurfaceSamples,
+    VolumeSamples,
+    inside_mask,
+    sample_near,
+    sample_surface,
+    sample_uniform,
+    signed_distance,
+    unsigned_distance,
+    winding_number,
+)
+from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.samples import SAMPLES
+from neural_bake.types import Mesh
+
+R = 0.9
+
+
+def _icosphere(subdivisions=3, radius=R) -> Mesh:
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return Mesh(np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64))
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return _icosphere(3)  # 1280 faces
+
+
+@pytest.fixture(scope="module")
+def textured_sphere():
+    s = SAMPLES["sphere"]
+    m = s.mesh(resolution=2048, texture_size=256)
+    mesh = mesh_from_arrays(m.vertices, m.faces, m.uv, m.texture)
+    return s, mesh
+
+
+@pytest.fixture(scope="module")
+def open_sphere(sphere):
+    c = sphere.triangles.mean(1)
+    keep = c[:, 2] < 0.8  # remove the cap above z = 0.8: a hole of radius ~0.4
+    return Mesh(sphere.vertices, sphere.faces[keep], watertight=False)
+
+
+def _gap(mesh: Mesh, radius=R) -> float:
+    """Largest distance between the sphere and the inscribed polyhedron (the faces' planes)."""
+    t = mesh.triangles
+    n = mesh.face_normals
+    return float(radius - np.abs((n * t[:, 0]).sum(1)).min())
+
+
+# ------------------------------------------------------------------------------------------- surface
+
+
+def test_surface_samples_lie_on_the_mesh_and_z_is_uniform_archimedes():
+    mesh = _icosphere(5)  # 20480 faces: the polyhedron's z density is uniform to ~1e-3
+    s = sample_surface(mesh, 20000, seed=3)
+    assert isinstance(s, SurfaceSamples) and len(s) == 20000
+    assert s.points.dtype == np.float32 and s.normals.dtype == np.float32 and s.face_index.dtype == np.int64
+    # every point lies in the plane of its face, inside the face
+    tri = mesh.triangles[s.face_index]
+    n = mesh.face_normals[s.face_index]
+    off = ((s.points.astype(np.float64) - tri[:, 0]) * n).sum(1)
+    assert np.abs(off).max() < 1e-6
+    r = np.linalg.norm(s.points, axis=1)
+    assert r.max() <= R + 1e-6 and r.min() >= R - _gap(mesh) - 1e-6
+    # Archimedes: the height of area-uniform points on a sphere is uniform
+    ks = stats.kstest(s.points[:, 2] / R, stats.uniform(-1, 2).cdf)
+    assert ks.pvalue > 1e-3
+    # and the azimuth too
+    ks = stats.kstest(np.arctan2(s.points[:, 1], s.points[:, 0]), stats.uniform(-math.pi, 2 * math.pi).cdf)
+    assert ks.pvalue > 1e-3
+
+
+def test_faces_are_drawn_by_area_and_points_uniform_inside():
+    # three triangles of areas 1 : 4 : 0.25 (a scaled copy of one triangle)
+    base = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    verts = np.concatenate([base * 0.5, base + [2, 0, 0], base * 0.25 + [5, 0, 0]])
+    faces = np.arange(9).reshape(3, 3)
+    mesh = Mesh(verts, faces, watertight=False)
+    n = 40000
+    s = sample_surface(mesh, n, seed=1)
+    counts = np.bincount(s.face_index, minlength=3)
+    area = mesh.face_areas
+    chi = stats.chisquare(counts, n * area / area.sum())
+    assert chi.pvalue > 1e-3
+    # inside one triangle: the 4 midpoint sub-triangles get a quarter each
+    sel = s.face_index == 1
+    p = s.points[sel].astype(np.float64) - [2, 0, 0]
+    x, y = p[:, 0], p[:, 1]
+    assert (x >= -1e-7).all() and (y >= -1e-7).all() and (x + y <= 1 + 1e-6).all()
+    quad = np.where(x > 0.5, 0, np.where(y > 0.5, 1, np.where(x + y < 0.5, 2, 3)))
+    chi = stats.chisquare(np.bincount(quad, minlength=4))
+    assert chi.pvalue > 1e-3
+
+
+def test_face_normals_are_the_faces_and_vertex_normals_are_smoother(sphere):
+    s = sample_surface(sphere, 5000, seed=2)
+    np.testing.assert_allclose(s.normals, sphere.face_normals[s.face_index], atol=1e-6)
+    sv = sample_surface(sphere, 5000, seed=2, normals="vertex")
+    np.testing.assert_array_equal(sv.points, s.points)  # same points, other normals
+    np.testing.assert_allclose(np.linalg.norm(sv.normals, axis=1), 1.0, atol=1e-6)
+    exact = s.points / np.linalg.norm(s.points, axis=1, keepdims=True)
+    err_face = 1 - (s.normals * exact).sum(1)
+    err_vertex = 1 - (sv.normals * exact).sum(1)
+    assert err_vertex.mean() < 0.2 * err_face.mean()
+    assert err_vertex.max() < 2e-3
+
+
+def test_colours_and_uv_match_the_analytic_texture(textured_sphere):
+    shape, mesh = textured_sphere
+    s = sample_surface(mesh, 4000, seed=5)
+    assert s.uv.dtype == np.float32 and s.colors.dtype == np.float32 and s.colors.shape == (4000, 3)
+    # the colour is the painted field at the interpolated uv (bilinear error of a smooth field only)
+    np.testing.assert_allclose(s.colors, shape.albedo_uv(s.uv, 256), atol=2e-3)
+    # and the field at the point itself, up to the tessellation's uv distortion
+    src = mesh.frame.to_source(s.points)
+    np.testing.assert_allclose(s.colors, shape.albedo(src), atol=0.05)
+    # the interpolated uv is the point's azimuth and polar angle (away from the seam and the poles)
+    az = (np.arctan2(src[:, 1], src[:, 0]) / (2 * math.pi)) % 1.0
+    ok = (np.abs(src[:, 2]) < 0.8 * R) & (az > 0.02) & (az < 0.98)
+    np.testing.assert_allclose(s.uv[ok, 0], az[ok], atol=5e-3)
+    theta = np.arccos(np.clip(src[:, 2] / np.linalg.norm(src, axis=1), -1, 1))
+    v = (0.5 + (1 - theta / math.pi) * 127) / 128
+    np.testing.assert_allclose(s.uv[:, 1], v, atol=5e-3)
+
+
+def test_no_uv_gives_none(sphere):
+    s = sample_surface(sphere, 10)
+    assert s.uv is None and s.colors is None
+
+
+def test_degenerate_faces_are_never_sampled(sphere):
+    v = np.concatenate([sphere.vertices, [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]])
+    nv = len(sphere.vertices)
+    extra = np.array([[nv, nv, nv + 1], [nv, nv + 1, nv + 1], [0, 0, 0]])  # zero area
+    faces = np.concatenate([extra, sphere.faces])
+    flagged = np.zeros(len(faces), bool)
+    flagged[3:13] = True  # flagged by the loader: excluded even though they have an area
+    mesh = Mesh(v, faces, degenerate=flagged)
+    s = sample_surface(mesh, 20000, seed=0)
+    assert s.face_index.min() >= 13
+    assert np.isfinite(s.normals).all() and np.abs(np.linalg.norm(s.normals, axis=1) - 1).max() < 1e-6
+
+
+def test_a_mesh_without_non_degenerate_faces_is_an_error():
+    v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]])
+    mesh = Mesh(v, np.array([[0, 1, 2], [0, 0, 1]]), source="flat.obj")
+    with pytest.raises(MeshError, match=r"flat.obj: no non-degenerate faces"):
+        sample_surface(mesh, 10)
+    with pytest.raises(MeshError, match="no non-degenerate faces"):
+        signed_distance(mesh, np.zeros((3, 3)))
+    with pytest.raises(MeshError, match="no non-degenerate faces"):
+        sample_uniform(mesh, 3)
+
+
+def test_bad_arguments(sphere):
+    with pytest.raises(ValueError, match="n must be a non-negative integer"):
+        sample_surface(sphere, -1)
+    with pytest.raises(ValueError, match="n must be a non-negative integer"):
+        sample_near(sphere, 2.5)
+    with pytest.raises(ValueError, match="normals must be 'face' or 'vertex'"):
+        sample_surface(sphere, 3, normals="smooth")
+    with pytest.raises(ValueError, match="sigma must be positive"):
+        sample_near(sphere, 3, sigma=0.0)
+    with pytest.raises(ValueError, match="sigma must be positive"):
+        sample_near(sphere, 3, sigma=[0.01, -1])
+    with pytest.raises(ValueError, match="non-empty sequence"):
+        sample_near(sphere, 3, sigma=[])
+    with pytest.raises(ValueError, match="bound must be positive"):
+        sample_uniform(sphere, 3, bound=0)
+    with pytest.raises(ValueError, match="sign must be one of"):
+        signed_distance(sphere, np.zeros((1, 3)), sign="parity")
+    with pytest.raises(ValueError, match="method must be one of"):
+        inside_mask(sphere, np.zeros((1, 3)), method="parity")
+    with pytest.raises(ValueError, match=r"points must be \(N, 3\), got shape \(4,\)"):
+        signed_distance(sphere, np.zeros(4))
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        signed_distance(sphere, np.array([[0.0, np.nan, 0.0]]))
+
+
+def test_zero_samples(sphere):
+    assert len(sample_surface(sphere, 0)) == 0
+    assert len(sample_near(sphere, 0)) == 0 and len(sample_uniform(sphere, 0)) == 0
+    assert signed_distance(sphere, np.zeros((0, 3))).shape == (0,)
+
+
+# ------------------------------------------------------------------------------------------- determinism
+
+
+def test_same_seed_same_arrays_other_seed_other_arrays(textured_sphere):
+    _, mesh = textured_sphere
+    a, b, c = (sample_surface(mesh, 500, seed=s) for s in (7, 7, 8))
+    for name in ("points", "normals", "uv", "colors", "face_index"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(a.points, c.points)
+    n1, n2, n3 = (sample_near(mesh, 300, seed=s, sigma=(0.01, 0.05)) for s in (7, 7, 8))
+    np.testing.assert_array_equal(n1.points, n2.points)
+    np.testing.assert_array_equal(n1.sdf, n2.sdf)
+    assert not np.array_equal(n1.points, n3.points)
+    u1, u2, u3 = (sample_uniform(mesh, 300, seed=s) for s in (7, 7, 8))
+    np.testing.assert_array_equal(u1.points, u2.points)
+    np.testing.assert_array_equal(u1.sdf, u2.sdf)
+    assert not np.array_equal(u1.points, u3.points)
+
+
+# ------------------------------------------------------------------------------------------- volume
+
+
+def test_near_samples_mix_the_sigmas_in_equal_parts(sphere):
+    n = 6001
+    v = sample_near(sphere, n, sigma=(0.002, 0.05), seed=4)
+    assert isinstance(v, VolumeSamples) and v.points.dtype == np.float32 and v.sdf.dtype == np.float32
+    base = sample_surface(sphere, n, seed=4).points.astype(np.float64)
+    noise = v.points.astype(np.float64) - base
+    first, second = noise[:3001], noise[3001:]
+    assert abs(first.std() / 0.002 - 1) < 0.06
+    assert abs(second.std() / 0.05 - 1) < 0.06
+    np.testing.assert_allclose(noise.mean(0), 0, atol=3 * 0.05 / math.sqrt(3000))
+    # the signed distance is the mesh's, i.e. the sphere's within the tessellation gap
+    np.testing.assert_allclose(v.sdf, np.linalg.norm(v.points, axis=1) - R, atol=_gap(sphere) + 1e-5)
+
+
+def test_uniform_samples_fill_the_cube(sphere):
+    v = sample_uniform(sphere, 4000, seed=1, bound=1.5)
+    assert np.abs(v.points).max() <= 1.5 and np.abs(v.points).max() > 1.45
+    for axis in range(3):
+        assert stats.kstest(v.points[:, axis], stats.uniform(-1.5, 3).cdf).pvalue > 1e-3
+    np.testing.assert_allclose(v.sdf, np.linalg.norm(v.points, axis=1) - R, atol=_gap(sphere) + 1e-5)
+
+
+# ------------------------------------------------------------------------------------------- distance
+
+
+@pytest.mark.parametrize("sign", ["auto", "raycast", "winding", "winding_exact"])
+def test_signed_distance_equals_the_distance_to_the_mesh_and_the_sphere(sphere, rng, sign):
+    p = rng.uniform(-1.2, 1.2, (300, 3))
+    d = signed_distance(sphere, p, sign=sign)
+    assert d.dtype == np.float64
+    # reference: brute-force point-triangle distance (trimesh), float64
+    tri = sphere.triangles
+    ref = np.full(len(p), np.inf)
+    for i, q in enumerate(p):
+        cp = trimesh.triangles.closest_point(tri, np.repeat(q[None], len(tri), 0))
+        ref[i] = np.linalg.norm(cp - q, axis=1).min()
+    np.testing.assert_allclose(np.abs(d), ref, atol=2e-6)
+    analytic = np.linalg.norm(p, axis=1) - R
+    clear = np.abs(analytic) > _gap(sphere)
+    np.testing.assert_array_equal(np.sign(d[clear]), np.sign(analytic[clear]))
+    # the mesh is the inscribed polyhedron: its distance differs from the sphere's by at most the gap
+    np.testing.assert_allclose(d, analytic, atol=_gap(sphere) + 1e-6)
+
+
+def test_signed_distance_to_a_fine_sphere_is_the_analytic_sdf_to_1e4(rng):
+    mesh = _icosphere(6)  # 81920 faces: tessellation gap < 1e-4
+    gap = _gap(mesh)
+    assert gap < 1e-4
+    p = rng.uniform(-1, 1, (2000, 3))
+    np.testing.assert_allclose(signed_distance(mesh, p), np.linalg.norm(p, axis=1) - R, atol=1e-4)
+
+
+def test_surface_points_have_zero_distance(sphere):
+    s = sample_surface(sphere, 500, seed=9)
+    assert np.abs(unsigned_distance(sphere, s.points)).max() < 1e-6
+
+
+@pytest.mark.parametrize("sign", ["auto", "winding", "winding_exact"])
+def test_signs_are_right_on_an_open_mesh(open_sphere, rng, sign):
+    p = rng.uniform(-1.3, 1.3, (3000, 3))
+    r = np.linalg.norm(p, axis=1)
+    d = signed_distance(open_sphere, p, sign=sign)
+    assert (d[r < 0.6] < 0).all()
+    assert (d[r > 1.0] > 0).all()
+    assert (r < 0.6).sum() > 100 and (r > 1.0).sum() > 1000
+
+
+def test_raycast_is_what_auto_uses_on_closed_meshes(sphere, rng):
+    p = rng.uniform(-1, 1, (1000, 3))
+    np.testing.assert_array_equal(inside_mask(sphere, p), inside_mask(sphere, p, method="raycast"))
+    np.testing.assert_array_equal(inside_mask(sphere, p), inside_mask(sphere, p, method="winding"))
+
+
+# ------------------------------------------------------------------------------------------- winding
+
+
+def test_solid_angle_of_an_octant_is_pi_over_2():
+    import torch
+
+    tri = torch.tensor([[[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]], dtype=torch.float64)
+    origin = torch.zeros(1, 3, dtype=torch.float64)
+    np.testing.assert_allclose(S._solid_angles(origin, tri).numpy(), [[math.pi / 2]], rtol=1e-12)
+    # the other winding is seen from the front: negative
+    np.testing.assert_allclose(S._solid_angles(origin, tri.flip(1)).numpy(), [[-math.pi / 2]], rtol=1e-12)
+    # float32 agrees
+    np.testing.assert_allclose(S._solid_angles(origin.float(), tri.float()).numpy(), [[math.pi / 2]], rtol=1e-6)
+
+
+def test_winding_number_is_one_inside_zero_outside(sphere, rng):
+    p = rng.uniform(-1.3, 1.3, (400, 3))
+    r = np.linalg.norm(p, axis=1)
+    clear = np.abs(r - R) > 0.05
+    w = winding_number(sphere, p[clear], exact=True)
+    np.testing.assert_allclose(w, (r[clear] < R).astype(float), atol=1e-9)
+
+
+def test_fast_winding_number_agrees_with_the_exact_sum(open_sphere, rng):
+    p = np.concatenate([rng.uniform(-1.3, 1.3, (1500, 3)), sample_near(open_sphere, 500, sigma=0.01, seed=2).points])
+    exact = winding_number(open_sphere, p, exact=True)
+    fast = winding_number(open_sphere, p)
+    np.testing.assert_array_equal(fast > 0.5, exact > 0.5)
+    assert np.abs(fast - exact).max() < 0.05
+    # the accelerated path really ran (mesh larger than the exact-only threshold)
+    assert open_sphere.n_faces > 4 * S.CLUSTER_SIZE
+    assert np.abs(S._fast_winding(__import__("torch").from_numpy(p), open_sphere.triangles).numpy() - exact).max() < 0.1
+
+
+def test_flipped_winding_flips_the_winding_number(sphere, rng):
+    flipped = Mesh(sphere.vertices, sphere.faces[:, ::-1].copy(), watertight=False)
+    p = rng.uniform(-1, 1, (500, 3))
+    w = winding_number(sphere, p)
+    np.testing.assert_allclose(winding_number(flipped, p), -w, atol=1e-9)
+    # an inward-wound mesh has w = -1 inside: nothing is inside it
+    inside = np.linalg.norm(p, axis=1) < R - 0.05
+    assert inside.sum() > 100 and (signed_distance(flipped, p[inside], sign="winding") > 0).all()
