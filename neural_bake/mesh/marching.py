@@ -221,8 +221,15 @@ def march(
             f" (values in [{vmin:.4g}, {vmax:.4g}])"
         )
     h = 2.0 * bound / resolution
+    # pruned: march only the cells of unknown boxes (mask); the others hold no crossing by construction
     verts, faces, _, _ = marching_cubes(
-        vol, level=level, spacing=(h, h, h), gradient_direction="descent", method="lewiner", allow_degenerate=False
+        vol,
+        level=level,
+        spacing=(h, h, h),
+        gradient_direction="descent",
+        method="lewiner",
+        allow_degenerate=False,
+        mask=need if pruned else None,
     )
     verts = verts.astype(np.float64) - bound
     faces = faces.astype(np.int64)
