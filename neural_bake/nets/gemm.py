@@ -29,15 +29,23 @@ import torch
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
 
-__all__ = ["gemm_gradient", "normalized_gradient", "GEMM_CHUNK", "MODES"]
+__all__ = ["gemm_gradient", "normalized_gradient", "default_chunk_size", "GEMM_CHUNK_ELEMENTS", "MODES"]
 
 #: The evaluation orders of :func:`gemm_gradient`.
 MODES = ("reverse", "forward")
 
-#: Points per chunk of the no-grad path, per mode (chosen by measurement on a 2-core CPU for (64, 1) to
-#: (256, 3) networks; see the chunk sweep of `neural-bake bench normals`). A chunk of a few thousand points
-#: keeps the (chunk, W) activation and cos buffers within the caches.
-GEMM_CHUNK = {"reverse": 4096, "forward": 2048}
+#: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^22 elements
+#: (16 MB in float32), i.e. 16,384 points of a (256, D) scalar SDF in reverse mode and 5,461 in forward
+#: mode (3 streams). Chosen by measurement (the chunk sweep of `neural-bake bench normals`): on a shared
+#: 2-core CPU small chunks lose to per-call thread synchronisation, and beyond this size the time is flat
+#: while memory grows (reverse mode keeps D + 1 cos buffers of this size).
+GEMM_CHUNK_ELEMENTS = 1 << 22
+
+
+def default_chunk_size(mode: str, width: int, in_dim: int = 3, out_dim: int = 1) -> int:
+    """Points per chunk that :func:`gemm_gradient` uses when ``chunk_size`` is None (at least 256)."""
+    streams = out_dim if mode == "reverse" else in_dim
+    return max(256, GEMM_CHUNK_ELEMENTS // (int(width) * int(streams)))
 
 
 def gemm_gradient(
@@ -59,7 +67,7 @@ def gemm_gradient(
         mode: ``"reverse"`` (default; fewest FLOPs for a scalar field) or ``"forward"`` (Algorithm 2).
         differentiable: keep the autograd graph so a loss on the gradients backpropagates to the weights
             (and to ``points`` if it requires grad). No chunking. Default False: no graph, chunked.
-        chunk_size: points per chunk of the no-grad path (default :data:`GEMM_CHUNK` of the mode); ignored
+        chunk_size: points per chunk of the no-grad path (default :func:`default_chunk_size`); ignored
             when ``differentiable``.
 
     Returns:
@@ -90,7 +98,9 @@ def gemm_gradient(
     else:
         with torch.no_grad():
             layers = model.affine_layers(dtype=dtype, device=device)
-            chunk = int(chunk_size) if chunk_size is not None else GEMM_CHUNK[mode]
+            chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
+                mode, layers[0][0].shape[0], in_dim, out_dim
+            )
             values, grads = (_reverse_chunked if mode == "reverse" else _forward_chunked)(layers, points, chunk)
     if out_dim == 1:
         grads = grads.reshape(points.shape[0], in_dim)

@@ -10,10 +10,13 @@ from torch import nn
 from ..constants import DEFAULT_OMEGA_0
 from ..errors import NeuralBakeError
 
-__all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK"]
+__all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK_ELEMENTS"]
 
-#: Points per chunk of the inference forward pass (chosen by measurement: `neural-bake bench normals`).
-FORWARD_CHUNK = 4096
+#: Size (points × width) of a chunk of the inference forward pass: 2^22, i.e. 16,384 points of a width-256
+#: network (a 16 MB float32 buffer). Chosen by measurement (the chunk sweep of `neural-bake bench normals`):
+#: on a shared 2-core CPU, small chunks lose to thread synchronisation per call; beyond this size the
+#: time is flat while the memory grows.
+FORWARD_CHUNK_ELEMENTS = 1 << 22
 
 
 class Siren(nn.Module):
@@ -132,7 +135,7 @@ def siren_forward_inference(
     """A SIREN's values without autograd: ``layers`` from :meth:`Siren.affine_layers` (ω folded in).
 
     ``x``: (N, in_dim) tensor; returns (N, out_dim) of the same dtype and device. Works chunk by chunk of
-    ``chunk_size`` points (default :data:`FORWARD_CHUNK`) with two reused activation buffers: ``addmm`` into
+    ``chunk_size`` points (default :data:`FORWARD_CHUNK_ELEMENTS` ÷ width) with two reused activation buffers: ``addmm`` into
     a buffer, then ``sin_`` in place, so no temporary is allocated per layer. Call under ``torch.no_grad()``.
     """
     n = x.shape[0]
@@ -140,9 +143,9 @@ def siren_forward_inference(
     out = x.new_empty((n, w_last.shape[0]))
     if n == 0:
         return out
-    chunk = max(1, int(chunk_size or FORWARD_CHUNK))
-    c0 = min(chunk, n)
     width = layers[0][0].shape[0]
+    chunk = max(1, int(chunk_size or max(256, FORWARD_CHUNK_ELEMENTS // width)))
+    c0 = min(chunk, n)
     bufs = [x.new_empty((c0, width)), x.new_empty((c0, width))]
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
