@@ -17,3 +17,7 @@ DEFAULT_OMEGA_0 = 30.0
 
 #: UV policies for coordinates outside [0, 1].
 UV_POLICIES = ("wrap", "clamp")
+
+#: Vertices closer than this (unit frame) are welded on load: the splits that OBJ ``v/vt`` pairs and glTF
+#: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
+MERGE_DISTANCE = 1e-9

@@ -25,19 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import DEGENERATE_AREA, UV_POLICIES
+from ..constants import DEGENERATE_AREA, MERGE_DISTANCE, UV_POLICIES
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Frame, Mesh
 from .atomic import atomic_path, atomic_write_bytes, atomic_write_text
 
-__all__ = ["load_mesh", "mesh_from_arrays", "save_mesh", "MESH_FORMATS", "SAVE_FORMATS", "MERGE_DISTANCE"]
+__all__ = ["load_mesh", "mesh_from_arrays", "save_mesh", "MESH_FORMATS", "SAVE_FORMATS"]
 
 #: Extensions :func:`load_mesh` reads (any case).
 MESH_FORMATS = (".obj", ".ply", ".glb", ".gltf")
 #: Extensions :func:`save_mesh` writes.
 SAVE_FORMATS = (".obj", ".ply", ".glb")
-#: Vertices closer than this (unit frame) are one vertex (welding of UV-seam splits).
-MERGE_DISTANCE = 1e-9
 
 #: Start of the warning issued when a closed mesh was wound inward and flipped (inspect looks for it).
 INWARD_FLIPPED = "faces were wound inward"
