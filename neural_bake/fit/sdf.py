@@ -111,10 +111,13 @@ class SdfFitConfig:
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
-#: Architecture presets ``"WxD"``. Measured on the project's shared 2-core CPU (noisy: other jobs ran),
-#: one training step at the default batch (4096 surface + 4096 near + 1024 uniform points, ∇f on all):
-#: (64, 1) ≈ 0.03 s, (128, 2) ≈ 0.09 s, (256, 2) ≈ 0.25 s, (256, 3) ≈ 0.35 s — i.e. in a 2-minute budget
-#: (64, 1) does ~4000 steps and in 10 minutes (256, 3) ~1700 steps. See ``neural-bake bench fit``.
+#: Architecture presets ``"WxD"`` with their time budgets (minutes; the step cap is only a safety net).
+#: Measured cost of one training step at the default batch (4096 surface + 4096 near + 1024 uniform points,
+#: ∇f on all 9216), CPU time on ONE thread of this project's Xeon (process time, best of 3, because the
+#: 2-core machine was shared with ~8 other jobs at load 10 and wall times were meaningless):
+#: (64, 1) 0.033 s and (256, 3) 0.42 s per step, the same as double-backward autograd (0.035 s, 0.43 s).
+#: So a 2-minute (64, 1) budget gives about 3,000–3,600 steps and a 10-minute (256, 3) budget about
+#: 1,400 steps on an idle machine (more with 2 threads). ``neural-bake bench fit`` measures both in one run.
 PRESETS: dict[str, dict] = {
     "64x1": {"width": 64, "depth": 1, "lr": 5e-4, "minutes": 2.0, "steps": 100_000},
     "128x2": {"width": 128, "depth": 2, "lr": 2e-4, "minutes": 5.0, "steps": 100_000},

@@ -158,3 +158,34 @@ def test_cli_fit_sdf_errors(tmp_path, capsys):
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "nodir" / "x.sdf")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--preset", "1x1"]) == 2
+
+
+def test_bench_step_timing_parts():
+    from neural_bake.bench.fit import step_timing
+
+    roof = {"gflops_sgemm": 50.0, "gsin_per_s": 0.2, "gmul_per_s": 1.0}
+    r = step_timing(16, 1, batch=64, batch_near=64, batch_uniform=16, roof=roof, repeat=1)
+    assert r["network"] == "16x1" and r["points"] == 144
+    assert r["ours_s"] > 0 and r["autograd_2x_backward_s"] > 0 and r["roofline_s"] > 0
+    assert r["speedup_vs_autograd"] == pytest.approx(r["autograd_2x_backward_s"] / r["ours_s"])
+    assert r["fraction_of_roofline"] == pytest.approx(r["roofline_s"] / r["ours_s"])
+
+
+def test_bench_baseline_loss_equals_ours():
+    # the benchmark's double-backward baseline computes exactly our loss (so the timing compares like with like)
+    from neural_bake.bench.fit import _autograd_terms
+    from neural_bake.fit.sdf import sdf_loss_terms
+    from neural_bake.nets.siren import Siren
+
+    g = torch.Generator().manual_seed(0)
+    model = Siren(16, 1, generator=g).double()
+    sp, vp = torch.rand(50, 3, generator=g, dtype=torch.float64), torch.rand(30, 3, generator=g, dtype=torch.float64)
+    sn = torch.nn.functional.normalize(torch.randn(50, 3, generator=g, dtype=torch.float64), dim=1)
+    vd = torch.rand(30, generator=g, dtype=torch.float64)
+    cfg = SdfFitConfig()
+    ours = sdf_loss_terms(model, sp, sn, vp, vd, cfg)["loss"]
+    ref = _autograd_terms(model, sp, sn, vp, vd, cfg)["loss"]
+    assert float(ours) == pytest.approx(float(ref), rel=1e-10)
+    (g1,) = torch.autograd.grad(ours, model.layers[1].weight)
+    (g2,) = torch.autograd.grad(ref, model.layers[1].weight)
+    assert torch.allclose(g1, g2, rtol=1e-8, atol=1e-10)

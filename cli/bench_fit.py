@@ -1,0 +1,31 @@
+"""`neural-bake bench fit [--quick]`: SDF accuracy vs training time per preset; training-step cost."""
+
+from __future__ import annotations
+
+import click
+
+from .bench import bench_options, report
+
+__all__ = ["command"]
+
+
+@click.command()
+@bench_options
+@click.option("--mesh", "meshes", multiple=True,
+              help="Meshes: bumpy_sphere, torus, jack, sphere, spot, bunny (repeatable; default: see --help of "
+                   "the module; quick: bumpy_sphere).")
+@click.option("--preset", "presets", multiple=True, type=click.Choice(["64x1", "128x2", "256x2", "256x3"]),
+              help="Presets to run (repeatable; default all, quick 64x1 and 256x3).")
+@click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit.")
+def command(quick, json_path, meshes, presets, minutes, seed):
+    """SDF fitting: Chamfer/Hausdorff/normal error against training time; step vs autograd and roofline.
+
+    The full run fits every preset at its budget (2/5/8/10 min) on bumpy_sphere, torus, jack, spot and bunny:
+    about two hours. --quick: bumpy_sphere, 64x1 for 30 s and 256x3 for 20 s (< 2 minutes).
+    """
+    from neural_bake.bench.fit import run
+
+    result = run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, minutes=minutes,
+                 seed=seed)
+    report(result, json_path)
