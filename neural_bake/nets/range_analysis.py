@@ -175,59 +175,71 @@ def interval_sin(center: torch.Tensor, radius: torch.Tensor) -> tuple[torch.Tens
 def _abs_sum(t: torch.Tensor, dim: int, u: float) -> torch.Tensor:
     """Σ|t| along ``dim``, inflated to cover the rounding of the sum (an upper bound)."""
     n = t.shape[dim]
-    return t.abs().sum(dim) * (1.0 + 2.0 * (n + 1) * u)
-
-
-def _linear(w, b, x0, X, xinf, u):
-    """Table 2 matrix multiplication + constant addition, with Higham's rounding allowance put into ε_∞."""
-    n = w.shape[1]
-    wa = w.abs()
-    bsz, nsym, m = X.shape
-    z0 = torch.addmm(b, x0, w.t())
-    Z = (X.reshape(-1, m) @ w.t()).reshape(bsz, nsym, w.shape[0])
-    mag = x0.abs() + xinf + (_abs_sum(X, 1, u) if nsym else 0.0)
-    zinf = xinf @ wa.t() + 2.0 * (n + 2) * u * (mag @ wa.t() + b.abs())
-    return z0, Z, zinf
+    if n == 0:
+        return t.new_zeros(t.shape[:dim] + t.shape[dim + 1:])
+    # vector_norm is fused (no |t| temporary) but slow along a leading, strided dimension
+    total = torch.linalg.vector_norm(t, 1, dim=dim) if dim in (-1, t.dim() - 1) else t.abs().sum(dim)
+    return total * (1.0 + 2.0 * (n + 1) * u)
 
 
 def _propagate(layers, x0, X, xinf, method: str, keep: int, n_in: int, u: float):
-    """Push the affine form (x0 (B, d), X (B, n_in, d), xinf (B, d)) through the network.
+    """Push an affine form through the network (Table 2 for linear layers, Table 3 for ``sin``).
 
-    Returns (z0 (B,), Z_in (B, n_in), rest (B,), n_sym): the output's centre, the coefficients of the input
-    symbols, and an upper bound of Σ|other coefficients| + z_∞ (the part that is not shared with anything).
+    The form is ``x0`` (B, d) + Σ_i ``X[i]`` ε_i + ``xinf`` (B, d) ⊙ ε_∞ with ``X`` (N, B, d): symbol-major, so a
+    linear layer is one (N·B, m) × (m, o) GEMM written straight into a buffer that already has room for the
+    layer's new symbols (no concatenation). The first ``n_in`` symbols are the input ones.
+
+    Returns ``(z0 (B,), z_in (B, n_in), rest (B,), n_sym)``: the output's centre, the coefficients of the input
+    symbols, and an upper bound of Σ|other coefficients| + z_∞ (the part shared with nothing).
     """
     last = len(layers) - 1
+    keep_new = method in ("affine-full", "affine-truncate")
+    xabs = _abs_sum(X, 0, u)  # upper bound of Σ_i |X[i]|, (B, d)
     for i, (w, b) in enumerate(layers):
-        x0, X, xinf = _linear(w, b, x0, X, xinf, u)
+        nsym, bsz, m = X.shape
+        o = w.shape[0]
+        extra = o if keep_new and i < last else 0
+        buf = X.new_empty((nsym + extra, bsz, o))
+        if nsym:
+            torch.mm(X.reshape(nsym * bsz, m), w.t(), out=buf[:nsym].view(nsym * bsz, o))
+        wa = w.abs()
+        z0 = torch.addmm(b, x0, w.t())
+        # Higham: every computed dot product is within γ_{m+1} Σ|terms| of the exact one; the terms are bounded
+        # by |W| (|x0| + Σ|X| + x_∞) + |b|. The new error joins ε_∞ (with the carried |W| x_∞, Table 2).
+        zinf = xinf @ wa.t() + 2.0 * (m + 2) * u * ((x0.abs() + xabs + xinf) @ wa.t() + b.abs())
+        X, x0, xinf = buf, z0, zinf
         if i == last:
             break
+        Z = buf[:nsym]
         if method == "interval":
-            x0, xinf = interval_sin(x0, xinf)
+            x0, xinf = interval_sin(z0, zinf)
+            xabs = torch.zeros_like(x0)
             continue
-        r = xinf + (_abs_sum(X, 1, u) if X.shape[1] else 0.0)
-        mid, alpha, gamma = affine_sin(x0, r)
-        x0 = mid
-        X = X * alpha[:, None, :]
-        xinf = alpha.abs() * xinf
-        if method == "affine-fixed":
+        zabs = _abs_sum(Z, 0, u)
+        mid, alpha, gamma = affine_sin(z0, zinf + zabs)
+        Z.mul_(alpha)
+        a = alpha.abs()
+        x0, xinf, xabs = mid, a * zinf, a * zabs * (1.0 + 2.0 * u)
+        if not keep_new:  # affine-fixed: condense the new error into ε_∞ at once
             xinf = xinf + gamma
-        else:
-            X = torch.cat([X, torch.diag_embed(gamma)], dim=1)
-            if method == "affine-truncate" and X.shape[1] - n_in > keep:
-                new = X[:, n_in:]
-                mags = new.abs().sum(-1)  # (B, n_new)
-                idx = torch.topk(mags, keep, dim=1, sorted=False).indices
-                drop = torch.ones_like(mags, dtype=torch.bool).scatter_(1, idx, False)
-                dropped = (new.abs() * drop[..., None]).sum(1) * (1.0 + 2.0 * (new.shape[1] + 1) * u)
-                kept = torch.gather(new, 1, idx[..., None].expand(-1, -1, new.shape[2]))
-                X = torch.cat([X[:, :n_in], kept], dim=1)
-                xinf = xinf + dropped
+            continue
+        new_block = buf[nsym:]  # (o, B, o): one fresh symbol per neuron, coefficient γ on its own neuron
+        new_block.zero_()
+        new_block.diagonal(dim1=0, dim2=2).copy_(gamma)
+        xabs = xabs + gamma
+        n_new = X.shape[0] - n_in
+        if method == "affine-truncate" and n_new > keep:
+            new = X[n_in:]
+            mags = torch.linalg.vector_norm(new, 1, dim=2)  # (n_new, B): size of each symbol's contribution
+            idx = torch.topk(mags, keep, dim=0, sorted=False).indices
+            drop = torch.ones_like(mags, dtype=torch.bool).scatter_(0, idx, False)
+            xinf = xinf + _abs_sum(new * drop[..., None], 0, u)
+            kept = torch.gather(new, 0, idx[..., None].expand(-1, -1, o))
+            X = torch.cat([X[:n_in], kept], dim=0)
     z0 = x0[:, 0]
-    Z = X[..., 0]
-    rest = xinf[:, 0]
-    if Z.shape[1] > n_in:
-        rest = rest + _abs_sum(Z[:, n_in:], 1, u)
-    return z0, Z[:, :n_in], rest, Z.shape[1]
+    z_in = X[:n_in, :, 0].t()
+    rest = xinf[:, 0] + _abs_sum(X[n_in:, :, 0], 0, u)
+    return z0, z_in, rest, X.shape[0]
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -283,12 +295,15 @@ def _input_form(center: torch.Tensor, axes: torch.Tensor, u_in: float, cdtype: t
     c = center.to(cdtype)
     v = axes.to(cdtype)
     s = v.shape[1]
-    rho = (s + 1) * u_in * (c.abs() + v.abs().sum(1)) * (1.0 + 1e-6)  # input-point rounding, per coordinate
+    # rounding of sample points computed in the input precision, per coordinate; plus, when the arithmetic is
+    # less precise than the input, the rounding of this conversion of c and v
+    u_c = _unit_roundoff(cdtype)
+    rel = (s + 1) * u_in + (2.0 * (s + 1) * u_c if u_c > u_in else 0.0)
+    rho = rel * (c.abs() + v.abs().sum(1)) * (1.0 + 1e-6)
     if method == "interval":
-        u = _unit_roundoff(cdtype)
-        rad = _abs_sum(v, 1, u) + rho if s else rho
-        return c, c.new_zeros((c.shape[0], 0, c.shape[1])), rad
-    X = torch.cat([v, torch.diag_embed(rho)], dim=1)
+        rad = _abs_sum(v, 1, u_c) + rho
+        return c, c.new_zeros((0, c.shape[0], c.shape[1])), rad
+    X = torch.cat([v.transpose(0, 1), torch.diag_embed(rho).permute(1, 0, 2)], dim=0)  # (s + d, B, d)
     return c, X, torch.zeros_like(c)
 
 
@@ -312,8 +327,8 @@ def _eval_allowance(layers_list, in_dtype, param_dtypes, cdtype) -> float:
     u_eval = max(_unit_roundoff(dt) for dt in [in_dtype, *param_dtypes])
     if u_eval <= _unit_roundoff(cdtype):
         return 0.0
-    n_hidden = max(len(layers) - 1 for layers in layers_list)
-    return 8.0 * (n_hidden + 2) * u_eval
+    depth = max(len(layers) - 2 for layers in layers_list)  # D: hidden W×W matrices
+    return 8.0 * (depth + 2) * u_eval
 
 
 def _round_out(lo: torch.Tensor, hi: torch.Tensor, dtype: torch.dtype):
