@@ -71,7 +71,9 @@ def clean_mesh(
     unreferenced_vertices_removed, edges, boundary_edges, non_manifold_edges, inconsistent_edges, watertight``.
     """
     if min_component_faces is not None and (int(min_component_faces) != min_component_faces or min_component_faces < 0):
-        raise NeuralBakeError(f"clean_mesh: min_component_faces must be a non-negative integer, got {min_component_faces!r}")
+        raise NeuralBakeError(
+            f"clean_mesh: min_component_faces must be a non-negative integer, got {min_component_faces!r}"
+        )
     if not (np.isfinite(min_component_fraction) and 0 <= min_component_fraction <= 1):
         raise NeuralBakeError(f"clean_mesh: min_component_fraction must be in [0, 1], got {min_component_fraction!r}")
     if not (np.isfinite(merge_tolerance) and merge_tolerance >= 0):
