@@ -633,16 +633,22 @@ def _pil_to_linear(img) -> np.ndarray:
     return arr
 
 
-def _ply_texture_name(p: Path) -> str | None:
-    """The ``comment TextureFile`` of a PLY header, if any."""
+def _ply_header(p: Path) -> dict:
+    """``{"texture": comment TextureFile or None, "faces": declared face count or None}`` of a PLY header."""
     with open(p, "rb") as fh:
         head = fh.read(65536)
     end = head.find(b"end_header")
+    out: dict = {"texture": None, "faces": None}
     for raw in head[: end if end >= 0 else len(head)].decode("latin-1").splitlines():
         tok = raw.strip().split(None, 2)
         if len(tok) == 3 and tok[0] == "comment" and tok[1] == "TextureFile":
-            return tok[2].strip()
-    return None
+            out["texture"] = tok[2].strip()
+        elif len(tok) == 3 and tok[0] == "element" and tok[1] == "face":
+            try:
+                out["faces"] = int(tok[2])
+            except ValueError:
+                pass
+    return out
 
 
 def _gltf_missing_images(p: Path) -> list[str]:
@@ -662,7 +668,8 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_text
     import trimesh
 
     kind = ext[1:].upper()
-    named_texture = _ply_texture_name(p) if ext == ".ply" else None
+    header = _ply_header(p) if ext == ".ply" else {"texture": None, "faces": None}
+    named_texture = header["texture"]
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -677,6 +684,9 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_text
         geoms = []
     geoms = [g for g in geoms if len(g.faces)]
     if not geoms:
+        if header["faces"]:
+            raise MeshError(f"{name}: unreadable PLY file (header declares {header['faces']} faces but none could "
+                            "be read; truncated?)")
         raise MeshError(f"{name}: empty mesh (no faces)")
     vs, fs, uvs, images = [], [], [], []
     offset = 0
