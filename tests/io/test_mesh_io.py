@@ -610,3 +610,12 @@ def test_first_of_equal_rows_matches_reference(seed, n):
     a = rng.integers(0, 3, (n, 3)).astype(np.float64)  # many repeats
     want = [next(j for j in range(n) if (a[j] == a[i]).all()) for i in range(n)]
     np.testing.assert_array_equal(_first_of_equal_rows(a), want)
+
+
+def test_truncated_glb(tmp_path):
+    v, f, uv, _ = painted_sphere()
+    save_mesh(mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture()), tmp_path / "a.glb")
+    data = (tmp_path / "a.glb").read_bytes()
+    (tmp_path / "t.glb").write_bytes(data[: len(data) * 9 // 10])
+    with pytest.raises(MeshError, match=r"t\.glb: unreadable GLB file \(.+\)"):
+        load_mesh(tmp_path / "t.glb")
