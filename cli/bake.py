@@ -68,8 +68,9 @@ def _sample_truth(path: str, mesh, choice: str):
               help="Texture model file (kind 'texture'): bakes the albedo map.")
 @click.option("--coarse", default="decimate:2000", show_default=True,
               help="Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep.")
-@click.option("--maps", "maps_spec", default="normal,albedo", show_default=True,
-              help="What to bake: normal, albedo (needs --texture-model), vertex (per-vertex GLB).")
+@click.option("--maps", "maps_spec", default=None,
+              help="What to bake, comma-separated: normal, albedo (needs --texture-model), vertex (per-vertex "
+                   "GLB). Default: normal,albedo with a texture model, else normal.")
 @click.option("--size", type=int, default=2048, show_default=True, help="Map side in texels.")
 @click.option("--texture", metavar="IMG", default=None,
               help="Base-colour image for a mesh whose file names none (ground truth of the report).")
@@ -103,6 +104,8 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
     from neural_bake.io.mesh_io import load_mesh
 
     t_start = time.perf_counter()
+    if maps_spec is None:
+        maps_spec = "normal,albedo" if tex_path else "normal"
     maps = _parse_maps(maps_spec)
     parse_coarse(coarse)
     if size < 1 or size > 16384:

@@ -1,0 +1,155 @@
+"""`neural-bake bake`: end to end on a small generated sphere with a tiny model; outputs, atomicity, errors."""
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.bake.baker import coarse_mesh, parse_coarse
+from neural_bake.bake.export import read_glb
+from neural_bake.cli.main import main
+from neural_bake.errors import NeuralBakeError
+from neural_bake.io.images import read_image
+from neural_bake.io.mesh_io import load_mesh
+from neural_bake.nets.model_io import save_model
+from neural_bake.nets.siren import Siren
+from neural_bake.samples.shapes import get_sample
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A small sphere OBJ (the 'sphere' sample, low resolution) and tiny untrained SDF/texture models."""
+    d = tmp_path_factory.mktemp("bake_cli")
+    from neural_bake.samples.generate import write_sample
+
+    sample = get_sample("sphere")
+    obj = write_sample(sample.mesh(resolution=400, texture_size=64), d, "sphere")
+    mesh = load_mesh(obj)
+    gen = torch.Generator().manual_seed(0)
+    sdf = save_model(Siren(16, 1, generator=gen), d / "s.sdf", kind="sdf", frame=mesh.frame.to_dict())
+    tex = save_model(Siren(16, 1, out_dim=3, generator=gen), d / "t.tex", kind="texture", frame=mesh.frame.to_dict())
+    return {"obj": str(obj), "sdf": str(sdf), "tex": str(tex), "dir": d}
+
+
+def run(args, capsys):
+    code = main(["bake", *args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--texture-model", files["tex"],
+                             "--coarse", "decimate:200", "--size", "64", "--maps", "normal,albedo,vertex",
+                             "--bits", "16", "--exr", "-o", str(out)], capsys)
+    assert code == 0, err
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb",
+                            "report.json", "error_normal.png", "error_baseline.png", "miss.png"])
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["truth"] == "analytic (sphere sample)"
+    assert rep["coarse"]["faces"] <= 220 and rep["bake"]["size"] == [64, 64]
+    assert rep["baseline"]["vs_truth_deg"]["median"] < 2.0  # the classical bake of a fine sphere is good
+    assert rep["vs_gradient_deg"]["max"] < 1.0  # the map holds ∇f of the (untrained) model
+    assert set(rep["files"]) == set(names)
+    nmap = read_image(out / "normal.png", colour="data")
+    exr = read_image(out / "normal.exr", colour="data")
+    assert nmap.shape == (64, 64, 3) and np.abs(nmap - exr).max() < 1e-4  # 16-bit PNG ~ float EXR
+    gltf, arr, images = read_glb(out / "asset.glb")
+    assert len(images) == 2 and {"TANGENT", "TEXCOORD_0"} <= set(arr)
+    assert "normal error vs truth" in stdout and "wrote" in stdout
+    scene = trimesh.load(out / "vertex.glb", process=False)
+    assert len(scene.geometry) == 1
+
+
+def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "32",
+                        "--maps", "normal", "--no-baseline", "-o", str(out)], capsys)
+    assert code == 0, err
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # a texture model passed as --sdf: refused before anything is written
+    code, _, err = run([files["obj"], "--sdf", files["tex"], "--size", "32", "-o", str(out)], capsys)
+    assert code == 2 and "model of kind 'texture', expected 'sdf'" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # a failure in the middle (march of a field without a surface) leaves no staging folder behind
+    model = Siren(4, 0, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():  # f = 1 everywhere: no surface to march
+        model.layers[-1].weight.zero_()
+        model.layers[-1].bias.fill_(1.0)
+    flat = save_model(model, tmp_path / "flat.sdf", kind="sdf", frame={"center": [0, 0, 0], "scale": 1.0})
+    code, _, err = run([files["obj"], "--sdf", str(flat), "--coarse", "march:8", "--size", "32", "-o", str(out)],
+                       capsys)
+    assert code == 2 and err.startswith("neural-bake: error:") and err.count("\n") == 1
+    assert not any(p.name.startswith(".bake-") for p in out.iterdir())
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--sdf", "missing.sdf"], "--sdf missing.sdf: no such model file"),
+        (["--coarse", "decimate:abc"], "--coarse 'decimate:abc': decimate needs a number"),
+        (["--coarse", "melt:3"], "--coarse 'melt:3': unknown kind 'melt'"),
+        (["--maps", "normal,height"], "--maps 'normal,height': unknown map 'height'"),
+        (["--maps", "albedo"], "--maps albedo needs --texture-model"),
+        (["--size", "0"], "--size 0: must be between 1 and 16384"),
+        (["--truth", "sample:cube"], "unknown sample 'cube'"),
+        (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
+    ],
+)
+def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
+    base = {"--sdf": files["sdf"], "--maps": "normal", "--size": "16", "--coarse": "keep", "--no-baseline": None}
+    argv = [files["obj"]]
+    given = {a for a in args if a.startswith("--")}
+    for k, v in base.items():
+        if k not in given:
+            argv += [k] if v is None else [k, v]
+    code, _, err = run(argv + args + ["-o", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert err.startswith("neural-bake: error:") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_missing_mesh_and_folder(files, tmp_path, capsys):
+    code, _, err = run([str(tmp_path / "nope.obj"), "--sdf", files["sdf"], "--maps", "normal", "-o",
+                        str(tmp_path / "o")], capsys)
+    assert code == 2 and "nope.obj: no such file" in err
+    code, _, err = run([files["obj"], "--sdf", files["sdf"], "-o", str(tmp_path / "a" / "b")], capsys)
+    assert code == 2 and "does not exist" in err
+
+
+def test_parse_coarse():
+    assert parse_coarse("decimate:2000") == ("decimate", 2000)
+    assert parse_coarse("decimate:0.25") == ("decimate", 0.25)
+    assert parse_coarse("march:64") == ("march", 64)
+    assert parse_coarse("keep") == ("keep", None)
+    with pytest.raises(NeuralBakeError, match="decimate needs a face count >= 4 or a ratio"):
+        parse_coarse("decimate:2")
+    with pytest.raises(NeuralBakeError, match=r"march needs a resolution in \[4, 1024\]"):
+        parse_coarse("march:2.5")
+    with pytest.raises(NeuralBakeError, match="keep takes no value"):
+        parse_coarse("keep:3")
+
+
+def test_coarse_march_and_keep(files):
+    mesh = load_mesh(files["obj"])
+    from neural_bake.bake.fields import SdfField
+
+    with pytest.raises(NeuralBakeError, match="march needs an SDF model"):
+        coarse_mesh(mesh, "march:16", SdfField(lambda p: p.norm(dim=1) - 0.5))
+    kept, info = coarse_mesh(mesh, "keep")
+    assert kept is mesh and info["faces"] == mesh.n_faces
+
+
+def test_console_script(files, tmp_path):
+    exe = Path(__file__).resolve().parents[1] / ".venv" / "bin" / "neural-bake"
+    if not exe.exists():
+        pytest.skip("console script not installed")
+    res = subprocess.run([str(exe), "bake", files["obj"], "--sdf", files["tex"], "-o", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "expected 'sdf'" in res.stderr and "Traceback" not in res.stderr
