@@ -404,3 +404,43 @@ def test_exported_from_package():
 
     assert neural_bake.range_bound is range_bound
     assert neural_bake.difference_bound is difference_bound
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the benchmark (`neural-bake bench range`), shrunken: one small model file
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_bench_range_cli_on_a_small_model(tmp_path, capsys):
+    import json
+
+    from neural_bake.cli.main import main
+    from neural_bake.nets.model_io import save_model
+
+    path = tmp_path / "small.sdf"
+    save_model(_siren(16, 1, 30.0), path)
+    out = tmp_path / "range.json"
+    assert main(["bench", "range", "--quick", "--model", str(path), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "affine-full" in text and "dense 512 pts" in text
+    result = json.loads(out.read_text())
+    assert result["name"] == "range" and result["quick"] is True
+    (rows,) = result["tables"].values()
+    assert [r["method"] for r in rows[:4]] == list(METHODS)
+    assert {r["region"] for r in rows} == {"1d segment", "3d box"}
+    for r in rows:
+        assert r["time ×fwd"] > 0 and r["µs/box"] > 0
+        if r["guarantee"] == "yes":  # a guaranteed bound is never narrower than the sampled range
+            assert all(r[f"w/true h={h:g}"] >= 1.0 for h in (1e-3, 1e-2, 1e-1, 1.0))
+        else:
+            assert all(0.5 < r[f"w/true h={h:g}"] <= 1.0 for h in (1e-3, 1e-2, 1e-1, 1.0))
+    # the small boxes are where affine arithmetic beats interval arithmetic
+    by = {(r["region"], r["method"]): r for r in rows}
+    assert by[("3d box", "affine-full")]["w/true h=0.001"] < by[("3d box", "interval")]["w/true h=0.001"]
+
+
+def test_bench_range_cli_reports_a_missing_model(tmp_path, capsys):
+    from neural_bake.cli.main import main
+
+    assert main(["bench", "range", "--quick", "--model", str(tmp_path / "nope.sdf")]) == 2
+    assert "nope.sdf" in capsys.readouterr().err
