@@ -114,7 +114,7 @@ class Siren(nn.Module):
         needs_graph = torch.is_grad_enabled() and (
             x.requires_grad or any(p.requires_grad for p in self.parameters())
         )
-        if not needs_graph and x.dim() == 2:
+        if not needs_graph and x.dim() == 2 and not _is_functorch_wrapped(x):
             with torch.no_grad():
                 layers = self.affine_layers(dtype=x.dtype, device=x.device)
                 return siren_forward_inference(layers, x)
@@ -127,6 +127,14 @@ class Siren(nn.Module):
 
     def extra_repr(self) -> str:
         return f"(W, D) = ({self.width}, {self.depth}), in={self.in_dim}, out={self.out_dim}, ω0={self.omega_0:g}"
+
+
+def _is_functorch_wrapped(x: torch.Tensor) -> bool:
+    """True inside torch.func transforms (vmap, grad, jacrev…), where out= and in-place buffers do not work."""
+    try:
+        return bool(torch._C._functorch.is_functorch_wrapped_tensor(x))
+    except AttributeError:  # pragma: no cover - older torch without the functorch C API
+        return False
 
 
 def siren_forward_inference(

@@ -89,3 +89,16 @@ def test_bad_arguments():
         Siren(8, 1, omega_0=math.nan)
     with pytest.raises(NeuralBakeError, match=r"Siren: expected points of shape \(N, 3\), got \(5, 2\)"):
         Siren(8, 1)(torch.zeros(5, 2))
+
+
+def test_works_inside_torch_func_transforms():
+    m = Siren(8, 1, generator=torch.Generator().manual_seed(2))
+    x = torch.rand(2, 5, 3)
+    with torch.no_grad():
+        expected = m(x.reshape(10, 3)).reshape(2, 5, 1)
+        torch.testing.assert_close(torch.func.vmap(m)(x), expected)
+    m.requires_grad_(False)
+    jac = torch.func.vmap(torch.func.jacrev(lambda p: m(p[None])[0]))(x[0])
+    xr = x[0].clone().requires_grad_(True)
+    (ref,) = torch.autograd.grad(m(xr).sum(), xr)
+    torch.testing.assert_close(jac[:, 0], ref)
