@@ -16,6 +16,7 @@ any problem is a one-line :class:`ModelFileError` naming the file.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -46,8 +47,8 @@ def save_model(model: Siren, path: str | os.PathLike, **metadata) -> Path:
         model: a :class:`Siren` on any device and dtype (tensors are stored as they are, moved to CPU).
         path: destination file; its folder must exist. An existing file is replaced only on success.
         **metadata: JSON-serialisable values (dicts, lists, str, numbers, bool, None); objects with a
-            ``to_dict()`` (e.g. :class:`~neural_bake.types.Frame`), numpy arrays and scalars and tensors are
-            converted. Non-finite floats are refused (JSON has no NaN).
+            ``to_dict()`` (e.g. :class:`~neural_bake.types.Frame`), dataclasses (training configs), numpy
+            arrays and scalars, tensors, tuples/sets and paths are converted. Non-finite floats are refused (JSON has no NaN).
 
     Returns:
         The path written.
@@ -215,6 +216,8 @@ def _expected_shapes(arch: dict) -> dict[str, tuple[int, ...]]:
 def _to_json(obj):
     if hasattr(obj, "to_dict"):
         return obj.to_dict()
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.asdict(obj)
     if isinstance(obj, torch.Tensor):
         return obj.detach().cpu().tolist()
     if hasattr(obj, "tolist"):  # numpy arrays and scalars

@@ -1,6 +1,8 @@
 """Model files: round trips, and one clear ModelFileError for every kind of bad file."""
 
+import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -206,3 +208,15 @@ def test_header_not_json(tmp_path):
     save_file(_siren().state_dict(), str(p), metadata={"format": MODEL_FORMAT, "neural_bake": "[1]"})
     with pytest.raises(ModelFileError, match=r"j.safetensors: corrupt model header \(not a JSON object\)"):
         load_model(p)
+
+
+@dataclasses.dataclass
+class _Config:
+    steps: int = 3
+    lr: float = 1e-4
+    out: Path = Path("a/b")
+
+
+def test_dataclass_and_path_metadata(tmp_path):
+    path = save_model(_siren(), tmp_path / "cfg.safetensors", config=_Config(), f32=np.float32(0.5))
+    assert load_model(path)[1] == {"config": {"steps": 3, "lr": 1e-4, "out": "a/b"}, "f32": 0.5}
