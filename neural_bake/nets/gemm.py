@@ -17,7 +17,8 @@ Two evaluation orders, both batched over points so that every product is one GEM
 
 Without ``differentiable`` the work runs under ``torch.no_grad()``, chunk by chunk of points with buffers
 reused across layers and chunks (``addmm``/``mm`` with ``out=``, ``sin``/``cos`` written in place), so the
-working set stays in cache. With ``differentiable=True`` the same formulas run on the autograd graph of the
+memory stays bounded whatever N and no fresh (page-faulting) allocation happens per layer; the chunk size
+(:func:`default_chunk_size`) was chosen by measurement. With ``differentiable=True`` the same formulas run on the autograd graph of the
 weights (no chunking, no in-place), so a loss on the gradients (eikonal, orthogonality) backpropagates to
 the weights with one ordinary backward pass — no double-backward.
 """

@@ -247,3 +247,12 @@ def test_high_omega_depth_four_float32_reverse_and_forward():
         _, g = gemm_gradient(model, x, mode, chunk_size=128)
         _assert_rel(g, j_ref[:, 0], 1e-5)
         assert math.isfinite(g.abs().max().item())
+
+
+def test_default_chunk_size():
+    from neural_bake.nets.gemm import GEMM_CHUNK_ELEMENTS, default_chunk_size
+
+    assert default_chunk_size("reverse", 256) == GEMM_CHUNK_ELEMENTS // 256
+    assert default_chunk_size("forward", 256, in_dim=3) == GEMM_CHUNK_ELEMENTS // 768
+    assert default_chunk_size("reverse", 64, out_dim=3) == GEMM_CHUNK_ELEMENTS // 192
+    assert default_chunk_size("reverse", 10**9) == 256
