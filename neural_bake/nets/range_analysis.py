@@ -10,15 +10,17 @@ Methods (names as in Sharp & Jacobson, "Spelunking the deep", §3.1–3.3 and Ta
 - ``"affine-fixed"``: affine arithmetic that keeps only the input noise symbols; every error a layer makes
   is condensed at once into the one distinguished symbol ε_∞ (the paper's x_∞). Cheap; the paper's choice
   for ray casting.
-- ``"affine-full"``: no condensation: every ``sin`` neuron adds a fresh symbol (s + W·(D+1) symbols at the
-  output). Tightest; the paper's choice for volumetric queries; cost grows with width × depth.
+- ``"affine-full"``: no condensation: every ``sin`` neuron adds a fresh symbol (s + d + W·(D+1) symbols at the
+  output, counting the d input-rounding symbols of item 2 below). Tightest; the paper's choice for volumetric queries; cost grows with width × depth.
 - ``"affine-truncate"``: after each ``sin`` layer keep the ``keep`` largest new symbols (L1 norm of their
   coefficients over the layer's neurons) and condense the rest into ε_∞. The input symbols are always kept
   (they are the ones :func:`difference_bound` shares between two networks).
 
+(Spelunking's "affine-append" variant, which its Table 1 found no better than fixed/full, is not provided.)
+
 Representation (App. A): a layer's values are ``x0 + Σ_i X_i ε_i + x_∞ ⊙ ε_∞`` with ``x0`` (B, m),
-``X`` (B, N, m) (symbol-major so that a linear layer is one GEMM) and ``x_∞`` (B, m) ≥ 0; the update rules are
-those of Table 2. The ``sin`` rule is Table 3's, written around the centre ``c`` of the pre-activation range
+``X`` (N, B, m) (symbol-major, so a linear layer is one GEMM written into a buffer that already has room for
+the layer's new symbols) and ``x_∞`` (B, m) ≥ 0; the update rules are those of Table 2. The ``sin`` rule is Table 3's, written around the centre ``c`` of the pre-activation range
 ``[c - r, c + r]`` to stay accurate for tiny ``r``: with ``α = (min cos + max cos) / 2`` over the range and
 ``h(t) = sin(c + t) - sin(c) - α t = 2 cos(c + t/2) sin(t/2) - α t``, the extremes of ``h`` on ``[-r, r]`` are
 at the ends or where ``cos(c + t) = α`` (found by modular arithmetic), giving
@@ -28,21 +30,25 @@ approximation is the constant 0 with error 1 (|sin| <= 1).
 Floating point (documented allowance; the paper ignores rounding):
 
 1. The arithmetic runs in float64 (``compute_dtype``; float32 on devices without float64), whatever the
-   input dtype, so that its own rounding is negligible; every rounding it does is still covered by
+   input dtype, so that its own rounding is negligible (``compute_dtype=torch.float32`` is allowed and still
+   sound, but its allowances, condensed into ε_∞, grow by the row sums of |W| at every layer: on a (256, 3)
+   SIREN bounds get ~20× looser); every rounding it does is still covered by
    Higham's bound |fl(Σ a_i b_i) - Σ a_i b_i| <= γ_{n+1} Σ|a_i b_i| (γ_n = n u / (1 - n u), u the unit
    roundoff): a linear layer adds ``2 (n + 2) u (|W| M + |b|)`` to ε_∞, where ``M = |x0| + Σ|X| + x_∞``
    bounds the layer input; the ``sin`` rule adds ``8 u (1 + r (|c| + r + 4)) + δ²`` with
    ``δ = 8 u (|c| + 8)`` (argument rounding of ``c + t/2`` and a critical point located δ off, where h is flat
-   to second order); sums of |coefficients| are inflated by ``(1 + 2 (N + 1) u)``.
+   to second order); sums of |coefficients| are inflated by ``(1 + 2 (N + 1) u)``; the final
+   ``centre ± radius`` by ``4 u (|centre| + radius)``.
 2. Sample points ``c + Σ t_k v_k`` computed in the *input* precision are off the exact box by at most
    ``(s + 1) u_in (|c| + Σ_k |v_k|)`` per coordinate: these become d extra input noise symbols (so they keep
-   their correlations, and are shared by :func:`difference_bound`).
+   their correlations, and are shared by :func:`difference_bound`). When ``compute_dtype`` is less precise
+   than the input, the rounding of converting ``c`` and ``v`` is added to them too.
 3. When the network is evaluated in a lower precision than the bound is computed in (float32 model or
    float32 boxes), the evaluation's own rounding is covered by widening the result by
    ``E = 8 (D + 2) u_eval (1 + max(|lo|, |hi|))`` — an *empirical* allowance: the largest float32 forward
    error against float64 that we measured on random SIRENs (widths 16–256, depth 1–3, ω0 1–60) was under
    4 u (1 + |f|), i.e. E leaves a margin of at least 6×. For a strict guarantee of the exact function pass a
-   float64 model and float64 boxes (then E ≈ 1e-15).
+   float64 model and float64 boxes (then E = 0 and every allowance is a proven one).
 4. The result is rounded outwards to the output dtype. Any non-finite intermediate (overflow) gives the
    trivial bound (-inf, inf), never NaN.
 """
@@ -414,7 +420,7 @@ def range_bound(
             x0, X, xinf = _input_form(c, v, u_in, cdtype, method)
             z0, z_in, rest, nsym = _propagate(layers, x0, X, xinf, method, keep, n_in, u)
             rad = rest + (_abs_sum(z_in, 1, u) if z_in.shape[1] else 0.0)
-            margin = 2.0 * u * (z0.abs() + rad)
+            margin = 4.0 * u * (z0.abs() + rad)
             lo, hi = z0 - rad - margin, z0 + rad + margin
             if e_rel:
                 e = e_rel * (1.0 + torch.maximum(lo.abs(), hi.abs()))
@@ -471,7 +477,7 @@ def difference_bound(
             rad = h_rest + f_rest
             if n_in:
                 rad = rad + _abs_sum(h_in - f_in, 1, u) + 2.0 * u * (_abs_sum(h_in, 1, u) + _abs_sum(f_in, 1, u))
-            margin = 2.0 * u * (h0.abs() + f0.abs() + rad)
+            margin = 4.0 * u * (h0.abs() + f0.abs() + rad)
             lo, hi = d0 - rad - margin, d0 + rad + margin
             if e_rel:
                 # each network's evaluation error, relative to its own magnitude

@@ -104,6 +104,21 @@ def test_fuzz_difference_soundness(dtype):
                     _assert_contains(lo, hi, _values(h, x) - _values(f, x), f"h-f {omega} s={s} {method}")
 
 
+@pytest.mark.parametrize("dtype", DTYPES, ids=str)
+def test_fuzz_float32_arithmetic_is_sound_too(dtype):
+    """compute_dtype=float32: looser, but every allowance is then a float32 one (and float64 boxes are
+    rounded into the arithmetic with their conversion error covered)."""
+    g = torch.Generator().manual_seed(11)
+    for arch, omega in (((64, 1), 30.0), ((16, 2), 60.0)):
+        model = _siren(*arch, omega, dtype)
+        for s in (1, 3):
+            for method in METHODS:
+                c, axes = _boxes(150, s, 3, dtype, g)
+                lo, hi = range_bound(model, c, axes, method, keep=8, compute_dtype=torch.float32)
+                assert lo.dtype == dtype
+                _assert_contains(lo, hi, _values(model, _points(c, axes, 12, g)), f"float32 {method} s={s}")
+
+
 def test_sound_on_wide_boxes_and_4d_inputs():
     """Boxes far larger than a period (every sin saturates) and a space-time network (d = 4)."""
     g = torch.Generator().manual_seed(3)
@@ -216,6 +231,20 @@ def test_zero_width_box_is_tight_around_f_center(method):
     # float32: the evaluation allowance (~4e-6 here) plus the input-point rounding, which interval arithmetic
     # cannot keep correlated (it grows by the layers' row sums of |W|)
     assert float((hi - lo).max()) < (1e-3 if method == "interval" else 1e-5)
+
+
+def test_interval_arithmetic_is_inclusion_monotone():
+    """Interval arithmetic (exact hulls of each step) is inclusion-isotone: a box inside another gets a bound
+    inside the other's, up to the (float64-sized) rounding allowances. Affine arithmetic is not, so only this."""
+    model = _siren(64, 2, 30.0, torch.float64)
+    g = torch.Generator().manual_seed(12)
+    c, _ = _boxes(200, 3, 3, torch.float64, g)
+    outer_half = 10 ** (-3 * torch.rand(200, 1, generator=g, dtype=torch.float64))
+    inner_half = outer_half * torch.rand(200, 3, generator=g, dtype=torch.float64)
+    shift = (outer_half - inner_half) * (torch.rand(200, 3, generator=g, dtype=torch.float64) * 2 - 1)
+    lo_o, hi_o = range_bound(model, c, torch.diag_embed(outer_half.expand(-1, 3)), "interval")
+    lo_i, hi_i = range_bound(model, c + shift, torch.diag_embed(inner_half), "interval")
+    assert bool((lo_i >= lo_o - 1e-9).all() and (hi_i <= hi_o + 1e-9).all())
 
 
 def test_truncate_keeping_everything_equals_full():
