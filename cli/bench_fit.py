@@ -12,8 +12,8 @@ __all__ = ["command"]
 @click.command()
 @bench_options
 @click.option("--mesh", "meshes", multiple=True,
-              help="Meshes: bumpy_sphere, torus, jack, sphere, spot, bunny (repeatable; default: see --help of "
-                   "the module; quick: bumpy_sphere).")
+              help="Meshes: bumpy_sphere, torus, jack, sphere, spot, bunny (repeatable; default: all but "
+                   "sphere; quick: bumpy_sphere).")
 @click.option("--preset", "presets", multiple=True, type=click.Choice(["64x1", "128x2", "256x2", "256x3"]),
               help="Presets to run (repeatable; default all, quick 64x1 and 256x3).")
 @click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")

@@ -24,9 +24,11 @@ __all__ = ["command"]
 @click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
               help="Checkpoint file written during training (default: OUTPUT.ckpt when --resume).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint if it exists.")
+@click.option("--bf16", is_flag=True,
+              help="Hidden GEMMs in bfloat16 for the first 75% of the run (faster on AMX/AVX512-BF16 CPUs).")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
-def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, resume, metrics, progress):
+def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, resume, bf16, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -39,7 +41,8 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, r
         checkpoint = output + ".ckpt"
     m = load_mesh(mesh)
     fit = fit_sdf(m, preset=preset, steps=steps, minutes=minutes, seed=seed, lr=lr, batch=batch,
-                  checkpoint=checkpoint, resume=resume, progress=progress)
+                  checkpoint=checkpoint, resume=resume, progress=progress,
+                  gemm_dtype="bfloat16" if bf16 else None)
     last = fit.history[-1] if fit.history else {}
     click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s "
                f"({fit.stopped_reason}); final loss {last.get('loss', float('nan')):.4g}"

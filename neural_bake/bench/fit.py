@@ -8,7 +8,8 @@ Two tables, measured in the same run:
   roofline (:mod:`neural_bake.bench.roofline`). The step's roofline counts the forward with GEMM gradients
   (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs (input and weight gradients of
   every product) plus one more sin/cos per unit and twice the element-wise work: an approximation stated
-  as such. ``fraction`` = roofline time / measured time (1.0 = at the roofline).
+  as such (float32 roofline). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
+  ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``).
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error; unit
   frame) and the issue's targets ((256, 3): Hausdorff ≤ 0.005 and median normal error ≤ 3° in 10 minutes;
@@ -79,14 +80,16 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
         return go
 
     t_ours = timeit(step(sdf_loss_terms), repeat=repeat)
+    t_bf16 = timeit(step(lambda *a: sdf_loss_terms(*a, low_precision=True)), repeat=repeat)
     t_auto = timeit(step(_autograd_terms), repeat=repeat)
     n = batch + nv
     c = siren_cost(width, depth, n, grad="reverse")
     train_cost = {"gemm_flops": 3 * c["gemm_flops"], "sines": 1.5 * c["sines"],
                   "flops": 3 * c["gemm_flops"] + 2 * (c["flops"] - c["gemm_flops"])}
     t_roof = roofline_seconds(train_cost, roof)
-    return {"network": f"{width}x{depth}", "points": n, "ours_s": t_ours, "autograd_2x_backward_s": t_auto,
-            "speedup_vs_autograd": t_auto / t_ours, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
+    return {"network": f"{width}x{depth}", "points": n, "ours_s": t_ours, "ours_bf16_s": t_bf16,
+            "autograd_2x_backward_s": t_auto, "speedup_vs_autograd": t_auto / t_ours,
+            "bf16_speedup": t_ours / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
             "ours_over_roofline": t_ours / t_roof}
 
 

@@ -185,7 +185,45 @@ def test_bench_baseline_loss_equals_ours():
     cfg = SdfFitConfig()
     ours = sdf_loss_terms(model, sp, sn, vp, vd, cfg)["loss"]
     ref = _autograd_terms(model, sp, sn, vp, vd, cfg)["loss"]
-    assert float(ours) == pytest.approx(float(ref), rel=1e-10)
+    assert float(ours.detach()) == pytest.approx(float(ref.detach()), rel=1e-10)
     (g1,) = torch.autograd.grad(ours, model.layers[1].weight)
     (g2,) = torch.autograd.grad(ref, model.layers[1].weight)
     assert torch.allclose(g1, g2, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_mixed_gradient_matches_gemm_gradient(dtype):
+    from neural_bake.fit.sdf import mixed_gradient
+    from neural_bake.nets.gemm import gemm_gradient
+    from neural_bake.nets.siren import Siren
+
+    g = torch.Generator().manual_seed(3)
+    model = Siren(64, 2, generator=g).to(dtype)
+    x = (torch.rand(500, 3, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
+    v_ref, g_ref = gemm_gradient(model, x, differentiable=True)
+    # with the GEMMs in the points' own dtype the mixed path IS the reference formula
+    v_same, g_same = mixed_gradient(model, x, dtype)
+    assert torch.allclose(v_same, v_ref, atol=1e-5 if dtype == torch.float32 else 1e-12)
+    assert torch.allclose(g_same, g_ref, atol=1e-4 if dtype == torch.float32 else 1e-10)
+    v_bf, g_bf = mixed_gradient(model, x, torch.bfloat16)
+    assert v_bf.dtype == dtype and g_bf.dtype == dtype
+    # bf16 operands: ~3 significant digits per product, errors average over the width
+    assert (v_bf - v_ref).abs().max() < 0.01 * (v_ref.abs().max() + 0.1)
+    rel = (g_bf - g_ref).norm(dim=1) / g_ref.norm(dim=1).clamp_min(1e-3)
+    assert rel.median() < 0.02 and rel.max() < 0.2
+    # and the graph reaches the weights with one backward
+    (v_bf.sum() + g_bf.square().sum()).backward()
+    assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in model.parameters())
+
+
+def test_bf16_fit_reaches_the_same_floor():
+    fit = fit_sdf(sphere(), steps=200, seed=0, gemm_dtype="bfloat16", bf16_fraction=0.75, **TINY)
+    d = torch.randn(2000, 3, generator=torch.Generator().manual_seed(1))
+    d = d / d.norm(dim=1, keepdim=True)
+    with torch.no_grad():
+        on = fit.model(d * R)[:, 0]
+    assert on.abs().max() < 0.03 and on.abs().mean() < 0.008
+    with pytest.raises(FitError, match="gemm_dtype must be"):
+        fit_sdf(sphere(sub=1), gemm_dtype="float16")
+    with pytest.raises(FitError, match="bf16_fraction must be in"):
+        fit_sdf(sphere(sub=1), bf16_fraction=1.5)
