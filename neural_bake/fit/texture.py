@@ -116,11 +116,13 @@ class TextureFitConfig:
 
 
 #: Named presets (fields overridden on top of the defaults). Times are wall-time budgets on this project's
-#: shared 2-core CPU; ``steps`` is an upper bound that a faster machine reaches first.
+#: shared 2-core CPU; ``steps`` is an upper bound that a faster machine reaches first. Measured on Spot
+#: (exact mesh SDF, δ = 0.03, CPU shared with other jobs): "medium" 4 min → 24.1 dB surface PSNR (with
+#: orth_method="directional"), "fine" 10 min → 26.3 dB, render MSE 0.0021.
 PRESETS: dict[str, dict] = {
-    "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 3000, "batch": 2048, "lr": 5e-4},
-    "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 6000, "batch": 4096, "lr": 2e-4},
-    "fine": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 10000, "batch": 4096, "lr": 1e-4},
+    "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 5000, "batch": 2048, "lr": 5e-4},
+    "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 10000, "batch": 4096, "lr": 5e-4},
+    "fine": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 20000, "batch": 2048, "lr": 2e-4},
 }
 
 
