@@ -40,9 +40,10 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, r
     if resume and checkpoint is None:
         checkpoint = output + ".ckpt"
     m = load_mesh(mesh)
-    fit = fit_sdf(m, preset=preset, steps=steps, minutes=minutes, seed=seed, lr=lr, batch=batch,
-                  checkpoint=checkpoint, resume=resume, progress=progress,
-                  gemm_dtype="bfloat16" if bf16 else None)
+    given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "batch": batch, "checkpoint": checkpoint,
+             "gemm_dtype": "bfloat16" if bf16 else None}
+    fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
+                  **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}
     click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s "
                f"({fit.stopped_reason}); final loss {last.get('loss', float('nan')):.4g}"

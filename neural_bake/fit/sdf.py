@@ -135,8 +135,15 @@ PRESETS: dict[str, dict] = {
 }
 
 
+_NONE_IS_A_VALUE = ("minutes", "checkpoint", "device")
+
+
 def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None, **overrides) -> SdfFitConfig:
-    """A config from a preset name and/or overrides; FitError for an unknown preset or field."""
+    """A config from a preset name and/or overrides; FitError for an unknown preset or field.
+
+    An override of None is ignored (the preset's or config's value stays), except for ``minutes``,
+    ``checkpoint`` and ``device`` where None is a value: ``preset="64x1", minutes=None`` removes the budget.
+    """
     cfg = config or SdfFitConfig()
     if preset is not None:
         if preset not in PRESETS:
@@ -146,7 +153,8 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
     unknown = sorted(set(overrides) - names)
     if unknown:
         raise FitError(f"fit_sdf: unknown setting(s) {', '.join(unknown)}")
-    cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None})  # None: keep the preset's
+    # None leaves a setting as it is, except where None is a value of its own (no budget, no checkpoint)
+    cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None or k in _NONE_IS_A_VALUE})
     if isinstance(cfg.sigmas, (int, float)):
         cfg = replace(cfg, sigmas=(float(cfg.sigmas),))
     cfg = replace(cfg, sigmas=tuple(float(s) for s in cfg.sigmas))

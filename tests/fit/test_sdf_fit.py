@@ -114,6 +114,7 @@ def test_presets_and_config():
     c = config_from(preset="64x1", seed=3)
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
+    assert config_from(preset="64x1", minutes=None).minutes is None  # ... except where None means "none"
 
 
 @pytest.mark.parametrize("kw, msg", [
@@ -227,3 +228,17 @@ def test_bf16_fit_reaches_the_same_floor():
         fit_sdf(sphere(sub=1), gemm_dtype="float16")
     with pytest.raises(FitError, match="bf16_fraction must be in"):
         fit_sdf(sphere(sub=1), bf16_fraction=1.5)
+
+
+def test_inward_winding_and_degenerate_faces_fit_like_the_clean_mesh():
+    m = trimesh.creation.icosphere(subdivisions=2, radius=0.8)
+    faces = np.asarray(m.faces)[:, ::-1]  # inward winding
+    v = np.vstack([m.vertices, [[0.8, 0.0, 0.0]]])  # a duplicate of an existing point ...
+    faces = np.vstack([faces, [[0, len(v) - 1, 0]]])  # ... and a zero-area face
+    with pytest.warns(NeuralBakeWarning):
+        mesh = mesh_from_arrays(v, faces, normalise=False)
+    fit = fit_sdf(mesh, steps=60, **TINY)
+    assert torch.isfinite(weights(fit.model)).all()
+    with torch.no_grad():
+        centre, far = fit.model(torch.zeros(1, 3))[0, 0], fit.model(torch.tensor([[0.0, 0.0, 0.98]]))[0, 0]
+    assert centre < 0 < far  # negative inside: the winding was fixed, not learnt inside out
