@@ -325,6 +325,29 @@ def test_uvs_outside_unit_square_follow_the_mesh_policy(sphere):
     assert not np.allclose(clamped, b, atol=1e-3)
 
 
+@pytest.mark.parametrize("name,bits,tol", [("t16.png", 16, 1e-4), ("t8.png", 8, 6e-3), ("t.exr", 32, 1e-6),
+                                           ("rgba.png", 16, 1e-4)])
+def test_texture_files_of_any_depth_give_the_same_targets(tmp_path, name, bits, tol):
+    # the bundled sphere read with its own texture replaced by 8/16-bit sRGB PNG, float EXR, or RGBA copies
+    from neural_bake.io.images import write_image
+    from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.samples import sample_path
+
+    mesh = load_mesh(sample_path("sphere"))
+    img = mesh.texture[..., :3]
+    if name.startswith("rgba"):
+        img = np.concatenate([img, np.full(img.shape[:2] + (1,), 0.25, np.float32)], axis=2)
+    path = write_image(tmp_path / name, img, bits=bits)
+    other = load_mesh(sample_path("sphere"), path)
+    if name.startswith("rgba"):
+        with pytest.warns(NeuralBakeWarning, match="alpha below 1"):
+            got = texture_targets(other, 2000, seed=7)["colors"]
+    else:
+        got = texture_targets(other, 2000, seed=7)["colors"]
+    ref = texture_targets(mesh, 2000, seed=7)["colors"]
+    assert np.abs(got - ref).max() < tol
+
+
 # ------------------------------------------------------------------------------------------- errors
 
 
