@@ -327,8 +327,29 @@ def test_fast_winding_number_agrees_with_the_exact_sum(open_sphere, rng):
 def test_flipped_winding_flips_the_winding_number(sphere, rng):
     flipped = Mesh(sphere.vertices, sphere.faces[:, ::-1].copy(), watertight=False)
     p = rng.uniform(-1, 1, (500, 3))
-    w = winding_number(sphere, p)
-    np.testing.assert_allclose(winding_number(flipped, p), -w, atol=1e-9)
+    w = winding_number(sphere, p, exact=True)
+    np.testing.assert_allclose(winding_number(flipped, p, exact=True), -w, atol=1e-9)
+    # the accelerated sum flips too, up to its approximation (ties may group the faces differently)
+    np.testing.assert_allclose(winding_number(flipped, p), -winding_number(sphere, p), atol=0.02)
     # an inward-wound mesh has w = -1 inside: nothing is inside it
     inside = np.linalg.norm(p, axis=1) < R - 0.05
     assert inside.sum() > 100 and (signed_distance(flipped, p[inside], sign="winding") > 0).all()
+
+
+def test_hybrid_sign_on_an_open_mesh_matches_the_winding_number(open_sphere, rng):
+    p = np.concatenate([rng.uniform(-1.3, 1.3, (2000, 3)), sample_near(open_sphere, 500, sigma=0.02, seed=1).points])
+    hybrid = inside_mask(open_sphere, p, method="hybrid")
+    exact = winding_number(open_sphere, p, exact=True) > 0.5
+    assert np.mean(hybrid == exact) > 0.995
+    votes = S._ray_parities(open_sphere, p, S.HYBRID_RAYS)
+    assert (votes.any(0) & ~votes.all(0)).sum() > 10  # the hole is seen: some points needed the winding number
+    r = np.linalg.norm(p, axis=1)
+    assert (hybrid[r < 0.6]).all() and not hybrid[r > 1.0].any()
+
+
+def test_ray_parities_are_exact_on_a_closed_mesh(sphere, rng):
+    p = rng.uniform(-1, 1, (500, 3))
+    p = p[np.abs(np.linalg.norm(p, axis=1) - R) > 0.02]
+    votes = S._ray_parities(sphere, p, 5)
+    expect = np.linalg.norm(p, axis=1) < R
+    assert (votes == expect[None]).all()
