@@ -56,6 +56,16 @@ def _dense_range(model, c, axes, per_axis: int, batch: int = 1 << 16):
     return vals.amin(1), vals.amax(1)
 
 
+def _timed(fn, repeat: int, min_time: float, warm: float = 0.3) -> float:
+    """Best time of ``fn`` after warming up for ``warm`` seconds (the first calls of a process can be 100×
+    slower while thread pools and kernels settle)."""
+    t_end = time.perf_counter() + warm
+    fn()
+    while time.perf_counter() < t_end:
+        fn()
+    return timeit(fn, repeat=repeat, warmup=0, min_time=min_time)
+
+
 def _largest(sizes, ok):
     """The largest size whose flag is set, or ``"<smallest"`` when none is."""
     good = [h for h, k in zip(sizes, ok) if k]
@@ -70,6 +80,7 @@ def run(
     model_path: str | None = None,
     methods: tuple[str, ...] = METHODS,
     truncate_keep: int = 64,
+    threads: int | None = 1,
 ) -> dict:
     """Measure every range-analysis method on a (64, 1) and a (256, 3) SIREN (or one model file).
 
@@ -80,10 +91,22 @@ def run(
         model_path: measure this model file (``neural-bake fit sdf`` output) instead of random SIRENs.
         methods: which methods to run.
         truncate_keep: ``keep`` of ``affine-truncate``.
+        threads: torch threads while timing (default 1: on a shared CPU, multi-threaded small GEMMs stall on
+            descheduled threads and the figures become noise; None keeps the current setting).
 
     Returns:
         The benchmark dict (``name``, ``title``, ``machine``, ``quick``, ``tables``, ``notes``).
     """
+    old_threads = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(int(threads))
+    try:
+        return _run(quick, seed, omega, model_path, methods, truncate_keep)
+    finally:
+        torch.set_num_threads(old_threads)
+
+
+def _run(quick, seed, omega, model_path, methods, truncate_keep) -> dict:
     g = torch.Generator().manual_seed(seed)
     if model_path is not None:
         from ..nets.model_io import load_model
@@ -96,27 +119,27 @@ def run(
     sizes = [1e-3, 1e-2, 1e-1, 1.0] if quick else [1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0]
     shown = [1e-3, 1e-2, 1e-1, 1.0]
     n_time = 128 if quick else 1024  # boxes per timing batch
-    min_time = 0.2 if quick else 1.0  # best of repeated runs over at least this long: less disturbed by load
+    min_time = 0.1 if quick else 1.0  # best of repeated runs over at least this long: less disturbed by load
     started = time.perf_counter()
     tables = {}
     for label, model in nets:
         model = model.float().eval()
         big = model.width * (model.depth + 1) > 256
-        n_tight = (16 if big else 32) if quick else (48 if big else 128)
+        n_tight = (12 if big else 32) if quick else (48 if big else 128)
         rows = []
         for kind in ("1d segment", "3d box"):
             per_axis_ref = (1024 if kind == "1d segment" else (8 if quick else 12))
             per_axis_base = 64 if kind == "1d segment" else 8
             c_t, ax_t = _regions(kind, n_time, 0.01, g)
             with torch.no_grad():
-                t_fwd = timeit(lambda: model(c_t), repeat=5, min_time=min_time) / n_time
+                t_fwd = _timed(lambda: model(c_t), 5, min_time) / n_time
             regions = [_regions(kind, n_tight, h, g) for h in sizes]
             refs = [_dense_range(model, c, ax, per_axis_ref) for c, ax in regions]
             for method in methods:
                 heavy = method in ("affine-full", "affine-truncate") and big
                 nb = max(8, n_time // (16 if heavy else 1))
-                t_box = timeit(lambda: range_bound(model, c_t[:nb], ax_t[:nb], method, keep=truncate_keep),
-                               repeat=2 if (quick or heavy) else 3, min_time=min_time) / nb
+                t_box = _timed(lambda: range_bound(model, c_t[:nb], ax_t[:nb], method, keep=truncate_keep),
+                               2 if (quick or heavy) else 3, min_time, warm=0.0 if heavy else 0.3) / nb
                 ratios, signed = [], []
                 for (c, ax), (rlo, rhi) in zip(regions, refs):
                     lo, hi = range_bound(model, c, ax, method, keep=truncate_keep)
@@ -135,7 +158,7 @@ def run(
             # baseline: dense sampling of each box (what a user would do without range analysis)
             pts = _dense_points(c_t, ax_t, per_axis_base).reshape(-1, 3)
             with torch.no_grad():
-                t_dense = timeit(lambda: model(pts), repeat=2 if quick else 3, min_time=min_time) / n_time
+                t_dense = _timed(lambda: model(pts), 2 if quick else 3, min_time) / n_time
             seen, signed = [], []
             for (c, ax), (rlo, rhi) in zip(regions, refs):
                 blo, bhi = _dense_range(model, c, ax, per_axis_base)
@@ -161,7 +184,8 @@ def run(
         "regions are bounded away from 0 (Spelunking Table 1's length/volume measure, as a half-size).",
         f"affine-truncate keeps {truncate_keep} symbols per layer besides the input ones.",
         "Networks are randomly initialised SIRENs (a stand-in for trained ones) unless a model file is given.",
-        "The CPU is shared with other jobs: timings are noisy; compare ratios within one run.",
+        f"Timed with {torch.get_num_threads()} torch thread(s); the CPU is shared with other jobs, so timings are "
+        "noisy: compare ratios within one run.",
         f"total bench time {time.perf_counter() - started:.1f} s",
     ]
     return {
