@@ -353,3 +353,17 @@ def test_ray_parities_are_exact_on_a_closed_mesh(sphere, rng):
     votes = S._ray_parities(sphere, p, 5)
     expect = np.linalg.norm(p, axis=1) < R
     assert (votes == expect[None]).all()
+
+
+def test_bench_sampling_runs_shrunken():
+    from neural_bake.bench.sampling import run
+
+    res = run(quick=True, n=100, n_sign=40)
+    assert res["name"] == "sampling" and set(res["tables"]) == {"throughput", "sign"}
+    sign = res["tables"]["sign"]
+    ref = [r for r in sign if r["method"].startswith("exact")]
+    assert ref and all(r["sign agreement"] == 1.0 for r in ref)
+    for r in sign:
+        if r["method"].startswith("ours winding") or r["method"].startswith("ours auto"):
+            assert r["sign agreement"] == 1.0, r
+    assert all(r["samples/s"] > 0 for r in res["tables"]["throughput"])
