@@ -16,7 +16,7 @@ import torch
 from ..errors import NeuralBakeError
 from ..types import Frame, Mesh
 from .fields import ColorField, SdfField
-from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normals_to_colors, splat
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
 from .padding import PADDING_METHODS, pad_charts
 
 __all__ = ["Baker", "BakeResult", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
@@ -251,10 +251,10 @@ class Baker:
             raise NeuralBakeError(f"delta must be a positive number, got {delta!r}")
         keep = self.cache if keep_samples is None else bool(keep_samples)
         h, w = self.shape
-        acc_vec = np.zeros((h, w, 3))
+        acc_vec = np.zeros((h, w, 3), dtype=np.float32)  # weighted sums; float32 keeps 4k maps small
         acc_col = None
-        wsum = np.zeros((h, w))
-        miss_count = np.zeros((h, w))
+        wsum = np.zeros((h, w), dtype=np.float32)
+        miss_count = np.zeros((h, w), dtype=np.float32)
         covered = np.zeros((h, w), dtype=bool)
         kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors")}
         counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0}
@@ -276,16 +276,26 @@ class Baker:
                 encoded, frame_ok = encode_tangent_space(normals, tx.tangent, tx.bitangent, tx.normal, self.y_convention)
             else:
                 encoded, frame_ok = normals.copy(), np.ones(len(normals), dtype=bool)
-            vec, ws = splat(encoded, tx.pixel, tx.weight, self.shape)
-            acc_vec += vec * ws[:, :, None]
-            wsum += ws
+            if len(values):
+                pix = np.asarray(tx.pixel)
+                r0, r1 = int(pix[:, 0].min()), int(pix[:, 0].max()) + 1
+                band = slice(r0, r1)
+                vec, ws = splat(encoded, pix, tx.weight, self.shape, rows=(r0, r1), average=False)
+                acc_vec[band] += vec
+                wsum[band] += ws
+                del vec
+                miss_s = np.abs(values) > delta if delta is not None else np.zeros(len(values), dtype=bool)
+                if miss_s.any():
+                    miss_count[band] += splat(np.ones((int(miss_s.sum()), 1)), pix[miss_s], None, self.shape,
+                                              rows=(r0, r1))[1]
+                if texture is not None:
+                    col, _ = splat(ev["colors"], pix, tx.weight, self.shape, rows=(r0, r1), average=False)
+                    if acc_col is None:
+                        acc_col = np.zeros((h, w, col.shape[2]), dtype=np.float32)
+                    acc_col[band] += col
+            else:
+                miss_s = np.zeros(0, dtype=bool)
             covered |= np.asarray(tx.coverage, dtype=bool)
-            miss_s = np.abs(values) > delta if delta is not None else np.zeros(len(values), dtype=bool)
-            if miss_s.any():
-                miss_count += splat(np.ones((int(miss_s.sum()), 1)), tx.pixel[miss_s], None, self.shape)[1]
-            if texture is not None:
-                col, cws = splat(ev["colors"], tx.pixel, tx.weight, self.shape)
-                acc_col = col * cws[:, :, None] if acc_col is None else acc_col + col * cws[:, :, None]
             counts["samples"] += len(values)
             counts["invalid"] += int((~valid).sum())
             counts["singular"] += int((~frame_ok).sum())
@@ -298,15 +308,20 @@ class Baker:
             secs["maps"] += time.perf_counter() - t0
             t_band = time.perf_counter()
         t0 = time.perf_counter()
-        vec = np.divide(acc_vec, wsum[:, :, None], out=np.zeros_like(acc_vec), where=wsum[:, :, None] > 0)
-        norm = np.linalg.norm(vec, axis=2, keepdims=True)
-        vec = np.divide(vec, norm, out=np.zeros_like(vec), where=norm > 1e-12)
-        flat = np.array([0.0, 0.0, 1.0])  # texels whose samples cancel out, and the background
-        vec[norm[:, :, 0] <= 1e-12] = flat
-        normal_map = normals_to_colors(vec)
+        # the average of a texel's unit vectors, renormalised (the weight sum cancels out)
+        vec = acc_vec
+        norm = np.sqrt(np.einsum("ijk,ijk->ij", vec, vec))[:, :, None]
+        np.divide(vec, norm, out=vec, where=norm > 1e-12)
+        vec[norm[:, :, 0] <= 1e-12] = (0.0, 0.0, 1.0)  # texels whose samples cancel out, and the background
+        normal_map = vec
+        normal_map += 1.0
+        normal_map *= 0.5
+        np.clip(normal_map, 0.0, 1.0, out=normal_map)
+        del acc_vec, vec
         albedo = None
         if acc_col is not None:
-            albedo = np.divide(acc_col, wsum[:, :, None], out=np.zeros_like(acc_col), where=wsum[:, :, None] > 0)
+            albedo = acc_col
+            np.divide(albedo, wsum[:, :, None], out=albedo, where=wsum[:, :, None] > 0)
         miss = miss_count > 0
         secs["maps"] += time.perf_counter() - t0
         t0 = time.perf_counter()

@@ -98,21 +98,32 @@ def colors_to_normals(c: np.ndarray) -> np.ndarray:
 
 
 def splat(
-    values: np.ndarray, pixel: np.ndarray, weight: np.ndarray | None, size: tuple[int, int]
+    values: np.ndarray,
+    pixel: np.ndarray,
+    weight: np.ndarray | None,
+    size: tuple[int, int],
+    *,
+    rows: tuple[int, int] | None = None,
+    average: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted average of per-sample ``values`` (M, C) into an (H, W, C) image.
+    """Weighted average (or weighted sum) of per-sample ``values`` (M, C) into an image.
 
-    ``pixel``: (M, 2) int (row from the top, column); ``weight``: (M,) or None (all ones). Returns the
-    image (float64; texels without samples are 0) and the per-texel weight sum (H, W).
+    ``pixel``: (M, 2) int (row from the top, column); ``weight``: (M,) or None (all ones); ``size``: (H, W).
+    ``rows=(a, b)``: build only image rows [a, b) (all samples must lie there), for streamed bands.
+    ``average=False`` returns the weighted sums instead of averages. Returns the (b − a, W, C) float64 image
+    (texels without samples are 0) and the per-texel weight sum (b − a, W).
     """
     h, w = size
+    a, b = (0, h) if rows is None else rows
     values = np.asarray(values, dtype=np.float64)
-    flat = np.asarray(pixel[:, 0], dtype=np.int64) * w + np.asarray(pixel[:, 1], dtype=np.int64)
+    flat = (np.asarray(pixel[:, 0], dtype=np.int64) - a) * w + np.asarray(pixel[:, 1], dtype=np.int64)
     wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
+    n = (b - a) * w
     c = values.shape[1]
-    acc = np.zeros((h * w, c))
+    acc = np.empty((n, c))
     for k in range(c):
-        acc[:, k] = np.bincount(flat, weights=values[:, k] * wt, minlength=h * w)
-    wsum = np.bincount(flat, weights=wt, minlength=h * w)
-    img = np.divide(acc, wsum[:, None], out=np.zeros_like(acc), where=wsum[:, None] > 0)
-    return img.reshape(h, w, c), wsum.reshape(h, w)
+        acc[:, k] = np.bincount(flat, weights=values[:, k] * wt, minlength=n)
+    wsum = np.bincount(flat, weights=wt, minlength=n)
+    if average:
+        np.divide(acc, wsum[:, None], out=acc, where=wsum[:, None] > 0)
+    return acc.reshape(b - a, w, c), wsum.reshape(b - a, w)

@@ -50,7 +50,7 @@ def pad_charts(
     covered = cov > 0
     if not covered.any() or covered.all() or pixels == 0:
         return np.array(image, copy=True)
-    work = img.astype(np.float64)
+    work = img.astype(np.float32 if img.dtype == np.float32 else np.float64)
     if method == "dilate":
         out = _dilate(work, covered, 16 if pixels is None else int(pixels))
     else:
@@ -69,23 +69,33 @@ def pad_charts(
     return out[:, :, 0] if squeeze else out
 
 
+_NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
+
+
 def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool = False):
-    img = img.copy()
-    filled = filled.copy()
-    kernel = np.ones((3, 3))
+    """``steps`` rings of dilation; work is proportional to the ring sizes, not the image size."""
+    h, w = filled.shape
+    imgp = np.pad(img, ((1, 1), (1, 1), (0, 0)))
+    fp = np.pad(filled, 1)
     for _ in range(steps):
-        if filled.all():
+        core = fp[1:-1, 1:-1]
+        near = np.zeros_like(core)
+        for di, dj in _NEIGHBOURS:
+            near |= fp[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
+        ii, jj = np.nonzero(near & ~core)
+        if ii.size == 0:
             break
-        w = filled.astype(np.float64)
-        count = ndimage.convolve(w, kernel, mode="constant")
-        grow = (~filled) & (count > 0)
-        if not grow.any():
-            break
-        for c in range(img.shape[2]):
-            s = ndimage.convolve(img[:, :, c] * w, kernel, mode="constant")
-            img[:, :, c][grow] = s[grow] / count[grow]
-        filled |= grow
-    return (img, filled) if return_mask else img
+        ii, jj = ii + 1, jj + 1
+        acc = np.zeros((ii.size, img.shape[2]), dtype=img.dtype)
+        cnt = np.zeros(ii.size, dtype=img.dtype)
+        for di, dj in _NEIGHBOURS:
+            f = fp[ii + di, jj + dj]
+            acc[f] += imgp[ii[f] + di, jj[f] + dj]
+            cnt += f
+        imgp[ii, jj] = acc / cnt[:, None]
+        fp[ii, jj] = True
+    out = imgp[1:-1, 1:-1].copy()
+    return (out, fp[1:-1, 1:-1].copy()) if return_mask else out
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
@@ -116,17 +126,15 @@ def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
 
 
 def _upsample(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Bilinear ×2 upsampling (texel centres aligned) cropped to ``shape``."""
+    """Bilinear ×2 upsampling (texel centres aligned, borders replicated) cropped to ``shape``."""
+
+    def up(a: np.ndarray, axis: int) -> np.ndarray:
+        a = np.moveaxis(a, axis, 0)
+        p = np.concatenate([a[:1], a, a[-1:]], axis=0)
+        out = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
+        out[0::2] = 0.75 * p[1:-1] + 0.25 * p[:-2]
+        out[1::2] = 0.75 * p[1:-1] + 0.25 * p[2:]
+        return np.moveaxis(out, 0, axis)
+
     h, w = shape
-    ch, cw = img.shape[:2]
-    y = (np.arange(h) + 0.5) / 2 - 0.5
-    x = (np.arange(w) + 0.5) / 2 - 0.5
-    y0 = np.clip(np.floor(y).astype(int), 0, ch - 1)
-    x0 = np.clip(np.floor(x).astype(int), 0, cw - 1)
-    y1 = np.clip(y0 + 1, 0, ch - 1)
-    x1 = np.clip(x0 + 1, 0, cw - 1)
-    fy = np.clip(y - np.floor(y), 0, 1)[:, None, None]
-    fx = np.clip(x - np.floor(x), 0, 1)[None, :, None]
-    top = img[y0][:, x0] * (1 - fx) + img[y0][:, x1] * fx
-    bot = img[y1][:, x0] * (1 - fx) + img[y1][:, x1] * fx
-    return top * (1 - fy) + bot * fy
+    return up(up(img, 0)[:h], 1)[:, :w]
