@@ -324,7 +324,8 @@ def _chunk_size(layers_list: Sequence, n_in: int, method: str, keep: int, itemsi
         nsym = n_in + width * n_hidden
     else:
         nsym = n_in + min(keep, width * n_hidden) + width
-    per_box = 6 * nsym * width * itemsize  # the coefficient tensor and its temporaries
+    # the coefficient tensor and its temporaries, plus the ~30 (B, width) temporaries of the sin rule
+    per_box = (6 * nsym + 32) * width * itemsize
     return max(1, MEMORY_BUDGET // per_box)
 
 
