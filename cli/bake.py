@@ -95,7 +95,7 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
     import numpy as np
 
     from neural_bake.bake.baker import Baker, bake_vertices, coarse_mesh, parse_coarse
-    from neural_bake.bake.export import export_glb
+    from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import NeuralBakeError
@@ -192,7 +192,8 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
             vb = bake_vertices(coarse_m, sdf, tex)
             colors = None if vb["colors"] is None else np.clip(vb["colors"][:, :3], 0, 1)
             export_glb(stage / "vertex.glb", coarse_m, normals=vb["normals"], vertex_colors=colors)
-            written.append("vertex.glb")
+            export_vertex_ply(stage / "vertex.ply", coarse_m, normals=vb["normals"], vertex_colors=colors)
+            written += ["vertex.glb", "vertex.ply"]
             report["vertex"] = {"vertices": coarse_m.n_vertices, "invalid_gradients": vb["invalid"],
                                 "seconds": time.perf_counter() - t0}
         timings["total"] = time.perf_counter() - t_start

@@ -77,6 +77,10 @@ _EXPORTS = {
     "pad_charts": ".bake.padding",
     "baseline_bake": ".bake.baseline",
     "export_glb": ".bake.export",
+    "SdfField": ".bake.fields",
+    "ColorField": ".bake.fields",
+    "BakeResult": ".bake.baker",
+    "bake_report": ".bake.report",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

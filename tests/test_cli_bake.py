@@ -48,7 +48,7 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
                              "--bits", "16", "--exr", "-o", str(out)], capsys)
     assert code == 0, err
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb",
+    assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb", "vertex.ply",
                             "report.json", "error_normal.png", "error_baseline.png", "miss.png"])
     rep = json.loads((out / "report.json").read_text())
     assert rep["truth"] == "analytic (sphere sample)"

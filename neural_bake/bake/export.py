@@ -20,7 +20,7 @@ from ..errors import MeshError, NeuralBakeError
 from ..io.atomic import atomic_path
 from ..types import Mesh
 
-__all__ = ["export_glb", "read_glb"]
+__all__ = ["export_glb", "read_glb", "export_vertex_ply"]
 
 _FLOAT, _UINT32 = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -226,3 +226,45 @@ def read_glb(path) -> tuple[dict, dict[str, np.ndarray], list[bytes]]:
     arrays["indices"] = accessor(prim["indices"]).reshape(-1, 3)
     images = [view_bytes(im["bufferView"]) for im in gltf.get("images", [])]
     return gltf, arrays, images
+
+
+def export_vertex_ply(path, mesh: Mesh, *, normals: np.ndarray | None = None, vertex_colors: np.ndarray | None = None) -> Path:
+    """Write a per-vertex bake as a binary PLY (atomically); return the path.
+
+    Positions in the SOURCE frame (float32 x y z), ``normals`` (V, 3) as nx ny nz (default the mesh's),
+    ``vertex_colors`` (V, 3|4) linear in [0, 1] as 8-bit sRGB-encoded red green blue (alpha dropped),
+    faces as uchar-counted int32 lists. Raises :class:`NeuralBakeError` for arrays of the wrong shape.
+    """
+    from ..io.colour import linear_to_srgb
+    from ..mesh.tangents import vertex_normals
+
+    path = Path(path)
+    nrm = vertex_normals(mesh) if normals is None else _check_vertex_array("normals", normals, mesh, (3,))
+    pos = mesh.frame.to_source(mesh.vertices)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    cols = None
+    if vertex_colors is not None:
+        c = _check_vertex_array("vertex_colors", vertex_colors, mesh, (3, 4))[:, :3]
+        cols = np.round(linear_to_srgb(np.clip(c, 0, 1)) * 255).astype(np.uint8)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    vert = np.empty(mesh.n_vertices, dtype=fields)
+    for k, name in enumerate("xyz"):
+        vert[name] = pos[:, k]
+        vert["n" + name] = nrm[:, k]
+    if cols is not None:
+        for k, name in enumerate(("red", "green", "blue")):
+            vert[name] = cols[:, k]
+    face = np.empty(mesh.n_faces, dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"] = 3
+    face["v"] = mesh.faces
+    ply_type = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", "comment neural_bake per-vertex bake",
+              f"element vertex {mesh.n_vertices}"]
+    header += [f"property {ply_type[t]} {n}" for n, t in fields]
+    header += [f"element face {mesh.n_faces}", "property list uchar int vertex_indices", "end_header"]
+    data = ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
+    if str(path.parent) and not path.parent.is_dir():
+        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path

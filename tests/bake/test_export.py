@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_bake.bake.export import export_glb, read_glb
+from neural_bake.bake.export import export_glb, export_vertex_ply, read_glb
 from neural_bake.errors import MeshError, NeuralBakeError
 from neural_bake.io.colour import linear_to_srgb
 from neural_bake.mesh.tangents import tangent_frames, vertex_normals, vertex_uv
@@ -106,3 +106,20 @@ def test_errors(tmp_path, asset):
         read_glb(tmp_path / "t.txt")
     assert not (tmp_path / "x.glb").exists()
     json.dumps(read_glb(export_glb(tmp_path / "ok.glb", m))[0])  # the JSON chunk is plain JSON
+
+
+def test_vertex_ply_round_trip(tmp_path):
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    m = Mesh(vertices=np.asarray(ico.vertices), faces=np.asarray(ico.faces, dtype=np.int64),
+             frame=Frame((1.0, 2.0, 3.0), 0.5))
+    cols = np.abs(m.vertices)
+    normals = -m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    path = export_vertex_ply(tmp_path / "v.ply", m, normals=normals, vertex_colors=cols)
+    got = trimesh.load(path, process=False)
+    assert np.allclose(got.vertices, m.frame.to_source(m.vertices), atol=1e-5)
+    assert np.array_equal(got.faces, m.faces)
+    srgb = np.round(linear_to_srgb(np.clip(cols, 0, 1)) * 255)
+    assert np.array_equal(got.visual.vertex_colors[:, :3], srgb)
+    assert np.allclose(got.vertex_normals, normals, atol=1e-5)
+    with pytest.raises(NeuralBakeError, match="normals must have shape"):
+        export_vertex_ply(tmp_path / "w.ply", m, normals=normals[:3])
