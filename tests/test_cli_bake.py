@@ -142,6 +142,17 @@ def test_coarse_march_and_keep(files):
 
     with pytest.raises(NeuralBakeError, match="march needs an SDF model"):
         coarse_mesh(mesh, "march:16", SdfField(lambda p: p.norm(dim=1) - 0.5))
+    model = Siren(4, 0)
+    with torch.no_grad():  # f(p) = sin(x) - 0.5: the plane x = π/6
+        model.layers[0].weight.zero_()
+        model.layers[0].weight[0, 0] = 1.0 / model.omega_0
+        model.layers[0].bias.zero_()
+        model.layers[1].weight.zero_()
+        model.layers[1].weight[0, 0] = 1.0
+        model.layers[1].bias.fill_(-0.5)
+    marched, info = coarse_mesh(mesh, "march:16", SdfField.from_model(model))
+    assert marched.n_faces > 0 and info["faces"] == marched.n_faces and "march" in info
+    assert np.allclose(marched.vertices[:, 0], np.pi / 6, atol=2e-3)
     kept, info = coarse_mesh(mesh, "keep")
     assert kept is mesh and info["faces"] == mesh.n_faces
 

@@ -252,3 +252,15 @@ def test_errors():
         Baker(mesh, 8, chunk_size=0)
     with pytest.raises(NeuralBakeError, match="delta must be a positive number"):
         Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), delta=-1.0)
+
+
+def test_non_manifold_coarse_mesh_without_uvs():
+    # three triangles sharing one edge (non-manifold), no UVs: unwrapped, baked, finite
+    v = np.array([[0, 0, 0], [0, 0, 0.5], [0.5, 0, 0.2], [-0.4, 0.3, 0.2], [0.1, -0.5, 0.2]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]], dtype=np.int64)
+    mesh = Mesh(vertices=v, faces=f, watertight=False)
+    baker = Baker(mesh, 32)
+    assert baker.unwrapped and baker.mesh.uv is not None
+    res = baker.bake(SdfField(lambda p: p.norm(dim=1) - 0.3))
+    assert np.isfinite(res.normal_map).all() and res.stats["texels_covered"] > 0
+    assert res.stats["singular_frames"] == 0
