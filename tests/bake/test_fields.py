@@ -1,6 +1,5 @@
 """SDF and colour fields: analytic oracles, GEMM normals against autograd, zero gradients, model files."""
 
-import numpy as np
 import pytest
 import torch
 
