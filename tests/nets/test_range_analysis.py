@@ -454,7 +454,8 @@ def test_bench_range_cli_on_a_small_model(tmp_path, capsys):
     assert "affine-full" in text and "dense 512 pts" in text
     result = json.loads(out.read_text())
     assert result["name"] == "range" and result["quick"] is True
-    (rows,) = result["tables"].values()
+    assert len(result["tables"]) == 2
+    rows, diff_rows = result["tables"].values()
     assert [r["method"] for r in rows[:4]] == list(METHODS)
     assert {r["region"] for r in rows} == {"1d segment", "3d box"}
     for r in rows:
@@ -466,6 +467,13 @@ def test_bench_range_cli_on_a_small_model(tmp_path, capsys):
     # the small boxes are where affine arithmetic beats interval arithmetic
     by = {(r["region"], r["method"]): r for r in rows}
     assert by[("3d box", "affine-full")]["w/true h=0.001"] < by[("3d box", "interval")]["w/true h=0.001"]
+    # difference table: certificates are never below the sampled maximum, and sharing never hurts
+    assert {r["method"] for r in diff_rows} == {"interval", "affine-fixed", "affine-full"}
+    for r in diff_rows:
+        assert r["certified (shared)"] >= r["sampled max|h-f|"]
+        assert r["certified (shared)"] <= r["certified (range h - range f)"] * (1 + 1e-5) + 1e-6  # allowances
+        if r["method"] == "affine-full" and r["half-size"] == 1e-3:
+            assert r["certified (shared)"] < 0.5 * r["certified (range h - range f)"]
 
 
 def test_bench_range_cli_reports_a_missing_model(tmp_path, capsys):
