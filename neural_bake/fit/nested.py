@@ -368,12 +368,12 @@ def fit_nested(
     steps: int = 2000,
     minutes: float | None = None,
     seed: int = 0,
-    lr: float = 2e-4,
+    lr: float = 1e-3,
     batch: int = 4096,
     pool: int = 200_000,
     band: float = 0.1,
     eps: float = 1e-3,
-    omega_0: float | None = None,
+    omega_0: float | None = 15.0,
     eval_every: int = 100,
     eval_samples: int = 20_000,
     n_estimate: int = 100_000,
@@ -397,7 +397,9 @@ def fit_nested(
         seed: seeds initial weights, samples and per-step draws.
         lr, batch, pool: Adam learning rate, points per step, training points per level.
         band: Δ of the sup-norm (unit frame). eps: ε of Prop. 1.
-        omega_0: ω0 of the coarse levels (default: f's).
+        omega_0: ω0 of the coarse levels (None: f's). Default 15: coarse levels are smooth approximations;
+            distilling a (32, 1) from a (64, 1) bumpy-sphere SDF in 600 steps gave a sampled sup-norm of 0.027
+            with ω0 = 15 against 0.044 with ω0 = 30 (and 0.37 with lr 2e-4 instead of 1e-3).
         eval_every, eval_samples: the kept step is the one with the smallest sup-norm over ``eval_samples``
             band points, evaluated every ``eval_every`` steps.
         n_estimate: band samples of the final sup-norm estimate.
