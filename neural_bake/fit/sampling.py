@@ -21,14 +21,16 @@ Sign methods (``sign=`` of :func:`signed_distance`, :func:`sample_near`, :func:`
   compact clusters (k-d median splits) of :data:`CLUSTER_SIZE` faces; a cluster seen from farther than
   ``FAR_FACTOR`` × its radius contributes its dipole term (Barill et al. 2018, first order), nearer clusters
   their exact solid angles; points whose approximate winding number lies within ``AMBIGUOUS`` of 1/2 are
-  recomputed exactly. Right for open meshes and meshes with small holes.
+  recomputed exactly (the dipole error measured on the bench meshes is below 0.02, so the sign is the
+  exact sum's). Right for open meshes and meshes with holes.
 - ``"winding_exact"`` — the exact sum over all faces, O(N·F) (the slow reference).
 - ``"raycast"`` — open3d's ray-parity occupancy with :data:`RAY_SAMPLES` rays per point (majority vote).
   Only right for watertight meshes; fastest.
 - ``"hybrid"`` — ray parity along :data:`HYBRID_RAYS` fixed directions; where they all agree that is the
   answer, where they disagree (a hole or a crack is in view) the accelerated winding number decides.
-  Much faster than ``"winding"`` on open meshes, but a point that sees a hole along none (or all) of the
-  directions keeps the rays' answer: a heuristic, not the winding number's sign everywhere.
+  Faster than ``"winding"`` when holes are small (most points see none; ~2× with a hole of 1/13 of the
+  area), but a point that sees a hole along none (or all) of the directions keeps the rays' answer: a
+  heuristic, not the winding number's sign everywhere.
 - ``"auto"`` (default) — ``"raycast"`` for watertight meshes (``mesh.watertight``), ``"winding"`` otherwise.
 """
 
@@ -53,6 +55,8 @@ __all__ = [
     "sample_near",
     "sample_uniform",
     "signed_distance",
+    "unsigned_distance",
+    "inside_mask",
     "winding_number",
     "SIGN_METHODS",
 ]
@@ -60,7 +64,7 @@ __all__ = [
 #: The inside tests ``signed_distance`` offers (see the module docstring).
 SIGN_METHODS = ("auto", "winding", "winding_exact", "raycast", "hybrid")
 #: Faces per cluster of the accelerated winding number.
-CLUSTER_SIZE = 32
+CLUSTER_SIZE = 16
 #: A cluster farther than this many times its radius contributes its dipole term only.
 FAR_FACTOR = 2.5
 #: Points whose approximate winding number is within this of 1/2 are recomputed exactly.
@@ -69,7 +73,7 @@ AMBIGUOUS = 0.1
 RAY_SAMPLES = 3
 #: Ray directions of the "hybrid" test; points whose parities disagree get the winding number.
 HYBRID_RAYS = 5
-#: Points per chunk of the exact winding number (bounds memory to chunk × faces × 9 floats).
+#: Elements (points × faces) per block of the winding-number kernels (bounds their memory to ~1 GB at most).
 _CHUNK_ELEMENTS = 4_000_000
 
 
