@@ -83,13 +83,16 @@ def _sample_truth(path: str, mesh, choice: str):
 @click.option("--supersample", type=int, default=1, show_default=True, help="s×s samples per texel.")
 @click.option("--padding", type=click.Choice(["pull-push", "dilate", "none"]), default="pull-push",
               show_default=True, help="Edge padding of the charts.")
+@click.option("--delta", type=float, default=None,
+              help="Nesting band half-width δ (unit frame): texels with |f| > δ are flagged as misses "
+                   "(default: the model file's δ, if any).")
 @click.option("--baseline/--no-baseline", default=True, help="Also run the classical mesh-to-mesh bake.")
 @click.option("--cage", type=float, default=None, help="Baseline ray distance (unit frame; default 0.05).")
 @click.option("--truth", default="auto", show_default=True,
               help="Ground truth of the report: auto (analytic if MESH is a bundled sample), mesh, sample:NAME.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
-            supersample, padding, baseline, cage, truth, out):
+            supersample, padding, delta, baseline, cage, truth, out):
     """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
     and a quality report into OUT."""
     import numpy as np
@@ -112,6 +115,8 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
         raise NeuralBakeError(f"--size {size}: must be between 1 and 16384")
     if "albedo" in maps and tex_path is None:
         raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
+    if delta is not None and not delta > 0:
+        raise NeuralBakeError(f"--delta {delta}: must be a positive distance")
     if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
         raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
     out_dir = Path(out)
@@ -145,7 +150,7 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
                           y_convention="directx" if directx else "opengl",
                           padding=None if padding == "none" else padding)
             timings["prepare"] = time.perf_counter() - t0
-            res = baker.bake(sdf, tex if "albedo" in maps else None)
+            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta)
             click.echo(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
                        f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
             t0 = time.perf_counter()

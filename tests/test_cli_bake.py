@@ -69,8 +69,10 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
 def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "32",
-                        "--maps", "normal", "--no-baseline", "-o", str(out)], capsys)
+                        "--maps", "normal", "--no-baseline", "--delta", "1e-9", "-o", str(out)], capsys)
     assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["miss_texels"] == rep["texels_covered"] > 0  # an untrained field is off any tiny band
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     # a texture model passed as --sdf: refused before anything is written
     code, _, err = run([files["obj"], "--sdf", files["tex"], "--size", "32", "-o", str(out)], capsys)
@@ -100,6 +102,7 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--size", "0"], "--size 0: must be between 1 and 16384"),
         (["--truth", "sample:cube"], "unknown sample 'cube'"),
         (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
+        (["--delta", "-1"], "--delta -1.0: must be a positive distance"),
     ],
 )
 def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
