@@ -35,8 +35,9 @@ def _meshes() -> tuple[dict[str, Mesh], list[str]]:
     notes = []
     bumpy = load_mesh(sample_path("bumpy_sphere"))
     keep = bumpy.triangles.mean(1)[:, 2] < 0.85 * bumpy.vertices[:, 2].max()  # a hole of ~1/13 of the area
-    open_bumpy = Mesh(bumpy.vertices, bumpy.faces[keep], bumpy.uv[keep], bumpy.texture, bumpy.vertex_normals,
-                      bumpy.frame, None, bumpy.uv_policy, False, "bumpy_sphere minus its top cap")
+    open_bumpy = Mesh(vertices=bumpy.vertices, faces=bumpy.faces[keep], uv=bumpy.uv[keep], texture=bumpy.texture,
+                      frame=bumpy.frame, uv_policy=bumpy.uv_policy, watertight=False,
+                      source="bumpy_sphere minus its top cap")
     meshes = {"bumpy_sphere": bumpy, "bumpy_open": open_bumpy}
     if SPOT.is_file():
         import warnings
