@@ -215,3 +215,9 @@ def test_errors(tmp_path):
         Sphere().mesh(10)
     with pytest.raises(ValueError, match=r"points must be \(N, 3\), got shape \(3,\)"):
         Jack().sdf(np.zeros(3))
+
+
+@pytest.mark.slow
+def test_bundled_jack_is_what_the_generator_makes():
+    # marching cubes + xatlas (~15 s): deterministic, so the committed file is reproducible
+    assert sample_path("jack").read_text() == obj_text(SAMPLES["jack"].mesh(), "jack.mtl")
