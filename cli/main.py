@@ -55,6 +55,7 @@ COMMANDS = {
     "fit": ("neural_bake.cli.fit", "group"),
     "bake": ("neural_bake.cli.bake", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
+    "demo": ("neural_bake.cli.demo", "command"),
 }
 
 

@@ -1,0 +1,259 @@
+"""Bake one asset: fine mesh + fitted fields -> coarse mesh, maps, GLB and quality report in a folder.
+
+The job behind `neural-bake bake` and the demo: load, coarsen (decimate / march / keep), unwrap, bake the
+neural normals (and colours) per texel and per vertex, run the classical mesh-to-mesh baseline on the same
+texels, measure errors, and write everything. Files are first written into a staging folder inside the
+output folder, then each is moved into place (an atomic rename each) with ``report.json`` last: a failed run
+leaves the output folder as it was (and removes it if it created it).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+__all__ = ["BakeAssetConfig", "bake_asset", "MAPS"]
+
+MAPS = ("normal", "albedo", "vertex")
+
+
+@dataclass
+class BakeAssetConfig:
+    """Settings of :func:`bake_asset`; one line per field (the CLI options mirror them)."""
+
+    coarse: str = "decimate:2000"
+    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep."""
+    maps: str | None = None
+    """Comma-separated maps: normal, albedo (needs a texture model), vertex; None: normal[,albedo]."""
+    size: int = 2048
+    """Map side in texels."""
+    texture: str | None = None
+    """Base-colour image for a mesh whose file names none (ground truth of the report)."""
+    normal_space: str = "tangent"
+    """"tangent" (glTF, per-texel TBN) or "object" normal map."""
+    directx: bool = False
+    """DirectX convention: green points down (-Y)."""
+    bits: int = 8
+    """Bit depth of the loose PNG maps (the GLB embeds 8-bit PNGs)."""
+    exr: bool = False
+    """Also write the maps as float EXR."""
+    supersample: int = 1
+    """s×s samples per texel."""
+    padding: str = "pull-push"
+    """Edge padding of the charts: pull-push, dilate or none."""
+    delta: float | None = None
+    """Nesting band half-width δ (unit frame) for the miss map; None: the model file's δ, if any."""
+    baseline: bool = True
+    """Also run the classical mesh-to-mesh bake (open3d rays) on the same texels."""
+    cage: float | None = None
+    """Baseline ray distance (unit frame; None: 0.05)."""
+    truth: str = "auto"
+    """Ground truth of the report: auto (analytic if the mesh is a bundled sample), mesh, sample:NAME."""
+
+
+def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
+               log: Callable[[str], None] = print) -> dict:
+    """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
+
+    Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
+    and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
+    Raises NeuralBakeError (one line) for bad input, before anything is written.
+    """
+    import numpy as np
+
+    from neural_bake.bake.baker import Baker, bake_vertices, coarse_mesh, parse_coarse
+    from neural_bake.bake.export import export_glb, export_vertex_ply
+    from neural_bake.bake.fields import load_field
+    from neural_bake.bake.report import bake_report
+    from neural_bake.errors import NeuralBakeError
+    from neural_bake.io.atomic import atomic_write_text
+    from neural_bake.io.images import write_image
+    from neural_bake.io.mesh_io import load_mesh
+
+    cfg = config or BakeAssetConfig()
+    coarse, size, texture, normal_space, directx = cfg.coarse, cfg.size, cfg.texture, cfg.normal_space, cfg.directx
+    bits, exr, supersample, padding, delta = cfg.bits, cfg.exr, cfg.supersample, cfg.padding, cfg.delta
+    baseline, cage, truth, maps_spec = cfg.baseline, cfg.cage, cfg.truth, cfg.maps
+    tex_path = texture_model
+    t_start = time.perf_counter()
+    if maps_spec is None:
+        maps_spec = "normal,albedo" if tex_path else "normal"
+    maps = _parse_maps(maps_spec)
+    parse_coarse(coarse)
+    if size < 1 or size > 16384:
+        raise NeuralBakeError(f"--size {size}: must be between 1 and 16384")
+    if "albedo" in maps and tex_path is None:
+        raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
+    if delta is not None and not delta > 0:
+        raise NeuralBakeError(f"--delta {delta}: must be a positive distance")
+    if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
+        raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
+    out_dir = Path(out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NeuralBakeError(f"-o {out}: exists and is not a folder")
+    if not out_dir.parent.is_dir():
+        raise NeuralBakeError(f"-o {out}: folder {out_dir.parent} does not exist")
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    sdf = load_field(sdf_path, "sdf", argument="--sdf")
+    tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
+    fine = load_mesh(mesh, texture)
+    timings["load"] = time.perf_counter() - t0
+    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
+    timings["coarse"] = coarse_info["seconds"]
+    log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+
+    created = not out_dir.exists()
+    out_dir.mkdir(exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".bake-", dir=out_dir))
+    ok = False
+    try:
+        written: list[str] = []
+        report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
+                        "maps": maps}
+        texel_maps = [m for m in maps if m in ("normal", "albedo")]
+        if texel_maps:
+            t0 = time.perf_counter()
+            baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
+                          y_convention="directx" if directx else "opengl",
+                          padding=None if padding == "none" else padding)
+            timings["prepare"] = time.perf_counter() - t0
+            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta)
+            log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
+                       f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
+            t0 = time.perf_counter()
+            nbits = int(bits)
+            if "normal" in maps:
+                write_image(stage / "normal.png", res.normal_map, colour="data", bits=nbits)
+                written.append("normal.png")
+                if exr:
+                    write_image(stage / "normal.exr", res.normal_map, colour="data", bits=32)
+                    written.append("normal.exr")
+            if res.albedo is not None:
+                write_image(stage / "albedo.png", res.albedo, colour="srgb", bits=nbits)
+                written.append("albedo.png")
+                if exr:
+                    write_image(stage / "albedo.exr", res.albedo, colour="linear", bits=32)
+                    written.append("albedo.exr")
+            # a glTF normalTexture is tangent space, +Y up: an object-space or DirectX map stays loose
+            gltf_normals = "normal" in maps and normal_space == "tangent" and not directx
+            export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
+                       albedo=res.albedo, tangents=baker.tangents)
+            written.append("asset.glb")
+            timings["write"] = time.perf_counter() - t0
+            base = None
+            if baseline and baker.texels is not None:
+                from neural_bake.bake.baseline import baseline_bake
+
+                base = baseline_bake(baker.mesh, fine, baker.texels, cage=cage)
+                log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
+                           f"{base['fallback']} closest-point fallbacks")
+            if baker.texels is not None:
+                normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
+                rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else fine,
+                                  truth_colors=colours_fn, baseline=base, bits=nbits, timings=timings,
+                                  out_dir=stage)
+                if sample_name:
+                    rep["truth"] = f"analytic ({sample_name} sample)"
+                written += rep.pop("files", [])
+                report.update(rep)
+            else:
+                report["bake"] = res.stats
+                report["note"] = "map too large for the per-sample report (streamed); errors not measured"
+        if "vertex" in maps:
+            t0 = time.perf_counter()
+            vb = bake_vertices(coarse_m, sdf, tex)
+            colors = None if vb["colors"] is None else np.clip(vb["colors"][:, :3], 0, 1)
+            export_glb(stage / "vertex.glb", coarse_m, normals=vb["normals"], vertex_colors=colors)
+            export_vertex_ply(stage / "vertex.ply", coarse_m, normals=vb["normals"], vertex_colors=colors)
+            written += ["vertex.glb", "vertex.ply"]
+            report["vertex"] = {"vertices": coarse_m.n_vertices, "invalid_gradients": vb["invalid"],
+                                "seconds": time.perf_counter() - t0}
+        timings["total"] = time.perf_counter() - t_start
+        report["seconds_total"] = timings["total"]
+        report["files"] = written + ["report.json"]
+        atomic_write_text(stage / "report.json", json.dumps(_finite(report), indent=2, default=_json_default) + "\n")
+        for name in written + ["report.json"]:  # each move is an atomic rename; the report comes last
+            (stage / name).replace(out_dir / name)
+        ok = True
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created and not ok:
+            shutil.rmtree(out_dir, ignore_errors=True)
+    summary = report.get("vs_truth_deg") or {}
+    if summary.get("median") is not None:
+        line = f"normal error vs truth: median {summary['median']:.2f}°, p95 {summary['p95']:.2f}°"
+        b = report.get("baseline", {}).get("vs_truth_deg")
+        if b:
+            line += f" (baseline median {b['median']:.2f}°, p95 {b['p95']:.2f}°)"
+        log(line)
+    log(f"wrote {out_dir}/: {', '.join(written + ['report.json'])}")
+
+
+    return report
+
+
+def _parse_maps(spec: str) -> list[str]:
+    from neural_bake.errors import NeuralBakeError
+
+    maps = [m.strip() for m in spec.split(",") if m.strip()]
+    bad = [m for m in maps if m not in MAPS]
+    if bad or not maps:
+        raise NeuralBakeError(f"--maps {spec!r}: unknown map {bad[0] if bad else '(none)'!r} (choose from {', '.join(MAPS)})")
+    return maps
+
+
+def _sample_truth(path: str, mesh, choice: str):
+    """(normals(points) callable, colours callable, name) of an analytic sample the mesh is, or Nones."""
+    import numpy as np
+
+    from neural_bake.errors import NeuralBakeError
+    from neural_bake.samples.shapes import SAMPLES, get_sample
+
+    if choice == "mesh":
+        return None, None, None
+    name = choice.split(":", 1)[1] if choice.startswith("sample:") else Path(path).stem
+    if name not in SAMPLES:
+        if choice.startswith("sample:"):
+            get_sample(name)  # raises naming the known samples
+        return None, None, None
+    sample = get_sample(name)
+    src = mesh.frame.to_source(mesh.vertices[:: max(1, mesh.n_vertices // 500)])
+    tol = 0.02 * float(np.ptp(mesh.frame.to_source(mesh.vertices), axis=0).max())
+    if np.abs(sample.sdf(src)).max() > tol:
+        if choice.startswith("sample:"):
+            raise NeuralBakeError(f"--truth {choice}: {path} is not the {name} sample (vertices off its surface)")
+        return None, None, None
+
+    def normals(p):
+        return sample.normal(mesh.frame.to_source(p))
+
+    def colours(p):
+        return sample.albedo(mesh.frame.to_source(p))
+
+    return normals, colours, name
+
+
+def _finite(o):
+    """JSON has no NaN or infinity: such floats become None (e.g. the PSNR of identical colours)."""
+    if isinstance(o, float):
+        return o if o == o and abs(o) != float("inf") else None
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite(v) for v in o]
+    return o
+
+
+def _json_default(o):
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if hasattr(o, "item"):
+        return o.item()
+    return str(o)
