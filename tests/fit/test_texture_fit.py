@@ -293,6 +293,8 @@ def test_presets_are_valid_and_applied(sphere):
     fit = fit_texture(sphere, sphere_sdf, preset="fast", steps=3, pool=2000, batch=64, minutes=None)
     assert (fit.model.width, fit.model.depth) == (PRESETS["fast"]["width"], PRESETS["fast"]["depth"])
     assert fit.steps == 3
+    # the orthogonality term is on by default
+    assert TextureFitConfig().lam > 0 and fit.lam == TextureFitConfig().lam and "orth" in fit.history[-1]
 
 
 # ------------------------------------------------------------------------------------------- texture policies
