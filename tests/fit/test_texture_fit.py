@@ -487,12 +487,16 @@ def test_bench_mesh_sdf_is_the_exact_distance_of_the_sphere():
 def test_bench_run_with_tiny_settings_reports_the_lam0_baselines():
     from neural_bake.bench.texture import run
 
-    res = run(quick=True, cases=["sphere", "checker8"], settings=[{"label": "tiny", "width": 16, "depth": 0, "steps": 30,
-                                                       "batch": 128, "pool": 3000, "lam": 0.05, "lr": 1e-3}])
+    tiny = {"label": "tiny", "width": 16, "depth": 0, "steps": 30, "batch": 128, "pool": 3000, "lam": 0.05,
+            "lr": 1e-3}
+    res = run(quick=True, cases=["sphere", "checker8"],
+              settings=[tiny, dict(tiny, label="t2", equal_time=False, only=["checker8"])])
     rows = res["tables"]["accuracy"]
-    assert [(r["case"], r["baseline"]) for r in rows] == [
-        (c, b) for c in ("sphere", "checker8") for b in ("", "λ=0 equal steps", "λ=0 equal time")]
-    for main_row, base in zip(rows[::3], rows[1::3]):
+    eq = ("", "λ=0 equal steps", "λ=0 equal time")
+    assert [(r["case"], r["setting"], r["baseline"]) for r in rows] == (
+        [("sphere", "tiny", b) for b in eq] + [("checker8", "tiny", b) for b in eq]
+        + [("checker8", "t2", b) for b in eq[:2]])
+    for main_row, base in [(rows[0], rows[1]), (rows[3], rows[4]), (rows[6], rows[7])]:
         assert main_row["steps"] == base["steps"] == 30 and base["lam"] == 0.0
         assert main_row["band_ratio"] == pytest.approx(base["band_change"] / main_row["band_change"])
     assert res["name"] == "texture" and res["machine"]["cores"] and res["tables"]["orthogonality term cost per step"]
