@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
