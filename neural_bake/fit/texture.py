@@ -6,8 +6,9 @@ A colour SIREN ``g: R^3 -> RGB`` (linear RGB, unit frame) is trained with
 
 where ĝ is the mesh's texture (bilinear lookup through the UVs, linear RGB), the band is ``|f| ≤ δ`` around
 the zero set of a frozen SDF ``f`` and ``n = ∇f / |∇f|`` (GEMM normals, computed once under no_grad since f
-does not train). ``∇g`` is the differentiable GEMM Jacobian (3 × 3, out × in) of the colour network, so the
-second term makes the colours constant along the normal lines: a coarse surface up to δ away from the fine
+does not train). ``∇g`` is the differentiable GEMM Jacobian (3 × 3, out × in) of the colour network (default;
+``orth_method="directional"`` computes the same ⟨∇g_c, n⟩ as one forward-mode GEMM stream along n, measured
+1.3–2.4× cheaper for the term), so the second term makes the colours constant along the normal lines: a coarse surface up to δ away from the fine
 one reads the right colour. The term is real and on by default (λ > 0); λ = 0 is the ablation.
 
 Choosing λ (measured, equal steps, δ = 0.03; colour change across the band vs λ = 0, surface PSNR change):
