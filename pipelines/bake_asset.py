@@ -103,6 +103,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     t0 = time.perf_counter()
     sdf = load_field(sdf_path, "sdf", argument="--sdf")
     tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
+    if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
+        delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
+        log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
     timings["load"] = time.perf_counter() - t0
     coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)

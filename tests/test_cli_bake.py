@@ -180,3 +180,20 @@ def test_bench_bake_shrunken_run():
     # the analytic field baked into an 8-bit map beats both the coarse geometry and the ray-cast baseline
     assert e["ours med°"] < 1.0 and e["ours med°"] < e["baseline med°"] < e["geometry med°"]
     assert any("random initialisation" in n for n in res["notes"])
+
+
+def test_delta_defaults_to_the_texture_models_band(files, tmp_path, capsys):
+    """With no δ on the SDF and no --delta, the texture model's band flags texels off |f| <= δ."""
+    from neural_bake.nets.model_io import load_model
+
+    model, meta = load_model(files["tex"])
+    tex = save_model(model, tmp_path / "band.tex", **{**meta, "delta": 1e-9})
+    out = tmp_path / "out"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--texture-model", str(tex), "--coarse", "keep",
+                             "--size", "32", "--no-baseline", "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["bake"]["delta"] == pytest.approx(1e-9)
+    assert "from band.tex" in stdout
+    # an untrained net is nowhere near 0 on the sphere: every covered texel is off the band
+    assert rep["miss_texels"] == rep["texels_covered"] > 0

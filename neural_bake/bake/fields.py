@@ -85,16 +85,19 @@ class ColorField:
     - ``fn``: callable on (N, 3) tensors (a Siren with 3 or 4 outputs, or analytic).
     - ``frame``: the unit frame the field lives in (None = the mesh's).
     - ``name``: what reports call it.
+    - ``delta``: half-width of the band |f| <= δ the colours were fitted to be constant across (or None).
     """
 
-    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None, name: str = "analytic"):
-        self.fn, self.frame, self.name = fn, frame, name
+    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None, name: str = "analytic",
+                 delta: float | None = None):
+        self.fn, self.frame, self.name, self.delta = fn, frame, name, delta
 
     @classmethod
-    def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren") -> "ColorField":
+    def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren",
+                   delta: float | None = None) -> "ColorField":
         if getattr(model, "out_dim", 3) not in (3, 4):
             raise ModelFileError(f"{name}: a texture model must have 3 or 4 outputs, this one has {model.out_dim}")
-        return cls(model, frame=frame, name=name)
+        return cls(model, frame=frame, name=name, delta=delta)
 
     def color(self, points: torch.Tensor) -> torch.Tensor:
         """Linear RGB(A) (N, C) at ``points`` (N, 3); non-finite outputs become 0."""
@@ -127,7 +130,8 @@ def load_field(path: str | Path, kind: str, *, argument: str = "--sdf"):
         raise ModelFileError(f"{argument} {path}: model of kind {got!r}, expected {kind!r}")
     frame = Frame.from_dict(meta["frame"]) if meta.get("frame") else None
     model.eval()
+    delta = meta.get("delta")
+    delta = None if delta is None else float(delta)
     if kind == "sdf":
-        delta = meta.get("delta")
-        return SdfField.from_model(model, frame=frame, delta=None if delta is None else float(delta), name=path.name)
-    return ColorField.from_model(model, frame=frame, name=path.name)
+        return SdfField.from_model(model, frame=frame, delta=delta, name=path.name)
+    return ColorField.from_model(model, frame=frame, name=path.name, delta=delta)
