@@ -126,6 +126,9 @@ class SdfFitConfig:
 #: (64, 1) 0.033 s and (256, 3) 0.42 s per step, the same as double-backward autograd (0.035 s, 0.43 s).
 #: So a 2-minute (64, 1) budget gives about 3,000–3,600 steps and a 10-minute (256, 3) budget about
 #: 1,400 steps on an idle machine (more with 2 threads). ``neural-bake bench fit`` measures both in one run.
+#: Accuracy seen on the bundled bumpy sphere (one thread, seed 0, metrics of :func:`sdf_metrics` at grid 256,
+#: 100k samples): (64, 1) after 489 steps (24 s of CPU): Chamfer-L1 0.00056, Hausdorff 0.0029, median normal
+#: error 2.3°; (256, 3) after 800 steps (360 s of CPU): Chamfer-L1 0.00032, Hausdorff 0.0020, median 2.1°.
 PRESETS: dict[str, dict] = {
     "64x1": {"width": 64, "depth": 1, "lr": 5e-4, "minutes": 2.0, "steps": 100_000,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000},
