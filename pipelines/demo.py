@@ -86,7 +86,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
         "bake": {k: report.get(k) for k in ("vs_truth_deg", "vs_gradient_deg", "coarse_vs_truth_deg", "baseline",
                                             "albedo_psnr", "coverage", "seconds_total") if k in report},
         "seconds_total": time.perf_counter() - t_all,
-        "outputs": sorted(p.name for p in out.iterdir() if not p.name.startswith(".")),
+        "outputs": sorted({p.name for p in out.iterdir() if not p.name.startswith(".")} | {"demo.json"}),
     }
     atomic_write_text(out / "demo.json", json.dumps(summary, indent=2, default=str) + "\n")
     log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
