@@ -37,12 +37,14 @@ def command(model, output, levels, steps, minutes, seed, band, eps, certify, max
     fine = load_sdf(model)
     seq = fit_nested(fine, lv, steps=steps, minutes=minutes, seed=seed, band=band, eps=eps, certify=certify,
                      certify_max_boxes=max_boxes, progress=progress)
-    click.echo(f"{'level':>8} {'steps':>6} {'best':>6} {'sup est':>9} {'sup cert':>9} {'δ est':>9} {'δ cert':>9}")
+    click.echo(f"{'level':>8} {'steps':>6} {'best':>6} {'sup est':>9} {'sup cert':>9} {'δ est':>9} {'δ cert':>9} "
+               f"{'δ used':>9}")
     for info in seq.levels_info:
         def f(v):
             return "-" if v is None else f"{v:.5f}"
-        click.echo(f"{info['width']}x{info['depth']:<4} {info.get('steps', 0):>6} {str(info.get('best_step', '-')):>6} "
+        click.echo(f"{str(info['width']) + 'x' + str(info['depth']):>8} {info.get('steps', 0):>6} {str(info.get('best_step', '-')):>6} "
                    f"{f(info.get('sup_estimated')):>9} {f(info.get('sup_certified')):>9} "
-                   f"{f(info.get('delta_estimated')):>9} {f(info.get('delta_certified')):>9}")
+                   f"{f(info.get('delta_estimated')):>9} {f(info.get('delta_certified')):>9} "
+                   f"{f(info.get('delta')):>9} ({info.get('delta_source')})")
     seq.save(output)
     click.echo(f"wrote {output}")

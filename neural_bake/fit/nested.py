@@ -22,6 +22,11 @@ The sup-norm is
   within ``certify_rel_tol`` of the estimate or the box budget is spent. The certified value is the largest
   box bound: a guaranteed upper bound of |h − g| on the band. A :class:`NeuralBakeWarning` is issued when
   it exceeds the estimate by more than ``warn_ratio``.
+
+Both δ are stored per level (``delta_estimated``, ``delta_certified``); :attr:`NestedSequence.deltas` (what
+a renderer uses) takes a level's certified sup-norm only where its certification met the target, else the
+estimate: affine bounds over boxes of a ω0 = 30 network are loose until the boxes are tiny, and a
+guaranteed but huge δ would make the coarse levels useless.
 """
 
 from __future__ import annotations
@@ -79,12 +84,10 @@ class NestedSequence:
 
     @property
     def deltas(self) -> list[float]:
-        """δ per level (coarse to fine): the certified value where there is one, else the estimate."""
-        out = []
-        for info in self.levels_info:
-            c = info.get("delta_certified")
-            out.append(float(c) if c is not None else float(info["delta_estimated"]))
-        return out
+        """δ per level (coarse to fine) to render with: ``levels_info[i]["delta"]``, built from the certified
+        sup-norm of each level whose certification met its target (within ``certify_rel_tol`` of the
+        estimate) and from the estimate elsewhere (``"delta_source"`` says which)."""
+        return [float(info["delta"]) for info in self.levels_info]
 
     @property
     def deltas_estimated(self) -> list[float]:
@@ -500,13 +503,15 @@ def fit_nested(
                         f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}): certified |h - g| bound "
                         f"{cert['sup_certified']:.4g} is {cert['sup_certified'] / max(est, 1e-12):.1f}x the sampled "
                         f"estimate {est:.4g} (range analysis over {cert['boxes_bounded']} boxes"
-                        f"{'' if cert['complete'] else ', budget reached'}); using the certified δ",
+                        f"{'' if cert['complete'] else ', budget reached'}); "
+                        f"{'the certified δ is used' if cert['complete'] else 'δ uses the estimate, both are stored'}",
                         NeuralBakeWarning, stacklevel=2)
 
     # thresholds, fine to coarse (Prop. 1)
     fine_info = {"width": fine_model.width, "depth": fine_model.depth, "steps": 0, "delta_estimated": eps,
                  "delta_certified": eps if certify and all(i["sup_certified"] is not None for i in infos) else None}
-    d_est, d_cert = eps, fine_info["delta_certified"]
+    fine_info.update(delta=eps, delta_source="eps")
+    d_est, d_cert, d_used = eps, fine_info["delta_certified"], eps
     for i in range(len(levels) - 1, -1, -1):
         d_est = infos[i]["sup_estimated"] + d_est
         infos[i]["delta_estimated"] = d_est
@@ -515,9 +520,13 @@ def fit_nested(
         else:
             d_cert = None
         infos[i]["delta_certified"] = d_cert
-        worst = d_cert if d_cert is not None else d_est
-        if worst > band:
-            warnings.warn(f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}) has δ = {worst:.4g} above the "
+        cert = infos[i]["certify"]
+        tight = cert is not None and cert["complete"]
+        d_used += infos[i]["sup_certified"] if tight else infos[i]["sup_estimated"]
+        infos[i]["delta"] = d_used
+        infos[i]["delta_source"] = "certified" if tight else "estimated"
+        if d_used > band:
+            warnings.warn(f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}) has δ = {d_used:.4g} above the "
                           f"band Δ = {band} where |h - g| was measured; rerun with a larger band or more steps",
                           NeuralBakeWarning, stacklevel=2)
     metadata = {"package_version": __version__, "seed": int(seed), "steps": int(steps), "minutes": minutes,
