@@ -106,8 +106,9 @@ class Siren(nn.Module):
         """Values (N, out_dim) at points ``x`` (N, in_dim) (or (..., in_dim)); dtype and device of ``x``.
 
         With autograd off (``torch.no_grad()``, or neither ``x`` nor any parameter requiring grad) it runs a
-        chunked in-place path (:func:`siren_forward_inference`) that keeps the working set small; otherwise
-        the plain differentiable path.
+        chunked in-place path (:func:`siren_forward_inference`) whose memory stays bounded; otherwise (and
+        inside ``torch.func`` transforms) the plain differentiable path. Parameters are converted to the
+        dtype/device of ``x`` before use.
         """
         if x.shape[-1] != self.in_dim:
             raise NeuralBakeError(f"Siren: expected points of shape (N, {self.in_dim}), got {tuple(x.shape)}")
@@ -143,8 +144,9 @@ def siren_forward_inference(
     """A SIREN's values without autograd: ``layers`` from :meth:`Siren.affine_layers` (ω folded in).
 
     ``x``: (N, in_dim) tensor; returns (N, out_dim) of the same dtype and device. Works chunk by chunk of
-    ``chunk_size`` points (default :data:`FORWARD_CHUNK_ELEMENTS` ÷ width) with two reused activation buffers: ``addmm`` into
-    a buffer, then ``sin_`` in place, so no temporary is allocated per layer. Call under ``torch.no_grad()``.
+    ``chunk_size`` points (default :data:`FORWARD_CHUNK_ELEMENTS` ÷ width, at least 256) with two reused
+    activation buffers: ``addmm`` into a buffer, then ``sin_`` in place, so no temporary is allocated per
+    layer. Call under ``torch.no_grad()``.
     """
     n = x.shape[0]
     w_last, b_last = layers[-1]
