@@ -123,8 +123,9 @@ class TextureFitConfig:
 
 #: Named presets (fields overridden on top of the defaults). Times are wall-time budgets on this project's
 #: shared 2-core CPU; ``steps`` is an upper bound that a faster machine reaches first. Measured on Spot
-#: (exact mesh SDF, δ = 0.03, CPU shared with other jobs): "fine" 10 min with λ = 0.01 → 26.3 dB surface
-#: PSNR, render MSE 0.0021; (128, 2) for 1516 steps (~2 min) with λ = 1e-3 → 28.0 dB.
+#: (exact mesh SDF, δ = 0.03, CPU shared with other jobs): "fine" 10 min with the default λ = 1e-3 → 5855
+#: steps, 31.1 dB surface PSNR, render MSE 0.00071 (0.0011 read ±δ off the surface); with λ = 0.01 → 26.3 dB;
+#: (128, 2) for 1516 steps (~2 min) with λ = 1e-3 → 28.0 dB.
 PRESETS: dict[str, dict] = {
     "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 5000, "batch": 2048, "lr": 5e-4},
     "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 10000, "batch": 4096, "lr": 5e-4},
