@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import NeuralBakeError
 from ..types import Mesh
 from .common import machine_info, timeit
 
@@ -112,7 +113,7 @@ def _cases(names, quick: bool) -> dict[str, Mesh]:
                 tex = SPOT.parent / "spot_texture.png"
                 out[name] = load_mesh(SPOT, tex if tex.is_file() else None)
         else:
-            raise ValueError(f"bench texture: unknown case {name!r}")
+            raise NeuralBakeError(f"--case: unknown case {name!r} (choose sphere, torus, checker<k>, spot)")
     return out
 
 

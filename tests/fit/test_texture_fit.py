@@ -500,3 +500,10 @@ def test_bench_run_with_tiny_settings_reports_the_lam0_baselines():
         assert main_row["steps"] == base["steps"] == 30 and base["lam"] == 0.0
         assert main_row["band_ratio"] == pytest.approx(base["band_change"] / main_row["band_change"])
     assert res["name"] == "texture" and res["machine"]["cores"] and res["tables"]["orthogonality term cost per step"]
+
+
+def test_bench_unknown_case_is_a_one_line_cli_error(capsys):
+    from neural_bake.cli.main import main
+
+    assert main(["bench", "texture", "--quick", "--case", "cube"]) == 2
+    assert "neural-bake: error: --case: unknown case 'cube'" in capsys.readouterr().err
