@@ -18,7 +18,7 @@ demo: setup
 	$(BIN)/neural-bake demo --out $(OUT)
 
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 bench-quick: setup
 	$(BIN)/neural-bake bench all --quick

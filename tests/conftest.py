@@ -1,10 +1,15 @@
-"""Shared test set-up: small thread count (tests run two at a time on a 2-core machine), seeds."""
+"""Shared test set-up: one torch thread per test process (pytest-xdist runs one process per core), and no
+hypothesis example database in the working directory (tests write only under tmp_path)."""
 
 import numpy as np
 import pytest
 import torch
+from hypothesis import settings
 
 torch.set_num_threads(1)
+
+settings.register_profile("neural_bake", database=None, deadline=None)
+settings.load_profile("neural_bake")
 
 
 @pytest.fixture
