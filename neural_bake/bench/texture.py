@@ -104,7 +104,10 @@ def _cases(names, quick: bool) -> dict[str, Mesh]:
             if m is not None:
                 out[name] = m
         elif name.startswith("checker"):
-            k = int(name[len("checker"):] or 16)
+            digits = name[len("checker"):] or "16"
+            if not digits.isdigit() or int(digits) < 1:
+                raise NeuralBakeError(f"--case: {name!r} needs a positive cell count, e.g. checker16")
+            k = int(digits)
             out[name] = latlong_sphere(24 if quick else 48, 48 if quick else 96, (256, 512), checker=k)
         elif name == "spot":
             if SPOT.is_file():

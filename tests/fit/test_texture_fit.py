@@ -507,3 +507,5 @@ def test_bench_unknown_case_is_a_one_line_cli_error(capsys):
 
     assert main(["bench", "texture", "--quick", "--case", "cube"]) == 2
     assert "neural-bake: error: --case: unknown case 'cube'" in capsys.readouterr().err
+    assert main(["bench", "texture", "--quick", "--case", "checkerx"]) == 2
+    assert "'checkerx' needs a positive cell count" in capsys.readouterr().err
