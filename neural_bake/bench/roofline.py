@@ -38,10 +38,20 @@ def measure_roofline(
         "threads", "dtype"}``: ``gflops_sgemm`` is the best of the square (1024³) and SIREN-shaped
         ((8192, width) × (width, width)) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is
         ``torch.sin`` on 2^20 elements written into a preallocated tensor (billions per second);
-        ``gmul_per_s`` an in-place element-wise product on the same size.
+        ``gmul_per_s`` an element-wise product on the same size.
     """
     repeat = repeat or (4 if quick else 10)
     gen = torch.Generator().manual_seed(0)
+    # element-wise passes first (right after a GEMM, the BLAS threads may still be spinning), ~1 ms each:
+    # many tries, best of, so that a shared CPU's stalls do not count
+    n_el = 1 << 20
+    s = torch.rand(n_el, generator=gen, dtype=dtype) * 20 - 10  # SIREN pre-activations are O(1..10)
+    so = torch.empty_like(s)
+    tries = {"repeat": max(repeat, 20), "min_time": 0.3}
+    t_sin = timeit(lambda: torch.sin(s, out=so), **tries)
+    t_cos = timeit(lambda: torch.cos(s, out=so), **tries)
+    s2 = torch.rand(n_el, generator=gen, dtype=dtype)
+    t_mul = timeit(lambda: torch.mul(s, s2, out=so), **tries)  # not in place: repeated products would denormalise
     n_sq = 1024
     a = torch.rand(n_sq, n_sq, generator=gen, dtype=dtype)
     b = torch.rand(n_sq, n_sq, generator=gen, dtype=dtype)
@@ -54,12 +64,6 @@ def measure_roofline(
     o2 = torch.empty(rows, width, dtype=dtype)
     t_sh = timeit(lambda: torch.mm(x, w.t(), out=o2), repeat=repeat)
     gf_sh = 2 * rows * width * width / t_sh / 1e9
-    n_el = 1 << 20
-    s = torch.rand(n_el, generator=gen, dtype=dtype) * 20 - 10  # SIREN pre-activations are O(1..10)
-    so = torch.empty_like(s)
-    t_sin = timeit(lambda: torch.sin(s, out=so), repeat=repeat)
-    t_cos = timeit(lambda: torch.cos(s, out=so), repeat=repeat)
-    t_mul = timeit(lambda: so.mul_(s), repeat=repeat)
     return {
         "gflops_sgemm": max(gf_sq, gf_sh),
         "gflops_square": gf_sq,
