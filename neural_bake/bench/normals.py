@@ -74,6 +74,10 @@ def run(
     for row in rows:
         row["roofline"] = roofline_seconds(row.pop("_cost"), roof) / row["seconds"]
     notes = _targets(rows, roof, targets)
+    if any(r["roofline"] > 1.05 for r in rows):
+        notes.append("WARNING: some roofline fractions exceed 1: the roofline measurement itself was slowed "
+                     "by other work on the machine (its element-wise rates are the fragile part); re-run on an "
+                     "idle machine")
     notes += [
         f"roofline (best of a measurement before and after, {roof['threads']} threads): sgemm "
         f"{roof['gflops_sgemm']:.1f} GFLOP/s, sin {roof['gsin_per_s']:.2f} G/s, multiply {roof['gmul_per_s']:.2f} G/s; "

@@ -37,14 +37,14 @@ def measure_roofline(
         ``{"gflops_sgemm", "gflops_square", "gflops_siren_shape", "gsin_per_s", "gcos_per_s", "gmul_per_s",
         "threads", "dtype"}``: ``gflops_sgemm`` is the best of the square (1024³) and SIREN-shaped
         ((8192, width) × (width, width)) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is
-        ``torch.sin`` on 2^20 elements written into a preallocated tensor (billions per second);
+        ``torch.sin`` on 2^22 elements written into a preallocated tensor (billions per second);
         ``gmul_per_s`` an element-wise product on the same size.
     """
     repeat = repeat or (4 if quick else 10)
     gen = torch.Generator().manual_seed(0)
     # element-wise passes first (right after a GEMM, the BLAS threads may still be spinning), ~1 ms each:
     # many tries, best of, so that a shared CPU's stalls do not count
-    n_el = 1 << 20
+    n_el = 1 << 22  # the size of a chunk's (16,384 × 256) activation: the passes a SIREN really makes
     s = torch.rand(n_el, generator=gen, dtype=dtype) * 20 - 10  # SIREN pre-activations are O(1..10)
     so = torch.empty_like(s)
     tries = {"repeat": max(repeat, 20), "min_time": 0.3}
