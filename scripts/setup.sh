@@ -34,7 +34,9 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
     "${PIP[@]}" "torch>=2.3"
   else
     say "no GPU: installing the CPU build torch==2.13.0+cpu"
-    "${PIP[@]}" "torch==2.13.0" --extra-index-url https://download.pytorch.org/whl/cpu
+    # PyTorch's CPU index is tried once (fast failure where it cannot be reached; a local or mirrored
+    # torch==2.13.0+cpu wheel is then used, as on machines that carry one)
+    "${PIP[@]}" --retries 0 --timeout 15 "torch==2.13.0" --extra-index-url https://download.pytorch.org/whl/cpu
   fi
 fi
 
