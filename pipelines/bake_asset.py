@@ -9,7 +9,6 @@ leaves the output folder as it was (and removes it if it created it).
 
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 import time
@@ -73,6 +72,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.errors import NeuralBakeError
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.images import write_image
+    from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
 
     cfg = config or BakeAssetConfig()
@@ -181,7 +181,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         timings["total"] = time.perf_counter() - t_start
         report["seconds_total"] = timings["total"]
         report["files"] = written + ["report.json"]
-        atomic_write_text(stage / "report.json", json.dumps(_finite(report), indent=2, default=_json_default) + "\n")
+        atomic_write_text(stage / "report.json", dumps(report))
         for name in written + ["report.json"]:  # each move is an atomic rename; the report comes last
             (stage / name).replace(out_dir / name)
         ok = True
@@ -241,22 +241,3 @@ def _sample_truth(path: str, mesh, choice: str):
         return sample.albedo(mesh.frame.to_source(p))
 
     return normals, colours, name
-
-
-def _finite(o):
-    """JSON has no NaN or infinity: such floats become None (e.g. the PSNR of identical colours)."""
-    if isinstance(o, float):
-        return o if o == o and abs(o) != float("inf") else None
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_finite(v) for v in o]
-    return o
-
-
-def _json_default(o):
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if hasattr(o, "item"):
-        return o.item()
-    return str(o)

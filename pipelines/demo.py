@@ -7,7 +7,6 @@ measured on the same texels. Only library calls; the CLI verb `neural-bake demo`
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -46,6 +45,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.fit.texture import fit_texture, texture_metrics
     from neural_bake.io.atomic import atomic_write_text
+    from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
     from neural_bake.samples.generate import sample_path
@@ -88,7 +88,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
         "seconds_total": time.perf_counter() - t_all,
         "outputs": sorted({p.name for p in out.iterdir() if not p.name.startswith(".")} | {"demo.json"}),
     }
-    atomic_write_text(out / "demo.json", json.dumps(summary, indent=2, default=str) + "\n")
+    atomic_write_text(out / "demo.json", dumps(summary))
     log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
         f"figures in {out / 'report.json'} and {out / 'demo.json'}")
     return summary

@@ -6,7 +6,6 @@ with :func:`format_table` and writes it with :func:`write_json` when ``--json PA
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -15,6 +14,7 @@ from typing import Callable, Sequence
 import torch
 
 from ..io.atomic import atomic_write_text
+from ..io.jsonio import dumps
 
 __all__ = ["timeit", "format_table", "write_json", "machine_info"]
 
@@ -77,12 +77,4 @@ def format_table(rows: Sequence[dict], columns: Sequence[str] | None = None) -> 
 
 def write_json(path: str | os.PathLike, result: dict) -> None:
     """Write a benchmark's result atomically as indented JSON."""
-    atomic_write_text(path, json.dumps(result, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(o):
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if hasattr(o, "item"):
-        return o.item()
-    return str(o)
+    atomic_write_text(path, dumps(result))

@@ -44,6 +44,7 @@ import torch
 from .. import __version__
 from ..errors import FitError, ModelFileError, NeuralBakeWarning
 from ..io.atomic import atomic_path
+from ..io.jsonio import json_default
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
@@ -122,7 +123,7 @@ class NestedSequence:
             "metadata": self.metadata,
         }
         try:
-            text = json.dumps(header, allow_nan=False, default=_json_default)
+            text = json.dumps(header, allow_nan=False, default=json_default)
         except ValueError as exc:
             raise ModelFileError(f"{path}: metadata is not JSON-serialisable ({exc})") from None
         with atomic_path(path) as tmp:
@@ -176,14 +177,6 @@ class NestedSequence:
         return cls(levels=levels, frame=Frame.from_dict(header["frame"]), levels_info=header["levels_info"],
                    band=float(header["band"]), eps=float(header["eps"]), stability=header.get("stability", []),
                    metadata=header.get("metadata", {}))
-
-
-def _json_default(o):
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if hasattr(o, "to_dict"):
-        return o.to_dict()
-    return str(o)
 
 
 # ----------------------------------------------------------------------------------------------- band & sup
