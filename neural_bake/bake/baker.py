@@ -3,6 +3,9 @@
 ``Baker(mesh)`` unwraps (if the mesh has no UVs), computes the tangent frames once and rasterises the UV
 layout once; ``Baker.bake(sdf, texture)`` then evaluates ∇f (GEMM normals) and g at the texel points in
 chunks and writes the maps. ``bake_texels`` is the one-off wrapper, ``bake_vertices`` the per-vertex bake.
+
+A bake that streams its texels (large maps) keeps no per-sample arrays but a deterministic uniform subsample
+of them (:class:`TexelSample`), on which :func:`neural_bake.bake.report.bake_report` measures its errors.
 """
 
 from __future__ import annotations
@@ -15,13 +18,108 @@ import torch
 
 from ..errors import NeuralBakeError
 from ..types import Frame, Mesh
+from ..mesh.texels import TexelSet
 from .fields import ColorField, SdfField
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
 from .padding import PADDING_METHODS, pad_charts
 
-__all__ = ["Baker", "BakeResult", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
+__all__ = ["Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
 
 DEFAULT_CHUNK = 1 << 16
+#: Texel samples a streamed bake keeps for its quality report (about 64 MB of per-sample data).
+REPORT_SAMPLES = 1 << 18
+#: Sample positions per band when the Baker streams the layout (see :func:`neural_bake.mesh.texels.iter_texels`).
+BAND_SAMPLES = 1 << 20
+#: Per-sample fields of a :class:`TexelSet` (everything but the grid-level ones).
+_TEXEL_FIELDS = ("pixel", "points", "normal", "tangent", "bitangent", "face", "bary", "weight", "texel", "border")
+
+
+def sample_keys(index: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(N,) uint64 pseudo-random keys of global sample indices (N,) (splitmix64 of index and ``seed``).
+
+    A sample's key depends only on its position in the full texel order and the seed, so the samples with
+    the smallest keys are the same however the layout is cut into bands: a uniform sample without
+    replacement, reproducible.
+    """
+    x = np.asarray(index, dtype=np.uint64) + np.uint64((int(seed) * 0x9E3779B97F4A7C15 + 0x632BE59BD9B4E019) % 2**64)
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@dataclass
+class TexelSample:
+    """A uniform subsample of a bake's texel samples with their per-sample values (for the quality report).
+
+    The N = min(limit, M) samples with the smallest :func:`sample_keys` among all M samples of the bake,
+    in the order of the full texel set (as :func:`neural_bake.mesh.texels.rasterize_texels` orders it).
+
+    - ``texels``: :class:`TexelSet` of the N samples (``coverage``: the texels holding one of them).
+    - ``index``: (N,) int64 position of each in the full order.
+    - ``normals``, ``encoded``, ``valid``, ``values``, ``colors``: as in :class:`BakeResult`, for these N.
+    - ``total``: M, the bake's sample count; ``seed``: the key seed.
+    """
+
+    texels: TexelSet
+    index: np.ndarray
+    normals: np.ndarray
+    encoded: np.ndarray
+    valid: np.ndarray
+    values: np.ndarray
+    colors: np.ndarray | None
+    total: int
+    seed: int
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.index.shape[0])
+
+
+class _Reservoir:
+    """Bottom-k sampling over streamed bands: keeps the ``limit`` samples with the smallest keys seen so far."""
+
+    def __init__(self, limit: int, seed: int):
+        self.limit, self.seed = int(limit), int(seed)
+        self.seen = 0
+        self.keys = np.zeros(0, dtype=np.uint64)
+        self.index = np.zeros(0, dtype=np.int64)
+        self.data: dict[str, np.ndarray] | None = None
+
+    def add(self, arrays: dict[str, np.ndarray | None]) -> None:
+        """Offer the next band's samples: ``arrays`` maps a name to its (n, ...) per-sample array (or None)."""
+        n = len(arrays["points"])
+        index = np.arange(self.seen, self.seen + n, dtype=np.int64)
+        self.seen += n
+        if self.limit == 0 or n == 0:
+            return
+        keys = sample_keys(index, self.seed)
+        pick = np.flatnonzero(keys < self.keys.max()) if len(self.keys) >= self.limit else np.arange(n)
+        if pick.size == 0:
+            return
+        new = {k: np.asarray(v)[pick] for k, v in arrays.items() if v is not None}
+        keys, index = np.concatenate([self.keys, keys[pick]]), np.concatenate([self.index, index[pick]])
+        data = new if self.data is None else {k: np.concatenate([self.data[k], new[k]]) for k in new}
+        if len(keys) > self.limit:
+            keep = np.sort(np.argpartition(keys, self.limit - 1)[: self.limit])  # sorted: full texel order
+            keys, index = keys[keep], index[keep]
+            data = {k: v[keep] for k, v in data.items()}
+        self.keys, self.index, self.data = keys, index, data
+
+    def sample(self, size: tuple[int, int], supersample: int) -> TexelSample:
+        d = self.data or {}
+        if not d:  # no samples at all
+            e3 = np.zeros((0, 3))
+            d = {"pixel": np.zeros((0, 2), np.int64), "points": e3, "normal": e3, "tangent": e3, "bitangent": e3,
+                 "face": np.zeros(0, np.int64), "bary": e3, "weight": np.zeros(0), "texel": np.zeros(0, np.int64),
+                 "border": np.zeros(0, bool), "normals": e3, "encoded": e3, "valid": np.zeros(0, bool),
+                 "values": np.zeros(0)}
+        cov = np.zeros(size, dtype=bool)
+        cov[d["pixel"][:, 0], d["pixel"][:, 1]] = True
+        texels = TexelSet(size=size, coverage=cov, supersample=supersample, overlaps=0,
+                          **{k: d[k] for k in _TEXEL_FIELDS})
+        return TexelSample(texels=texels, index=self.index, normals=d["normals"], encoded=d["encoded"],
+                           valid=d["valid"], values=d["values"], colors=d.get("colors"), total=self.seen,
+                           seed=self.seed)
 
 
 @dataclass
@@ -39,6 +137,8 @@ class BakeResult:
       the (x + 1)/2 encoding).
     - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
     - ``stats``: counts and seconds per stage (JSON-ready).
+    - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
+      subsample of the samples with their values) for the quality report; else None.
     """
 
     normal_map: np.ndarray
@@ -51,6 +151,7 @@ class BakeResult:
     values: np.ndarray
     colors: np.ndarray | None
     stats: dict = field(default_factory=dict)
+    sample: TexelSample | None = None
 
 
 def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
@@ -162,6 +263,7 @@ class Baker:
     - ``cache_texels``: keep the rasterised texels between bakes (``self.texels``); None = only when there
       are at most ``2**23`` samples (2048² with supersample 2). Without the cache every bake streams the
       layout band by band (:func:`neural_bake.mesh.texels.iter_texels`), so 4k maps fit in memory.
+    - ``band_samples``: sample positions per band when streaming.
     """
 
     def __init__(
@@ -177,6 +279,7 @@ class Baker:
         padding_pixels: int | None = None,
         unwrap_options: dict | None = None,
         cache_texels: bool | None = None,
+        band_samples: int = BAND_SAMPLES,
     ):
         if isinstance(size, bool) or int(size) != size or size < 1:
             raise NeuralBakeError(f"map size must be a positive integer, got {size!r}")
@@ -191,6 +294,9 @@ class Baker:
         self.size, self.supersample = int(size), int(supersample)
         self.shape = (self.size, self.size)
         self.chunk_size = _check_chunk(chunk_size)
+        if isinstance(band_samples, bool) or int(band_samples) != band_samples or band_samples < 1:
+            raise NeuralBakeError(f"band_samples must be a positive integer, got {band_samples!r}")
+        self.band_samples = int(band_samples)
         self.normal_space, self.y_convention = normal_space, y_convention
         self.padding, self.padding_pixels = padding, padding_pixels
         self.timings: dict[str, float] = {}
@@ -223,13 +329,17 @@ class Baker:
             self.texels = rasterize_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
             self.timings["rasterize"] = time.perf_counter() - t0
 
-    def _bands(self):
+    def bands(self):
+        """The texel samples in bands of texel rows: the cached :class:`TexelSet` as one band, or (streaming)
+        one rasterised band after another (:func:`neural_bake.mesh.texels.iter_texels`). Their
+        concatenation is the full texel set, in the same order either way."""
         if self.texels is not None:
             yield self.texels
             return
         from ..mesh.texels import iter_texels
 
-        yield from iter_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
+        yield from iter_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents,
+                               max_samples=self.band_samples)
 
     def bake(
         self,
@@ -238,18 +348,28 @@ class Baker:
         *,
         delta: float | None = None,
         keep_samples: bool | None = None,
+        report_samples: int = REPORT_SAMPLES,
+        seed: int = 0,
     ) -> BakeResult:
         """Bake ∇f (and g) at every texel sample into the maps.
 
         ``delta`` (default ``sdf.delta``) flags samples with |f| > δ as misses. ``keep_samples`` (default:
         when the texels are cached) returns the per-sample arrays in the result (else they are None).
-        Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and are counted.
+        Without them the result keeps ``result.sample``: up to ``report_samples`` samples drawn uniformly
+        without replacement (seeded by ``seed``, independent of the banding) with their values, for the
+        quality report (0: none). Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and
+        are counted.
         """
         if delta is None:
             delta = sdf.delta
         if delta is not None and not (np.isfinite(delta) and delta > 0):
             raise NeuralBakeError(f"delta must be a positive number, got {delta!r}")
+        if isinstance(report_samples, bool) or int(report_samples) != report_samples or report_samples < 0:
+            raise NeuralBakeError(f"report_samples must be a non-negative integer, got {report_samples!r}")
+        if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+            raise NeuralBakeError(f"seed must be a non-negative integer, got {seed!r}")
         keep = self.cache if keep_samples is None else bool(keep_samples)
+        reservoir = None if keep or report_samples == 0 else _Reservoir(report_samples, seed)
         h, w = self.shape
         acc_vec = np.zeros((h, w, 3), dtype=np.float32)  # weighted sums; float32 keeps 4k maps small
         acc_col = None
@@ -261,7 +381,7 @@ class Baker:
         secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0}
         t_all = time.perf_counter()
         t_band = time.perf_counter()
-        for tx in self._bands():
+        for tx in self.bands():
             if self.texels is None:
                 secs["rasterize"] += time.perf_counter() - t_band
             points = np.asarray(tx.points, dtype=np.float64)
@@ -305,6 +425,9 @@ class Baker:
                     kept[k].append(v)
                 if texture is not None:
                     kept["colors"].append(ev["colors"])
+            if reservoir is not None:
+                reservoir.add({**{k: getattr(tx, k) for k in _TEXEL_FIELDS}, "normals": normals, "encoded": encoded,
+                               "valid": valid, "values": values, "colors": ev.get("colors")})
             secs["maps"] += time.perf_counter() - t0
             t_band = time.perf_counter()
         t0 = time.perf_counter()
@@ -366,6 +489,7 @@ class Baker:
             values=cat("values"),
             colors=cat("colors"),
             stats=stats,
+            sample=None if reservoir is None else reservoir.sample(self.shape, self.supersample),
         )
 
 

@@ -15,13 +15,14 @@ import numpy as np
 from ..errors import MeshError, NeuralBakeError
 from ..types import Mesh
 
-__all__ = ["baseline_bake", "closest_surface"]
+__all__ = ["baseline_bake", "closest_surface", "raycasting_scene"]
 
 #: Default cage distance in unit-frame units (the unit frame's longest side is 1.8).
 DEFAULT_CAGE = 0.05
 
 
-def _scene(fine: Mesh):
+def raycasting_scene(fine: Mesh):
+    """open3d ``RaycastingScene`` of ``fine`` (its unit frame): build it once to bake or query many texel sets."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
@@ -38,15 +39,17 @@ def _interp(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, values: np.ndarray) -
     return np.einsum("mk,mkc->mc", w, values[prim])
 
 
-def closest_surface(fine: Mesh, points: np.ndarray) -> dict:
-    """Closest points of ``fine`` to ``points`` (M, 3) (both unit frame of ``fine``).
+def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
+    """Closest points of ``fine`` to ``points`` (M, 3) (both unit frame of ``fine``); ``scene``: a
+    :func:`raycasting_scene` of ``fine`` to reuse (default: built here).
 
     Returns ``{"points" (M, 3), "face" (M,), "bary" (M, 3) (weights of the face's corners),
     "normals" (M, 3) interpolated unit vertex normals, "distance" (M,)}``.
     """
     from ..mesh.tangents import vertex_normals
 
-    scene = _scene(fine)
+    if scene is None:
+        scene = raycasting_scene(fine)
     import open3d as o3d
 
     q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
@@ -60,7 +63,7 @@ def closest_surface(fine: Mesh, points: np.ndarray) -> dict:
     return {"points": pts, "face": prim, "bary": bary, "normals": n, "distance": np.linalg.norm(pts - points, axis=1)}
 
 
-def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None) -> dict:
+def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None, scene=None) -> dict:
     """Mesh-to-mesh bake of ``fine`` onto the texel samples of ``coarse``.
 
     - ``coarse``: the mesh ``texels`` were rasterised on (``Baker.mesh``); its frame maps the texel points
@@ -69,6 +72,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     - ``texels``: a :class:`~neural_bake.mesh.texels.TexelSet` (``points``, ``normal`` (M, 3)).
     - ``cage``: ray length on each side of the coarse surface, unit frame of ``fine``
       (default :data:`DEFAULT_CAGE`).
+    - ``scene``: a :func:`raycasting_scene` of ``fine`` to reuse (e.g. over the bands of a streamed bake);
+      default: built here (its time is ``seconds["setup"]``).
 
     Returns ``{"normals": (M, 3) unit object-space normals of the fine mesh, "colors": (M, C) linear or
     None, "hit": (M,) bool (a ray hit within the cage), "fallback": misses resolved by the closest point,
@@ -92,7 +97,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     if coarse.frame != fine.frame:
         pts = fine.frame.to_unit(coarse.frame.to_source(pts))
     m = len(pts)
-    scene = _scene(fine)
+    if scene is None:
+        scene = raycasting_scene(fine)
     t_setup = time.perf_counter() - t_all
 
     t0 = time.perf_counter()
