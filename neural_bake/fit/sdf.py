@@ -31,7 +31,7 @@ import torch
 
 from .. import __version__
 from ..errors import FitError, ModelFileError
-from ..nets.gemm import gemm_gradient
+from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
@@ -272,14 +272,12 @@ def mixed_gradient(model: Siren, points: torch.Tensor, gemm_dtype: torch.dtype =
     layers = model.affine_layers()
     dtype = points.dtype
     w0, b0 = layers[0]
-    a = torch.addmm(b0.to(dtype), points, w0.to(dtype).t())
-    h = torch.sin(a)
-    derivs = [torch.cos(a)]
+    h, c = sin_cos(torch.addmm(b0.to(dtype), points, w0.to(dtype).t()))
+    derivs = [c]
     low = [(w.to(gemm_dtype), b.to(dtype)) for w, b in layers[1:-1]]
     for wl, b in low:
-        a = torch.mm(h.to(gemm_dtype), wl.t()).to(dtype) + b
-        h = torch.sin(a)
-        derivs.append(torch.cos(a))
+        h, c = sin_cos(torch.mm(h.to(gemm_dtype), wl.t()).to(dtype) + b)
+        derivs.append(c)
     wn, bn = layers[-1]
     values = torch.addmm(bn.to(dtype), h, wn.to(dtype).t())
     g = derivs[-1] * wn.to(dtype)

@@ -44,6 +44,7 @@ import torch
 from ..constants import GRAD_EPS
 from ..errors import FitError, ImageError, MeshError, ModelFileError, NeuralBakeWarning
 from ..io.colour import sample_texture, srgb_to_linear
+from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 
@@ -341,9 +342,8 @@ def band_orthogonality(model: Siren, points: torch.Tensor, normals: torch.Tensor
                 layers = [(w.detach(), b.detach()) for w, b in layers]
             h, t = points, normals
             for w, b in layers[:-1]:
-                a = torch.addmm(b, h, w.t())
-                t = torch.cos(a) * (t @ w.t())
-                h = torch.sin(a)
+                h, c = sin_cos(torch.addmm(b, h, w.t()))
+                t = c * (t @ w.t())
             d = t @ layers[-1][0].t()
     else:
         raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {method!r}")

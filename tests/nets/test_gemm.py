@@ -256,3 +256,39 @@ def test_default_chunk_size():
     assert default_chunk_size("forward", 256, in_dim=3) == GEMM_CHUNK_ELEMENTS // 768
     assert default_chunk_size("reverse", 64, out_dim=3) == GEMM_CHUNK_ELEMENTS // 192
     assert default_chunk_size("reverse", 10**9) == 256
+
+
+# --- sin_cos: the fused (sin, cos) node of the differentiable paths ---------------------------------------
+
+
+@pytest.mark.parametrize("which", ["both", "sin", "cos"])
+def test_sin_cos_gradcheck(which):
+    """First and second derivatives of the fused node against finite differences (float64)."""
+    from neural_bake.nets.gemm import sin_cos
+
+    a = (torch.rand(5, 7, dtype=torch.float64) * 20 - 10).requires_grad_(True)
+    wsin = torch.rand(5, 7, dtype=torch.float64)
+    wcos = torch.rand(5, 7, dtype=torch.float64)
+
+    def f(x):
+        s, c = sin_cos(x)
+        if which == "sin":
+            return (s * wsin).sum()
+        if which == "cos":
+            return (c * wcos).sum()
+        return (s * wsin).sum() + (c * wcos * s).sum()
+
+    assert torch.autograd.gradcheck(f, (a,))
+    assert torch.autograd.gradgradcheck(f, (a,))
+
+
+def test_sin_cos_values_and_no_graph():
+    from neural_bake.nets.gemm import sin_cos
+
+    a = torch.linspace(-50, 50, 1001, dtype=torch.float32)
+    s, c = sin_cos(a)
+    assert torch.equal(s, torch.sin(a)) and torch.equal(c, torch.cos(a))
+    assert s.grad_fn is None  # no node for tensors that do not require grad
+    s2, c2 = sin_cos(a.clone().requires_grad_(True))
+    assert torch.equal(s2.detach(), s) and torch.equal(c2.detach(), c)
+    assert s2.grad_fn is not None and c2.grad_fn is s2.grad_fn  # one node for both
