@@ -240,6 +240,13 @@ def _targets(rows: list[dict], roof: dict, targets: dict) -> list[str]:
         targets["reverse_speedup_256_3_262144"] = s
         notes.append(f"target: reverse mode ≥ 2.5× autograd for (256, 3) at 262,144 points: {s:.2f}× "
                      f"({'met' if s >= 2.5 else 'NOT met'})")
+        # the best any float32 implementation of the chain rule could do against this autograd: its time
+        # over the roofline time of the reverse mode's own GEMMs and sines (which autograd needs as well)
+        rev = by[key + ("gemm reverse",)]
+        ceiling = by[key + ("autograd",)]["seconds"] / (rev["roofline"] * rev["seconds"])
+        targets["reverse_speedup_ceiling_256_3_262144"] = ceiling
+        notes.append(f"  ceiling: autograd time / roofline time of the reverse mode's FLOPs and sines = "
+                     f"{ceiling:.2f}× (no float32 reverse mode can be faster than this on this machine)")
     worst_ratio = max((r["÷ fwd"] for r in rows if r["method"] == "gemm reverse"), default=None)
     if worst_ratio is not None:
         targets["gemm_over_forward_worst"] = worst_ratio
