@@ -18,7 +18,9 @@ __all__ = ["command"]
               help="Presets to run (repeatable; default all, quick 64x1 and 256x3).")
 @click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit.")
-def command(quick, json_path, meshes, presets, minutes, seed):
+@click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None,
+              help="Also save every fitted model as DIR/MESH-PRESET.nbm (e.g. for bench bake --sdf-model).")
+def command(quick, json_path, meshes, presets, minutes, seed, save_dir):
     """SDF fitting: Chamfer/Hausdorff/normal error against training time; step vs autograd and roofline.
 
     The full run fits every preset at its budget (2/5/8/10 min) on bumpy_sphere, torus, jack, spot and bunny:
@@ -27,5 +29,5 @@ def command(quick, json_path, meshes, presets, minutes, seed):
     from neural_bake.bench.fit import run
 
     result = run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, minutes=minutes,
-                 seed=seed)
+                 seed=seed, save_dir=save_dir)
     report(result, json_path)

@@ -114,7 +114,7 @@ def _meshes(quick: bool, names) -> tuple[list[tuple[str, object]], list[str]]:
 
 
 def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minutes: float | None = None,
-        step_networks=None) -> dict:
+        step_networks=None, save_dir=None) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
     Args:
@@ -124,6 +124,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
         seed: seed of every fit.
         minutes: override every preset's time budget.
         step_networks: (W, D) list of the step timing (default (64, 1) and (256, 3)).
+        save_dir: also save each fitted model as ``save_dir/MESH-PRESET.nbm`` (the folder is created).
     """
     import warnings
 
@@ -148,6 +149,9 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NeuralBakeWarning)
                 fit = fit_sdf(mesh, preset=preset, minutes=budget, seed=seed, progress=False, **extra)
+            if save_dir is not None:
+                Path(save_dir).mkdir(parents=True, exist_ok=True)
+                fit.save(Path(save_dir) / f"{name}-{preset}.nbm")
             m = sdf_metrics(fit.model, mesh, n=20_000 if quick else 100_000, resolution=96 if quick else 256,
                             seed=seed)
             row = {"mesh": name, "preset": preset, "minutes": budget, "steps": fit.steps,
