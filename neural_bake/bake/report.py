@@ -4,6 +4,11 @@ All errors are measured on what a renderer gets: the normal map is decoded at ea
 frame the renderer reconstructs (optionally after quantising it to the bit depth of the file), and
 compared with the ground truth (analytic for the samples, else the fine mesh's normal at the closest
 point), with ∇f itself (the encoding error), and — when given — with the classical baseline's normals.
+
+A bake that streamed its texels (large maps) kept only a seeded uniform subsample of its samples
+(:class:`~neural_bake.bake.baker.TexelSample`): the per-sample figures (errors, PSNR) are measured on it and
+the report says so under ``"sampling"``; coverage, misses, seams and the error-map PNGs are computed over
+all texels (the error maps by streaming the layout's bands again, without the networks).
 """
 
 from __future__ import annotations
@@ -62,9 +67,10 @@ def _quantise(image: np.ndarray, bits: int | None) -> np.ndarray:
 def decode_map(normal_map: np.ndarray, texels, normal_space: str = "tangent", y_convention: str = "opengl",
                bits: int | None = None) -> np.ndarray:
     """Object-space unit normals (M, 3) a renderer reads from ``normal_map`` at the texel samples
-    (nearest texel, the sample's own frame; quantised to ``bits`` first when given)."""
-    nm = _quantise(normal_map, bits)
-    x = colors_to_normals(nm[texels.pixel[:, 0], texels.pixel[:, 1]])
+    (nearest texel, the sample's own frame; quantised to ``bits`` first when given). Only the texels read
+    are converted, so a 4k map costs no full-size float64 copy."""
+    texel_values = np.asarray(normal_map)[texels.pixel[:, 0], texels.pixel[:, 1]]
+    x = colors_to_normals(_quantise(texel_values, bits))
     if normal_space == "object":
         return x
     return decode_tangent_space(x, texels.tangent, texels.bitangent, texels.normal, y_convention)
@@ -141,12 +147,81 @@ def seam_discontinuity(
     return out
 
 
-def _error_image(err: np.ndarray, texels, shape, max_deg: float = ERROR_MAP_MAX_DEG) -> np.ndarray:
-    img = np.zeros((*shape, 1))
-    flat = texels.pixel[:, 0] * shape[1] + texels.pixel[:, 1]
-    acc = np.bincount(flat, weights=err * texels.weight, minlength=shape[0] * shape[1])
-    img[..., 0] = (acc / max_deg).reshape(shape)
-    return np.clip(img, 0.0, 1.0)
+class _ErrorImage:
+    """A (H, W) float32 error map accumulated band by band: each texel gets the weighted mean of its
+    samples' errors over ``max_deg`` (a texel's samples all lie in one band), clipped to [0, 1]."""
+
+    def __init__(self, shape: tuple[int, int], max_deg: float = ERROR_MAP_MAX_DEG):
+        self.img = np.zeros(shape, dtype=np.float32)
+        self.max_deg = max_deg
+
+    def add(self, err: np.ndarray, texels) -> None:
+        pix = np.asarray(texels.pixel)
+        if len(pix) == 0:
+            return
+        w = self.img.shape[1]
+        r0, r1 = int(pix[:, 0].min()), int(pix[:, 0].max()) + 1
+        flat = (pix[:, 0] - r0) * w + pix[:, 1]
+        acc = np.bincount(flat, weights=err * texels.weight, minlength=(r1 - r0) * w)
+        self.img[r0:r1] += (acc / self.max_deg).reshape(r1 - r0, w)
+
+    def image(self) -> np.ndarray:
+        return np.clip(self.img, 0.0, 1.0)[:, :, None]
+
+
+class _Truth:
+    """Ground-truth normals (and colours) at any texel samples: analytic callables, or the fine mesh's at
+    the closest point (its ray-casting scene built once)."""
+
+    def __init__(self, baker, truth, fine, truth_colors):
+        self.baker, self.truth, self.fine, self.truth_colors = baker, truth, fine, truth_colors
+        self.label = "analytic" if truth is not None else "fine mesh, closest point" if fine is not None else None
+        self._scene = None
+
+    def __call__(self, texels, colours: bool = True):
+        """(normals (M, 3) or None, linear colours (M, C) or None) at ``texels``' points."""
+        from .baseline import closest_surface, raycasting_scene
+
+        pts = texels.points
+        normals = cols = closest = None
+        if self.truth is not None:
+            normals = np.asarray(self.truth(pts), dtype=np.float64)
+        elif self.fine is not None:
+            fine, frame = self.fine, self.baker.mesh.frame
+            if self._scene is None:
+                self._scene = raycasting_scene(fine)
+            q = pts if fine.frame == frame else fine.frame.to_unit(frame.to_source(pts))
+            closest = closest_surface(fine, q, scene=self._scene)
+            normals = closest["normals"]
+        if not colours:
+            return normals, None
+        if self.truth_colors is not None:
+            cols = np.asarray(self.truth_colors(pts), dtype=np.float64)
+        elif closest is not None and self.fine.uv is not None and self.fine.texture is not None:
+            from ..io.colour import sample_texture
+
+            fine = self.fine
+            uv = np.einsum("mk,mkc->mc", closest["bary"], np.asarray(fine.uv)[closest["face"]])
+            cols = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
+        return normals, cols
+
+
+def _median_ci95(err: np.ndarray) -> list[float] | None:
+    """Distribution-free 95 % confidence interval of the median of the population ``err`` was drawn from
+    uniformly (order statistics n/2 ± 1.96·√n/2)."""
+    n = err.size
+    if n == 0:
+        return None
+    k = 1.96 * np.sqrt(n) / 2.0
+    lo, hi = max(0, int(np.floor(n / 2.0 - k)) - 1), min(n - 1, int(np.ceil(n / 2.0 + k)))
+    part = np.partition(err, (lo, hi))
+    return [float(part[lo]), float(part[hi])]
+
+
+#: Report entries measured on the texel samples the report holds (a subsample for a streamed bake).
+SAMPLED_FIGURES = ("vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
+                   "color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
+                   "baseline.fallback")
 
 
 def bake_report(
@@ -157,17 +232,27 @@ def bake_report(
     fine: Mesh | None = None,
     truth_colors: Callable[[np.ndarray], np.ndarray] | None = None,
     baseline: dict | None = None,
+    baseline_fn: Callable[[object], dict] | None = None,
     bits: int | None = 8,
     timings: dict | None = None,
     out_dir: str | Path | None = None,
 ) -> dict:
-    """The quality report of ``result`` (a :class:`BakeResult`) baked by ``baker`` (its texels cached).
+    """The quality report of ``result`` (a :class:`BakeResult`) baked by ``baker``.
+
+    Per-sample figures are measured on all texel samples when the bake kept them (a cached Baker), else on
+    ``result.sample`` (a streamed bake's seeded uniform subsample); ``"sampling"`` says which
+    (``{"samples": N, "of": M, "seed", "sampled": [entries measured on the N], "note"}``, with the median's
+    95 % confidence interval ``median_ci95`` added to each sampled error entry when N < M). Coverage,
+    misses, invalid-gradient counts, seams and the error maps always cover every texel.
 
     - ``truth``: callable, unit-frame points (M, 3) -> ground-truth unit normals (M, 3) (analytic);
       otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point.
     - ``truth_colors``: callable points -> linear RGB (M, 3); otherwise ``fine``'s texture at the closest
       point (when it has one). Colour PSNR is measured on sRGB-encoded values (what the file holds).
-    - ``baseline``: :func:`baseline_bake`'s result on the same texels: its errors and time beside ours.
+    - ``baseline``: :func:`baseline_bake`'s result on the texels the report measures (``baker.texels``, or
+      ``result.sample.texels``); or ``baseline_fn``: texel set -> that result, which the report calls on
+      those texels and, for a streamed bake with ``out_dir``, on every band for the baseline's error map
+      (then ``baseline["all_texels"]`` holds its time and fallbacks over all M samples).
     - ``bits``: quantise the normal map to this many bits before decoding (the PNG's depth; None: float).
     - ``timings``: extra stage times (seconds) to list, e.g. loading, coarse mesh, export.
     - ``out_dir``: if given, writes ``error_normal.png`` (angle to ground truth, white = 10°+),
@@ -177,44 +262,39 @@ def bake_report(
     """
     from ..io.colour import linear_to_srgb
 
-    tx = baker.texels
-    if tx is None or result.normals is None:
-        raise NeuralBakeError("bake_report: needs the per-sample values (bake with keep_samples=True and a cached "
-                              "Baker, i.e. cache_texels=True)")
+    if baseline is not None and baseline_fn is not None:
+        raise NeuralBakeError("bake_report: give baseline or baseline_fn, not both")
+    full = baker.texels is not None and result.normals is not None
+    if full:
+        tx, normals, valid, total = baker.texels, result.normals, result.valid, len(result.normals)
+    elif getattr(result, "sample", None) is not None:
+        smp = result.sample
+        tx, normals, valid, total = smp.texels, smp.normals, smp.valid, smp.total
+    else:
+        raise NeuralBakeError("bake_report: needs the per-sample values (a cached Baker with keep_samples=True, "
+                              "or a streamed bake with report_samples > 0)")
+    n = len(normals)
+    sampled = n < total
+    stats = (lambda e: {**error_stats(e), "median_ci95": _median_ci95(np.asarray(e, dtype=np.float64))}) if sampled \
+        else error_stats
     decoded = decode_map(result.normal_map, tx, baker.normal_space, baker.y_convention, bits)
     rep: dict = {"bake": result.stats, "bits": bits}
-    valid = result.valid
-    rep["vs_gradient_deg"] = error_stats(angular_error(decoded[valid], result.normals[valid]))
-    rep["invalid_gradients"] = int((~valid).sum())
+    rep["vs_gradient_deg"] = stats(angular_error(decoded[valid], normals[valid]))
+    rep["invalid_gradients"] = int(result.stats.get("invalid_gradients", int((~valid).sum())))
     rep["coverage"] = float(np.mean(result.coverage))
     rep["texels_covered"] = int(np.sum(result.coverage))
     rep["miss_texels"] = int(np.sum(result.miss))
     rep["miss_fraction"] = float(np.sum(result.miss) / max(1, np.sum(result.coverage)))
-    truth_n = truth_c = None
-    closest = None
-    if truth is not None:
-        truth_n = np.asarray(truth(tx.points), dtype=np.float64)
-        rep["truth"] = "analytic"
-    elif fine is not None:
-        from .baseline import closest_surface
-
-        pts = tx.points if fine.frame == baker.mesh.frame else fine.frame.to_unit(baker.mesh.frame.to_source(tx.points))
-        closest = closest_surface(fine, pts)
-        truth_n = closest["normals"]
-        rep["truth"] = "fine mesh, closest point"
-    if truth_colors is not None:
-        truth_c = np.asarray(truth_colors(tx.points), dtype=np.float64)
-    elif closest is not None and fine.uv is not None and fine.texture is not None:
-        from ..io.colour import sample_texture
-
-        uv = np.einsum("mk,mkc->mc", closest["bary"], np.asarray(fine.uv)[closest["face"]])
-        truth_c = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
+    ground = _Truth(baker, truth, fine, truth_colors)
+    truth_n, truth_c = ground(tx)
+    if ground.label:
+        rep["truth"] = ground.label
     err = None
     if truth_n is not None:
         err = angular_error(decoded, truth_n)
-        rep["vs_truth_deg"] = error_stats(err)
-        rep["gradient_vs_truth_deg"] = error_stats(angular_error(result.normals, truth_n))
-        rep["geometric_vs_truth_deg"] = error_stats(angular_error(tx.normal, truth_n))
+        rep["vs_truth_deg"] = stats(err)
+        rep["gradient_vs_truth_deg"] = stats(angular_error(normals, truth_n))
+        rep["geometric_vs_truth_deg"] = stats(angular_error(tx.normal, truth_n))
     if result.albedo is not None and truth_c is not None:
         k = min(3, truth_c.shape[1])
         ours = linear_to_srgb(result.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :k].astype(np.float64))
@@ -223,30 +303,85 @@ def bake_report(
         baker.mesh, baker.tangents, result.normal_map, result.albedo,
         normal_space=baker.normal_space, y_convention=baker.y_convention,
     )
+    if baseline_fn is not None:
+        baseline = baseline_fn(tx)
     base_err = None
     if baseline is not None:
-        b: dict = {"seconds": baseline["seconds"], "fallback": baseline["fallback"], "cage": baseline["cage"]}
+        b: dict = {"seconds": baseline["seconds"], "fallback": baseline["fallback"], "cage": baseline["cage"],
+                   "samples": n}
         if truth_n is not None:
             base_err = angular_error(baseline["normals"], truth_n)
-            b["vs_truth_deg"] = error_stats(base_err)
+            b["vs_truth_deg"] = stats(base_err)
         if baseline.get("colors") is not None and truth_c is not None:
             k = min(3, truth_c.shape[1])
             b["color_psnr_db"] = psnr(linear_to_srgb(baseline["colors"][:, :k]), linear_to_srgb(truth_c[:, :k]))
         rep["baseline"] = b
     rep["seconds"] = {**result.stats.get("seconds", {}), **(timings or {})}
+    measured = [k for k in SAMPLED_FIGURES if _has(rep, k)]
+    rep["sampling"] = {
+        "samples": n,
+        "of": total,
+        "seed": result.sample.seed if not full else None,
+        "sampled": measured if sampled else [],
+        "note": (f"sampled {n} of {total} texel samples (uniform, seed {result.sample.seed}): "
+                 f"{', '.join(measured)}; all other figures and the error maps over every texel") if sampled
+        else f"all {total} texel samples",
+    }
     if out_dir is not None:
         from ..io.images import write_image
 
         out_dir = Path(out_dir)
+        shape = result.coverage.shape
+        err_img = _ErrorImage(shape) if truth_n is not None else None
+        # the baseline's map needs its normals at every texel: all of them cached, or baseline_fn per band
+        base_img = _ErrorImage(shape) if base_err is not None and (full or baseline_fn is not None) else None
+        if full:
+            if err_img is not None:
+                err_img.add(err, tx)
+            if base_img is not None:
+                base_img.add(base_err, tx)
+        elif err_img is not None:
+            every = _stream_error_maps(result, baker, ground, baseline_fn, bits, err_img, base_img)
+            if every is not None and "baseline" in rep:
+                rep["baseline"]["all_texels"] = every
         files = []
-        if err is not None:
-            write_image(out_dir / "error_normal.png", _error_image(err, tx, result.coverage.shape), colour="data")
+        if err_img is not None:
+            write_image(out_dir / "error_normal.png", err_img.image(), colour="data")
             files.append("error_normal.png")
-        if base_err is not None:
-            write_image(out_dir / "error_baseline.png", _error_image(base_err, tx, result.coverage.shape), colour="data")
+        if base_img is not None:
+            write_image(out_dir / "error_baseline.png", base_img.image(), colour="data")
             files.append("error_baseline.png")
         write_image(out_dir / "miss.png", result.miss.astype(np.float32), colour="data")
         files.append("miss.png")
         rep["files"] = files
         rep["error_map_scale_deg"] = ERROR_MAP_MAX_DEG
     return rep
+
+
+def _has(rep: dict, key: str) -> bool:
+    head, _, tail = key.partition(".")
+    return head in rep and (not tail or tail in rep[head])
+
+
+def _stream_error_maps(result, baker, ground: _Truth, baseline_fn, bits, err_img: _ErrorImage,
+                       base_img: _ErrorImage | None) -> dict | None:
+    """Error maps of a streamed bake over every texel: the layout's bands rasterised again (no network
+    evaluation), the final map decoded and compared with the truth (and the baseline run) band by band.
+    Returns the baseline's totals over all samples (or None without ``baseline_fn``)."""
+    seconds, fallback, count = 0.0, 0, 0
+    for band in baker.bands():
+        if band.n_samples == 0:
+            continue
+        truth_n, _ = ground(band, colours=False)
+        decoded = decode_map(result.normal_map, band, baker.normal_space, baker.y_convention, bits)
+        err_img.add(angular_error(decoded, truth_n), band)
+        if baseline_fn is not None and base_img is not None:
+            b = baseline_fn(band)
+            base_img.add(angular_error(b["normals"], truth_n), band)
+            seconds += b["seconds"]["total"]
+            fallback += b["fallback"]
+            count += band.n_samples
+    if baseline_fn is None:
+        return None
+    return {"samples": count, "seconds": seconds, "fallback": fallback,
+            "samples_per_second": count / seconds if seconds > 0 else None}

@@ -5,7 +5,7 @@ import pytest
 import torch
 import trimesh
 
-from neural_bake.bake.baker import Baker, bake_texels, bake_vertices
+from neural_bake.bake.baker import Baker, bake_texels, bake_vertices, sample_keys
 from neural_bake.bake.export import export_glb, read_glb
 from neural_bake.bake.fields import ColorField, SdfField
 from neural_bake.bake.maps import colors_to_normals, decode_tangent_space
@@ -206,6 +206,52 @@ def test_streaming_bake_equals_cached_bake():
     assert np.array_equal(cached.coverage, streamed.coverage)
 
 
+def test_streaming_in_many_bands_keeps_a_seeded_subsample():
+    mesh = sphere_mesh()
+    f = sphere_sdf()
+    tex = ColorField(lambda p: p.abs())
+    baker = Baker(mesh, 48, supersample=2)
+    cached = baker.bake(f, tex, delta=1e-3)
+    assert cached.sample is None  # every sample kept: no subsample
+    streamed = Baker(mesh, 48, supersample=2, cache_texels=False, band_samples=1000).bake(
+        f, tex, delta=1e-3, report_samples=700, seed=5)
+    assert streamed.normals is None
+    assert np.array_equal(cached.normal_map, streamed.normal_map) and np.array_equal(cached.albedo, streamed.albedo)
+    assert np.array_equal(cached.coverage, streamed.coverage) and np.array_equal(cached.miss, streamed.miss)
+    for key in ("samples", "texels_covered", "miss_samples", "miss_texels", "invalid_gradients"):
+        assert cached.stats[key] == streamed.stats[key], key
+    smp = streamed.sample
+    m = cached.stats["samples"]
+    assert smp.total == m and smp.n_samples == 700 and smp.seed == 5
+    # the 700 samples with the smallest keys of their global index, in texel order, with their own values
+    assert np.array_equal(smp.index, np.sort(np.argsort(sample_keys(np.arange(m), 5))[:700]))
+    tx = baker.texels
+    for name in ("pixel", "points", "normal", "tangent", "bitangent", "face", "bary", "weight", "texel", "border"):
+        assert np.array_equal(getattr(smp.texels, name), getattr(tx, name)[smp.index]), name
+    assert np.array_equal(smp.texels.coverage[tx.pixel[smp.index, 0], tx.pixel[smp.index, 1]], np.ones(700, bool))
+    assert smp.texels.coverage.sum() <= 700 and smp.texels.size == (48, 48)
+    for name in ("normals", "encoded", "values", "colors"):
+        assert np.allclose(getattr(smp, name), getattr(cached, name)[smp.index], atol=1e-12), name
+    assert np.array_equal(smp.valid, cached.valid[smp.index])
+    # the same selection however the layout is banded; fewer samples than the limit: all of them
+    one_band = Baker(mesh, 48, supersample=2, cache_texels=False).bake(f, report_samples=700, seed=5).sample
+    assert np.array_equal(one_band.index, smp.index)
+    everything = Baker(mesh, 48, cache_texels=False, band_samples=500).bake(f, report_samples=10**6).sample
+    assert np.array_equal(everything.index, np.arange(everything.total))
+    # keep_samples=False on a cached Baker also gives a subsample; report_samples=0 none
+    assert baker.bake(f, keep_samples=False, report_samples=50).sample.n_samples == 50
+    assert baker.bake(f, keep_samples=False, report_samples=0).sample is None
+
+
+def test_sample_keys_are_deterministic_and_spread():
+    k = sample_keys(np.arange(100_000), 0)
+    assert k.dtype == np.uint64 and np.array_equal(k, sample_keys(np.arange(100_000), 0))
+    assert len(np.unique(k)) == k.size and not np.array_equal(k, sample_keys(np.arange(100_000), 1))
+    # the 10 % smallest keys fall evenly over ten blocks of indices
+    counts = np.bincount(np.argsort(k)[:10_000] // 10_000, minlength=10)
+    assert np.all(np.abs(counts - 1000) < 4 * np.sqrt(1000 * 0.9))
+
+
 def test_albedo_is_the_colour_field_at_texels():
     baker = Baker(plane_mesh(), 16, padding=None)
     res = baker.bake(SdfField(lambda p: p[:, 2]), ColorField(lambda p: torch.stack([p[:, 0] + 0.5, p[:, 1] + 0.5, 0 * p[:, 0]], 1)))
@@ -252,6 +298,14 @@ def test_errors():
         Baker(mesh, 8, chunk_size=0)
     with pytest.raises(NeuralBakeError, match="delta must be a positive number"):
         Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), delta=-1.0)
+    with pytest.raises(NeuralBakeError, match="band_samples must be a positive integer"):
+        Baker(mesh, 8, band_samples=0)
+    with pytest.raises(NeuralBakeError, match="report_samples must be a non-negative integer"):
+        Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), report_samples=-1)
+    with pytest.raises(NeuralBakeError, match="report_samples must be a non-negative integer"):
+        Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), report_samples=2.5)
+    with pytest.raises(NeuralBakeError, match="seed must be a non-negative integer"):
+        Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), seed=-3)
 
 
 def test_non_manifold_coarse_mesh_without_uvs():

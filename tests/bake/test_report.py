@@ -104,6 +104,125 @@ def test_seam_discontinuity_detects_a_broken_map(baked):
 def test_report_needs_samples(baked):
     baker, res = baked
     streamed = Baker(baker.mesh, 32, cache_texels=False)
-    r2 = streamed.bake(SdfField(lambda p: p.norm(dim=1) - R))
+    r2 = streamed.bake(SdfField(lambda p: p.norm(dim=1) - R), report_samples=0)
+    assert r2.sample is None and r2.normals is None
     with pytest.raises(NeuralBakeError, match="bake_report: needs the per-sample values"):
         bake_report(r2, streamed)
+
+
+def test_report_takes_one_baseline(baked):
+    baker, res = baked
+    base = baseline_bake(baker.mesh, fine_sphere(), baker.texels, cage=0.2)
+    with pytest.raises(NeuralBakeError, match="baseline or baseline_fn, not both"):
+        bake_report(res, baker, truth=truth, baseline=base, baseline_fn=lambda tx: base)
+
+
+# -- streamed bakes: the report on a seeded uniform subsample, maps over every texel -------------------------
+
+DELTA = 0.02  # the coarse icosphere strays further than this from the off-centre sphere: some misses
+
+
+def _bake_pair(report_samples, band_samples=300):
+    """The same bake cached and streamed in many bands (off-centre sphere field, colours, a miss band)."""
+    ico = trimesh.creation.icosphere(subdivisions=1, radius=R)
+    m = unwrap(Mesh(vertices=np.asarray(ico.vertices), faces=np.asarray(ico.faces, dtype=np.int64)), resolution=64)
+    m.vertex_normals = None
+    c = torch.as_tensor(C)
+    f = SdfField(lambda p: (p - c).norm(dim=1) - R)
+    colour = ColorField(lambda p: (p / R + 1) / 2)
+    cached_baker = Baker(m, 64)
+    streamed_baker = Baker(m, 64, cache_texels=False, band_samples=band_samples)
+    cached = cached_baker.bake(f, colour, delta=DELTA)
+    streamed = streamed_baker.bake(f, colour, delta=DELTA, report_samples=report_samples, seed=1)
+    return cached_baker, cached, streamed_baker, streamed
+
+
+def _reports(tmp_path, report_samples):
+    cb, cres, sb, sres = _bake_pair(report_samples)
+    fine = fine_sphere()
+    kw = dict(truth=truth, truth_colors=lambda p: (p / R + 1) / 2)
+    cached = bake_report(cres, cb, baseline_fn=lambda tx: baseline_bake(cb.mesh, fine, tx, cage=0.2),
+                         out_dir=tmp_path / "c", **kw)
+    streamed = bake_report(sres, sb, baseline_fn=lambda tx: baseline_bake(sb.mesh, fine, tx, cage=0.2),
+                           out_dir=tmp_path / "s", **kw)
+    return cb, cres, sres, cached, streamed
+
+
+EXACT = ("coverage", "texels_covered", "miss_texels", "miss_fraction", "invalid_gradients", "seams")
+
+
+@pytest.fixture
+def dirs(tmp_path):
+    (tmp_path / "c").mkdir()
+    (tmp_path / "s").mkdir()
+    return tmp_path
+
+
+def _same_images(tmp_path, names):
+    for name in names:
+        a = read_image(tmp_path / "c" / name, colour="data")
+        b = read_image(tmp_path / "s" / name, colour="data")
+        assert np.array_equal(a, b), name
+
+
+def test_streamed_report_keeping_every_sample_equals_the_cached_report(dirs):
+    _, cres, sres, cached, streamed = _reports(dirs, report_samples=1 << 20)
+    m = len(cres.normals)
+    assert sres.sample.n_samples == sres.sample.total == m  # the limit exceeds M: every sample, in order
+    assert cached["sampling"] == {"samples": m, "of": m, "seed": None, "sampled": [], "note": f"all {m} texel samples"}
+    assert streamed["sampling"]["samples"] == streamed["sampling"]["of"] == m and streamed["sampling"]["sampled"] == []
+    assert cached["miss_texels"] > 0
+    for key in (*EXACT, "vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
+                "color_psnr_db"):
+        assert streamed[key] == cached[key], key
+    assert streamed["baseline"]["vs_truth_deg"] == cached["baseline"]["vs_truth_deg"]
+    assert streamed["baseline"]["all_texels"]["samples"] == m and "all_texels" not in cached["baseline"]
+    assert streamed["files"] == cached["files"] == ["error_normal.png", "error_baseline.png", "miss.png"]
+    _same_images(dirs, cached["files"])
+
+
+def test_streamed_report_on_a_subsample(dirs):
+    cb, cres, sres, cached, streamed = _reports(dirs, report_samples=600)
+    m = len(cres.normals)
+    smp = sres.sample
+    assert smp.n_samples == 600 and smp.total == m and m > 1500
+    # the subsample is the cached bake's samples at those positions, values included
+    assert np.array_equal(np.sort(smp.index), smp.index)
+    for name in ("pixel", "points", "normal", "tangent", "weight", "face"):
+        assert np.array_equal(getattr(smp.texels, name), getattr(cb.texels, name)[smp.index]), name
+    assert np.allclose(smp.normals, cres.normals[smp.index]) and np.array_equal(smp.valid, cres.valid[smp.index])
+    assert np.allclose(smp.colors, cres.colors[smp.index])
+    s = streamed["sampling"]
+    assert (s["samples"], s["of"], s["seed"]) == (600, m, 1)
+    assert {"vs_truth_deg", "vs_gradient_deg", "geometric_vs_truth_deg", "color_psnr_db",
+            "baseline.vs_truth_deg"} <= set(s["sampled"])
+    assert s["note"].startswith(f"sampled 600 of {m} texel samples")
+    # exact over every texel: coverage, misses, seams (from the final maps) and the error-map PNGs
+    for key in EXACT:
+        assert streamed[key] == cached[key], key
+    assert cached["miss_texels"] > 0
+    _same_images(dirs, cached["files"])
+    assert streamed["files"] == cached["files"]
+    assert streamed["baseline"]["all_texels"]["samples"] == m and streamed["baseline"]["samples"] == 600
+    # sampled: the exact median lies in the sample's 95 % interval; means and PSNR agree within sampling error
+    for key in ("vs_truth_deg", "geometric_vs_truth_deg", "gradient_vs_truth_deg"):
+        lo, hi = streamed[key]["median_ci95"]
+        assert lo <= cached[key]["median"] <= hi, key
+        assert streamed[key]["count"] == 600 and "median_ci95" not in cached[key]
+    lo, hi = streamed["baseline"]["vs_truth_deg"]["median_ci95"]
+    assert lo <= cached["baseline"]["vs_truth_deg"]["median"] <= hi
+    geo_c, geo_s = cached["geometric_vs_truth_deg"], streamed["geometric_vs_truth_deg"]
+    assert abs(geo_s["mean"] - geo_c["mean"]) < 0.1 * geo_c["mean"]
+    assert abs(streamed["color_psnr_db"] - cached["color_psnr_db"]) < 1.0
+
+
+def test_subsample_is_uniform_and_seeded():
+    _, cres, sb, sres = _bake_pair(report_samples=500)
+    m = sres.sample.total
+    # the sampled positions spread over the whole texel order: each quarter holds about a quarter
+    counts = np.bincount(sres.sample.index * 4 // m, minlength=4)
+    assert np.all(np.abs(counts - 125) < 4 * np.sqrt(125 * 0.75))
+    other = sb.bake(SdfField(lambda p: p.norm(dim=1) - R), report_samples=500, seed=2).sample
+    assert not np.array_equal(other.index, sres.sample.index)
+    again = sb.bake(SdfField(lambda p: p.norm(dim=1) - R), report_samples=500, seed=1).sample
+    assert np.array_equal(again.index, sres.sample.index)
