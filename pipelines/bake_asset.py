@@ -53,6 +53,11 @@ class BakeAssetConfig:
     """Baseline ray distance (unit frame; None: 0.05)."""
     truth: str = "auto"
     """Ground truth of the report: auto (analytic if the mesh is a bundled sample), mesh, sample:NAME."""
+    cache_texels: bool | None = None
+    """Keep every texel sample in memory (report over all of them); False streams them band by band (report
+    on a seeded uniform subsample); None: cache up to 2**23 samples (2048² with supersample 2)."""
+    report_samples: int = 1 << 18
+    """Texel samples a streamed bake keeps for the report's per-sample errors (uniform, seed 0)."""
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
@@ -79,6 +84,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     coarse, size, texture, normal_space, directx = cfg.coarse, cfg.size, cfg.texture, cfg.normal_space, cfg.directx
     bits, exr, supersample, padding, delta = cfg.bits, cfg.exr, cfg.supersample, cfg.padding, cfg.delta
     baseline, cage, truth, maps_spec = cfg.baseline, cfg.cage, cfg.truth, cfg.maps
+    report_samples = cfg.report_samples
     tex_path = texture_model
     t_start = time.perf_counter()
     if maps_spec is None:
@@ -91,6 +97,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
     if delta is not None and not delta > 0:
         raise NeuralBakeError(f"--delta {delta}: must be a positive distance")
+    if isinstance(report_samples, bool) or int(report_samples) != report_samples or report_samples < 1:
+        raise NeuralBakeError(f"report_samples {report_samples!r}: must be a positive integer")
     if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
         raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
     out_dir = Path(out)
@@ -125,9 +133,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             t0 = time.perf_counter()
             baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
                           y_convention="directx" if directx else "opengl",
-                          padding=None if padding == "none" else padding)
+                          padding=None if padding == "none" else padding, cache_texels=cfg.cache_texels)
             timings["prepare"] = time.perf_counter() - t0
-            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta)
+            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples))
             log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
                        f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
             t0 = time.perf_counter()
@@ -150,25 +158,34 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                        albedo=res.albedo, tangents=baker.tangents)
             written.append("asset.glb")
             timings["write"] = time.perf_counter() - t0
-            base = None
-            if baseline and baker.texels is not None:
-                from neural_bake.bake.baseline import baseline_bake
+            base = base_fn = None
+            if baseline:
+                from neural_bake.bake.baseline import baseline_bake, raycasting_scene
 
-                base = baseline_bake(baker.mesh, fine, baker.texels, cage=cage)
-                log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
-                           f"{base['fallback']} closest-point fallbacks")
-            if baker.texels is not None:
-                normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
-                rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else fine,
-                                  truth_colors=colours_fn, baseline=base, bits=nbits, timings=timings,
-                                  out_dir=stage)
-                if sample_name:
-                    rep["truth"] = f"analytic ({sample_name} sample)"
-                written += rep.pop("files", [])
-                report.update(rep)
-            else:
-                report["bake"] = res.stats
-                report["note"] = "map too large for the per-sample report (streamed); errors not measured"
+                if res.normals is not None:  # every texel sample in memory: one baseline bake of them all
+                    base = baseline_bake(baker.mesh, fine, baker.texels, cage=cage)
+                    log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
+                        f"{base['fallback']} closest-point fallbacks")
+                else:  # streamed: the report runs it on its sampled texels and band by band for the error map
+                    scene = raycasting_scene(fine)
+
+                    def base_fn(texels):
+                        return baseline_bake(baker.mesh, fine, texels, cage=cage, scene=scene)
+
+            normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
+            rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else fine,
+                              truth_colors=colours_fn, baseline=base, baseline_fn=base_fn, bits=nbits,
+                              timings=timings, out_dir=stage)
+            if sample_name:
+                rep["truth"] = f"analytic ({sample_name} sample)"
+            every = rep.get("baseline", {}).get("all_texels")
+            if every:
+                log(f"baseline (mesh-to-mesh rays) over all {every['samples']} samples: {every['seconds']:.1f} s, "
+                    f"{every['fallback']} closest-point fallbacks")
+            if rep["sampling"]["sampled"]:
+                log(f"report: {rep['sampling']['note']}")
+            written += rep.pop("files", [])
+            report.update(rep)
         if "vertex" in maps:
             t0 = time.perf_counter()
             vb = bake_vertices(coarse_m, sdf, tex)
@@ -195,6 +212,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         b = report.get("baseline", {}).get("vs_truth_deg")
         if b:
             line += f" (baseline median {b['median']:.2f}°, p95 {b['p95']:.2f}°)"
+        sampling = report.get("sampling") or {}
+        if sampling.get("sampled"):
+            line += f" on {sampling['samples']} sampled of {sampling['of']} texel samples"
         log(line)
     log(f"wrote {out_dir}/: {', '.join(written + ['report.json'])}")
 

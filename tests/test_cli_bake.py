@@ -197,3 +197,51 @@ def test_delta_defaults_to_the_texture_models_band(files, tmp_path, capsys):
     assert "from band.tex" in stdout
     # an untrained net is nowhere near 0 on the sphere: every covered texel is off the band
     assert rep["miss_texels"] == rep["texels_covered"] > 0
+
+
+def test_streamed_bake_writes_a_sampled_report(files, tmp_path):
+    """A map forced to stream gets the full report: per-sample errors on a uniform subsample (said so),
+    coverage, misses, seams and error maps over every texel, equal to the cached run's."""
+    from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
+
+    common = dict(coarse="decimate:200", size=64, maps="normal,albedo", delta=0.05)
+    logs: list[str] = []
+    cached = bake_asset(files["obj"], files["sdf"], tmp_path / "c", BakeAssetConfig(**common),
+                        texture_model=files["tex"], log=lambda s: None)
+    streamed = bake_asset(files["obj"], files["sdf"], tmp_path / "s",
+                          BakeAssetConfig(**common, cache_texels=False, report_samples=300),
+                          texture_model=files["tex"], log=logs.append)
+    rep = json.loads((tmp_path / "s" / "report.json").read_text())
+    m = cached["sampling"]["of"]
+    assert cached["sampling"]["sampled"] == [] and cached["sampling"]["samples"] == m > 1000
+    assert rep["sampling"]["samples"] == 300 and rep["sampling"]["of"] == m and "note" not in rep
+    assert {"vs_truth_deg", "vs_gradient_deg", "color_psnr_db", "baseline.vs_truth_deg"} <= set(rep["sampling"]["sampled"])
+    assert rep["truth"] == "analytic (sphere sample)" and rep["vs_truth_deg"]["count"] == 300
+    lo, hi = rep["vs_truth_deg"]["median_ci95"]
+    assert lo <= cached["vs_truth_deg"]["median"] <= hi
+    assert abs(rep["color_psnr_db"] - cached["color_psnr_db"]) < 1.0
+    assert rep["baseline"]["samples"] == 300 and rep["baseline"]["all_texels"]["samples"] == m
+    assert rep["baseline"]["all_texels"]["fallback"] == cached["baseline"]["fallback"]
+    for key in ("coverage", "texels_covered", "miss_texels", "invalid_gradients", "seams"):
+        assert rep[key] == cached[key], key
+    assert set(rep["files"]) == set(cached["files"])
+    for name in ("error_normal.png", "error_baseline.png", "miss.png", "normal.png", "albedo.png"):
+        a = read_image(tmp_path / "c" / name, colour="data")
+        assert np.array_equal(a, read_image(tmp_path / "s" / name, colour="data")), name
+    assert any("over all" in line for line in logs) and any(line.startswith("report: sampled 300 of") for line in logs)
+    assert any("on 300 sampled of" in line for line in logs)
+    # the fine mesh as truth (closest points, band by band for the error map)
+    mesh_truth = bake_asset(files["obj"], files["sdf"], tmp_path / "m",
+                            BakeAssetConfig(**common, cache_texels=False, report_samples=300, truth="mesh",
+                                            baseline=False), texture_model=files["tex"], log=lambda s: None)
+    assert mesh_truth["truth"] == "fine mesh, closest point" and mesh_truth["vs_truth_deg"]["count"] == 300
+    assert "baseline" not in mesh_truth and "error_baseline.png" not in mesh_truth["files"]
+    assert "error_normal.png" in mesh_truth["files"]
+
+
+def test_report_samples_must_be_positive(files, tmp_path):
+    from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
+
+    with pytest.raises(NeuralBakeError, match="report_samples 0: must be a positive integer"):
+        bake_asset(files["obj"], files["sdf"], tmp_path / "o", BakeAssetConfig(report_samples=0), log=lambda s: None)
+    assert not (tmp_path / "o").exists()
