@@ -114,3 +114,127 @@ def test_errors():
         march(Siren(8, 0, out_dim=2), 8)
     with pytest.raises(NeuralBakeError, match="must be a Siren or a callable"):
         march(42, 8)
+
+
+# -- cost-aware pruning (pruned="auto") --------------------------------------------------------------------
+
+
+def _same(a, b):
+    np.testing.assert_array_equal(a.faces, b.faces)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+def _median_level_siren(seed, omega_0):
+    g = torch.Generator().manual_seed(seed)
+    net = Siren(16, 1, omega_0=omega_0, hidden_omega=2.0, generator=g).double()
+    with torch.no_grad():
+        level = float(net(torch.rand(4000, 3, dtype=torch.float64, generator=g) * 2 - 1).median())
+    return net, level
+
+
+def test_auto_bounds_levels_that_pay_and_gives_identical_triangles():
+    net = sphere_siren()
+    dense, sd = march(net, 64)
+    auto, sa = march(net, 64, pruned="auto", bound_cost={"interval": 10, "affine-fixed": 30})
+    _same(auto, dense)
+    assert sa["mode"] == "auto" and sa["reason"] == ""
+    # with these costs both levels pay: 8-cell boxes (512 cells) and 4-cell ones (64 cells, q ~ 0.45)
+    assert [e["decision"] for e in sa["levels"]] == ["bound", "bound"] and sa["levels_bounded"] == 2
+    assert sa["evaluations"] < 0.15 * sd["evaluations"]
+    assert sa["evaluation_ratio"] == pytest.approx(sa["grid_points"] / sa["evaluations"])
+    top = sa["levels"][0]
+    assert top["side"] == 8 and top["boxes"] == 512 and top["bounded"] == 512
+    assert set(top["probe"]) == {"interval", "affine-fixed"}
+    for m, p in top["probe"].items():
+        assert 0 < p["pruned_fraction"] <= 1 and p["eval_cost"] == 1.0
+    assert top["probe"]["interval"]["bound_cost"] == 10 and top["probe"]["affine-fixed"]["bound_cost"] == 30
+    # the method with the larger gain q·cells·c_e - PAYBACK·c_b bounds the level
+    gain = {m: p["pruned_fraction"] * 512 - 1.5 * p["bound_cost"] for m, p in top["probe"].items()}
+    assert top["method"] == max(gain, key=gain.get)
+    assert sa["boxes_pruned"] == sum(e["pruned"] for e in sa["levels"])
+    assert sa["boxes_unknown"] == sum(e["dense"] for e in sa["levels"])
+
+
+def test_auto_stops_where_bounds_cost_more_than_they_save():
+    net = sphere_siren()
+    dense, sd = march(net, 64)
+    # 4-cell boxes (64 cells) prune ~45%: ~29 evaluations saved per box, less than 1.5 × 40
+    auto, sa = march(net, 64, pruned="auto", bound_cost=40.0, method="affine-fixed")
+    _same(auto, dense)
+    assert [e["decision"] for e in sa["levels"]] == ["bound", "dense"]
+    second = sa["levels"][1]
+    assert second["bounded"] == 64 and second["method"] is None  # only the probe was bounded
+    assert second["dense"] + second["pruned"] == second["boxes"]
+    assert sa["bound_evaluations"] == 512 + 64
+    assert sa["evaluations"] < sd["evaluations"]
+
+
+def test_auto_skips_a_level_whose_bounds_are_too_loose_and_bounds_the_next():
+    net, level = _median_level_siren(seed=1, omega_0=8.0)
+    dense, _ = march(net, 64, level=level)
+    auto, sa = march(net, 64, level=level, pruned="auto", bound_cost=1.0)
+    _same(auto, dense)
+    assert [(e["side"], e["decision"]) for e in sa["levels"]] == [(8, "skip"), (4, "bound")]
+    assert sa["levels"][0]["probe"]["affine-fixed"]["pruned_fraction"] == 0.0
+    assert sa["levels"][1]["boxes"] == 4096 and sa["levels"][1]["pruned"] > 1000
+    assert sa["levels_bounded"] == 1 and sa["evaluations"] < 0.7 * sa["grid_points"]
+
+
+def test_auto_marches_densely_when_no_level_can_pay():
+    net, level = _median_level_siren(seed=0, omega_0=16.0)
+    dense, sd = march(net, 64, level=level)
+    auto, sa = march(net, 64, level=level, pruned="auto", bound_cost=100.0)
+    _same(auto, dense)
+    # 8-cell boxes prune nothing and their 4-cell children (64 cells) could not pay 1.5 × 100 even if all pruned
+    assert [e["decision"] for e in sa["levels"]] == ["dense"]
+    assert sa["levels_bounded"] == 0 and sa["evaluations"] == sd["evaluations"]
+    assert sa["bound_evaluations"] == 2 * 64  # the probes, one per method
+    assert "prune too little" in sa["reason"]
+
+
+def test_auto_with_measured_costs_keeps_the_lattice_values():
+    net = sphere_siren()
+    dense, sd = march(net, 48)
+    auto, sa = march(net, 48, pruned="auto")
+    _same(auto, dense)
+    assert sa["evaluations"] <= sd["evaluations"]
+    assert sa["seconds_per_evaluation"] > 0
+    for p in sa["levels"][0]["probe"].values():
+        assert p["bound_cost"] > 0 and p["eval_cost"] == sa["seconds_per_evaluation"]
+    assert sa["seconds_bound"] > 0 and sa["seconds_eval"] > 0 and sa["seconds"] >= sa["seconds_bound"]
+
+
+def test_auto_falls_back_to_dense_for_callables_and_small_grids():
+    f = lambda x: x.norm(dim=1) - 0.5  # noqa: E731
+    mesh, s = march(f, 16, pruned="auto")
+    assert s["mode"] == "auto" and s["evaluations"] == 17**3 and "not a Siren" in s["reason"]
+    _same(mesh, march(f, 16)[0])
+    net = sphere_siren()
+    mesh, s = march(net, 16, pruned="auto")
+    assert s["evaluations"] == 17**3 and s["bound_evaluations"] == 0 and "grid too small" in s["reason"]
+
+
+def test_forced_pruning_with_auto_method_probes_both_methods():
+    net = sphere_siren()
+    dense, sd = march(net, 32)
+    pruned, sp = march(net, 32, pruned=True, method="auto", leaf_cells=2, bound_cost={"interval": 1, "affine-fixed": 2})
+    _same(pruned, dense)
+    assert sp["mode"] == "pruned" and all(e["decision"] == "bound" for e in sp["levels"])
+    assert [e["side"] for e in sp["levels"]] == [4, 2]
+    assert set(sp["levels"][0]["probe"]) == {"interval", "affine-fixed"}
+
+
+def test_auto_errors():
+    net = sphere_siren()
+    with pytest.raises(NeuralBakeError, match="pruned must be False, True or 'auto'"):
+        march(net, 8, pruned="yes")
+    with pytest.raises(NeuralBakeError, match="pruned must be False, True or 'auto'"):
+        march(net, 8, pruned=1)
+    with pytest.raises(NeuralBakeError, match="unknown method 'bogus'"):
+        march(net, 8, pruned=True, method="bogus")
+    with pytest.raises(NeuralBakeError, match="bound_cost has no cost for method\\(s\\) affine-fixed"):
+        march(net, 8, pruned="auto", bound_cost={"interval": 1.0})
+    with pytest.raises(NeuralBakeError, match="bound_cost must be a non-negative number"):
+        march(net, 8, pruned="auto", bound_cost=-1.0)
+    with pytest.raises(NeuralBakeError, match="bound_cost must be a non-negative number"):
+        march(net, 8, pruned="auto", bound_cost={"interval": 1.0, "affine-fixed": "x"})
