@@ -530,8 +530,13 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mes
     """The coarse mesh a bake targets, from a :func:`parse_coarse` spec; returns (mesh, info).
 
     ``decimate``: quadric edge collapse of ``mesh`` (UVs dropped: the Baker unwraps). ``march``: marching
-    cubes of ``sdf`` (a Siren field; range-pruned) at that resolution, in the field's frame. ``keep``:
-    ``mesh`` itself (its own UVs, if any, are kept).
+    cubes of ``sdf`` (a Siren field; cost-aware range pruning, ``pruned="auto"``) at that resolution, in the
+    field's frame, then :func:`~neural_bake.mesh.cleanup.clean_mesh` (weld duplicate vertices, drop
+    degenerate and duplicate faces and components under 1% of the largest one's faces; non-manifold and
+    boundary edges are counted, not repaired). ``keep``: ``mesh`` itself (its own UVs, if any, are kept).
+
+    ``info``: ``spec``, ``faces``, ``vertices``, ``seconds``; for ``march`` also ``march`` (the stats of
+    :func:`~neural_bake.mesh.marching.march`) and ``cleanup`` (the clean-up report).
     """
     kind, value = parse_coarse(spec)
     t0 = time.perf_counter()
@@ -548,9 +553,12 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mes
         field = getattr(sdf, "model", None) if sdf is not None else None
         if field is None:
             raise NeuralBakeError(f"--coarse {spec!r}: march needs an SDF model (a Siren)")
-        out, stats = march(field, value, pruned=True, frame=sdf.frame or mesh.frame)
-        info["march"] = {k: v for k, v in stats.items() if isinstance(v, (int, float, str, bool))}
+        from ..mesh.cleanup import clean_mesh
+
+        out, stats = march(field, value, pruned="auto", frame=sdf.frame or mesh.frame)
+        info["march"] = stats
         if out.n_faces == 0:
             raise NeuralBakeError(f"--coarse {spec!r}: the SDF has no surface at resolution {value}")
+        out, info["cleanup"] = clean_mesh(out)
     info.update(faces=out.n_faces, vertices=out.n_vertices, seconds=time.perf_counter() - t0)
     return out, info
