@@ -1,5 +1,7 @@
 """Baking with analytic oracles: plane, sphere, bumpy sphere; conventions, fallbacks, misses, streaming."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -318,3 +320,53 @@ def test_non_manifold_coarse_mesh_without_uvs():
     res = baker.bake(SdfField(lambda p: p.norm(dim=1) - 0.3))
     assert np.isfinite(res.normal_map).all() and res.stats["texels_covered"] > 0
     assert res.stats["singular_frames"] == 0
+
+
+def two_blob_siren(r2=0.06, s=0.0829):
+    """A (4, 0) Siren f = g(a1, x + 0.45) + g(a2, y) + g(a2, z) + s·sin(0.5 x)/0.5 - r2 with g(a, t) =
+    2 (1 - cos(a t)) / a² ≈ t²: a closed blob around (-0.45, 0, 0) and, one x-period (1.2) further, a speck
+    that holds exactly one negative grid point of the 33³ grid (f(0.6875, 0, 0) ≈ -2.5e-4): 8 faces."""
+    import math
+
+    from neural_bake.nets.siren import Siren
+
+    net = Siren(4, 0, omega_0=1.0, hidden_omega=1.0)
+    a1, a2 = 2 * math.pi / 1.2, 1.5
+    with torch.no_grad():
+        w, b = net.layers[0].weight, net.layers[0].bias
+        w.zero_()
+        b.zero_()
+        w[0, 0], b[0] = a1, a1 * 0.45 + math.pi / 2  # sin(a t + π/2) = cos(a t)
+        w[1, 1], b[1] = a2, math.pi / 2
+        w[2, 2], b[2] = a2, math.pi / 2
+        w[3, 0] = 0.5
+        w2, b2 = net.layers[1].weight, net.layers[1].bias
+        w2.zero_()
+        w2[0, :4] = torch.tensor([-2 / a1**2, -2 / a2**2, -2 / a2**2, s / 0.5])
+        b2.fill_(2 / a1**2 + 4 / a2**2 - r2)
+    return net.double()
+
+
+def test_coarse_mesh_march_is_cleaned_and_reports_it():
+    from neural_bake.bake.baker import coarse_mesh
+    from neural_bake.mesh.cleanup import clean_mesh
+    from neural_bake.mesh.marching import march
+    from neural_bake.types import Frame
+
+    net = two_blob_siren()
+    raw, _ = march(net, 32)
+    frame = Frame((1.0, 2.0, 3.0), 2.0)
+    sdf = SdfField.from_model(net, frame=frame)
+    out, info = coarse_mesh(sphere_mesh(1, uv=False), "march:32", sdf)
+    rep = info["cleanup"]
+    # the speck (8 faces, under 1% of the blob's) is dropped; what remains is the blob, closed
+    assert rep["components"] == 2 and rep["components_removed"] == 1 and rep["small_component_faces_removed"] == 8
+    assert out.n_faces == raw.n_faces - 8 and info["faces"] == out.n_faces == rep["faces_out"]
+    assert out.vertices[:, 0].max() < 0 and out.watertight and rep["non_manifold_edges"] == 0
+    assert rep["degenerate_faces_removed"] == 0 and out.frame == frame
+    expected, _ = clean_mesh(raw)
+    np.testing.assert_array_equal(out.faces, expected.faces)
+    np.testing.assert_array_equal(out.vertices, expected.vertices)
+    assert info["march"]["mode"] == "auto" and info["march"]["faces"] == raw.n_faces
+    json.dumps(info)  # reaches report.json as is
+
