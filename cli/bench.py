@@ -13,6 +13,7 @@ BENCHES = {
     "fit": ("neural_bake.cli.bench_fit", "command"),
     "texture": ("neural_bake.cli.bench_texture", "command"),
     "bake": ("neural_bake.cli.bench_bake", "command"),
+    "coarse": ("neural_bake.cli.bench_coarse", "command"),
 }
 
 
