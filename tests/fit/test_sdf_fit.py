@@ -1,5 +1,7 @@
 """fit_sdf: quality floor on a sphere, seeds, resume, divergence handling, model files, CLI."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -126,6 +128,9 @@ def test_presets_and_config():
     ({"dtype": "float16"}, "dtype must be one of"),
     ({"omega_0": 0.0}, "omega_0 must be positive"),
     ({"batch_near": 8, "pool_near": 0}, "non-empty batch needs a non-empty pool"),
+    ({"hard_fraction": 1.5}, "hard_fraction must be in"),
+    ({"hard_pool": 0.0}, "hard_pool in"),
+    ({"hard_every": 0}, "hard_every must be a positive integer"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -143,11 +148,12 @@ def test_cli_fit_sdf(tmp_path, capsys):
     m.export(src)
     out = tmp_path / "ball.sdf"
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
-                 "--no-metrics", "--seed", "2"])
+                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
+    assert fit.config.hard_fraction == 0.5
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -159,6 +165,10 @@ def test_cli_fit_sdf_errors(tmp_path, capsys):
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "nodir" / "x.sdf")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--preset", "1x1"]) == 2
+    capsys.readouterr()
+    assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--hard-fraction", "2"]) == 2
+    assert "hard_fraction must be in [0, 1]" in capsys.readouterr().err
+    assert not (tmp_path / "x.sdf").exists()
 
 
 def test_bench_step_timing_parts():
@@ -242,3 +252,39 @@ def test_inward_winding_and_degenerate_faces_fit_like_the_clean_mesh():
     with torch.no_grad():
         centre, far = fit.model(torch.zeros(1, 3))[0, 0], fit.model(torch.tensor([[0.0, 0.0, 0.98]]))[0, 0]
     assert centre < 0 < far  # negative inside: the winding was fixed, not learnt inside out
+
+
+def test_hard_indices_are_the_pools_largest_errors():
+    from neural_bake.fit.sdf import _hard_indices
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(0))
+    pts = torch.rand(1000, 3, generator=torch.Generator().manual_seed(1)) * 2 - 1
+    idx = _hard_indices(model, pts, SdfFitConfig(hard_pool=0.05))
+    err = model(pts)[:, 0].detach().abs()
+    assert len(idx) == 50 and len(set(idx.tolist())) == 50
+    assert err[idx].min() >= torch.topk(err, 50).values.min()  # exactly the 50 largest |f|
+    assert len(_hard_indices(model, pts, SdfFitConfig(hard_pool=1e-9))) == 1  # at least one
+
+
+def test_hard_mining_draws_from_the_hard_set():
+    from neural_bake.fit.sdf import _draw
+
+    cfg = SdfFitConfig(batch=400, batch_near=0, batch_uniform=0, hard_fraction=0.25)
+    pools = {"surf_p": torch.arange(3000.0).reshape(1000, 3), "surf_n": torch.zeros(1000, 3),
+             "vol_p": torch.zeros(0, 3), "vol_d": torch.zeros(0), "n_near": 0}
+    hard = torch.tensor([7, 11, 13])
+    sp, *_ = _draw(pools, cfg, torch.Generator().manual_seed(0), hard)
+    rows = (sp[:, 0] / 3).long()
+    assert set(rows[300:].tolist()) <= {7, 11, 13}  # the last quarter: hard samples only
+    assert len(set(rows[:300].tolist())) > 100  # the rest: uniform over the pool
+    sp0, *_ = _draw(pools, replace(cfg, hard_fraction=0.0), torch.Generator().manual_seed(0), hard)
+    assert len(set((sp0[300:, 0] / 3).long().tolist())) > 50
+
+
+def test_hard_mining_off_and_on_differ_and_stay_finite():
+    on = fit_sdf(sphere(), steps=40, seed=0, **TINY)
+    off = fit_sdf(sphere(), steps=40, seed=0, **dict(TINY, hard_fraction=0.0))
+    assert on.config.hard_fraction == 0.25 and off.config.hard_fraction == 0.0
+    assert torch.isfinite(weights(on.model)).all()
+    assert not torch.equal(weights(on.model), weights(off.model))
