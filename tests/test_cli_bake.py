@@ -179,7 +179,9 @@ def test_bench_bake_shrunken_run():
     (e,) = res["tables"]["error vs time"]
     # the analytic field baked into an 8-bit map beats both the coarse geometry and the ray-cast baseline
     assert e["ours med°"] < 1.0 and e["ours med°"] < e["baseline med°"] < e["geometry med°"]
+    assert 0 < e["map vs ∇f med°"] < 1.0  # 8-bit quantisation of the analytic field's own normals
     assert any("random initialisation" in n for n in res["notes"])
+    assert any(n.startswith("target: median angular error") and "(met)" in n for n in res["notes"])
 
 
 def test_delta_defaults_to_the_texture_models_band(files, tmp_path, capsys):
