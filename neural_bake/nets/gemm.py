@@ -149,7 +149,7 @@ class _SinCos(torch.autograd.Function):
             return grad_s * c
         if grad_s is None:
             return -(grad_c * s)
-        return grad_s * c - grad_c * s
+        return torch.addcmul(grad_s * c, grad_c, s, value=-1.0)  # two passes over the layer, not three
 
 
 def sin_cos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
