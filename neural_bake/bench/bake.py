@@ -21,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from .common import machine_info
+from .common import load_note, machine_info
 
 __all__ = ["run"]
 
@@ -87,7 +87,7 @@ def run(
     map_sizes = map_sizes or ([128, 256] if quick else [256, 512, 1024])
     sample, fine = _bumpy()
     notes = [
-        "shared 2-core CPU: timings are noisy (other jobs were running); best single run, no repetition",
+        "timings: one run per row, no repetition",
         "throughput: (256, 3) SIREN with random initialisation (a bake's cost does not depend on the weights)",
     ]
 
@@ -169,6 +169,7 @@ def run(
                  "8-bit map against the baked field's own unit ∇f at the same texel points")
     notes.append("with the analytic field, 'ours' measures the baking machinery (encoding, quantisation, "
                  "frames, filtering), not a fitted network; pass sdf_model=PATH for a trained one")
+    notes.append(load_note())
     return {
         "name": "bake",
         "title": "bake: texel throughput and error against time (neural vs mesh-to-mesh baseline)",

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..errors import NeuralBakeError
-from .common import machine_info
+from .common import load_note, machine_info
 
 __all__ = ["run"]
 
@@ -133,7 +133,7 @@ def run(
         raise NeuralBakeError(f"bench coarse: unknown marching mode(s) {', '.join(map(repr, bad))} "
                               "(choose dense, pruned, auto)")
     _network(network)
-    notes = ["shared 2-core CPU: timings are noisy (other jobs were running); one run per row, no repetition"]
+    notes = ["timings: one run per row, no repetition"]
     rows = []
     for name, fine in _meshes(quick, notes):
         for nf in faces:
@@ -177,6 +177,7 @@ def run(
                  f"({samples} samples per surface); seconds include the clean-up of coarse_mesh")
     notes.append("march pruned / auto give the same triangles as dense; 'time ÷ dense' and 'fewer evals ×' are "
                  "against the dense run of the same grid in this run; 'auto' is what --coarse march:N uses")
+    notes.append(load_note())
     return {
         "name": "coarse",
         "title": "coarse: decimation vs marching cubes (dense, range-pruned, cost-aware), error against time",

@@ -16,7 +16,7 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..io.jsonio import dumps
 
-__all__ = ["timeit", "format_table", "write_json", "machine_info"]
+__all__ = ["timeit", "format_table", "write_json", "machine_info", "load_note"]
 
 
 def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time: float = 0.0) -> float:
@@ -34,6 +34,19 @@ def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time:
         dt = time.perf_counter() - t0
         best, spent, n = min(best, dt), spent + dt, n + 1
     return best
+
+
+def load_note() -> str:
+    """What the machine's load was (1- and 15-minute load averages against its cores), for a bench's notes:
+    other work on the machine only slows a timing down, so under load the figures are upper bounds."""
+    cores = os.cpu_count() or 1
+    try:
+        one, _, fifteen = os.getloadavg()
+    except OSError:  # pragma: no cover - platforms without load averages
+        return f"timings: best of repeats; load average not available ({cores} cores)"
+    state = "busy: timings are upper bounds, compare ratios within the run" if one > cores + 0.5 else "quiet"
+    return (f"timings: best of repeats; load average at the end {one:.1f} (15 min: {fifteen:.1f}) on {cores} "
+            f"cores — {state}")
 
 
 def machine_info() -> dict:

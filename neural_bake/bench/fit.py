@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from .common import machine_info
+from .common import load_note, machine_info
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
 
@@ -172,7 +172,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
             rows.append(row)
 
     notes += [
-        "figures measured on a 2-core CPU shared with other jobs: timings are noisy (best of repeats)",
+        load_note(),
         f"roofline: {roof['gflops_sgemm']:.1f} GFLOP/s sgemm, {roof['gsin_per_s']:.3f} Gsin/s "
         f"({roof['threads']} threads); the step's roofline is an approximation (module docstring)",
         "baseline: the same losses with ∇f from torch.autograd.grad(create_graph=True), i.e. double-backward",

@@ -27,7 +27,7 @@ from ..nets import gemm as gemm_mod
 from ..nets import siren as siren_mod
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
-from .common import machine_info
+from .common import load_note, machine_info
 from .roofline import measure_roofline, roofline_seconds, siren_cost
 
 __all__ = ["run", "NETWORKS", "POINTS"]
@@ -91,6 +91,7 @@ def run(
         "possible time for the method's own FLOP and sine count / time",
         f"total benchmark time {time.perf_counter() - t_start:.0f} s",
     ]
+    notes.append(load_note())
     return {
         "name": "normals",
         "title": "GEMM normals vs autograd, torch.func and finite differences",

@@ -23,7 +23,7 @@ import torch
 
 from ..nets.range_analysis import METHODS, difference_bound, range_bound
 from ..nets.siren import Siren
-from .common import machine_info, timeit
+from .common import load_note, machine_info, timeit
 
 __all__ = ["run"]
 
@@ -225,8 +225,7 @@ def _run(quick, seed, omega, model_path, methods, truncate_keep) -> dict:
         "symbols shared (difference_bound) and without (range(h) - range(f)), against the sampled maximum "
         "(256 points per segment, 8^3 per box); this is the certificate behind a nesting threshold δ.",
         "Networks are randomly initialised SIRENs (a stand-in for trained ones) unless a model file is given.",
-        f"Timed with {torch.get_num_threads()} torch thread(s); the CPU is shared with other jobs, so timings are "
-        "noisy: compare ratios within one run.",
+        f"Timed with {torch.get_num_threads()} torch thread(s); {load_note()}.",
         f"total bench time {time.perf_counter() - started:.1f} s",
     ]
     return {

@@ -27,7 +27,7 @@ import torch
 
 from ..errors import NeuralBakeError
 from ..types import Mesh
-from .common import machine_info, timeit
+from .common import load_note, machine_info, timeit
 
 __all__ = ["run", "latlong_sphere", "mesh_sdf", "SPOT"]
 
@@ -245,7 +245,7 @@ def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta:
         "f is the mesh's exact signed distance (closest point), so this measures the texture fit alone.",
         "checker<k>: a hard-edged high-frequency texture; its psnr_db is the ceiling of that network in that "
         "budget, not a bug.",
-        "Timings are on a 2-core CPU shared with other jobs: noisy, upper bounds.",
+        load_note(),
     ]
     return {"name": "texture", "title": "Gradient-orthogonal neural texture: accuracy vs training time",
             "machine": machine_info(), "quick": quick, "delta": delta,

@@ -53,3 +53,11 @@ def test_cli_verb_is_registered(capsys):
     assert main(["bench", "normals", "--help"]) == 0
     out = capsys.readouterr().out
     assert "--quick" in out and "--json" in out and "GEMM normals" in out
+
+
+def test_load_note_states_the_load():
+    from neural_bake.bench.common import load_note
+
+    note = load_note()
+    assert note.startswith("timings: best of repeats") and "cores" in note
+    assert note.endswith("quiet") or "upper bounds" in note
