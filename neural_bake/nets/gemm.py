@@ -211,6 +211,11 @@ def _reverse_chunked(layers, x, chunk):
     act = [x.new_empty((c0, width)), x.new_empty((c0, width))]
     gbuf = [x.new_empty((c0 * k, width)), x.new_empty((c0 * k, width))]
     w_n_row = w_n.unsqueeze(0)  # (1, k, W)
+    # backward GEMM weights, last layer first; for a scalar field the output row is folded into the first
+    # one, (cos A_D ⊙ w_n) W_D = cos A_D (diag(w_n) W_D), which saves an element-wise pass per chunk
+    mats = [w for w, _ in reversed(hidden)]
+    if k == 1:
+        mats[0] = mats[0] * w_n[0].unsqueeze(1)
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         c = stop - start
@@ -222,17 +227,20 @@ def _reverse_chunked(layers, x, chunk):
             torch.sin(a, out=h)
             a.cos_()
         torch.addmm(b_n, h, w_n.t(), out=values[start:stop])
-        g = gbuf[0][: c * k]
-        torch.mul(cos_bufs[-1][:c].unsqueeze(1), w_n_row, out=g.view(c, k, width))
+        if k == 1:
+            g = cos_bufs[-1][:c]  # w_n is folded into mats[0]
+        else:
+            g = gbuf[0][: c * k]
+            torch.mul(cos_bufs[-1][:c].unsqueeze(1), w_n_row, out=g.view(c, k, width))
         for i in range(len(hidden) - 1, 0, -1):
             g_next = gbuf[(len(hidden) - i) % 2][: c * k]
-            torch.mm(g, hidden[i][0], out=g_next)
+            torch.mm(g, mats[len(hidden) - 1 - i], out=g_next)
             if k == 1:
                 g_next.mul_(cos_bufs[i - 1][:c])
             else:
                 g_next.view(c, k, width).mul_(cos_bufs[i - 1][:c].unsqueeze(1))
             g = g_next
-        torch.mm(g, hidden[0][0], out=grads[start:stop].view(c * k, d))
+        torch.mm(g, mats[-1], out=grads[start:stop].view(c * k, d))
     return values, grads
 
 
