@@ -148,12 +148,12 @@ def test_cli_fit_sdf(tmp_path, capsys):
     m.export(src)
     out = tmp_path / "ball.sdf"
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
-                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5"])
+                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--gemm-dtype", "float32"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
-    assert fit.config.hard_fraction == 0.5
+    assert fit.config.hard_fraction == 0.5 and fit.config.gemm_dtype == "float32"
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -270,16 +270,43 @@ def test_hard_indices_are_the_pools_largest_errors():
 def test_hard_mining_draws_from_the_hard_set():
     from neural_bake.fit.sdf import _draw
 
-    cfg = SdfFitConfig(batch=400, batch_near=0, batch_uniform=0, hard_fraction=0.25)
+    cfg = SdfFitConfig(batch=400, batch_near=200, batch_uniform=40, hard_fraction=0.25)
     pools = {"surf_p": torch.arange(3000.0).reshape(1000, 3), "surf_n": torch.zeros(1000, 3),
-             "vol_p": torch.zeros(0, 3), "vol_d": torch.zeros(0), "n_near": 0}
-    hard = torch.tensor([7, 11, 13])
-    sp, *_ = _draw(pools, cfg, torch.Generator().manual_seed(0), hard)
+             "vol_p": torch.arange(1500.0).reshape(500, 3), "vol_d": torch.zeros(500), "n_near": 400}
+    hard = {"surf": torch.tensor([7, 11, 13]), "near": torch.tensor([5, 9])}
+    sp, _, vp, _ = _draw(pools, cfg, torch.Generator().manual_seed(0), hard)
     rows = (sp[:, 0] / 3).long()
     assert set(rows[300:].tolist()) <= {7, 11, 13}  # the last quarter: hard samples only
     assert len(set(rows[:300].tolist())) > 100  # the rest: uniform over the pool
+    vrows = (vp[:, 0] / 3).long()
+    assert set(vrows[150:200].tolist()) <= {5, 9}  # the near batch's last quarter: hard near samples
+    assert len(set(vrows[:150].tolist())) > 50 and (vrows[:200] < 400).all()
+    assert (vrows[200:] >= 400).all()  # uniform samples untouched
     sp0, *_ = _draw(pools, replace(cfg, hard_fraction=0.0), torch.Generator().manual_seed(0), hard)
     assert len(set((sp0[300:, 0] / 3).long().tolist())) > 50
+
+
+def test_hard_indices_of_the_near_pool_rank_by_sdf_error():
+    from neural_bake.fit.sdf import _hard_indices
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(0))
+    pts = torch.rand(500, 3, generator=torch.Generator().manual_seed(2)) * 2 - 1
+    d = model(pts)[:, 0].detach().clone()
+    d[[3, 77]] += torch.tensor([5.0, -4.0])  # the two samples the net misses by far
+    idx = _hard_indices(model, pts, SdfFitConfig(hard_pool=0.004), d)
+    assert sorted(idx.tolist()) == [3, 77]
+
+
+def test_gemm_dtype_auto_resolves_and_is_recorded():
+    from neural_bake.fit.sdf import _bf16_pays
+
+    fit = fit_sdf(sphere(sub=1), steps=3, **TINY)  # width 32: bf16 never pays
+    assert fit.config.gemm_dtype == "float32"
+    assert not _bf16_pays(SdfFitConfig(width=64, depth=1), torch.device("cpu"), torch.float32)
+    assert not _bf16_pays(SdfFitConfig(width=256, depth=0), torch.device("cpu"), torch.float32)
+    assert not _bf16_pays(SdfFitConfig(width=256, depth=3), torch.device("cpu"), torch.float64)
+    assert isinstance(_bf16_pays(SdfFitConfig(width=256, depth=3), torch.device("cpu"), torch.float32), bool)
 
 
 def test_hard_mining_off_and_on_differ_and_stay_finite():
