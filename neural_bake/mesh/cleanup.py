@@ -50,14 +50,18 @@ def clean_mesh(
     keep_largest: bool = False,
     merge_tolerance: float = 0.0,
     remove_degenerate: bool = True,
+    remove_zero_area: bool = False,
 ) -> tuple[Mesh, dict]:
     """Clean a (coarse) mesh; returns ``(mesh, report)``.
 
     Steps, in order:
     1. weld vertices whose positions agree exactly (``merge_tolerance = 0``) or on a grid of that step
        (unit frame);
-    2. remove faces with a repeated vertex or an area below ``DEGENERATE_AREA`` (``remove_degenerate``),
-       and duplicate faces (same three vertices, any order; the first is kept);
+    2. remove faces with a repeated vertex (``remove_degenerate``), faces of three distinct vertices with an
+       area below ``DEGENERATE_AREA`` only with ``remove_zero_area`` (a sliver inside a closed surface — as
+       marching cubes makes — shares its three edges with neighbours, so deleting it opens a hole; kept, it
+       is flagged in ``mesh.degenerate`` and every consumer skips it), and duplicate faces (same three
+       vertices, any order; the first is kept);
     3. remove connected components (faces sharing a vertex) with fewer than ``min_component_faces`` faces
        (default: ``min_component_fraction`` × the largest component's faces), or all but the largest
        (``keep_largest``);
@@ -104,7 +108,7 @@ def clean_mesh(
         t = v[f]
         area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
         repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
-        keep &= ~(repeated | (area < DEGENERATE_AREA))
+        keep &= ~(repeated | ((area < DEGENERATE_AREA) & remove_zero_area))
     report["degenerate_faces_removed"] = int((~keep).sum())
     if len(f):
         idx = np.flatnonzero(keep)

@@ -93,3 +93,19 @@ def test_errors():
         clean_mesh(m, min_component_fraction=2.0)
     with pytest.raises(NeuralBakeError, match="merge_tolerance must be >= 0"):
         clean_mesh(m, merge_tolerance=-1.0)
+
+
+def test_zero_area_sliver_is_kept_flagged_unless_asked():
+    """A collinear sliver inside a closed surface: deleting it would open a 3-edge hole."""
+    # a closed square pyramid whose base is a fan around vertex 5, placed on the base edge 1-2: the fan's
+    # face [1, 5, 2] is a zero-area sliver sharing its three edges with neighbours
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1], [1.0, 0.5, 0]], dtype=np.float64)
+    f = np.array([[0, 5, 1], [1, 5, 2], [2, 5, 3], [3, 5, 0],
+                  [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]], dtype=np.int64)
+    m = Mesh(vertices=v, faces=f)
+    assert m.face_areas[1] < 1e-12
+    out, rep = clean_mesh(m)
+    assert rep["degenerate_faces_removed"] == 0 and out.n_faces == 8
+    assert out.watertight and out.degenerate.sum() == 1
+    out2, rep2 = clean_mesh(m, remove_zero_area=True)
+    assert rep2["degenerate_faces_removed"] == 1 and not out2.watertight and rep2["boundary_edges"] == 3
