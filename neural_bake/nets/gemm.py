@@ -35,12 +35,13 @@ __all__ = ["gemm_gradient", "normalized_gradient", "default_chunk_size", "sin_co
 #: The evaluation orders of :func:`gemm_gradient`.
 MODES = ("reverse", "forward")
 
-#: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^22 elements
-#: (16 MB in float32), i.e. 16,384 points of a (256, D) scalar SDF in reverse mode and 5,461 in forward
-#: mode (3 streams). Chosen by measurement (the chunk sweep of `neural-bake bench normals`): on a shared
-#: 2-core CPU small chunks lose to per-call thread synchronisation, and beyond this size the time is flat
-#: while memory grows (reverse mode keeps D + 1 cos buffers of this size).
-GEMM_CHUNK_ELEMENTS = 1 << 22
+#: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^20 elements
+#: (4 MB in float32), i.e. 4,096 points of a (256, D) scalar SDF in reverse mode (1,365 in forward mode,
+#: 3 streams) and 16,384 of a (64, D) one. Chosen by measurement (the chunk sweep of `neural-bake bench
+#: normals`, quiet 2-core CPU): for (256, 3) the time is flat from 1,024 to 16,384 points per chunk and 30 %
+#: slower at 65,536; for (64, 1) 16,384-point chunks are 15 % faster than 65,536 (reverse mode keeps D + 1
+#: cos buffers of this size: the working set must stay in cache).
+GEMM_CHUNK_ELEMENTS = 1 << 20
 
 
 def default_chunk_size(mode: str, width: int, in_dim: int = 3, out_dim: int = 1) -> int:

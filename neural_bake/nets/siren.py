@@ -12,11 +12,11 @@ from ..errors import NeuralBakeError
 
 __all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK_ELEMENTS"]
 
-#: Size (points × width) of a chunk of the inference forward pass: 2^22, i.e. 16,384 points of a width-256
-#: network (a 16 MB float32 buffer). Chosen by measurement (the chunk sweep of `neural-bake bench normals`):
-#: on a shared 2-core CPU, small chunks lose to thread synchronisation per call; beyond this size the
-#: time is flat while the memory grows.
-FORWARD_CHUNK_ELEMENTS = 1 << 22
+#: Size (points × width) of a chunk of the inference forward pass: 2^20, i.e. 4,096 points of a width-256
+#: network (a 4 MB float32 buffer) and 16,384 of a width-64 one. Chosen by measurement (the chunk sweep of
+#: `neural-bake bench normals`): for (256, 3) flat from 1,024 to 16,384 points, for (64, 1) 15 % faster than
+#: 2^22; much smaller chunks lose to per-call thread synchronisation.
+FORWARD_CHUNK_ELEMENTS = 1 << 20
 
 
 class Siren(nn.Module):
