@@ -97,8 +97,9 @@ class SdfFitConfig:
     """Steps between history entries."""
     hard_fraction: float = 0.25
     """Part of each step's surface batch drawn from the pool's hardest samples (largest |f|, hard-example
-    mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set the Hausdorff distance; this spends steps on them: on Spot,
-    (64, 1) in 2 minutes, Hausdorff 0.017 → 0.0074 for Chamfer-L1 0.00092 → 0.00102."""
+    mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
+    the Hausdorff distance; this spends steps on them: on Spot, (64, 1) in 2 minutes, Hausdorff 0.017 →
+    0.0074 for Chamfer-L1 0.00092 → 0.00102."""
     hard_every: int = 100
     """Steps between re-ranking the surface and near pools (with ``hard_fraction`` > 0)."""
     hard_pool: float = 0.02
@@ -402,26 +403,27 @@ def _bf16_pays(cfg: SdfFitConfig, device, dtype) -> bool:
     return best["f32"] >= 1.5 * best["bf16"]
 
 
+def _with_hard(idx: torch.Tensor, hard: torch.Tensor | None, fraction: float, gen: torch.Generator):
+    """``idx`` (n,) with its last ``fraction`` · n entries drawn from ``hard`` instead (unchanged if None)."""
+    n_hard = int(idx.shape[0] * fraction) if hard is not None else 0
+    if n_hard:
+        pick = torch.randint(0, hard.shape[0], (n_hard,), generator=gen)
+        idx[idx.shape[0] - n_hard:] = hard.to(idx.device)[pick.to(hard.device)]
+    return idx
+
+
 def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None):
     """A step's batch; with ``hard`` ({"surf", "near"} index tensors) the tail of the surface and near
     batches (``hard_fraction`` of each) comes from the hard sets."""
     dev = pools["surf_p"].device
+    hard = hard or {}
     si = torch.randint(0, pools["surf_p"].shape[0], (cfg.batch,), generator=gen).to(dev)
-    hard_surf = None if hard is None else hard.get("surf")
-    n_hard = int(cfg.batch * cfg.hard_fraction) if hard_surf is not None else 0
-    if n_hard:  # the tail of the surface batch comes from the hard set
-        pick = torch.randint(0, hard_surf.shape[0], (n_hard,), generator=gen).to(dev)
-        si[cfg.batch - n_hard:] = hard_surf[pick]
+    si = _with_hard(si, hard.get("surf"), cfg.hard_fraction, gen)
     n_near, n_vol = pools["n_near"], pools["vol_p"].shape[0]
     parts = []
-    if cfg.batch_near and n_near:
+    if cfg.batch_near and n_near:  # hard near indices point into the near part of the volume pool
         ni = torch.randint(0, n_near, (cfg.batch_near,), generator=gen)
-        hard_near = None if hard is None else hard.get("near")
-        n_hard_near = int(cfg.batch_near * cfg.hard_fraction) if hard_near is not None else 0
-        if n_hard_near:  # indices into the near part of the volume pool
-            pick = torch.randint(0, hard_near.shape[0], (n_hard_near,), generator=gen)
-            ni[cfg.batch_near - n_hard_near:] = hard_near.cpu()[pick]
-        parts.append(ni)
+        parts.append(_with_hard(ni, hard.get("near"), cfg.hard_fraction, gen))
     if cfg.batch_uniform and n_vol > n_near:
         parts.append(torch.randint(n_near, n_vol, (cfg.batch_uniform,), generator=gen))
     vi = torch.cat(parts).to(dev) if parts else torch.zeros(0, dtype=torch.long, device=dev)
@@ -483,9 +485,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             frac = max(frac, (time.perf_counter() - t_start) / (60.0 * cfg.minutes))
         return frac < cfg.bf16_fraction
 
-    hard = {"step": None, "pool": None, "idx": None}  # idx: {"surf", "near"} index tensors
+    hard = {"pool": None, "idx": None}  # idx: {"surf", "near"} index tensors
 
-    def hard_set(step: int, data: dict) -> torch.Tensor | None:
+    def hard_set(step: int, data: dict) -> dict | None:
         # re-ranked every hard_every steps, at each pool refresh and at each checkpoint step, so that a run
         # resumed from a periodic checkpoint re-ranks exactly where the uninterrupted run did
         if cfg.hard_fraction <= 0:
@@ -496,7 +498,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             n_near = data["n_near"]
             if cfg.batch_near and n_near:
                 idx["near"] = _hard_indices(model, data["vol_p"][:n_near], cfg, data["vol_d"][:n_near])
-            hard.update(step=step, pool=data, idx=idx)
+            hard.update(pool=data, idx=idx)
         return hard["idx"]
 
     def step_fn(step: int, g: torch.Generator) -> dict:
