@@ -16,7 +16,7 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..io.jsonio import dumps
 
-__all__ = ["timeit", "format_table", "write_json", "machine_info", "load_note"]
+__all__ = ["timeit", "timeit_interleaved", "format_table", "write_json", "machine_info", "load_note"]
 
 
 def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time: float = 0.0) -> float:
@@ -33,6 +33,18 @@ def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time:
         fn()
         dt = time.perf_counter() - t0
         best, spent, n = min(best, dt), spent + dt, n + 1
+    return best
+
+
+def timeit_interleaved(methods: dict[str, Callable[[], object]], repeat: int = 3) -> dict[str, float]:
+    """Best wall time in seconds of each ``methods[name]()`` over ``repeat`` rounds that call every method in
+    turn (no warm-up: the caller does it), so that every method sees the same machine load."""
+    best = {name: float("inf") for name in methods}
+    for _ in range(repeat):
+        for name, fn in methods.items():
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
     return best
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from .common import load_note, machine_info
+from .common import load_note, machine_info, timeit_interleaved
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
 
@@ -82,14 +82,9 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     # interleaved (as bench normals): every method sees the same machine state; best of the repetitions
     methods = {"ours": step(sdf_loss_terms), "bf16": step(lambda *a: sdf_loss_terms(*a, low_precision=True)),
                "auto": step(_autograd_terms)}
-    best = {k: float("inf") for k in methods}
     for fn in methods.values():
         fn()  # warm-up
-    for _ in range(repeat):
-        for k, fn in methods.items():
-            t = time.perf_counter()
-            fn()
-            best[k] = min(best[k], time.perf_counter() - t)
+    best = timeit_interleaved(methods, repeat)
     t_ours, t_bf16, t_auto = best["ours"], best["bf16"], best["auto"]
     n = batch + nv
     c = siren_cost(width, depth, n, grad="reverse")

@@ -27,7 +27,7 @@ from ..nets import gemm as gemm_mod
 from ..nets import siren as siren_mod
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
-from .common import load_note, machine_info
+from .common import load_note, machine_info, timeit_interleaved
 from .roofline import measure_roofline, roofline_seconds, siren_cost
 
 __all__ = ["run", "NETWORKS", "POINTS"]
@@ -130,15 +130,10 @@ def _compare(model: Siren, n: int, repeat: int, seed: int) -> list[dict]:
         "gemm reverse": siren_cost(model.width, model.depth, n, "reverse"),
         "forward pass": siren_cost(model.width, model.depth, n, None),
     }
-    best = {name: math.inf for name in methods}
     for name, fn in methods.items():  # warm-up (and accuracy on the reference subset)
         fn(x_ref)
     errors = {name: _max_angle_deg(fn(x_ref), ref) for name, fn in methods.items() if name != "forward pass"}
-    for _ in range(repeat):  # interleaved: every method sees the same machine load
-        for name, fn in methods.items():
-            t0 = time.perf_counter()
-            fn(x)
-            best[name] = min(best[name], time.perf_counter() - t0)
+    best = timeit_interleaved({name: (lambda fn=fn: fn(x)) for name, fn in methods.items()}, repeat)
     rows = []
     for name in methods:
         t = best[name]
