@@ -195,7 +195,7 @@ def _max_angle_deg(g, ref) -> float:
 def _chunk_sweep(quick: bool, repeat: int, seed: int) -> list[dict]:
     """Time the no-grad paths of a (256, 3) network for several chunk sizes (the defaults' justification)."""
     n = 16_384 if quick else 65_536
-    chunks = [1024, 4096, 16384] if quick else [1024, 4096, 8192, 16384, 65536]
+    chunks = [256, 1024, 4096] if quick else [256, 512, 1024, 2048, 4096, 16384]
     model = Siren(256, 3, generator=torch.Generator().manual_seed(seed))
     x = torch.rand(n, 3, generator=torch.Generator().manual_seed(seed)) * 1.8 - 0.9
     layers = [(w.detach(), b.detach()) for w, b in model.affine_layers()]

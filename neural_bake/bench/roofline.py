@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import torch
 
+from ..nets.siren import FORWARD_CHUNK_ELEMENTS
 from .common import timeit
 
 __all__ = ["measure_roofline", "siren_cost", "roofline_seconds"]
@@ -36,15 +37,16 @@ def measure_roofline(
     Returns:
         ``{"gflops_sgemm", "gflops_square", "gflops_siren_shape", "gsin_per_s", "gcos_per_s", "gmul_per_s",
         "threads", "dtype"}``: ``gflops_sgemm`` is the best of the square (1024³) and SIREN-shaped
-        ((8192, width) × (width, width)) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is
-        ``torch.sin`` on 2^22 elements written into a preallocated tensor (billions per second);
+        ((chunk, width) × (width, width), one chunk of the inference pass) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is
+        ``torch.sin`` on one chunk's activation (:data:`~neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS`
+        elements, in cache, as the SIREN passes run) written into a preallocated tensor (billions per second);
         ``gmul_per_s`` an element-wise product on the same size.
     """
     repeat = repeat or (4 if quick else 10)
     gen = torch.Generator().manual_seed(0)
     # element-wise passes first (right after a GEMM, the BLAS threads may still be spinning), ~1 ms each:
     # many tries, best of, so that a shared CPU's stalls do not count
-    n_el = 1 << 22  # the size of a chunk's (16,384 × 256) activation: the passes a SIREN really makes
+    n_el = FORWARD_CHUNK_ELEMENTS  # the size of a chunk's activation: the passes a SIREN really makes
     s = torch.rand(n_el, generator=gen, dtype=dtype) * 20 - 10  # SIREN pre-activations are O(1..10)
     so = torch.empty_like(s)
     tries = {"repeat": max(repeat, 20), "min_time": 0.3}
@@ -58,7 +60,7 @@ def measure_roofline(
     out = torch.empty(n_sq, n_sq, dtype=dtype)
     t_sq = timeit(lambda: torch.mm(a, b, out=out), repeat=repeat)
     gf_sq = 2 * n_sq**3 / t_sq / 1e9
-    rows = 8192
+    rows = max(256, FORWARD_CHUNK_ELEMENTS // width)  # the products of one chunk
     x = torch.rand(rows, width, generator=gen, dtype=dtype)
     w = torch.rand(width, width, generator=gen, dtype=dtype)
     o2 = torch.empty(rows, width, dtype=dtype)

@@ -146,7 +146,9 @@ PRESETS: dict[str, dict] = {
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000},
     "128x2": {"width": 128, "depth": 2, "lr": 2e-4, "minutes": 5.0, "steps": 100_000},
     "256x2": {"width": 256, "depth": 2, "lr": 1e-4, "minutes": 8.0, "steps": 100_000},
-    "256x3": {"width": 256, "depth": 3, "lr": 1e-4, "minutes": 10.0, "steps": 100_000},
+    # lr 2e-4 (was 1e-4): on the AVX2 EPYC (~1,400 steps in 10 min) Spot went from Hausdorff 0.0074 and
+    # median normal error 3.30° to 0.0065 and 2.96° (half batches: 3,150 steps, 0.0064 and 3.19°)
+    "256x3": {"width": 256, "depth": 3, "lr": 2e-4, "minutes": 10.0, "steps": 100_000},
 }
 
 

@@ -35,13 +35,15 @@ __all__ = ["gemm_gradient", "normalized_gradient", "default_chunk_size", "sin_co
 #: The evaluation orders of :func:`gemm_gradient`.
 MODES = ("reverse", "forward")
 
-#: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^20 elements
-#: (4 MB in float32), i.e. 4,096 points of a (256, D) scalar SDF in reverse mode (1,365 in forward mode,
-#: 3 streams) and 16,384 of a (64, D) one. Chosen by measurement (the chunk sweep of `neural-bake bench
-#: normals`, quiet 2-core CPU): for (256, 3) the time is flat from 1,024 to 16,384 points per chunk and 30 %
-#: slower at 65,536; for (64, 1) 16,384-point chunks are 15 % faster than 65,536 (reverse mode keeps D + 1
-#: cos buffers of this size: the working set must stay in cache).
-GEMM_CHUNK_ELEMENTS = 1 << 20
+#: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^18 elements
+#: (1 MB in float32), i.e. 1,024 points of a (256, D) scalar SDF in reverse mode (341 in forward mode,
+#: 3 streams) and 4,096 of a (64, D) one. Chosen by measurement (the chunk sweep of `neural-bake bench
+#: normals` and a sweep of 2^17–2^20 elements at 262,144 points, interleaved best of 7, quiet): on the AVX2
+#: EPYC (1 MB L2 per core), (256, 3) reverse mode takes 2.47 s at 2^18, 2.55 s at 2^19, 2.82 s at 2^17 and
+#: 2.91 s at 2^20, and (64, 1) 0.156 s at 2^18 against 0.169 s at 2^20 (reverse mode keeps D + 1 cos
+#: buffers of this size: the working set must stay in cache); on the AMX Xeon measured earlier, (256, 3) was
+#: flat from 1,024 to 16,384 points per chunk.
+GEMM_CHUNK_ELEMENTS = 1 << 18
 
 
 def default_chunk_size(mode: str, width: int, in_dim: int = 3, out_dim: int = 1) -> int:
@@ -172,6 +174,15 @@ def _reverse_graph(layers, x):
     w_n, b_n = layers[-1]
     values = torch.addmm(b_n, h, w_n.t())
     k = w_n.shape[0]
+    if k == 1:
+        # scalar field: the output row folds into the first backward matrix, (cos A_D ⊙ w_n) W_D =
+        # cos A_D (diag(w_n) W_D): no (N, W) product on the graph, and none in its backward
+        mats = [w for w, _ in layers[:-1]]
+        mats[-1] = mats[-1] * w_n[0].unsqueeze(1)
+        g = derivs[-1]
+        for i in range(len(derivs) - 1, 0, -1):
+            g = (g @ mats[i]) * derivs[i - 1]
+        return values, (g @ mats[0]).unsqueeze(1)
     g = derivs[-1].unsqueeze(1) * w_n.unsqueeze(0)  # (N, k, W)
     for i in range(len(derivs) - 1, 0, -1):
         g = (g.reshape(n * k, -1) @ layers[i][0]).reshape(n, k, -1) * derivs[i - 1].unsqueeze(1)

@@ -133,9 +133,10 @@ def test_modes_agree_float64(mode):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("out_dim", [1, 3])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_differentiable_matches_double_backward(mode, out_dim, dtype):
+@pytest.mark.parametrize("depth", [0, 2])  # depth 0: the scalar output row folds into W_0 itself
+def test_differentiable_matches_double_backward(mode, out_dim, dtype, depth):
     """A loss on the gradients backpropagates to the weights exactly as double-backward autograd does."""
-    model = _model(16, 2, 3, out_dim, 30.0, dtype, seed=3)
+    model = _model(16, depth, 3, out_dim, 30.0, dtype, seed=3)
     x = _points(40, 3, dtype)
 
     def loss_of(jac):  # eikonal-like on the first output + a term on all Jacobian entries
