@@ -37,10 +37,11 @@ def measure_roofline(
     Returns:
         ``{"gflops_sgemm", "gflops_square", "gflops_siren_shape", "gsin_per_s", "gcos_per_s", "gmul_per_s",
         "threads", "dtype"}``: ``gflops_sgemm`` is the best of the square (1024³) and SIREN-shaped
-        ((chunk, width) × (width, width), one chunk of the inference pass) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is
-        ``torch.sin`` on one chunk's activation (:data:`~neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS`
-        elements, in cache, as the SIREN passes run) written into a preallocated tensor (billions per second);
-        ``gmul_per_s`` an element-wise product on the same size.
+        ((chunk, width) × (width, width), one chunk of the inference pass) products — the peak a SIREN
+        layer can hope for; ``gsin_per_s`` is ``torch.sin`` on one chunk's activation
+        (:data:`~neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS` elements, in cache, as the SIREN passes
+        run) written into a preallocated tensor (billions per second); ``gmul_per_s`` an element-wise
+        product on the same size.
     """
     repeat = repeat or (4 if quick else 10)
     gen = torch.Generator().manual_seed(0)
