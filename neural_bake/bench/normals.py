@@ -213,7 +213,7 @@ def _chunk_sweep(quick: bool, repeat: int, seed: int) -> list[dict]:
                     t0 = time.perf_counter()
                     fn(c)
                     best[(p, c)] = min(best[(p, c)], time.perf_counter() - t0)
-    defaults = {"forward pass": siren_mod.FORWARD_CHUNK_ELEMENTS // 256,
+    defaults = {"forward pass": siren_mod.forward_chunk_size(256),
                 "gemm reverse": gemm_mod.default_chunk_size("reverse", 256),
                 "gemm forward": gemm_mod.default_chunk_size("forward", 256)}
     rows = []

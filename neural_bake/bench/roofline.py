@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from ..nets.siren import FORWARD_CHUNK_ELEMENTS
+from ..nets.siren import FORWARD_CHUNK_ELEMENTS, forward_chunk_size
 from .common import timeit
 
 __all__ = ["measure_roofline", "siren_cost", "roofline_seconds"]
@@ -61,7 +61,7 @@ def measure_roofline(
     out = torch.empty(n_sq, n_sq, dtype=dtype)
     t_sq = timeit(lambda: torch.mm(a, b, out=out), repeat=repeat)
     gf_sq = 2 * n_sq**3 / t_sq / 1e9
-    rows = max(256, FORWARD_CHUNK_ELEMENTS // width)  # the products of one chunk
+    rows = forward_chunk_size(width)  # the products of one chunk
     x = torch.rand(rows, width, generator=gen, dtype=dtype)
     w = torch.rand(width, width, generator=gen, dtype=dtype)
     o2 = torch.empty(rows, width, dtype=dtype)

@@ -164,6 +164,17 @@ def sin_cos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 
+def _backward_mats(layers):
+    """The hidden weights W_0 … W_D that the reverse chain rule multiplies by; for a scalar field the output
+    row is folded into W_D, (cos A_D ⊙ w_n) W_D = cos A_D (diag(w_n) W_D), which saves an element-wise pass
+    over the (N, W) gradient stream (and, on the autograd graph, its backward)."""
+    mats = [w for w, _ in layers[:-1]]
+    w_n = layers[-1][0]
+    if w_n.shape[0] == 1:
+        mats[-1] = mats[-1] * w_n[0].unsqueeze(1)
+    return mats
+
+
 def _reverse_graph(layers, x):
     n = x.shape[0]
     derivs = []
@@ -174,19 +185,12 @@ def _reverse_graph(layers, x):
     w_n, b_n = layers[-1]
     values = torch.addmm(b_n, h, w_n.t())
     k = w_n.shape[0]
-    if k == 1:
-        # scalar field: the output row folds into the first backward matrix, (cos A_D ⊙ w_n) W_D =
-        # cos A_D (diag(w_n) W_D): no (N, W) product on the graph, and none in its backward
-        mats = [w for w, _ in layers[:-1]]
-        mats[-1] = mats[-1] * w_n[0].unsqueeze(1)
-        g = derivs[-1]
-        for i in range(len(derivs) - 1, 0, -1):
-            g = (g @ mats[i]) * derivs[i - 1]
-        return values, (g @ mats[0]).unsqueeze(1)
-    g = derivs[-1].unsqueeze(1) * w_n.unsqueeze(0)  # (N, k, W)
+    mats = _backward_mats(layers)
+    # (N, k, W); a scalar field's output row is already in mats[-1]
+    g = derivs[-1].unsqueeze(1) if k == 1 else derivs[-1].unsqueeze(1) * w_n.unsqueeze(0)
     for i in range(len(derivs) - 1, 0, -1):
-        g = (g.reshape(n * k, -1) @ layers[i][0]).reshape(n, k, -1) * derivs[i - 1].unsqueeze(1)
-    grads = (g.reshape(n * k, -1) @ layers[0][0]).reshape(n, k, -1)
+        g = (g.reshape(n * k, -1) @ mats[i]).reshape(n, k, -1) * derivs[i - 1].unsqueeze(1)
+    grads = (g.reshape(n * k, -1) @ mats[0]).reshape(n, k, -1)
     return values, grads
 
 
@@ -223,11 +227,7 @@ def _reverse_chunked(layers, x, chunk):
     act = [x.new_empty((c0, width)), x.new_empty((c0, width))]
     gbuf = [x.new_empty((c0 * k, width)), x.new_empty((c0 * k, width))]
     w_n_row = w_n.unsqueeze(0)  # (1, k, W)
-    # backward GEMM weights, last layer first; for a scalar field the output row is folded into the first
-    # one, (cos A_D ⊙ w_n) W_D = cos A_D (diag(w_n) W_D), which saves an element-wise pass per chunk
-    mats = [w for w, _ in reversed(hidden)]
-    if k == 1:
-        mats[0] = mats[0] * w_n[0].unsqueeze(1)
+    mats = _backward_mats(layers)[::-1]  # backward GEMM weights, last layer first
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         c = stop - start

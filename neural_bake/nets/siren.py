@@ -10,7 +10,7 @@ from torch import nn
 from ..constants import DEFAULT_OMEGA_0
 from ..errors import NeuralBakeError
 
-__all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK_ELEMENTS"]
+__all__ = ["Siren", "siren_forward_inference", "forward_chunk_size", "FORWARD_CHUNK_ELEMENTS"]
 
 #: Size (points × width) of a chunk of the inference forward pass: 2^18, i.e. 1,024 points of a width-256
 #: network (a 1 MB float32 buffer, one core's L2 on the AVX2 EPYC) and 4,096 of a width-64 one. Chosen by
@@ -20,6 +20,12 @@ __all__ = ["Siren", "siren_forward_inference", "FORWARD_CHUNK_ELEMENTS"]
 #: measured earlier, (256, 3) was flat from 2^18 to 2^22. Much smaller chunks lose to per-call thread
 #: synchronisation.
 FORWARD_CHUNK_ELEMENTS = 1 << 18
+
+
+def forward_chunk_size(width: int) -> int:
+    """Points per chunk of :func:`siren_forward_inference` by default: :data:`FORWARD_CHUNK_ELEMENTS` ÷ width,
+    at least 256."""
+    return max(256, FORWARD_CHUNK_ELEMENTS // int(width))
 
 
 class Siren(nn.Module):
@@ -157,7 +163,7 @@ def siren_forward_inference(
     if n == 0:
         return out
     width = layers[0][0].shape[0]
-    chunk = max(1, int(chunk_size or max(256, FORWARD_CHUNK_ELEMENTS // width)))
+    chunk = max(1, int(chunk_size or forward_chunk_size(width)))
     c0 = min(chunk, n)
     bufs = [x.new_empty((c0, width)), x.new_empty((c0, width))]
     for start in range(0, n, chunk):
