@@ -31,6 +31,7 @@ import torch
 
 from .. import __version__
 from ..errors import FitError, ModelFileError
+from ..nets.compiled import COMPILE_MODES, CompiledFn, long_run, should_compile
 from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
@@ -114,6 +115,13 @@ class SdfFitConfig:
     bf16_fraction: float = 0.75
     """With ``gemm_dtype="bfloat16"``: the part of the run (of the steps, or of the time budget) in bf16;
     the rest trains in float32 so the final weights are tuned at full precision."""
+    compile: str = "auto"
+    """"on", "off" or "auto": run the loss (forward, GEMM gradients, loss terms and their backward) through
+    ``torch.compile`` (:mod:`neural_bake.nets.compiled`), which fuses its element-wise work: on the AVX2
+    EPYC a (64, 1) step 25.4 → 19.6 ms, a (256, 3) step 355 → 302 ms, for a one-off 5–20 s of compiling.
+    "auto" compiles runs with a budget of at least a minute (or, without a budget, 2,000 steps or more)
+    where a compiler is available; a failed compile warns and trains eagerly. Not part of the fingerprint:
+    a checkpoint resumes with either setting."""
     device: str | None = None
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
@@ -127,7 +135,7 @@ class SdfFitConfig:
 
     def fingerprint_dict(self) -> dict:
         """The settings that define the training trajectory (not budgets, paths or display)."""
-        skip = {"steps", "minutes", "checkpoint", "checkpoint_every", "resume", "progress", "log_every"}
+        skip = {"steps", "minutes", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -203,6 +211,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
                        f"{cfg.hard_fraction!r}, {cfg.hard_pool!r}")
     if int(cfg.hard_every) != cfg.hard_every or cfg.hard_every < 1:
         raise FitError(f"fit_sdf: hard_every must be a positive integer, got {cfg.hard_every!r}")
+    if cfg.compile not in COMPILE_MODES:
+        raise FitError(f"fit_sdf: compile must be one of {', '.join(COMPILE_MODES)}, got {cfg.compile!r}")
     if cfg.gemm_dtype not in ("auto", "float32", "bfloat16"):
         raise FitError(f"fit_sdf: gemm_dtype must be 'auto', 'float32' or 'bfloat16', got {cfg.gemm_dtype!r}")
     if not (0.0 <= cfg.bf16_fraction <= 1.0):
@@ -477,6 +487,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     if cfg.gemm_dtype == "auto":
         cfg = replace(cfg, gemm_dtype="bfloat16" if _bf16_pays(cfg, device, dtype) else "float32")
     use_bf16 = cfg.gemm_dtype == "bfloat16" and cfg.bf16_fraction > 0
+    compiled = should_compile(cfg.compile, device, long_run=long_run(cfg.steps, cfg.minutes))
+    cfg = replace(cfg, compile="on" if compiled else "off")
+    loss_terms = CompiledFn(sdf_loss_terms, enabled=compiled, desc=f"fit sdf {cfg.width}x{cfg.depth}")
     t_start = time.perf_counter()
 
     def low_precision(step: int) -> bool:
@@ -506,7 +519,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     def step_fn(step: int, g: torch.Generator) -> dict:
         data = pools.get(step)
         sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
-        return sdf_loss_terms(model, sp, sn, vp, vd, cfg, low_precision=low_precision(step))
+        return loss_terms(model, sp, sn, vp, vd, cfg, low_precision=low_precision(step))
 
     res = train(model, step_fn, cfg.loop_config(f"fit sdf {cfg.width}x{cfg.depth}"),
                 fingerprint=fingerprint, metadata={"mesh": mesh.name})

@@ -11,6 +11,7 @@ from neural_bake.cli.main import main
 from neural_bake.errors import FitError, ModelFileError, NeuralBakeWarning
 from neural_bake.fit.sdf import PRESETS, SdfFit, SdfFitConfig, fit_sdf, load_sdf
 from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.nets.compiled import compiler_available
 
 R = 0.8
 TINY = dict(width=32, depth=1, omega_0=15.0, lr=1e-3, batch=512, batch_near=512, batch_uniform=128, pool_surface=4000,
@@ -315,3 +316,22 @@ def test_hard_mining_off_and_on_differ_and_stay_finite():
     assert on.config.hard_fraction == 0.25 and off.config.hard_fraction == 0.0
     assert torch.isfinite(weights(on.model)).all()
     assert not torch.equal(weights(on.model), weights(off.model))
+
+
+@pytest.mark.skipif(not compiler_available("cpu"), reason="no C++ compiler for TorchInductor")
+def test_compiled_loss_trains_like_the_eager_one():
+    # the same seed and steps, the loss through torch.compile or not: fused kernels round differently, so
+    # the weights agree to float32 noise grown over a few Adam steps, not bit for bit
+    on = fit_sdf(sphere(sub=2), steps=5, seed=0, **dict(TINY, compile="on"))
+    off = fit_sdf(sphere(sub=2), steps=5, seed=0, **dict(TINY, compile="off"))
+    assert on.config.compile == "on" and off.config.compile == "off"
+    torch.testing.assert_close(weights(on.model), weights(off.model), rtol=1e-3, atol=1e-5)
+    for a, b in zip(on.history, off.history):
+        assert a["loss"] == pytest.approx(b["loss"], rel=1e-4)
+
+
+def test_compile_auto_resolves_to_off_for_short_runs_and_bad_modes_are_refused():
+    fit = fit_sdf(sphere(sub=1), steps=3, **TINY)
+    assert fit.config.compile == "off"
+    with pytest.raises(FitError, match="compile must be one of auto, on, off, got 'fast'"):
+        fit_sdf(sphere(sub=1), steps=3, **dict(TINY, compile="fast"))

@@ -1,0 +1,81 @@
+"""neural_bake.nets.compiled: mode resolution, the eager fallback, and a real compile of a small function."""
+
+import warnings
+
+import pytest
+import torch
+
+from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
+from neural_bake.nets.compiled import ENV_SWITCH, CompiledFn, compiler_available, long_run, should_compile
+
+
+def test_long_run_rule():
+    assert long_run(100_000, 1.0) and long_run(5, 2.0) and not long_run(100_000, 0.5)
+    assert long_run(2000, None) and not long_run(1999, None)
+
+
+def test_should_compile_modes(monkeypatch):
+    monkeypatch.delenv(ENV_SWITCH, raising=False)
+    assert not should_compile("off", "cpu", long_run=True)
+    assert not should_compile("auto", "cpu", long_run=False)
+    assert should_compile("auto", "cpu", long_run=True) == compiler_available("cpu")
+    assert should_compile("on", "cpu", long_run=False) == compiler_available("cpu")
+    assert not should_compile("on", "meta", long_run=True)  # no Inductor backend for it
+    with pytest.raises(NeuralBakeError, match="compile must be one of auto, on, off, got 'yes'"):
+        should_compile("yes", "cpu", long_run=True)
+
+
+def test_environment_switch_turns_compiling_off(monkeypatch):
+    monkeypatch.setenv(ENV_SWITCH, "0")
+    assert not compiler_available("cpu") and not should_compile("on", "cpu", long_run=True)
+
+
+def test_no_compiler_means_no_compile(monkeypatch):
+    monkeypatch.delenv(ENV_SWITCH, raising=False)
+    monkeypatch.setenv("PATH", "/nonexistent")
+    monkeypatch.delenv("CXX", raising=False)
+    assert not compiler_available("cpu")
+
+
+def test_disabled_is_the_plain_function():
+    calls = []
+    fn = CompiledFn(lambda x: calls.append(x) or x * 2, enabled=False, desc="t")
+    assert fn(3) == 6 and calls == [3] and fn.compiled is False
+
+
+def _broken_backend(graph_module, example_inputs):
+    raise RuntimeError("the C++ compiler exited with status 1")  # what a broken toolchain does
+
+
+def test_failed_compile_warns_once_and_runs_eagerly():
+    fn = CompiledFn(lambda x: torch.sin(x) + 1, enabled=True, desc="fit sdf 8x1", backend=_broken_backend)
+    x = torch.linspace(0, 1, 5)
+    with pytest.warns(NeuralBakeWarning, match=r"fit sdf 8x1: torch.compile failed \(.*exited with status 1"):
+        y = fn(x)
+    assert torch.equal(y, torch.sin(x) + 1) and fn.compiled is False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert torch.equal(fn(x), y)  # no second warning
+
+
+def test_our_errors_pass_through():
+    def bad(x):
+        raise NeuralBakeError("points: expected (N, 3)")
+
+    with pytest.raises(NeuralBakeError, match="expected"):
+        CompiledFn(bad, enabled=True, desc="t")(torch.zeros(2))
+
+
+@pytest.mark.skipif(not compiler_available("cpu"), reason="no C++ compiler for TorchInductor")
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_real_compile_matches_eager(dtype):
+    def f(a, b):
+        return torch.sin(a) * torch.cos(b) + (a - b).square().mean()
+
+    fn = CompiledFn(f, enabled=True, desc="t")
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.randn(64, 8, generator=g, dtype=dtype), torch.randn(64, 8, generator=g, dtype=dtype)
+    out = fn(a, b)
+    assert fn.compiled is True
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    torch.testing.assert_close(out, f(a, b), rtol=tol, atol=tol)
