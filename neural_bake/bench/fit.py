@@ -9,7 +9,9 @@ Two tables, measured in the same run:
   (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs (input and weight gradients of
   every product) plus one more sin/cos per unit and twice the element-wise work: an approximation stated
   as such (float32 roofline). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
-  ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``).
+  ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
+  ``compiled_s``: the same step with the loss through ``torch.compile`` (``SdfFitConfig.compile``, what
+  fits of a minute or more run), with the one-off ``compile_once_s`` it cost in this process.
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error; unit
   frame) and the issue's targets ((256, 3): Hausdorff ≤ 0.005 and median normal error ≤ 3° in 10 minutes;
@@ -56,8 +58,10 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
 
 def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 4096, batch_uniform: int = 1024,
                 roof: dict | None = None, repeat: int = 5, seed: int = 0) -> dict:
-    """Seconds of one training step: GEMM-gradient losses vs double-backward autograd vs the roofline."""
+    """Seconds of one training step: GEMM-gradient losses (eager, bf16 GEMMs, and through torch.compile where
+    a compiler is available) vs double-backward autograd vs the roofline."""
     from ..fit.sdf import SdfFitConfig, sdf_loss_terms
+    from ..nets.compiled import CompiledFn, compiler_available
     from ..nets.siren import Siren
     from .roofline import measure_roofline, roofline_seconds, siren_cost
 
@@ -82,10 +86,20 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     # interleaved (as bench normals): every method sees the same machine state; best of the repetitions
     methods = {"ours": step(sdf_loss_terms), "bf16": step(lambda *a: sdf_loss_terms(*a, low_precision=True)),
                "auto": step(_autograd_terms)}
+    compiled = CompiledFn(sdf_loss_terms, enabled=compiler_available("cpu"), desc=f"bench fit {width}x{depth}")
+    t_compile = None
+    if compiled.enabled:
+        methods["compiled"] = step(compiled)
+        t_compile = time.perf_counter()
+        methods["compiled"]()  # the compile itself (TorchInductor's on-disk cache makes repeats cheaper)
+        t_compile = time.perf_counter() - t_compile
+        if not compiled.compiled:
+            del methods["compiled"]
     for fn in methods.values():
         fn()  # warm-up
     best = timeit_interleaved(methods, repeat)
     t_ours, t_bf16, t_auto = best["ours"], best["bf16"], best["auto"]
+    t_comp = best.get("compiled")
     n = batch + nv
     c = siren_cost(width, depth, n, grad="reverse")
     train_cost = {"gemm_flops": 3 * c["gemm_flops"], "sines": 1.5 * c["sines"],
@@ -94,7 +108,9 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     return {"network": f"{width}x{depth}", "points": n, "ours_s": t_ours, "ours_bf16_s": t_bf16,
             "autograd_2x_backward_s": t_auto, "speedup_vs_autograd": t_auto / t_ours,
             "bf16_speedup": t_ours / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
-            "ours_over_roofline": t_ours / t_roof}
+            "ours_over_roofline": t_ours / t_roof, "compiled_s": t_comp, "compile_once_s": t_compile,
+            "compiled_speedup_vs_autograd": t_auto / t_comp if t_comp else None,
+            "compiled_over_roofline": t_comp / t_roof if t_comp else None}
 
 
 def _meshes(quick: bool, names) -> tuple[list[tuple[str, object]], list[str]]:

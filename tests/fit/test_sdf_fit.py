@@ -181,6 +181,9 @@ def test_bench_step_timing_parts():
     assert r["ours_s"] > 0 and r["autograd_2x_backward_s"] > 0 and r["roofline_s"] > 0
     assert r["speedup_vs_autograd"] == pytest.approx(r["autograd_2x_backward_s"] / r["ours_s"])
     assert r["fraction_of_roofline"] == pytest.approx(r["roofline_s"] / r["ours_s"])
+    if compiler_available("cpu"):
+        assert r["compiled_s"] > 0 and r["compile_once_s"] > 0
+        assert r["compiled_over_roofline"] == pytest.approx(r["compiled_s"] / r["roofline_s"])
 
 
 def test_bench_baseline_loss_equals_ours():

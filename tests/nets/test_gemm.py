@@ -288,7 +288,9 @@ def test_sin_cos_values_and_no_graph():
 
     a = torch.linspace(-50, 50, 1001, dtype=torch.float32)
     s, c = sin_cos(a)
-    assert torch.equal(s, torch.sin(a)) and torch.equal(c, torch.cos(a))
+    # the fused kernel (nets/fastmath.py) where built: within 2e-7 of float64 sin/cos, as torch.sin is within 4e-8
+    torch.testing.assert_close(s.double(), torch.sin(a.double()), rtol=0, atol=2e-7)
+    torch.testing.assert_close(c.double(), torch.cos(a.double()), rtol=0, atol=2e-7)
     assert s.grad_fn is None  # no node for tensors that do not require grad
     s2, c2 = sin_cos(a.clone().requires_grad_(True))
     assert torch.equal(s2.detach(), s) and torch.equal(c2.detach(), c)

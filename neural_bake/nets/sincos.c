@@ -1,0 +1,58 @@
+/* sin and cos of float32 arrays in one pass: the fused kernel of neural_bake.nets.fastmath.
+
+   One Cody-Waite reduction x = k·π/2 + r, |r| ≤ π/4 (π/2 split in three parts, exact for |k| < 2^16), then
+   Cephes' minimax polynomials for sin r and cos r on [-π/4, π/4] and the quadrant k mod 4 picks and signs
+   them. Max error ~1e-7 absolute (≤ 2 ulp of 1), against 4e-8 for torch.sin. Blocks holding a value with
+   |x| > 65536, an infinity or a NaN take libm's sinf/cosf instead (same results as torch: NaN for inf/NaN).
+   The polynomial loop has no branches, so compilers vectorise it (AVX2: 8 lanes).
+
+   nb_sincos_f32(a, s, c, n): s[i] = sin a[i], c[i] = cos a[i]; c may be a (cos written in place). */
+#include <math.h>
+#include <stdint.h>
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define NB_TARGETS __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define NB_TARGETS
+#endif
+
+#define NB_BLOCK 256
+
+NB_TARGETS
+void nb_sincos_f32(const float *a, float *s, float *c, int64_t n) {
+    float xb[NB_BLOCK];
+    for (int64_t i0 = 0; i0 < n; i0 += NB_BLOCK) {
+        int64_t m = (n - i0) < NB_BLOCK ? (n - i0) : NB_BLOCK;
+        int wild = 0;
+        for (int64_t j = 0; j < m; j++) {
+            float x = a[i0 + j];
+            xb[j] = x;
+            wild |= !(fabsf(x) <= 65536.0f); /* also true for NaN */
+        }
+        float *restrict sb = s + i0;
+        float *restrict cb = c + i0;
+        if (wild) {
+            for (int64_t j = 0; j < m; j++) {
+                sb[j] = sinf(xb[j]);
+                cb[j] = cosf(xb[j]);
+            }
+            continue;
+        }
+        for (int64_t j = 0; j < m; j++) {
+            float x = xb[j];
+            float k = rintf(x * 0.636619772367581343f);
+            float r = x - k * 1.5703125f;
+            r = r - k * 4.837512969970703125e-4f;
+            r = r - k * 7.54978995489188216e-8f;
+            float z = r * r;
+            float sp = r + r * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
+            float cp = 1.0f - 0.5f * z
+                       + z * z * (4.166664568298827e-2f + z * (-1.388731625493765e-3f + z * 2.443315711809948e-5f));
+            int32_t q = (int32_t)k;
+            float ss = (q & 1) ? cp : sp;
+            float cc = (q & 1) ? sp : cp;
+            sb[j] = (q & 2) ? -ss : ss;
+            cb[j] = ((q + 1) & 2) ? -cc : cc;
+        }
+    }
+}

@@ -1,0 +1,98 @@
+"""neural_bake.nets.fastmath: the fused sin/cos kernel against float64 references, its fallbacks and its build."""
+
+import math
+import shutil
+
+import pytest
+import torch
+
+from neural_bake.nets import fastmath
+from neural_bake.nets.fastmath import PARALLEL_MIN, kernel_available, sincos, sincos_
+
+HAVE_CC = any(shutil.which(c) for c in ("cc", "gcc", "clang"))
+
+
+def _check(x: torch.Tensor, s: torch.Tensor, c: torch.Tensor, atol: float = 2e-7) -> None:
+    xd = x.double()
+    torch.testing.assert_close(s.double(), torch.sin(xd), rtol=0, atol=atol)
+    torch.testing.assert_close(c.double(), torch.cos(xd), rtol=0, atol=atol)
+
+
+def test_kernel_is_built_where_a_compiler_is():
+    assert kernel_available() == HAVE_CC
+    assert ("fused C kernel" in fastmath.status()) == HAVE_CC
+
+
+@pytest.mark.parametrize("n", [1, 7, 255, 257, 1000, PARALLEL_MIN + 3, 3 * PARALLEL_MIN + 17])
+def test_accuracy_over_the_siren_range_and_sizes(n):
+    g = torch.Generator().manual_seed(n)
+    x = (torch.rand(n, generator=g) * 2 - 1) * 2000.0  # pre-activations reach hundreds; large ω0 thousands
+    s, c = sincos(x)
+    _check(x, s, c)
+    a = x.clone()
+    out = torch.empty_like(a)
+    sincos_(a, out)  # cos in place
+    assert torch.equal(out, s) and torch.equal(a, c)
+
+
+def test_quadrant_boundaries_and_special_values():
+    k = torch.arange(-2000, 2001, dtype=torch.float64)
+    edges = torch.cat([k * math.pi / 2, k * math.pi / 4]).float()
+    near = torch.cat([edges, torch.nextafter(edges, edges + 1), torch.nextafter(edges, edges - 1)])
+    tiny = torch.tensor([0.0, -0.0, 1e-30, -1e-30, 1e-8, 65535.9, -65536.0])
+    x = torch.cat([near, tiny])
+    s, c = sincos(x)
+    _check(x, s, c)
+    # beyond the reduction's exact range, infinities and NaN: libm's answers, as torch gives
+    wild = torch.tensor([65537.0, -1e5, 3e7, 1e38, -1e38, float("inf"), float("-inf"), float("nan"), 1.0])
+    s, c = sincos(wild)
+    torch.testing.assert_close(s, torch.sin(wild), rtol=0, atol=1e-6, equal_nan=True)
+    torch.testing.assert_close(c, torch.cos(wild), rtol=0, atol=1e-6, equal_nan=True)
+    assert s[-1] == pytest.approx(math.sin(1.0), abs=1e-7)  # a finite value in a "wild" block is still right
+
+
+def test_2d_buffers_as_the_gemm_paths_use_them():
+    x = torch.randn(4096, 64, generator=torch.Generator().manual_seed(0)) * 30
+    a, h = x.clone(), torch.empty_like(x)
+    sincos_(a, h)
+    _check(x, h, a)
+
+
+def test_other_tensors_take_torch_exactly():
+    x64 = torch.linspace(-20, 20, 301, dtype=torch.float64)
+    s, c = sincos(x64)
+    assert torch.equal(s, torch.sin(x64)) and torch.equal(c, torch.cos(x64))
+    strided = torch.linspace(-20, 20, 600)[::2]
+    s, c = sincos(strided)
+    assert torch.equal(s, torch.sin(strided)) and torch.equal(c, torch.cos(strided))
+    grad = torch.linspace(-3, 3, 50, requires_grad=True)
+    s, c = sincos(grad)
+    assert torch.equal(s, torch.sin(grad.detach()))
+
+
+def test_switch_off_no_compiler_and_failed_build(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv(fastmath.ENV_SWITCH, "0")
+    fn, msg = fastmath._build()
+    assert fn is None and "off" in msg
+    monkeypatch.delenv(fastmath.ENV_SWITCH)
+    monkeypatch.setenv("PATH", str(tmp_path / "nothing"))
+    monkeypatch.delenv("CC", raising=False)
+    fn, msg = fastmath._build()
+    assert fn is None and msg.startswith("no C compiler found")
+    monkeypatch.setenv("CC", "/bin/false")  # a compiler that fails
+    fn, msg = fastmath._build()
+    assert fn is None and msg.startswith("the C kernel did not build")
+    assert not list((tmp_path / "neural_bake").glob("*"))  # nothing half-written left in the cache
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_fresh_build_into_an_empty_cache(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    fn, msg = fastmath._build()
+    assert fn is not None and "fused C kernel" in msg
+    assert len(list((tmp_path / "neural_bake").glob("sincos-*.so"))) == 1
+    x = torch.linspace(-7, 7, 1001)
+    s, c = torch.empty_like(x), torch.empty_like(x)
+    fn(x.data_ptr(), s.data_ptr(), c.data_ptr(), x.numel())
+    _check(x, s, c)
