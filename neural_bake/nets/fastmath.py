@@ -8,11 +8,14 @@ reduction in one vectorised pass: 0.29 ms for the pair, the cost of ``torch.sin`
 
 The C file is compiled on first use with the system's C compiler (``$CC``, cc, gcc or clang) into
 ``$XDG_CACHE_HOME/neural_bake`` (else ``~/.cache/neural_bake``, else the temp folder), named by a hash of
-source, flags and platform, written atomically, and loaded with ctypes (which releases the GIL during the
-call, so large arrays are split across ``torch.get_num_threads()`` threads). On x86-64 with GCC it carries
-an AVX2/FMA clone and a baseline one, chosen at run time. When no compiler is found or the build fails, or
-``NEURAL_BAKE_FAST_SINCOS=0``, :func:`sincos_` falls back to ``torch.sin`` + ``torch.cos`` (same results to
-float32 rounding); :func:`status` says which is in use.
+source, flags, compiler and platform, written atomically, and loaded with ctypes. On x86-64 with GCC it
+carries an AVX2/FMA clone and a baseline one, chosen at run time. The kernel runs on the calling thread: on
+this 2-core machine splitting it across a second thread was slower (torch's OpenMP workers spin on the other
+core after each GEMM): one thread did a (9,216, 64) sin + cos in 0.74 ms, against 1.40 ms for torch's two
+threads. Because machines with many cores may run torch's parallel sin + cos faster than one thread, the
+first use times both on one (4,096, 64) chunk and keeps the faster (``NEURAL_BAKE_FAST_SINCOS=1`` forces the
+kernel, ``=0`` turns it off); when no compiler is found or the build fails, torch's functions are used.
+:func:`status` says which is in use and why.
 
 Only contiguous float32 CPU tensors take the kernel; everything else (float64, CUDA, strided views, code
 being traced by ``torch.compile``) takes torch's functions. Accuracy: ≤ 2e-7 absolute against float64 sin/cos
@@ -29,7 +32,7 @@ import shutil
 import subprocess
 import tempfile
 import threading
-from concurrent.futures import ThreadPoolExecutor
+import time
 from pathlib import Path
 
 import torch
@@ -41,11 +44,8 @@ ENV_SWITCH = "NEURAL_BAKE_FAST_SINCOS"
 
 _SOURCE = Path(__file__).with_name("sincos.c")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-fno-math-errno"]
-#: Arrays of at least this many elements are split across threads (below it one call is cheaper).
-PARALLEL_MIN = 1 << 16
-
 _lock = threading.Lock()
-_state: dict = {"fn": None, "status": None, "pool": None, "pool_size": 0}
+_state: dict = {"fn": None, "status": None}
 
 
 def _cache_dir() -> Path:
@@ -95,11 +95,36 @@ def _build() -> tuple[object | None, str]:
     return fn, f"fused C kernel ({Path(cc).name}, {lib_path.name})"
 
 
+def _calibrate(fn) -> tuple[float, float]:
+    """Best-of-5 seconds of the kernel and of torch.sin + torch.cos on one (4,096, 64) chunk."""
+    a = torch.randn(4096, 64, generator=torch.Generator().manual_seed(0)) * 30
+    s = torch.empty_like(a)
+    times = {"kernel": [], "torch": []}
+    for _ in range(5):
+        t = time.perf_counter()
+        fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel())
+        times["kernel"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        torch.sin(a, out=s)
+        a.cos_()
+        times["torch"].append(time.perf_counter() - t)
+    return min(times["kernel"]), min(times["torch"])
+
+
 def _kernel():
     if _state["status"] is None:
         with _lock:
             if _state["status"] is None:
-                _state["fn"], _state["status"] = _build()
+                fn, msg = _build()
+                if fn is not None and os.environ.get(ENV_SWITCH, "").strip().lower() not in ("1", "on", "true", "yes"):
+                    t_kernel, t_torch = _calibrate(fn)
+                    if t_kernel >= t_torch:
+                        fn, msg = None, (f"fused C kernel measured no faster than torch's {torch.get_num_threads()}-"
+                                         f"thread sin + cos here ({1e6 * t_kernel:.0f} vs {1e6 * t_torch:.0f} µs): "
+                                         f"torch.sin + torch.cos")
+                    else:
+                        msg += f", {1e6 * t_kernel:.0f} µs vs torch's {1e6 * t_torch:.0f} µs per (4096, 64) chunk"
+                _state["fn"], _state["status"] = fn, msg
     return _state["fn"]
 
 
@@ -114,37 +139,10 @@ def kernel_available() -> bool:
     return _kernel() is not None
 
 
-def _pool(threads: int) -> ThreadPoolExecutor:
-    if _state["pool"] is None or _state["pool_size"] != threads:
-        with _lock:
-            if _state["pool"] is None or _state["pool_size"] != threads:
-                _state["pool"] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="nb-sincos")
-                _state["pool_size"] = threads
-    return _state["pool"]
-
-
 def _takes_kernel(a: torch.Tensor, s: torch.Tensor) -> bool:
     return (a.dtype == torch.float32 and s.dtype == torch.float32 and a.device.type == "cpu"
             and s.device.type == "cpu" and a.is_contiguous() and s.is_contiguous() and a.shape == s.shape
             and not a.requires_grad and not torch.compiler.is_compiling())
-
-
-def _run(fn, a: torch.Tensor, s: torch.Tensor, c: torch.Tensor) -> None:
-    n = a.numel()
-    pa, ps, pc = a.data_ptr(), s.data_ptr(), c.data_ptr()
-    threads = max(1, torch.get_num_threads())
-    if n < PARALLEL_MIN or threads == 1:
-        fn(pa, ps, pc, n)
-        return
-    # equal parts on 64-byte boundaries (16 floats); the caller's thread does the last one
-    step = -(-n // threads)
-    step = -(-step // 16) * 16
-    parts = [(4 * i, min(step, n - i)) for i in range(0, n, step)]
-    futures = [_pool(threads).submit(fn, pa + o, ps + o, pc + o, m) for o, m in parts[:-1]]
-    o, m = parts[-1]
-    fn(pa + o, ps + o, pc + o, m)
-    for f in futures:
-        f.result()
 
 
 def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
@@ -157,7 +155,7 @@ def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
         torch.sin(a, out=s)
         a.cos_()
     else:
-        _run(fn, a, s, a)
+        fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel())
 
 
 def sincos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -168,5 +166,5 @@ def sincos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     if fn is None:
         return torch.sin(a), torch.cos(a)
     c = torch.empty_like(s)
-    _run(fn, a, s, c)
+    fn(a.data_ptr(), s.data_ptr(), c.data_ptr(), a.numel())
     return s, c

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neural_bake.nets import fastmath
-from neural_bake.nets.fastmath import PARALLEL_MIN, kernel_available, sincos, sincos_
+from neural_bake.nets.fastmath import kernel_available, sincos, sincos_
 
 HAVE_CC = any(shutil.which(c) for c in ("cc", "gcc", "clang"))
 
@@ -19,11 +19,13 @@ def _check(x: torch.Tensor, s: torch.Tensor, c: torch.Tensor, atol: float = 2e-7
 
 
 def test_kernel_is_built_where_a_compiler_is():
-    assert kernel_available() == HAVE_CC
+    # built wherever a compiler is; used where it measured faster than torch (on this project's 2-core CPU: 2x)
     assert ("fused C kernel" in fastmath.status()) == HAVE_CC
+    if kernel_available():
+        assert "µs vs torch's" in fastmath.status()
 
 
-@pytest.mark.parametrize("n", [1, 7, 255, 257, 1000, PARALLEL_MIN + 3, 3 * PARALLEL_MIN + 17])
+@pytest.mark.parametrize("n", [1, 7, 255, 257, 1000, 65539])
 def test_accuracy_over_the_siren_range_and_sizes(n):
     g = torch.Generator().manual_seed(n)
     x = (torch.rand(n, generator=g) * 2 - 1) * 2000.0  # pre-activations reach hundreds; large ω0 thousands
@@ -68,6 +70,32 @@ def test_other_tensors_take_torch_exactly():
     grad = torch.linspace(-3, 3, 50, requires_grad=True)
     s, c = sincos(grad)
     assert torch.equal(s, torch.sin(grad.detach()))
+
+
+def _use(monkeypatch, fn, status="test"):
+    monkeypatch.setitem(fastmath._state, "fn", fn)
+    monkeypatch.setitem(fastmath._state, "status", status)
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_forced_kernel_and_forced_torch_agree(monkeypatch):
+    fn, _ = fastmath._build()
+    x = torch.randn(3000, 64, generator=torch.Generator().manual_seed(3)) * 50
+    _use(monkeypatch, fn)
+    s1, c1 = sincos(x)
+    _use(monkeypatch, None)
+    s2, c2 = sincos(x)
+    assert torch.equal(s2, torch.sin(x)) and torch.equal(c2, torch.cos(x))
+    torch.testing.assert_close(s1, s2, rtol=0, atol=2e-7)
+    torch.testing.assert_close(c1, c2, rtol=0, atol=2e-7)
+
+
+def test_calibration_times_both():
+    if not HAVE_CC:
+        pytest.skip("no C compiler")
+    fn, _ = fastmath._build()
+    t_kernel, t_torch = fastmath._calibrate(fn)
+    assert 0 < t_kernel < 1 and 0 < t_torch < 1
 
 
 def test_switch_off_no_compiler_and_failed_build(monkeypatch, tmp_path):
