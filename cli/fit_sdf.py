@@ -52,8 +52,9 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, h
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}
-    click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s "
-               f"({fit.stopped_reason}); final loss {last.get('loss', float('nan')):.4g}"
+    how = fit.stopped_reason + ("; loss compiled" if fit.config.compile == "on" else "")
+    click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
+               f"final loss {last.get('loss', float('nan')):.4g}"
                + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
     if metrics:
         from neural_bake.fit.metrics import sdf_metrics

@@ -3,9 +3,10 @@
 TorchInductor fuses the element-wise work of a SIREN loss (bias, sin/cos, the gradient-stream products,
 the loss terms, and all of their backward) into a few C++/OpenMP (CPU) or Triton (CUDA) kernels, leaving
 the GEMMs to the BLAS. Measured on the 2-core AVX2 EPYC (one training step at the default batch of 9,216
-points): (64, 1) 25.4 → 19.6 ms, (256, 3) 355 → 302 ms. Compiling costs time once per process: about 20 s
-with a cold cache, 5–10 s when TorchInductor's on-disk cache (``/tmp/torchinductor_<user>``) already holds
-the kernels; so :func:`should_compile` turns it on by default only for runs long enough to repay it.
+points, best of 5 interleaved): (64, 1) 21.8 → 18.1 ms, (256, 3) 376 → 340 ms (in another process 355 →
+302 ms: this machine jitters by ±15 %). Compiling costs time once per process: about 20 s with a cold cache,
+3–10 s when TorchInductor's on-disk cache (``/tmp/torchinductor_<user>``) already holds the kernels; so
+:func:`should_compile` turns it on by default only for runs long enough to repay it.
 
 :class:`CompiledFn` wraps a function: the first call compiles it; if compiling fails (no C++ compiler, an
 unsupported device, a dynamo error) it warns once (:class:`~neural_bake.errors.NeuralBakeWarning`) and runs
