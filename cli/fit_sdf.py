@@ -31,7 +31,7 @@ __all__ = ["command"]
                    "faster, W >= 128), float32 or bfloat16.")
 @click.option("--compile", "compile_", type=click.Choice(["auto", "on", "off"]), default=None,
               help="torch.compile the loss (fuses its element-wise work; 5-20 s once): auto (default) "
-                   "compiles runs of a minute or more where a C++ compiler is available.")
+                   "compiles runs of 5 minutes or more where a C++ compiler is available.")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, hard_fraction, resume, gemm_dtype, compile_,

@@ -11,7 +11,7 @@ Two tables, measured in the same run:
   as such (float32 roofline). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
   ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
   ``compiled_s``: the same step with the loss through ``torch.compile`` (``SdfFitConfig.compile``, what
-  fits of a minute or more run), with the one-off ``compile_once_s`` it cost in this process.
+  fits of five minutes or more run), with the one-off ``compile_once_s`` it cost in this process.
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error; unit
   frame) and the issue's targets ((256, 3): Hausdorff ≤ 0.005 and median normal error ≤ 3° in 10 minutes;

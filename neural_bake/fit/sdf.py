@@ -120,7 +120,7 @@ class SdfFitConfig:
     ``torch.compile`` (:mod:`neural_bake.nets.compiled`), which fuses its element-wise work: on the AVX2
     EPYC (``bench fit``'s step timing, best of 5) a (64, 1) step 21.8 → 18.1 ms, a (256, 3) step 376 →
     340 ms, for a one-off 3–20 s of compiling (less when TorchInductor's on-disk cache holds the kernels).
-    "auto" compiles runs with a budget of at least a minute (or, without a budget, 2,000 steps or more)
+    "auto" compiles runs with a budget of at least five minutes (or, without one, 5,000 steps or more)
     where a compiler is available; a failed compile warns and trains eagerly. Not part of the fingerprint:
     a checkpoint resumes with either setting."""
     device: str | None = None

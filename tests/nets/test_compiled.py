@@ -10,8 +10,8 @@ from neural_bake.nets.compiled import ENV_SWITCH, CompiledFn, compiler_available
 
 
 def test_long_run_rule():
-    assert long_run(100_000, 1.0) and long_run(5, 2.0) and not long_run(100_000, 0.5)
-    assert long_run(2000, None) and not long_run(1999, None)
+    assert long_run(100_000, 5.0) and long_run(5, 10.0) and not long_run(100_000, 2.0)
+    assert long_run(5000, None) and not long_run(4999, None)
 
 
 def test_should_compile_modes(monkeypatch):
