@@ -149,12 +149,12 @@ def test_cli_fit_sdf(tmp_path, capsys):
     m.export(src)
     out = tmp_path / "ball.sdf"
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
-                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--gemm-dtype", "float32"])
+                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--gemm-dtype", "float32", "--compile", "off"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
-    assert fit.config.hard_fraction == 0.5 and fit.config.gemm_dtype == "float32"
+    assert fit.config.hard_fraction == 0.5 and fit.config.gemm_dtype == "float32" and fit.config.compile == "off"
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
