@@ -21,7 +21,8 @@ Scope. Full run: the bundled samples ``bumpy_sphere``, ``torus``, ``jack`` plus 
 ``/work/shared/data`` when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh):
 about 25 minutes per mesh, two hours in all — run it on an otherwise idle machine. ``--quick``: the bumpy
 sphere only, (64, 1) for 30 s and (256, 3) for 20 s with small pools, metrics on 20k samples at grid 96,
-and the step timing at the default batch — under two minutes; its accuracy figures are NOT the targets'.
+and the step timing at the default batch without the compiled column — under two minutes; its accuracy
+figures are NOT the targets'.
 """
 
 from __future__ import annotations
@@ -57,9 +58,9 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
 
 
 def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 4096, batch_uniform: int = 1024,
-                roof: dict | None = None, repeat: int = 5, seed: int = 0) -> dict:
-    """Seconds of one training step: GEMM-gradient losses (eager, bf16 GEMMs, and through torch.compile where
-    a compiler is available) vs double-backward autograd vs the roofline."""
+                roof: dict | None = None, repeat: int = 5, seed: int = 0, compiled: bool = True) -> dict:
+    """Seconds of one training step: GEMM-gradient losses (eager, bf16 GEMMs, and, with ``compiled``, through
+    torch.compile where a compiler is available) vs double-backward autograd vs the roofline."""
     from ..fit.sdf import SdfFitConfig, sdf_loss_terms
     from ..nets.compiled import CompiledFn, compiler_available
     from ..nets.siren import Siren
@@ -86,7 +87,8 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     # interleaved (as bench normals): every method sees the same machine state; best of the repetitions
     methods = {"ours": step(sdf_loss_terms), "bf16": step(lambda *a: sdf_loss_terms(*a, low_precision=True)),
                "auto": step(_autograd_terms)}
-    compiled = CompiledFn(sdf_loss_terms, enabled=compiler_available("cpu"), desc=f"bench fit {width}x{depth}")
+    compiled = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
+                          desc=f"bench fit {width}x{depth}")
     t_compile = None
     if compiled.enabled:
         methods["compiled"] = step(compiled)
@@ -155,7 +157,8 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
 
     t0 = time.perf_counter()
     roof = measure_roofline(quick=True)
-    step_rows = [step_timing(w, d, roof=roof, repeat=2 if quick else 5)
+    # --quick skips the compiled step: a cold TorchInductor cache alone can cost ~40 s of its two minutes
+    step_rows = [step_timing(w, d, roof=roof, repeat=2 if quick else 5, compiled=not quick)
                  for w, d in (step_networks or [(64, 1), (256, 3)])]
 
     mesh_list, notes = _meshes(quick, meshes)

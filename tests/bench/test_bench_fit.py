@@ -13,6 +13,7 @@ def test_bench_fit_smallest_run_saves_models(tmp_path):
     step = res["tables"]["training step"]
     assert [r["network"] for r in step] == ["16x1"]
     assert step[0]["ours_s"] > 0 and step[0]["autograd_2x_backward_s"] > 0
+    assert step[0]["compiled_s"] is None and step[0]["compile_once_s"] is None  # --quick skips the compile
     assert math.isclose(step[0]["speedup_vs_autograd"], step[0]["autograd_2x_backward_s"] / step[0]["ours_s"])
     (row,) = res["tables"]["accuracy vs time"]
     assert row["mesh"] == "bumpy_sphere" and row["preset"] == "64x1" and row["steps"] >= 1
