@@ -25,7 +25,7 @@ import torch
 
 from ..errors import NeuralBakeError, NeuralBakeWarning
 
-__all__ = ["COMPILE_MODES", "CompiledFn", "compiler_available", "long_run", "should_compile"]
+__all__ = ["COMPILE_MODES", "CompiledFn", "compiler_available", "env_switch", "long_run", "should_compile"]
 
 #: Values of the ``compile`` settings: "auto" (compile long runs where a compiler is available), "on", "off".
 COMPILE_MODES = ("auto", "on", "off")
@@ -35,11 +35,22 @@ COMPILE_MODES = ("auto", "on", "off")
 ENV_SWITCH = "NEURAL_BAKE_COMPILE"
 
 
+def env_switch(name: str) -> bool | None:
+    """An on/off environment variable: True for 1/on/true/yes, False for 0/off/false/no, None when unset or
+    anything else (the default behaviour)."""
+    value = os.environ.get(name, "").strip().lower()
+    if value in ("1", "on", "true", "yes"):
+        return True
+    if value in ("0", "off", "false", "no"):
+        return False
+    return None
+
+
 def compiler_available(device: torch.device | str) -> bool:
     """Can TorchInductor build kernels for ``device`` here? CPU: a C++ compiler on PATH (``$CXX``, g++,
     clang++); CUDA: Triton importable. Other devices: no."""
     device = torch.device(device)
-    if os.environ.get(ENV_SWITCH, "").strip().lower() in ("0", "off", "false", "no"):
+    if env_switch(ENV_SWITCH) is False:
         return False
     if not hasattr(torch, "compile"):
         return False

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import torch
 
+from .compiled import env_switch
+
 __all__ = ["sincos", "sincos_", "status", "kernel_available", "ENV_SWITCH"]
 
 #: 0/off/false: torch.sin + torch.cos everywhere (A/B measurements, a misbehaving compiler); 1/on/true: the
@@ -69,7 +71,7 @@ def _compiler() -> str | None:
 
 
 def _build() -> tuple[object | None, str]:
-    if os.environ.get(ENV_SWITCH, "").strip().lower() in ("0", "off", "false", "no"):
+    if env_switch(ENV_SWITCH) is False:
         return None, f"off ({ENV_SWITCH}=0): torch.sin + torch.cos"
     cc = _compiler()
     if cc is None:
@@ -117,7 +119,7 @@ def _kernel():
         with _lock:
             if _state["status"] is None:
                 fn, msg = _build()
-                if fn is not None and os.environ.get(ENV_SWITCH, "").strip().lower() not in ("1", "on", "true", "yes"):
+                if fn is not None and env_switch(ENV_SWITCH) is not True:
                     t_kernel, t_torch = _calibrate(fn)
                     if t_kernel >= t_torch:
                         fn, msg = None, (f"fused C kernel measured no faster than torch's {torch.get_num_threads()}-"
@@ -140,10 +142,9 @@ def kernel_available() -> bool:
     return _kernel() is not None
 
 
-def _takes_kernel(a: torch.Tensor, s: torch.Tensor) -> bool:
-    return (a.dtype == torch.float32 and s.dtype == torch.float32 and a.device.type == "cpu"
-            and s.device.type == "cpu" and a.is_contiguous() and s.is_contiguous() and a.shape == s.shape
-            and not a.requires_grad and not torch.compiler.is_compiling())
+def _takes_kernel(t: torch.Tensor) -> bool:
+    return (t.dtype == torch.float32 and t.device.type == "cpu" and t.is_contiguous() and not t.requires_grad
+            and not torch.compiler.is_compiling())
 
 
 def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
@@ -151,7 +152,7 @@ def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
 
     The fused kernel for contiguous float32 CPU tensors (see module docstring), else ``torch.sin(a, out=s)``
     then ``a.cos_()``. Not for tensors that require grad (use :func:`neural_bake.nets.gemm.sin_cos`)."""
-    fn = _kernel() if _takes_kernel(a, s) else None
+    fn = _kernel() if _takes_kernel(a) and _takes_kernel(s) and a.shape == s.shape else None
     if fn is None:
         torch.sin(a, out=s)
         a.cos_()
@@ -162,10 +163,9 @@ def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
 def sincos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(sin a, cos a)`` as new tensors (``a`` is left alone); the fused kernel where :func:`sincos_` uses it.
     No autograd: call it on detached tensors (the autograd node is :func:`neural_bake.nets.gemm.sin_cos`)."""
-    s = torch.empty_like(a, memory_format=torch.contiguous_format)
-    fn = _kernel() if _takes_kernel(a, s) else None
+    fn = _kernel() if _takes_kernel(a) else None
     if fn is None:
         return torch.sin(a), torch.cos(a)
-    c = torch.empty_like(s)
+    s, c = torch.empty_like(a), torch.empty_like(a)
     fn(a.data_ptr(), s.data_ptr(), c.data_ptr(), a.numel())
     return s, c

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
-from neural_bake.nets.compiled import ENV_SWITCH, CompiledFn, compiler_available, long_run, should_compile
+from neural_bake.nets.compiled import ENV_SWITCH, CompiledFn, compiler_available, env_switch, long_run, should_compile
 
 
 def test_long_run_rule():
@@ -23,6 +23,13 @@ def test_should_compile_modes(monkeypatch):
     assert not should_compile("on", "meta", long_run=True)  # no Inductor backend for it
     with pytest.raises(NeuralBakeError, match="compile must be one of auto, on, off, got 'yes'"):
         should_compile("yes", "cpu", long_run=True)
+
+
+@pytest.mark.parametrize("value, expected", [("1", True), (" ON ", True), ("yes", True), ("0", False),
+                                             ("false", False), ("Off", False), ("", None), ("maybe", None)])
+def test_env_switch_values(monkeypatch, value, expected):
+    monkeypatch.setenv("NEURAL_BAKE_TEST_SWITCH", value)
+    assert env_switch("NEURAL_BAKE_TEST_SWITCH") is expected
 
 
 def test_environment_switch_turns_compiling_off(monkeypatch):
