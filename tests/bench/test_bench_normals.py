@@ -44,7 +44,25 @@ def test_shrunken_run():
     for name in ("autograd", "torch.func", "gemm forward", "gemm reverse"):
         assert by[name]["max angle°"] < 0.05  # float32 against float64
     assert by["central FD"]["max angle°"] < 5.0
-    assert all(r["seconds"] > 0 and math.isfinite(r["roofline"]) and "_cost" not in r for r in rows)
+    assert all(r["seconds"] > 0 and math.isfinite(r["roofline"]) and "_cost" not in r and "_roof" not in r
+               for r in rows)
+    # one roofline probe per group, read in its rounds, never above the run's overall peak
+    assert len({r["sgemm GF/s"] for r in rows}) == 1
+    assert rows[0]["sgemm GF/s"] <= res["roofline"]["gflops_sgemm"]
+    for name in ("before", "after"):
+        assert res[f"roofline_{name}"]["gflops_sgemm"] <= res["roofline"]["gflops_sgemm"]
+    # the stricter reading prices the forward pass at the run's best rates: never a larger fraction
+    t = res["targets"]
+    assert t["forward_roofline_fraction_worst_w256_run_peak"] <= t["forward_roofline_fraction_worst_w256"] + 1e-12
+    assert t["forward_roofline_fraction_worst_w256"] == pytest.approx(by["forward pass"]["roofline"])
+
+
+def test_best_rates_take_the_best_reading_of_each_rate():
+    from neural_bake.bench.normals import _best_rates
+
+    a = {"gflops_sgemm": 100.0, "gsin_per_s": 1.2, "threads": 2, "dtype": "float32"}
+    b = {"gflops_sgemm": 150.0, "gsin_per_s": 0.9, "threads": 2, "dtype": "float32"}
+    assert _best_rates([a, b]) == {"gflops_sgemm": 150.0, "gsin_per_s": 1.2, "threads": 2, "dtype": "float32"}
 
 
 def test_cli_verb_is_registered(capsys):
