@@ -8,6 +8,7 @@ import trimesh
 from neural_bake.errors import FitError
 from neural_bake.fit.metrics import grid_values, mesh_distances, sdf_metrics, zero_level_mesh
 from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.nets.gemm import gemm_gradient
 from neural_bake.nets.siren import Siren
 
 
@@ -60,8 +61,9 @@ def test_zero_level_mesh_of_a_sphere():
     assert np.abs(r - 0.6).max() < 2.0 / 47 * 0.1 and len(f) > 100
 
 
-def test_sdf_metrics_of_trained_sphere_network():
-    # a tiny Siren fitted to |x| - r in a few hundred Adam steps: metrics must see a close, well-oriented surface
+@pytest.fixture(scope="module")
+def sphere_siren():
+    """A tiny Siren fitted to |x| - 0.7 in a few hundred Adam steps."""
     torch.manual_seed(0)
     net = Siren(32, 1, omega_0=10.0, generator=torch.Generator().manual_seed(0))
     opt = torch.optim.Adam(net.parameters(), lr=2e-3)
@@ -72,7 +74,12 @@ def test_sdf_metrics_of_trained_sphere_network():
         opt.zero_grad()
         loss.backward()
         opt.step()
-    net.eval()
+    return net.eval()
+
+
+def test_sdf_metrics_of_trained_sphere_network(sphere_siren):
+    # metrics must see a close, well-oriented surface
+    net, gen = sphere_siren, torch.Generator().manual_seed(1)
     mesh = sphere(0.7)
     res = sdf_metrics(net, mesh, n=5000, resolution=64)
     x = torch.randn(4000, 3, generator=gen)
@@ -101,3 +108,53 @@ def test_sdf_metrics_errors():
         net.layers[-1].bias.fill_(1.0)  # f = 1 everywhere: no surface
     with pytest.raises(FitError, match="does not cross the grid"):
         sdf_metrics(net, mesh, n=100, resolution=16)
+
+
+def _ray_zero(net, p):
+    """Reference: the zero of f on the ray from the origin through each point (bisection in float64)."""
+    d = torch.as_tensor(p / np.linalg.norm(p, axis=1, keepdims=True))
+    lo, hi = torch.full((len(p), 1), 0.3, dtype=torch.float64), torch.full((len(p), 1), 0.95, dtype=torch.float64)
+    net64 = Siren(**net.architecture).double()
+    net64.load_state_dict(net.state_dict())
+    with torch.no_grad():
+        assert (net64(lo * d) < 0).all() and (net64(hi * d) > 0).all()
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            inside = net64(mid * d) < 0
+            lo, hi = torch.where(inside, mid, lo), torch.where(inside, hi, mid)
+    return (0.5 * (lo + hi) * d).numpy()
+
+
+def test_mesh_to_network_distance_is_to_points_of_the_zero_set(sphere_siren):
+    # at a coarse grid the marching-cubes mesh is off by its own error; the distances sdf_metrics reports go to
+    # projected points with f ≈ 0: they agree with a ray-bisection reference, and never undercut a lower bound
+    from neural_bake.fit.metrics import ZERO_SET_TOL, _closest, _distance_to_zero_set, _values
+
+    net = sphere_siren
+    mv, mf = zero_level_mesh(net, 12)
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(3000, 3))
+    p = p / np.linalg.norm(p, axis=1, keepdims=True) * rng.uniform(0.66, 0.74, size=(3000, 1))
+    d_mc, closest = _closest(mv, mf, p)
+    d, fallback = _distance_to_zero_set(net, p, closest, d_mc, 3)
+    assert fallback == 0
+    ref = np.linalg.norm(p - _ray_zero(net, p), axis=1)  # an upper bound, ≈ the distance on a near-sphere
+    assert (d <= ref + 1e-4).all()
+    assert np.abs(d - ref).max() < 5e-4 < 5e-3 < np.abs(d_mc - ref).max()  # 5e-5 against 0.019 here
+    _, g = gemm_gradient(net, torch.as_tensor(p, dtype=torch.float32))
+    lipschitz = 1.2 * float(g.norm(dim=1).max())
+    assert (d >= (np.abs(_values(net, p)) - ZERO_SET_TOL) / lipschitz - 1e-6).all()
+
+
+def test_mesh_to_network_distance_falls_back_where_projection_fails():
+    from neural_bake.fit.metrics import _distance_to_zero_set
+
+    net = Siren(8, 0)
+    with torch.no_grad():
+        for q in net.parameters():
+            q.zero_()
+        net.layers[-1].bias.fill_(1.0)  # f = 1, ∇f = 0: nothing projects onto f = 0
+    p = np.random.default_rng(0).normal(size=(50, 3))
+    d_mc = np.arange(50.0)
+    d, fallback = _distance_to_zero_set(net, p, p.copy(), d_mc, 2)
+    assert fallback == 50 and np.array_equal(d, d_mc)
