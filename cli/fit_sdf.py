@@ -25,6 +25,9 @@ __all__ = ["command"]
               help="Checkpoint file written during training (default: OUTPUT.ckpt when --resume).")
 @click.option("--hard-fraction", type=float, default=None,
               help="Part of each surface and near batch drawn from the worst-fitted samples (default 0.25; 0: off).")
+@click.option("--zero-fraction", type=float, default=None,
+              help="Part of each near batch drawn from mined points of the network's own zero level set, "
+                   "trained to their true distance (default 0: off).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint if it exists.")
 @click.option("--gemm-dtype", type=click.Choice(["auto", "float32", "bfloat16"]), default=None,
               help="Hidden GEMMs of the first 75% of the run: auto (default: bfloat16 where measured 1.5x "
@@ -34,8 +37,8 @@ __all__ = ["command"]
                    "compiles runs of 5 minutes or more where a C++ compiler is available.")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
-def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, hard_fraction, resume, gemm_dtype, compile_,
-            metrics, progress):
+def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, hard_fraction, zero_fraction, resume,
+            gemm_dtype, compile_, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -48,7 +51,8 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, h
         checkpoint = output + ".ckpt"
     m = load_mesh(mesh)
     given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "batch": batch, "checkpoint": checkpoint,
-             "hard_fraction": hard_fraction, "gemm_dtype": gemm_dtype, "compile": compile_}
+             "hard_fraction": hard_fraction, "zero_fraction": zero_fraction, "gemm_dtype": gemm_dtype,
+             "compile": compile_}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}

@@ -33,7 +33,7 @@ from ..nets import siren as siren_mod
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
 from .common import load_note, machine_info, timeit_interleaved
-from .roofline import measure_roofline, roofline_seconds, siren_cost
+from .roofline import best_rates, measure_roofline, roofline_seconds, siren_cost
 
 __all__ = ["run", "NETWORKS", "POINTS"]
 
@@ -81,7 +81,7 @@ def run(
     sweep_rows = _chunk_sweep(quick, rounds(max(points)), seed) if sweep else []
     roof_after = measure_roofline(quick=quick)
     # the peak over the whole run: the best of the measurements before and after and of every row's probes
-    roof = _best_rates([roof_before, roof_after] + [r["_roof"] for r in rows])
+    roof = best_rates([roof_before, roof_after] + [r["_roof"] for r in rows])
     notes = _targets(rows, roof, targets)
     for row in rows:
         del row["_roof"], row["_cost"]
@@ -155,7 +155,7 @@ def _compare(model: Siren, n: int, repeat: int, seed: int) -> list[dict]:
     timed = {name: (lambda fn=fn: fn(x)) for name, fn in methods.items()}
     timed[_PROBE] = lambda: probes.append(measure_roofline(quick=True, width=model.width))
     best = timeit_interleaved(timed, repeat)
-    roof = _best_rates(probes)
+    roof = best_rates(probes)
     rows = []
     for name in methods:
         t = best[name]
@@ -178,11 +178,6 @@ def _compare(model: Siren, n: int, repeat: int, seed: int) -> list[dict]:
 #: Name of the roofline probe in the interleaved rounds of :func:`_compare`.
 _PROBE = "_roofline probe"
 
-
-def _best_rates(probes: list[dict]) -> dict:
-    """The best of each rate over several :func:`measure_roofline` readings (other work on the machine only
-    ever slows a reading down)."""
-    return {k: max(p[k] for p in probes) if isinstance(v, float) else v for k, v in probes[0].items()}
 
 
 def _autograd(model, x, piece):

@@ -20,7 +20,7 @@ import torch
 from ..nets.siren import FORWARD_CHUNK_ELEMENTS, forward_chunk_size
 from .common import timeit
 
-__all__ = ["measure_roofline", "siren_cost", "roofline_seconds"]
+__all__ = ["measure_roofline", "best_rates", "siren_cost", "roofline_seconds"]
 
 
 def measure_roofline(
@@ -77,6 +77,12 @@ def measure_roofline(
         "threads": torch.get_num_threads(),
         "dtype": str(dtype).replace("torch.", ""),
     }
+
+
+def best_rates(readings: list[dict]) -> dict:
+    """The best of each rate over several :func:`measure_roofline` readings (other work on the machine only
+    ever slows a reading down); the non-rate fields of the first reading."""
+    return {k: max(r[k] for r in readings) if isinstance(v, float) else v for k, v in readings[0].items()}
 
 
 def siren_cost(

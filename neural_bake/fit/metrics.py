@@ -25,7 +25,7 @@ from ..errors import FitError
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
 
-__all__ = ["sdf_metrics", "mesh_distances", "grid_values", "zero_level_mesh"]
+__all__ = ["sdf_metrics", "mesh_distances", "grid_values", "zero_level_mesh", "project_to_zero_set"]
 
 
 def _closest_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -120,15 +120,24 @@ def zero_level_mesh(model, resolution: int = 128, *, bound: float = 1.0):
     return verts.astype(np.float64) - bound, faces.astype(np.int64)
 
 
-def _project(model, points: np.ndarray, steps: int) -> np.ndarray:
-    p = next(model.parameters())
-    x = torch.as_tensor(points, dtype=p.dtype, device=p.device)
+@torch.no_grad()
+def project_to_zero_set(model, x: torch.Tensor, steps: int = 2) -> torch.Tensor:
+    """``steps`` Newton steps ``x ← x − f(x) ∇f(x) / |∇f(x)|²`` towards f = 0 (GEMM gradients, no autograd).
+
+    Points where |∇f|² ≤ 1e-12 stay where they are (no NaN); the caller checks |f| at the result.
+    """
     for _ in range(steps):
         f, g = gemm_gradient(model, x)
         g2 = (g * g).sum(dim=1, keepdim=True)
         ok = g2 > 1e-12
         x = torch.where(ok, x - f * g / torch.where(ok, g2, torch.ones_like(g2)), x)
-    return x.double().cpu().numpy()
+    return x
+
+
+def _project(model, points: np.ndarray, steps: int) -> np.ndarray:
+    p = next(model.parameters())
+    x = torch.as_tensor(points, dtype=p.dtype, device=p.device)
+    return project_to_zero_set(model, x, steps).double().cpu().numpy()
 
 
 #: |f| below which a Newton-projected point counts as a point of the zero level set (unit frame; 2 % of the

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from neural_bake.bench.normals import run
-from neural_bake.bench.roofline import measure_roofline, roofline_seconds, siren_cost
+from neural_bake.bench.roofline import best_rates, measure_roofline, roofline_seconds, siren_cost
 
 
 def test_siren_cost_counts():
@@ -58,11 +58,9 @@ def test_shrunken_run():
 
 
 def test_best_rates_take_the_best_reading_of_each_rate():
-    from neural_bake.bench.normals import _best_rates
-
     a = {"gflops_sgemm": 100.0, "gsin_per_s": 1.2, "threads": 2, "dtype": "float32"}
     b = {"gflops_sgemm": 150.0, "gsin_per_s": 0.9, "threads": 2, "dtype": "float32"}
-    assert _best_rates([a, b]) == {"gflops_sgemm": 150.0, "gsin_per_s": 1.2, "threads": 2, "dtype": "float32"}
+    assert best_rates([a, b]) == {"gflops_sgemm": 150.0, "gsin_per_s": 1.2, "threads": 2, "dtype": "float32"}
 
 
 def test_cli_verb_is_registered(capsys):
