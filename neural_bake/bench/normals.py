@@ -85,15 +85,16 @@ def run(
     notes = _targets(rows, roof, targets)
     for row in rows:
         del row["_roof"], row["_cost"]
-    # the GEMM modes may pass 1: the roofline prices sin and cos at torch.sin's rate each, and the fused
-    # kernel computes the pair for the price of one sine; a plain forward pass above 1 means a bad measurement
+    # the GEMM modes may pass 1: the roofline prices sin and cos at the best sine rate each, and the fused
+    # kernel computes the pair for little more than one sine; a plain forward pass above 1 means a bad measurement
     if any(r["roofline"] > 1.05 for r in rows if r["method"] == "forward pass"):
         notes.append("WARNING: some roofline fractions of the forward pass exceed 1: the roofline measurement "
                      "itself was slowed by other work on the machine (its element-wise rates are the fragile "
                      "part); re-run on an idle machine")
     notes += [
-        f"sin/cos of the GEMM modes: {fastmath.status()}; the roofline prices sin and cos at torch.sin's rate "
-        "each, so with the fused kernel the GEMM modes' fractions can exceed 1",
+        f"sin/cos of the GEMM modes: {fastmath.status()}; sine of the forward pass: {fastmath.sin_status()}; "
+        "the roofline prices sin and cos at the best sine rate measured (torch.sin's or the kernel's "
+        "sin-only entry) each, so with the fused sin+cos kernel the GEMM modes' fractions can exceed 1",
         f"roofline peak of the whole run (best of a measurement before and after and of every group's probes, "
         f"{roof['threads']} threads): sgemm "
         f"{roof['gflops_sgemm']:.1f} GFLOP/s, sin {roof['gsin_per_s']:.2f} G/s, multiply {roof['gmul_per_s']:.2f} G/s; "

@@ -15,6 +15,8 @@ a multiply-add is 2 FLOPs, a bias add or an element-wise product 1 FLOP, ``sin``
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..nets.siren import FORWARD_CHUNK_ELEMENTS, forward_chunk_size
@@ -35,14 +37,18 @@ def measure_roofline(
         repeat: timing repetitions (best of); default 10 (quick 4).
 
     Returns:
-        ``{"gflops_sgemm", "gflops_square", "gflops_siren_shape", "gsin_per_s", "gcos_per_s", "gmul_per_s",
-        "threads", "dtype"}``: ``gflops_sgemm`` is the best of the square (1024³) and SIREN-shaped
-        ((chunk, width) × (width, width), one chunk of the inference pass) products — the peak a SIREN
-        layer can hope for; ``gsin_per_s`` is ``torch.sin`` on one chunk's activation
-        (:data:`~neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS` elements, in cache, as the SIREN passes
-        run) written into a preallocated tensor (billions per second); ``gmul_per_s`` an element-wise
-        product on the same size.
+        ``{"gflops_sgemm", "gflops_square", "gflops_siren_shape", "gsin_per_s", "gsin_torch_per_s",
+        "gsin_kernel_per_s", "gcos_per_s", "gmul_per_s", "threads", "dtype"}``: ``gflops_sgemm`` is the best
+        of the square (1024³) and SIREN-shaped ((chunk, width) × (width, width), one chunk of the inference
+        pass) products — the peak a SIREN layer can hope for; ``gsin_per_s`` is the faster of
+        ``torch.sin`` (``gsin_torch_per_s``, written into a preallocated tensor) and, where it is in use,
+        our C kernel's in-place sine (``gsin_kernel_per_s``, :func:`neural_bake.nets.fastmath.sin_`; else
+        NaN), on one chunk's activation (:data:`~neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS` elements, in
+        cache, as the SIREN passes run), in billions per second; ``gmul_per_s`` an element-wise product on
+        the same size.
     """
+    from ..nets import fastmath
+
     repeat = repeat or (4 if quick else 10)
     gen = torch.Generator().manual_seed(0)
     # element-wise passes first (right after a GEMM, the BLAS threads may still be spinning), ~1 ms each:
@@ -52,6 +58,10 @@ def measure_roofline(
     so = torch.empty_like(s)
     tries = {"repeat": max(repeat, 20), "min_time": 0.3}
     t_sin = timeit(lambda: torch.sin(s, out=so), **tries)
+    t_sin_kernel = math.nan
+    if dtype == torch.float32 and fastmath._sin_kernel() is not None:
+        sk = s.clone()  # in place: the values settle in [-1, 1]; the kernel's cost does not depend on them
+        t_sin_kernel = timeit(lambda: fastmath.sin_(sk), **tries)
     t_cos = timeit(lambda: torch.cos(s, out=so), **tries)
     s2 = torch.rand(n_el, generator=gen, dtype=dtype)
     t_mul = timeit(lambda: torch.mul(s, s2, out=so), **tries)  # not in place: repeated products would denormalise
@@ -71,7 +81,9 @@ def measure_roofline(
         "gflops_sgemm": max(gf_sq, gf_sh),
         "gflops_square": gf_sq,
         "gflops_siren_shape": gf_sh,
-        "gsin_per_s": n_el / t_sin / 1e9,
+        "gsin_per_s": n_el / min(t_sin, t_sin_kernel if t_sin_kernel == t_sin_kernel else math.inf) / 1e9,
+        "gsin_torch_per_s": n_el / t_sin / 1e9,
+        "gsin_kernel_per_s": n_el / t_sin_kernel / 1e9,
         "gcos_per_s": n_el / t_cos / 1e9,
         "gmul_per_s": n_el / t_mul / 1e9,
         "threads": torch.get_num_threads(),
@@ -82,7 +94,11 @@ def measure_roofline(
 def best_rates(readings: list[dict]) -> dict:
     """The best of each rate over several :func:`measure_roofline` readings (other work on the machine only
     ever slows a reading down); the non-rate fields of the first reading."""
-    return {k: max(r[k] for r in readings) if isinstance(v, float) else v for k, v in readings[0].items()}
+    def best(k):
+        vals = [r[k] for r in readings if r[k] == r[k]]  # NaN: a rate not measured in that reading
+        return max(vals) if vals else math.nan
+
+    return {k: best(k) if isinstance(v, float) else v for k, v in readings[0].items()}
 
 
 def siren_cost(

@@ -39,7 +39,7 @@ import torch
 
 from .compiled import env_switch
 
-__all__ = ["sincos", "sincos_", "status", "kernel_available", "ENV_SWITCH"]
+__all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_available", "ENV_SWITCH"]
 
 #: 0/off/false: torch.sin + torch.cos everywhere (A/B measurements, a misbehaving compiler); 1/on/true: the
 #: kernel wherever it builds, without the first-use timing.
@@ -48,7 +48,7 @@ ENV_SWITCH = "NEURAL_BAKE_FAST_SINCOS"
 _SOURCE = Path(__file__).with_name("sincos.c")
 _FLAGS = ["-O3", "-fPIC", "-shared", "-fno-math-errno"]
 _lock = threading.Lock()
-_state: dict = {"fn": None, "status": None}
+_state: dict = {"built": None, "fn": None, "status": None, "sin_fn": None, "sin_status": None}
 
 
 def _cache_dir() -> Path:
@@ -90,51 +90,79 @@ def _build() -> tuple[object | None, str]:
                 return None, f"the C kernel did not build ({first}): torch.sin + torch.cos"
             os.replace(tmp, lib_path)  # atomic: a concurrent process sees the old state or the whole file
         lib = ctypes.CDLL(str(lib_path))
-        fn = lib.nb_sincos_f32
+        fn, sin_fn = lib.nb_sincos_f32, lib.nb_sin_f32
     except (OSError, subprocess.SubprocessError, AttributeError) as exc:
         return None, f"the C kernel could not be built or loaded ({exc}): torch.sin + torch.cos"
     fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
-    fn.restype = None
-    return fn, f"fused C kernel ({Path(cc).name}, {lib_path.name})"
+    sin_fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
+    fn.restype = sin_fn.restype = None
+    return (fn, sin_fn), f"fused C kernel ({Path(cc).name}, {lib_path.name})"
 
 
-def _calibrate(fn) -> tuple[float, float]:
-    """Best-of-5 seconds of the kernel and of torch.sin + torch.cos on one (4,096, 64) chunk."""
+def _calibrate(kernel, reference) -> tuple[float, float]:
+    """Best-of-5 seconds of ``kernel(a, s)`` and ``reference(a, s)`` on one (4,096, 64) chunk, interleaved."""
     a = torch.randn(4096, 64, generator=torch.Generator().manual_seed(0)) * 30
     s = torch.empty_like(a)
     times = {"kernel": [], "torch": []}
     for _ in range(5):
-        t = time.perf_counter()
-        fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel())
-        times["kernel"].append(time.perf_counter() - t)
-        t = time.perf_counter()
-        torch.sin(a, out=s)
-        a.cos_()
-        times["torch"].append(time.perf_counter() - t)
+        for name, fn in (("kernel", kernel), ("torch", reference)):
+            b = a.clone()
+            t = time.perf_counter()
+            fn(b, s)
+            times[name].append(time.perf_counter() - t)
     return min(times["kernel"]), min(times["torch"])
+
+
+def _built():
+    """The compiled (sincos, sin) pair or None, with the build message; built once per process."""
+    if _state["built"] is None:
+        _state["built"] = _build()
+    return _state["built"]
+
+
+def _choose(key: str, kernel, reference, what: str):
+    """Keep ``kernel`` for ``key`` if it is forced on or measured faster than torch's ``reference``."""
+    fns, msg = _built()
+    if fns is None:
+        return None, msg.replace("torch.sin + torch.cos", what)
+    if env_switch(ENV_SWITCH) is True:
+        return fns[key], msg
+    t_kernel, t_torch = _calibrate(lambda a, s: kernel(fns[key], a, s), reference)
+    if t_kernel >= t_torch:
+        return None, (f"fused C kernel measured no faster than torch's {torch.get_num_threads()}-thread "
+                      f"{what.replace('torch.', '')} here ({1e6 * t_kernel:.0f} vs {1e6 * t_torch:.0f} µs): {what}")
+    return fns[key], msg + f", {1e6 * t_kernel:.0f} µs vs torch's {1e6 * t_torch:.0f} µs per (4096, 64) chunk"
 
 
 def _kernel():
     if _state["status"] is None:
         with _lock:
             if _state["status"] is None:
-                fn, msg = _build()
-                if fn is not None and env_switch(ENV_SWITCH) is not True:
-                    t_kernel, t_torch = _calibrate(fn)
-                    if t_kernel >= t_torch:
-                        fn, msg = None, (f"fused C kernel measured no faster than torch's {torch.get_num_threads()}-"
-                                         f"thread sin + cos here ({1e6 * t_kernel:.0f} vs {1e6 * t_torch:.0f} µs): "
-                                         f"torch.sin + torch.cos")
-                    else:
-                        msg += f", {1e6 * t_kernel:.0f} µs vs torch's {1e6 * t_torch:.0f} µs per (4096, 64) chunk"
-                _state["fn"], _state["status"] = fn, msg
+                _state["fn"], _state["status"] = _choose(
+                    0, lambda fn, a, s: fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel()),
+                    lambda a, s: (torch.sin(a, out=s), a.cos_()), "torch.sin + torch.cos")
     return _state["fn"]
+
+
+def _sin_kernel():
+    if _state["sin_status"] is None:
+        with _lock:
+            if _state["sin_status"] is None:
+                _state["sin_fn"], _state["sin_status"] = _choose(
+                    1, lambda fn, a, s: fn(a.data_ptr(), a.data_ptr(), a.numel()), lambda a, s: a.sin_(), "torch.sin")
+    return _state["sin_fn"]
 
 
 def status() -> str:
     """Which sin/cos implementation :func:`sincos_` uses here (builds the kernel on first call)."""
     _kernel()
     return _state["status"]
+
+
+def sin_status() -> str:
+    """Which sine :func:`sin_` uses here (the kernel's sin-only entry, or torch.sin)."""
+    _sin_kernel()
+    return _state["sin_status"]
 
 
 def kernel_available() -> bool:
@@ -158,6 +186,16 @@ def sincos_(a: torch.Tensor, s: torch.Tensor) -> None:
         a.cos_()
     else:
         fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel())
+
+
+def sin_(a: torch.Tensor) -> torch.Tensor:
+    """``sin a`` in place (returns ``a``): the kernel's sin-only entry for contiguous float32 CPU tensors
+    where it measured faster than ``torch.sin`` on first use, else ``a.sin_()``. No autograd (inference)."""
+    fn = _sin_kernel() if _takes_kernel(a) else None
+    if fn is None:
+        return a.sin_()
+    fn(a.data_ptr(), a.data_ptr(), a.numel())
+    return a
 
 
 def sincos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

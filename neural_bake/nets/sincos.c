@@ -6,7 +6,8 @@
    |x| > 65536, an infinity or a NaN take libm's sinf/cosf instead (same results as torch: NaN for inf/NaN).
    The polynomial loop has no branches, so compilers vectorise it (AVX2: 8 lanes).
 
-   nb_sincos_f32(a, s, c, n): s[i] = sin a[i], c[i] = cos a[i]; c may be a (cos written in place). */
+   nb_sincos_f32(a, s, c, n): s[i] = sin a[i], c[i] = cos a[i]; c may be a (cos written in place).
+   nb_sin_f32(a, s, n): s[i] = sin a[i]; s may be a (in place). The same reduction and polynomials. */
 #include <math.h>
 #include <stdint.h>
 
@@ -18,17 +19,59 @@
 
 #define NB_BLOCK 256
 
+/* sin x and cos x for |x| <= 65536 (branch-free: inlined into the vectorised loops below) */
+static inline void nb_core(float x, float *so, float *co) {
+    float k = rintf(x * 0.636619772367581343f);
+    float r = x - k * 1.5703125f;
+    r = r - k * 4.837512969970703125e-4f;
+    r = r - k * 7.54978995489188216e-8f;
+    float z = r * r;
+    float sp = r + r * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
+    float cp = 1.0f - 0.5f * z
+               + z * z * (4.166664568298827e-2f + z * (-1.388731625493765e-3f + z * 2.443315711809948e-5f));
+    int32_t q = (int32_t)k;
+    float ss = (q & 1) ? cp : sp;
+    float cc = (q & 1) ? sp : cp;
+    *so = (q & 2) ? -ss : ss;
+    *co = ((q + 1) & 2) ? -cc : cc;
+}
+
+/* copies a block into xb; nonzero when it holds |x| > 65536, an infinity or a NaN */
+static inline int nb_load(const float *a, float *xb, int64_t m) {
+    int wild = 0;
+    for (int64_t j = 0; j < m; j++) {
+        float x = a[j];
+        xb[j] = x;
+        wild |= !(fabsf(x) <= 65536.0f); /* also true for NaN */
+    }
+    return wild;
+}
+
+NB_TARGETS
+void nb_sin_f32(const float *a, float *s, int64_t n) {
+    float xb[NB_BLOCK];
+    for (int64_t i0 = 0; i0 < n; i0 += NB_BLOCK) {
+        int64_t m = (n - i0) < NB_BLOCK ? (n - i0) : NB_BLOCK;
+        int wild = nb_load(a + i0, xb, m);
+        float *restrict sb = s + i0;
+        if (wild) {
+            for (int64_t j = 0; j < m; j++) sb[j] = sinf(xb[j]);
+            continue;
+        }
+        for (int64_t j = 0; j < m; j++) {
+            float sv, cv;
+            nb_core(xb[j], &sv, &cv);
+            sb[j] = sv;
+        }
+    }
+}
+
 NB_TARGETS
 void nb_sincos_f32(const float *a, float *s, float *c, int64_t n) {
     float xb[NB_BLOCK];
     for (int64_t i0 = 0; i0 < n; i0 += NB_BLOCK) {
         int64_t m = (n - i0) < NB_BLOCK ? (n - i0) : NB_BLOCK;
-        int wild = 0;
-        for (int64_t j = 0; j < m; j++) {
-            float x = a[i0 + j];
-            xb[j] = x;
-            wild |= !(fabsf(x) <= 65536.0f); /* also true for NaN */
-        }
+        int wild = nb_load(a + i0, xb, m);
         float *restrict sb = s + i0;
         float *restrict cb = c + i0;
         if (wild) {
@@ -39,20 +82,10 @@ void nb_sincos_f32(const float *a, float *s, float *c, int64_t n) {
             continue;
         }
         for (int64_t j = 0; j < m; j++) {
-            float x = xb[j];
-            float k = rintf(x * 0.636619772367581343f);
-            float r = x - k * 1.5703125f;
-            r = r - k * 4.837512969970703125e-4f;
-            r = r - k * 7.54978995489188216e-8f;
-            float z = r * r;
-            float sp = r + r * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
-            float cp = 1.0f - 0.5f * z
-                       + z * z * (4.166664568298827e-2f + z * (-1.388731625493765e-3f + z * 2.443315711809948e-5f));
-            int32_t q = (int32_t)k;
-            float ss = (q & 1) ? cp : sp;
-            float cc = (q & 1) ? sp : cp;
-            sb[j] = (q & 2) ? -ss : ss;
-            cb[j] = ((q + 1) & 2) ? -cc : cc;
+            float sv, cv;
+            nb_core(xb[j], &sv, &cv);
+            sb[j] = sv;
+            cb[j] = cv;
         }
     }
 }

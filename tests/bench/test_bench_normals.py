@@ -77,3 +77,16 @@ def test_load_note_states_the_load():
     note = load_note()
     assert note.startswith("timings: best of repeats") and "cores" in note
     assert note.endswith("quiet") or "upper bounds" in note
+
+
+def test_best_rates_skip_rates_a_reading_did_not_measure():
+    a = {"gsin_kernel_per_s": float("nan"), "gsin_per_s": 1.0}
+    b = {"gsin_kernel_per_s": 2.0, "gsin_per_s": 1.5}
+    assert best_rates([a, b]) == {"gsin_kernel_per_s": 2.0, "gsin_per_s": 1.5}
+    assert math.isnan(best_rates([a])["gsin_kernel_per_s"])
+
+
+def test_roofline_sine_rate_is_the_faster_of_torch_and_the_kernel():
+    m = measure_roofline(quick=True, repeat=1)
+    rates = [m["gsin_torch_per_s"]] + ([m["gsin_kernel_per_s"]] if m["gsin_kernel_per_s"] == m["gsin_kernel_per_s"] else [])
+    assert m["gsin_per_s"] == max(rates)

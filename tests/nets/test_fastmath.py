@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neural_bake.nets import fastmath
-from neural_bake.nets.fastmath import kernel_available, sincos, sincos_
+from neural_bake.nets.fastmath import kernel_available, sin_, sincos, sincos_
 
 HAVE_CC = any(shutil.which(c) for c in ("cc", "gcc", "clang"))
 
@@ -77,30 +77,74 @@ def test_other_tensors_take_torch_exactly():
     assert torch.equal(s, torch.sin(grad.detach()))
 
 
-def _use(monkeypatch, fn, status="test"):
+def _use(monkeypatch, fn, status="test", sin_fn=None):
     monkeypatch.setitem(fastmath._state, "fn", fn)
     monkeypatch.setitem(fastmath._state, "status", status)
+    monkeypatch.setitem(fastmath._state, "sin_fn", sin_fn)
+    monkeypatch.setitem(fastmath._state, "sin_status", status)
 
 
 @pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
 def test_forced_kernel_and_forced_torch_agree(monkeypatch):
-    fn, _ = fastmath._build()
+    (fn, sin_fn), _ = fastmath._build()
     x = torch.randn(3000, 64, generator=torch.Generator().manual_seed(3)) * 50
-    _use(monkeypatch, fn)
+    _use(monkeypatch, fn, sin_fn=sin_fn)
     s1, c1 = sincos(x)
+    s1_only = sin_(x.clone())
     _use(monkeypatch, None)
     s2, c2 = sincos(x)
     assert torch.equal(s2, torch.sin(x)) and torch.equal(c2, torch.cos(x))
+    assert torch.equal(sin_(x.clone()), torch.sin(x))
     torch.testing.assert_close(s1, s2, rtol=0, atol=2e-7)
     torch.testing.assert_close(c1, c2, rtol=0, atol=2e-7)
+    assert torch.equal(s1_only, s1)  # the sin-only entry: the same reduction and polynomial
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_sin_only_entry_accuracy_in_place_and_special_values(monkeypatch):
+    (_, sin_fn), _ = fastmath._build()
+    _use(monkeypatch, None, sin_fn=sin_fn)
+    for n in (1, 255, 257, 65539):
+        x = (torch.rand(n, generator=torch.Generator().manual_seed(n)) * 2 - 1) * 2000.0
+        a = x.clone()
+        assert sin_(a) is a  # in place
+        assert float((a.double() - torch.sin(x.double())).abs().max()) <= TOL
+    wild = torch.tensor([65537.0, -1e5, 1e38, float("inf"), float("-inf"), float("nan"), 1.0])
+    torch.testing.assert_close(sin_(wild.clone()), torch.sin(wild), rtol=0, atol=1e-6, equal_nan=True)
+    x64 = torch.linspace(-20, 20, 301, dtype=torch.float64)  # other tensors: torch exactly
+    assert torch.equal(sin_(x64.clone()), torch.sin(x64))
+    strided = torch.linspace(-20, 20, 600)
+    view = strided[::2]
+    expected = torch.sin(view)
+    sin_(view)
+    assert torch.equal(view, expected)
+
+
+def test_sin_status_says_which_sine():
+    msg = fastmath.sin_status()
+    assert ("fused C kernel" in msg) or ("torch.sin" in msg)
 
 
 def test_calibration_times_both():
     if not HAVE_CC:
         pytest.skip("no C compiler")
-    fn, _ = fastmath._build()
-    t_kernel, t_torch = fastmath._calibrate(fn)
+    (fn, sin_fn), _ = fastmath._build()
+    t_kernel, t_torch = fastmath._calibrate(
+        lambda a, s: fn(a.data_ptr(), s.data_ptr(), a.data_ptr(), a.numel()), lambda a, s: (torch.sin(a, out=s), a.cos_()))
     assert 0 < t_kernel < 1 and 0 < t_torch < 1
+    t_kernel, t_torch = fastmath._calibrate(lambda a, s: sin_fn(a.data_ptr(), a.data_ptr(), a.numel()),
+                                            lambda a, s: a.sin_())
+    assert 0 < t_kernel < 1 and 0 < t_torch < 1
+
+
+def test_a_failed_build_falls_back_for_both_entries(monkeypatch):
+    monkeypatch.setitem(fastmath._state, "built", (None, "no C compiler found: torch.sin + torch.cos"))
+    for key in ("fn", "status", "sin_fn", "sin_status"):
+        monkeypatch.setitem(fastmath._state, key, None)
+    assert not kernel_available()
+    assert fastmath.sin_status() == "no C compiler found: torch.sin"
+    x = torch.linspace(-9, 9, 100)
+    assert torch.equal(sin_(x.clone()), torch.sin(x))
 
 
 def test_switch_off_no_compiler_and_failed_build(monkeypatch, tmp_path):
@@ -122,10 +166,12 @@ def test_switch_off_no_compiler_and_failed_build(monkeypatch, tmp_path):
 @pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
 def test_fresh_build_into_an_empty_cache(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    fn, msg = fastmath._build()
-    assert fn is not None and "fused C kernel" in msg
+    fns, msg = fastmath._build()
+    assert fns is not None and "fused C kernel" in msg
     assert len(list((tmp_path / "neural_bake").glob("sincos-*.so"))) == 1
     x = torch.linspace(-7, 7, 1001)
     s, c = torch.empty_like(x), torch.empty_like(x)
-    fn(x.data_ptr(), s.data_ptr(), c.data_ptr(), x.numel())
+    fns[0](x.data_ptr(), s.data_ptr(), c.data_ptr(), x.numel())
     assert max(_max_errors(x, s, c)) <= TOL
+    fns[1](x.data_ptr(), c.data_ptr(), x.numel())
+    assert torch.equal(c, s)
