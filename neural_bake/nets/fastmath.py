@@ -17,6 +17,10 @@ first use times both on one (4,096, 64) chunk and keeps the faster (``NEURAL_BAK
 kernel, ``=0`` turns it off); when no compiler is found or the build fails, torch's functions are used.
 :func:`status` says which is in use and why.
 
+The same file has a sin-only entry (:func:`sin_`, in place) for the inference forward pass: the same
+reduction and polynomial without the cosine's stores, kept where its own first-use timing beats
+``torch.sin``.
+
 Only contiguous float32 CPU tensors take the kernel; everything else (float64, CUDA, strided views, code
 being traced by ``torch.compile``) takes torch's functions. Accuracy: ≤ 2e-7 absolute against float64 sin/cos
 (torch.sin: 4e-8), for any finite input; NaN for NaN and ±inf, as torch.
@@ -120,8 +124,9 @@ def _built():
     return _state["built"]
 
 
-def _choose(key: str, kernel, reference, what: str):
-    """Keep ``kernel`` for ``key`` if it is forced on or measured faster than torch's ``reference``."""
+def _choose(key: int, kernel, reference, what: str):
+    """The built entry ``key`` (0: sincos, 1: sin) and a status message: kept if forced on or measured
+    faster than torch's ``reference`` (``what`` names it), else None."""
     fns, msg = _built()
     if fns is None:
         return None, msg.replace("torch.sin + torch.cos", what)
