@@ -180,7 +180,6 @@ def _compare(model: Siren, n: int, repeat: int, seed: int) -> list[dict]:
 _PROBE = "_roofline probe"
 
 
-
 def _autograd(model, x, piece):
     out = []
     for s in range(0, x.shape[0], piece):
