@@ -114,6 +114,7 @@ def test_presets_and_config():
     assert set(PRESETS) == {"64x1", "128x2", "256x2", "256x3"}
     from neural_bake.fit.sdf import config_from
 
+    assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
     c = config_from(preset="64x1", seed=3)
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
