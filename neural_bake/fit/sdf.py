@@ -410,11 +410,15 @@ class _Pools:
 def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target: torch.Tensor | None = None):
     """Indices of the ``hard_pool`` part of ``points`` with the largest |f − target| (target 0: |f|; at
     least one)."""
-    k = max(1, int(round(cfg.hard_pool * points.shape[0])))
     with torch.no_grad():
         err = model(points)[:, 0]
         err = (err if target is None else err - target).abs()
-    return torch.topk(err, k, sorted=False).indices
+    return _top_part(err, cfg.hard_pool)
+
+
+def _top_part(err: torch.Tensor, part: float) -> torch.Tensor:
+    """Indices of the ``part`` of ``err`` (n,) with the largest values (at least one; 0 < part ≤ 1)."""
+    return torch.topk(err, max(1, int(round(part * err.shape[0]))), sorted=False).indices
 
 
 def _zero_set_samples(model: Siren, mesh: Mesh, near_p: torch.Tensor, cfg: SdfFitConfig, seed: int):
@@ -433,8 +437,7 @@ def _zero_set_samples(model: Siren, mesh: Mesh, near_p: torch.Tensor, cfg: SdfFi
     if x.shape[0] == 0:
         return None
     d = torch.as_tensor(signed_distance(mesh, x.double().cpu().numpy()), dtype=x.dtype, device=x.device)
-    k = max(1, int(round(cfg.hard_pool * x.shape[0])))
-    top = torch.topk(d.abs(), min(k, x.shape[0]), sorted=False).indices
+    top = _top_part(d.abs(), cfg.hard_pool)
     return x[top].contiguous(), d[top].contiguous()
 
 

@@ -74,12 +74,13 @@ def _compiler() -> str | None:
     return None
 
 
-def _build() -> tuple[object | None, str]:
+def _build() -> tuple[tuple | None, str]:
+    """The compiled (sincos, sin) entries, or None and why (the caller names the fallback)."""
     if env_switch(ENV_SWITCH) is False:
-        return None, f"off ({ENV_SWITCH}=0): torch.sin + torch.cos"
+        return None, f"off ({ENV_SWITCH}=0)"
     cc = _compiler()
     if cc is None:
-        return None, "no C compiler found: torch.sin + torch.cos"
+        return None, "no C compiler found"
     src = _SOURCE.read_bytes()
     key = hashlib.sha256(src + " ".join(_FLAGS).encode() + cc.encode() + platform.machine().encode()).hexdigest()[:16]
     try:
@@ -91,12 +92,12 @@ def _build() -> tuple[object | None, str]:
             if proc.returncode != 0:
                 tmp.unlink(missing_ok=True)
                 first = (proc.stderr.strip().splitlines() or ["?"])[0][:200]
-                return None, f"the C kernel did not build ({first}): torch.sin + torch.cos"
+                return None, f"the C kernel did not build ({first})"
             os.replace(tmp, lib_path)  # atomic: a concurrent process sees the old state or the whole file
         lib = ctypes.CDLL(str(lib_path))
         fn, sin_fn = lib.nb_sincos_f32, lib.nb_sin_f32
     except (OSError, subprocess.SubprocessError, AttributeError) as exc:
-        return None, f"the C kernel could not be built or loaded ({exc}): torch.sin + torch.cos"
+        return None, f"the C kernel could not be built or loaded ({exc})"
     fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
     sin_fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
     fn.restype = sin_fn.restype = None
@@ -129,7 +130,7 @@ def _choose(key: int, kernel, reference, what: str):
     faster than torch's ``reference`` (``what`` names it), else None."""
     fns, msg = _built()
     if fns is None:
-        return None, msg.replace("torch.sin + torch.cos", what)
+        return None, f"{msg}: {what}"
     if env_switch(ENV_SWITCH) is True:
         return fns[key], msg
     t_kernel, t_torch = _calibrate(lambda a, s: kernel(fns[key], a, s), reference)
