@@ -35,10 +35,13 @@ __all__ = ["command"]
 @click.option("--compile", "compile_", type=click.Choice(["auto", "on", "off"]), default=None,
               help="torch.compile the loss (fuses its element-wise work; 5-20 s once): auto (default) "
                    "compiles runs of 5 minutes or more where a C++ compiler is available.")
+@click.option("--micro-batches", type=int, default=None,
+              help="Run each step in this many micro-batches, each forward and backward on its own (same "
+                   "gradients; default 0: auto, cache-sized parts on a CPU, one elsewhere).")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, hard_fraction, zero_fraction, resume,
-            gemm_dtype, compile_, metrics, progress):
+            gemm_dtype, compile_, micro_batches, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -52,7 +55,7 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, h
     m = load_mesh(mesh)
     given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "batch": batch, "checkpoint": checkpoint,
              "hard_fraction": hard_fraction, "zero_fraction": zero_fraction, "gemm_dtype": gemm_dtype,
-             "compile": compile_}
+             "compile": compile_, "micro_batches": micro_batches}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}

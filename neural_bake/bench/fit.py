@@ -3,7 +3,9 @@
 Two tables, measured in the same run:
 
 - **training step**: one step of :func:`~neural_bake.fit.sdf.sdf_loss_terms` + ``backward()`` (∇f by the
-  differentiable GEMM gradient, one backward) against the baseline a user would write — the same losses
+  differentiable GEMM gradient, one backward), run as ``fit_sdf`` runs it — in ``micro_batches``
+  cache-sized parts (:func:`~neural_bake.fit.sdf.sdf_step_backward`; ``compiled_one_batch_s``: the
+  compiled step in one part, to show what the split buys) — against the baseline a user would write — the same losses
   with ∇f from ``torch.autograd.grad(create_graph=True)`` (double-backward) — and against this machine's
   roofline (:mod:`neural_bake.bench.roofline`). The step's roofline counts the forward with GEMM gradients
   (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs (input and weight gradients of
@@ -62,7 +64,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
                 roof: dict | None = None, repeat: int = 5, seed: int = 0, compiled: bool = True) -> dict:
     """Seconds of one training step: GEMM-gradient losses (eager, bf16 GEMMs, and, with ``compiled``, through
     torch.compile where a compiler is available) vs double-backward autograd vs the roofline."""
-    from ..fit.sdf import SdfFitConfig, sdf_loss_terms
+    from ..fit.sdf import SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
     from ..nets.compiled import CompiledFn, compiler_available
     from ..nets.siren import Siren
     from .roofline import best_rates, measure_roofline, roofline_seconds, siren_cost
@@ -77,16 +79,22 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     vd = torch.rand(nv, generator=gen) - 0.5
     opt = torch.optim.Adam(model.parameters(), lr=1e-5)
 
-    def step(fn):
+    micro = micro_batch_count(cfg, batch + nv, "cpu")
+
+    def step(fn, k=micro, low_precision=False):  # what fit_sdf runs: micro-batches, each forward + backward
         def go():
             opt.zero_grad(set_to_none=True)
-            fn(model, sp, sn, vp, vd, cfg)["loss"].backward()
+            sdf_step_backward(fn, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low_precision)
             opt.step()
         return go
 
+    def baseline():
+        opt.zero_grad(set_to_none=True)
+        _autograd_terms(model, sp, sn, vp, vd, cfg)["loss"].backward()
+        opt.step()
+
     # interleaved (as bench normals): every method sees the same machine state; best of the repetitions
-    methods = {"ours": step(sdf_loss_terms), "bf16": step(lambda *a: sdf_loss_terms(*a, low_precision=True)),
-               "auto": step(_autograd_terms)}
+    methods = {"ours": step(sdf_loss_terms), "bf16": step(sdf_loss_terms, low_precision=True), "auto": baseline}
     compiled = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
                           desc=f"bench fit {width}x{depth}")
     t_compile = None
@@ -97,6 +105,8 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
         t_compile = time.perf_counter() - t_compile
         if not compiled.compiled:
             del methods["compiled"]
+        elif micro > 1:
+            methods["compiled_one_batch"] = step(compiled, 1)  # the same step without micro-batches
     for fn in methods.values():
         fn()  # warm-up
     # the roofline is probed inside the same rounds (as in bench normals): this VM's sgemm rate drifts by
@@ -107,6 +117,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     roof = best_rates(probes)
     t_ours, t_bf16, t_auto = best["ours"], best["bf16"], best["auto"]
     t_comp = best.get("compiled")
+    t_one = best.get("compiled_one_batch", t_comp)
     n = batch + nv
     c = siren_cost(width, depth, n, grad="reverse")
     train_cost = {"gemm_flops": 3 * c["gemm_flops"], "sines": 1.5 * c["sines"],
@@ -117,7 +128,8 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
             "bf16_speedup": t_ours / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
             "ours_over_roofline": t_ours / t_roof, "compiled_s": t_comp, "compile_once_s": t_compile,
             "compiled_speedup_vs_autograd": t_auto / t_comp if t_comp else None,
-            "compiled_over_roofline": t_comp / t_roof if t_comp else None, "sgemm_gflops": roof["gflops_sgemm"]}
+            "compiled_over_roofline": t_comp / t_roof if t_comp else None, "sgemm_gflops": roof["gflops_sgemm"],
+            "micro_batches": micro, "compiled_one_batch_s": t_one}
 
 
 def _meshes(quick: bool, names) -> tuple[list[tuple[str, object]], list[str]]:

@@ -16,7 +16,8 @@ One function, :func:`train`, runs an optimiser over a ``torch.nn.Module`` with:
   selects the weights returned (the nested fitter keeps the step with the smallest sup-norm |h − f|).
 
 A fitter supplies ``step_fn(step, generator) -> dict`` returning loss tensors; the key ``"loss"`` is the one
-back-propagated, the others are logged (as floats). Example::
+back-propagated, the others are logged (as floats); a ``step_fn`` that back-propagates itself returns them
+detached. Example::
 
     def step_fn(step, gen):
         idx = torch.randint(0, n, (batch,), generator=gen)
@@ -218,7 +219,8 @@ def train(
     """Optimise ``model`` with Adam, calling ``step_fn(step, generator)`` for the losses of each step.
 
     ``step_fn`` returns a dict of scalar tensors; ``"loss"`` is back-propagated (ONE ``backward()`` per
-    step), the others are logged. The generator is :func:`step_generator` ``(seed, step)`` on the model's
+    step), the others are logged. A ``step_fn`` may back-propagate itself (e.g. in micro-batches, as the
+    SDF fitter does on CPUs) and return the loss detached: the loop then only checks the gradients. The generator is :func:`step_generator` ``(seed, step)`` on the model's
     device. ``evaluate()`` (no grad), if given, runs every ``eval_every`` steps and at the end; the weights
     with its smallest value are the ones left in ``model``. ``fingerprint`` identifies the run in the
     checkpoint: resuming a checkpoint with another fingerprint raises FitError. ``metadata`` is stored in
@@ -306,7 +308,11 @@ def train(
             elif first_loss is not None and loss_value > cfg.blowup * max(first_loss, 1e-6):
                 problem = f"loss {loss_value:.3g} exploded (first loss {first_loss:.3g})"
             if problem is None:
-                loss.backward()
+                if loss.requires_grad:
+                    loss.backward()
+                elif all(p.grad is None for p in params):
+                    raise FitError(f"{cfg.desc}: the step returned a loss without a graph and back-propagated "
+                                   "nothing itself")
                 if not _all_finite(p.grad for p in params):
                     problem = "non-finite gradient"
             if problem is None:

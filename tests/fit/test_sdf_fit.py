@@ -136,6 +136,8 @@ def test_presets_and_config():
     ({"zero_fraction": -0.1}, "zero_fraction must be in"),
     ({"zero_fraction": 0.8, "hard_fraction": 0.25}, r"zero_fraction must be in \[0, 1 - hard_fraction\]"),
     ({"zero_candidates": 0}, "zero_candidates must be a positive integer"),
+    ({"micro_batches": -1}, "micro_batches must be a non-negative integer"),
+    ({"micro_batches": 1.5}, "micro_batches must be a non-negative integer"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -153,12 +155,14 @@ def test_cli_fit_sdf(tmp_path, capsys):
     m.export(src)
     out = tmp_path / "ball.sdf"
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
-                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25", "--gemm-dtype", "float32", "--compile", "off"])
+                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25", "--gemm-dtype", "float32", "--compile", "off",
+                 "--micro-batches", "2"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
     assert fit.config.hard_fraction == 0.5 and fit.config.zero_fraction == 0.25 and fit.config.gemm_dtype == "float32" and fit.config.compile == "off"
+    assert fit.config.micro_batches == 2
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -401,3 +405,71 @@ def test_fit_with_zero_set_mining_reproduces_and_stays_finite():
     assert torch.isfinite(weights(a.model)).all() and torch.equal(weights(a.model), weights(b.model))
     assert not torch.equal(weights(a.model), weights(off.model))
     assert a.config.zero_fraction == 0.25
+
+
+def _step_data(dtype, s=37, v=29, seed=5):
+    g = torch.Generator().manual_seed(seed)
+    sp = (torch.rand(s, 3, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
+    sn = torch.nn.functional.normalize(torch.randn(s, 3, generator=g, dtype=torch.float64), dim=1).to(dtype)
+    vp = (torch.rand(v, 3, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
+    vd = (torch.rand(v, generator=g, dtype=torch.float64) - 0.5).to(dtype)
+    return sp, sn, vp, vd
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("k", [1, 2, 3, 7, 50, 1000])
+def test_micro_batches_add_up_to_the_whole_batch(dtype, k):
+    # the reference: the plain mean losses of the whole batch, one backward; sizes that k does not divide,
+    # and k beyond the surface batch (parts with no surface point) or beyond every point
+    from neural_bake.fit.sdf import sdf_loss_terms, sdf_step_backward
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(24, 2, generator=torch.Generator().manual_seed(0)).to(dtype)
+    cfg = SdfFitConfig()
+    sp, sn, vp, vd = _step_data(dtype)
+    ref = sdf_loss_terms(model, sp, sn, vp, vd, cfg)
+    ref["loss"].backward()
+    ref_grads = [p.grad.clone() for p in model.parameters()]
+    model.zero_grad(set_to_none=True)
+    out = sdf_step_backward(sdf_loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k)
+    rtol = 1e-4 if dtype == torch.float32 else 1e-11
+    for key in ("loss", "surface", "normal", "eikonal", "sdf"):
+        assert not out[key].requires_grad
+        assert float(out[key]) == pytest.approx(float(ref[key].detach()), rel=rtol, abs=1e-12)
+    for p, r in zip(model.parameters(), ref_grads):
+        assert torch.allclose(p.grad, r, rtol=rtol, atol=rtol * float(r.abs().max()))
+
+
+def test_micro_batches_without_volume_points():
+    from neural_bake.fit.sdf import sdf_loss_terms, sdf_step_backward
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(1)).double()
+    sp, sn, _, _ = _step_data(torch.float64)
+    vp, vd = sp.new_zeros((0, 3)), sp.new_zeros((0,))
+    ref = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig())
+    out = sdf_step_backward(sdf_loss_terms, model, sp, sn, vp, vd, SdfFitConfig(), micro_batches=4)
+    assert float(out["loss"]) == pytest.approx(float(ref["loss"].detach()), rel=1e-12)
+    assert float(out["sdf"]) == 0.0
+
+
+def test_micro_batch_count_auto_and_explicit():
+    from neural_bake.fit.sdf import micro_batch_count
+
+    cfg = SdfFitConfig()
+    assert micro_batch_count(replace(cfg, width=256), 9216, "cpu") == 8  # 9 × 2^18 elements → nearest 2^k
+    assert micro_batch_count(replace(cfg, width=64), 9216, "cpu") == 2
+    assert micro_batch_count(replace(cfg, width=128), 9216, "cpu") == 4
+    assert micro_batch_count(replace(cfg, width=32), 1152, "cpu") == 1
+    assert micro_batch_count(replace(cfg, width=256), 9216, "cuda") == 1  # GPUs want one big batch
+    assert micro_batch_count(replace(cfg, width=256, micro_batches=3), 9216, "cuda") == 3
+
+
+def test_fit_with_micro_batches_equals_one_batch():
+    # the same trajectory up to rounding (float64), so micro_batches is not in the fingerprint
+    m = sphere(sub=2)
+    kw = dict(TINY, steps=15, seed=4, dtype="float64", hard_fraction=0.0)
+    one = fit_sdf(m, micro_batches=1, **kw)
+    three = fit_sdf(m, micro_batches=3, **kw)
+    assert torch.allclose(weights(one.model), weights(three.model), rtol=1e-7, atol=1e-9)
+    assert replace(one.config, micro_batches=3).fingerprint_dict() == three.config.fingerprint_dict()

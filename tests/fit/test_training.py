@@ -173,3 +173,30 @@ def test_progress_bar_runs(capsys):
     m, f = _problem()
     res = train(m, f, LoopConfig(steps=5, progress=True, log_every=1))
     assert res.steps == 5 and math.isfinite(res.history[-1]["loss"])
+
+
+def test_step_that_back_propagates_itself():
+    # a step_fn may run its own backward (the SDF fitter's micro-batches) and return the loss detached
+    a, fa = _problem()
+    b, _ = _problem()
+
+    def own(step, gen):
+        x = torch.rand(64, 1, generator=gen) * 2 - 1
+        mse = ((b(x) - torch.sin(3 * x)) ** 2).mean()
+        mse.backward()
+        return {"loss": mse.detach()}
+
+    cfg = LoopConfig(steps=20, lr=1e-2, progress=False, seed=3)
+    train(a, fa, cfg)
+    train(b, own, cfg)
+    assert torch.allclose(_weights(a), _weights(b))
+
+
+def test_detached_loss_without_backward_is_refused():
+    model, _ = _problem()
+
+    def forgot(step, gen):
+        return {"loss": torch.tensor(1.0)}
+
+    with pytest.raises(FitError, match="without a graph and back-propagated nothing"):
+        train(model, forgot, LoopConfig(steps=3, progress=False))
