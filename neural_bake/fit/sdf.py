@@ -139,8 +139,8 @@ class SdfFitConfig:
     (the gradients add up to the whole batch's: the loss terms are sums over the batch divided by its sizes);
     0: auto — on a CPU the power of two nearest to points × width / 2¹⁸ (about 2¹⁸ hidden activations per
     micro-batch, so a layer's working set stays in the L2 cache: (256, 3) 8 micro-batches of 1,152 points,
-    (64, 1) 2), elsewhere 1. On the AVX2 EPYC a compiled (256, 3) step 313 → 212 ms, (64, 1) 24.9 → 19.8 ms.
-    Not part of the fingerprint (the same trajectory up to rounding)."""
+    (64, 1) 2), elsewhere 1. On the AVX2 EPYC a (256, 3) step 281 → 234 ms compiled, 402 → 226 ms eager
+    (:data:`TRAIN_CHUNK_ELEMENTS`). Not part of the fingerprint (the same trajectory up to rounding)."""
     device: str | None = None
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
@@ -161,14 +161,10 @@ class SdfFitConfig:
 
 #: Architecture presets ``"WxD"`` with their time budgets (minutes; the step cap is only a safety net).
 #: Measured cost of one training step at the default batch (4096 surface + 4096 near + 1024 uniform points,
-#: ∇f on all 9216), CPU time on ONE thread of this project's Xeon (process time, best of 3, because the
-#: 2-core machine was shared with ~8 other jobs at load 10 and wall times were meaningless):
-#: (64, 1) 0.033 s and (256, 3) 0.42 s per step, the same as double-backward autograd (0.035 s, 0.43 s).
-#: So a 2-minute (64, 1) budget gives about 3,000–3,600 steps and a 10-minute (256, 3) budget about
-#: 1,400 steps on an idle machine (more with 2 threads). ``neural-bake bench fit`` measures both in one run.
-#: Accuracy seen on the bundled bumpy sphere (one thread, seed 0, metrics of :func:`sdf_metrics` at grid 256,
-#: 100k samples): (64, 1) after 489 steps (24 s of CPU): Chamfer-L1 0.00056, Hausdorff 0.0029, median normal
-#: error 2.3°; (256, 3) after 800 steps (360 s of CPU): Chamfer-L1 0.00032, Hausdorff 0.0020, median 2.1°.
+#: ∇f on all 9216) on the project's 2-core AVX2 EPYC (``neural-bake bench fit``, 2026-11-30, quiet): (64, 1)
+#: 17 ms (eager, 2 micro-batches), (256, 3) 277 ms (compiled, 8 micro-batches), against 39 ms and 477 ms for
+#: double-backward autograd. So a 2-minute (64, 1) budget gives about 4,500–5,400 steps and a 10-minute
+#: (256, 3) budget about 1,950–2,150. Accuracy at these budgets (Spot, bumpy sphere, three seeds): BENCHMARKS.md.
 PRESETS: dict[str, dict] = {
     # lr 1e-3 (was 5e-4): three seeds on Spot, 2 min, compiled loss, AVX2 EPYC: Hausdorff 0.0101/0.0103/0.0122
     # against 0.0109/0.0106/0.0138; bumpy sphere (two seeds) 0.0022/0.0029 against 0.0028/0.0025
@@ -180,7 +176,9 @@ PRESETS: dict[str, dict] = {
     # median normal error 3.30° to 0.0065 and 2.96° (half batches: 3,150 steps, 0.0064 and 3.19°)
     # hard_pool 0.05 (default 0.02): Spot, 10 min, seed 0, compiled, AVX2 EPYC: the hard set's size against
     # Hausdorff was 0.005 → 0.0095, 0.02 → 0.0060, 0.05 → 0.0044 (median normal error 3.13°, 2.94°, 2.83°);
-    # one seed each, and the 0.05 run made 1,681 steps against 1,401 (the VM's speed varies): to be confirmed
+    # one seed each, and the 0.05 run made 1,681 steps against 1,401 (the VM's speed varies). Three more
+    # seeds with 0.05 (micro-batched steps, ~2,000 of them) read 0.0061 / 0.0053 / 0.0060: the 0.0044 was a
+    # good draw; 0.05 stays (no worse than 0.02 on this evidence)
     "256x3": {"width": 256, "depth": 3, "lr": 2e-4, "minutes": 10.0, "steps": 100_000, "hard_pool": 0.05},
 }
 
@@ -384,9 +382,10 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
 
 
 #: Hidden activations (points × width) per training micro-batch that ``micro_batches=0`` aims at: a
-#: (256, 3) step's working set per layer then stays in a core's 1 MB L2 (step timings on the AVX2 EPYC,
-#: compiled loss, 9,216 points: 1 / 2 / 4 / 8 / 16 micro-batches 313 / 233 / 221 / 212 / 229 ms; (64, 1)
-#: 24.9 / 19.8 / 20.0 / 22.7 / 29.5 ms).
+#: (256, 3) step's working set per layer then stays in a core's 1 MB L2. Step timings on the AVX2 EPYC,
+#: 9,216 points, best of interleaved rounds, 1 part against the auto choice: (256, 3) 8 parts, compiled
+#: 281 → 234 ms, eager 402 → 226 ms; (128, 2) 4 parts, compiled 84 → 64 ms, eager 107 → 74 ms; (64, 1) 2 parts,
+#: eager 21.9 → 17.4 ms, compiled 13.9 → 14.2 ms (no gain: its activations nearly fit).
 TRAIN_CHUNK_ELEMENTS = 1 << 18
 
 
