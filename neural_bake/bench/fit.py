@@ -5,13 +5,13 @@ Two tables, measured in the same run:
 - **training step**: one step of :func:`~neural_bake.fit.sdf.sdf_loss_terms` + ``backward()`` (∇f by the
   differentiable GEMM gradient, one backward), run as ``fit_sdf`` runs it — in ``micro_batches``
   cache-sized parts (:func:`~neural_bake.fit.sdf.sdf_step_backward`; ``compiled_one_batch_s``: the
-  compiled step in one part, to show what the split buys) — against the baseline a user would write — the same losses
-  with ∇f from ``torch.autograd.grad(create_graph=True)`` (double-backward) — and against this machine's
-  roofline (:mod:`neural_bake.bench.roofline`). The step's roofline counts the forward with GEMM gradients
-  (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs (input and weight gradients of
-  every product) plus one more sin/cos per unit and twice the element-wise work: an approximation stated
-  as such (float32 roofline), priced at the best rates read in the step timing's own interleaved rounds
-  (``sgemm_gflops``). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
+  compiled step in one part, to show what the split buys) — against the baseline a user would write — the
+  same losses with ∇f from ``torch.autograd.grad(create_graph=True)`` (double-backward), in one batch — and
+  against this machine's roofline (:mod:`neural_bake.bench.roofline`). The step's roofline counts the
+  forward with GEMM gradients (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs
+  (input and weight gradients of every product) plus one more sin/cos per unit and twice the element-wise
+  work: an approximation stated as such (float32 roofline), priced at the best rates read in the step
+  timing's own interleaved rounds (``sgemm_gflops``). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
   ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
   ``compiled_s``: the same step with the loss through ``torch.compile`` (``SdfFitConfig.compile``, what
   fits of five minutes or more run), with the one-off ``compile_once_s`` it cost in this process.
