@@ -11,7 +11,8 @@ Two tables, measured in the same run:
   forward with GEMM gradients (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs
   (input and weight gradients of every product) plus one more sin/cos per unit and twice the element-wise
   work: an approximation stated as such (float32 roofline), priced at the best rates read in the step
-  timing's own interleaved rounds (``sgemm_gflops``). ``fraction`` = roofline time / measured time (1.0 = at the roofline).
+  timing's own interleaved rounds (``sgemm_gflops``). ``fraction`` = roofline time / measured time (1.0 =
+  at the roofline).
   ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
   ``compiled_s``: the same step with the loss through ``torch.compile`` (``SdfFitConfig.compile``, what
   fits of five minutes or more run), with the one-off ``compile_once_s`` it cost in this process.

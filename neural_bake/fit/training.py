@@ -222,8 +222,8 @@ def train(
     step), the others are logged. A ``step_fn`` may back-propagate itself (e.g. in micro-batches, as the
     SDF fitter does on CPUs) and return the loss detached: the loop then only checks the gradients. The
     generator is :func:`step_generator` ``(seed, step)`` on the model's device. ``evaluate()`` (no grad),
-    if given, runs every ``eval_every`` steps and at the end; the weights
-    with its smallest value are the ones left in ``model``. ``fingerprint`` identifies the run in the
+    if given, runs every ``eval_every`` steps and at the end; the weights with its smallest value are the
+    ones left in ``model``. ``fingerprint`` identifies the run in the
     checkpoint: resuming a checkpoint with another fingerprint raises FitError. ``metadata`` is stored in
     the checkpoint as is (JSON-able). ``on_log(entry)`` is called with every history entry.
 

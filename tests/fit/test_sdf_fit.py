@@ -155,8 +155,8 @@ def test_cli_fit_sdf(tmp_path, capsys):
     m.export(src)
     out = tmp_path / "ball.sdf"
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
-                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25", "--gemm-dtype", "float32", "--compile", "off",
-                 "--micro-batches", "2"])
+                 "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25",
+                 "--gemm-dtype", "float32", "--compile", "off", "--micro-batches", "2"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
