@@ -20,6 +20,8 @@ __all__ = ["command"]
 @click.option("--minutes", type=float, default=None, help="Wall-clock budget in minutes (default: the preset's).")
 @click.option("--seed", type=int, default=None, help="Seed of weights and samples (same seed, same model).")
 @click.option("--lr", type=float, default=None, help="Initial Adam learning rate (default: the preset's).")
+@click.option("--lr-min-factor", type=float, default=None,
+              help="Final learning rate of the cosine schedule as a fraction of --lr (default: the preset's).")
 @click.option("--batch", type=int, default=None, help="Surface points per step (default 4096).")
 @click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
               help="Checkpoint file written during training (default: OUTPUT.ckpt when --resume).")
@@ -40,8 +42,8 @@ __all__ = ["command"]
                    "gradients; default 0: auto, cache-sized parts on a CPU, one elsewhere).")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
-def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, hard_fraction, zero_fraction, resume,
-            gemm_dtype, compile_, micro_batches, metrics, progress):
+def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch, checkpoint, hard_fraction,
+            zero_fraction, resume, gemm_dtype, compile_, micro_batches, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -53,9 +55,10 @@ def command(mesh, output, preset, steps, minutes, seed, lr, batch, checkpoint, h
     if resume and checkpoint is None:
         checkpoint = output + ".ckpt"
     m = load_mesh(mesh)
-    given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "batch": batch, "checkpoint": checkpoint,
-             "hard_fraction": hard_fraction, "zero_fraction": zero_fraction, "gemm_dtype": gemm_dtype,
-             "compile": compile_, "micro_batches": micro_batches}
+    given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "lr_min_factor": lr_min_factor,
+             "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,
+             "zero_fraction": zero_fraction, "gemm_dtype": gemm_dtype, "compile": compile_,
+             "micro_batches": micro_batches}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}

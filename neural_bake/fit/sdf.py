@@ -66,9 +66,11 @@ class SdfFitConfig:
     batch_uniform: int = 1024
     """Uniform points in [-1, 1]³ (with ground-truth SDF) per step."""
     lr: float = 1e-4
-    """Initial Adam learning rate (cosine decay to 5 % of it over the steps or the time budget)."""
+    """Initial Adam learning rate (cosine decay to ``lr_min_factor`` of it over the steps or the time budget)."""
     lr_schedule: str = "cosine"
     """"cosine" or "constant"."""
+    lr_min_factor: float = 0.05
+    """Final learning rate of the cosine schedule as a fraction of ``lr`` (0 < factor ≤ 1)."""
     w_surface: float = 3000.0
     """Weight of mean f² on surface samples."""
     w_normal: float = 100.0
@@ -149,8 +151,9 @@ class SdfFitConfig:
     def loop_config(self, desc: str = "fit sdf") -> LoopConfig:
         """The training-loop part of this config."""
         return LoopConfig(steps=self.steps, minutes=self.minutes, lr=self.lr, lr_schedule=self.lr_schedule,
-                          seed=self.seed, checkpoint=self.checkpoint, checkpoint_every=self.checkpoint_every,
-                          resume=self.resume, progress=self.progress, log_every=self.log_every, desc=desc)
+                          lr_min_factor=self.lr_min_factor, seed=self.seed, checkpoint=self.checkpoint,
+                          checkpoint_every=self.checkpoint_every, resume=self.resume, progress=self.progress,
+                          log_every=self.log_every, desc=desc)
 
     def fingerprint_dict(self) -> dict:
         """The settings that define the training trajectory (not budgets, paths or display)."""

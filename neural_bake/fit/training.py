@@ -147,6 +147,8 @@ def _validate(cfg: LoopConfig) -> None:
         raise FitError(f"{cfg.desc}: learning rate must be positive, got {cfg.lr!r}")
     if cfg.lr_schedule not in ("constant", "cosine"):
         raise FitError(f"{cfg.desc}: lr_schedule must be 'constant' or 'cosine', got {cfg.lr_schedule!r}")
+    if not (math.isfinite(cfg.lr_min_factor) and 0 < cfg.lr_min_factor <= 1):
+        raise FitError(f"{cfg.desc}: lr_min_factor must be in (0, 1], got {cfg.lr_min_factor!r}")
     if cfg.resume and not cfg.checkpoint:
         raise FitError(f"{cfg.desc}: resume needs a checkpoint path")
     for name in ("checkpoint_every", "log_every", "snapshot_every"):

@@ -35,6 +35,17 @@ def test_loss_decreases_and_history_is_logged():
     assert all(set(h) >= {"step", "seconds", "lr", "loss", "mse"} for h in res.history)
 
 
+@pytest.mark.parametrize("factor", [0.05, 0.01, 1.0])
+def test_cosine_schedule_decays_to_the_min_factor(factor):
+    model, step_fn = _problem()
+    n = 100
+    res = train(model, step_fn, LoopConfig(steps=n, lr=1e-2, lr_min_factor=factor, progress=False, log_every=1))
+    lrs = [h["lr"] for h in res.history]  # entry k ran step k - 1
+    want = [1e-2 * (factor + (1 - factor) * 0.5 * (1 + math.cos(math.pi * k / n))) for k in range(n)]
+    assert lrs == pytest.approx(want, rel=1e-9)
+    assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(factor * 1e-2, rel=0.05)
+
+
 def test_seed_reproduces_and_differs():
     a, fa = _problem()
     b, fb = _problem()
@@ -162,6 +173,8 @@ def test_keep_best_restores_best_weights():
     ({"steps": -1}, "steps must be"), ({"lr": 0.0}, "learning rate must be positive"),
     ({"minutes": -2.0}, "minutes must be positive"), ({"lr_schedule": "step"}, "lr_schedule"),
     ({"resume": True}, "resume needs a checkpoint"), ({"log_every": 0}, "log_every must be"),
+    ({"lr_min_factor": 0.0}, r"lr_min_factor must be in \(0, 1\]"), ({"lr_min_factor": 1.5}, "lr_min_factor"),
+    ({"lr_min_factor": math.nan}, "lr_min_factor"),
 ])
 def test_bad_config(kw, msg):
     m, f = _problem()
