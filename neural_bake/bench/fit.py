@@ -49,15 +49,20 @@ TARGETS = {"256x3": {"hausdorff": 0.005, "normal_median_deg": 3.0}, "64x1": {"ha
 
 def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     """The baseline: the same losses with ∇f by autograd (create_graph=True → double-backward)."""
+    from ..fit.sdf import focused_squares
+
     s = surf_p.shape[0]
     pts = torch.cat([surf_p, vol_p]).requires_grad_(True)
     f = model(pts)
     (g,) = torch.autograd.grad(f.sum(), pts, create_graph=True)
     f = f[:, 0]
     gn = torch.linalg.vector_norm(g, dim=1)
-    loss = (cfg.w_surface * (f[:s] ** 2).mean()
+    sq_surf, sq_vol = f[:s] ** 2, (f[s:] - vol_d) ** 2
+    if cfg.focus_tau > 0:
+        sq_surf, sq_vol = focused_squares(sq_surf, cfg.focus_tau), focused_squares(sq_vol, cfg.focus_tau)
+    loss = (cfg.w_surface * sq_surf.mean()
             + cfg.w_normal * (1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(1e-6)).mean()
-            + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * ((f[s:] - vol_d) ** 2).mean())
+            + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * sq_vol.mean())
     return {"loss": loss}
 
 

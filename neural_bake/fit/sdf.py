@@ -40,7 +40,7 @@ from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
 __all__ = ["SdfFitConfig", "SdfFit", "PRESETS", "fit_sdf", "load_sdf", "sdf_loss_terms", "sdf_step_backward",
-           "micro_batch_count", "mixed_gradient"]
+           "micro_batch_count", "mixed_gradient", "focused_squares"]
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -79,6 +79,11 @@ class SdfFitConfig:
     """Weight of mean (1 − |∇f|)² on every point of the step."""
     w_sdf: float = 3000.0
     """Weight of mean (f − d)² on near and uniform samples (d: ground-truth signed distance)."""
+    focus_tau: float = 0.0
+    """Worst-point focus τ (unit frame; 0: off). Each surface residual f and off-surface residual f − d is
+    weighted by 1 + min((r / τ)², 16) (:func:`focused_squares`; the weight is a constant of the step), so
+    residuals above τ pull like their fourth power instead of their square: the loss leans from the mean
+    towards the maximum error, which is what the Hausdorff distance measures."""
     pool_surface: int = 200_000
     """Surface samples per pool."""
     pool_near: int = 200_000
@@ -228,7 +233,7 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
     if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):
         raise FitError(f"fit_sdf: omega_0 must be positive, got {cfg.omega_0!r}")
-    for name in ("w_surface", "w_normal", "w_eikonal", "w_sdf"):
+    for name in ("w_surface", "w_normal", "w_eikonal", "w_sdf", "focus_tau"):
         v = getattr(cfg, name)
         if not (math.isfinite(v) and v >= 0):
             raise FitError(f"fit_sdf: {name} must be a non-negative number, got {v!r}")
@@ -358,7 +363,7 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         model: the Siren being trained.
         surf_p, surf_n: (S, 3) surface points and unit outward normals (unit frame).
         vol_p, vol_d: (V, 3) off-surface points and (V,) their ground-truth signed distances.
-        cfg: weights ``w_surface``, ``w_normal``, ``w_eikonal``, ``w_sdf``.
+        cfg: weights ``w_surface``, ``w_normal``, ``w_eikonal``, ``w_sdf`` and the focus ``focus_tau``.
         low_precision: hidden GEMMs in bfloat16 (:func:`mixed_gradient`) instead of float32.
         totals: (S, V) of the whole step when these points are one micro-batch of it: each term is a sum
             over these points divided by the step's sizes, so the micro-batches' terms add up to the step's
@@ -375,15 +380,29 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         values, grads = gemm_gradient(model, pts, "reverse", differentiable=True)
     f = values[:, 0]
     gnorm = torch.linalg.vector_norm(grads, dim=1)
+    sq_surf, sq_vol = f[:s] ** 2, (f[s:] - vol_d) ** 2
+    if cfg.focus_tau > 0:
+        sq_surf, sq_vol = focused_squares(sq_surf, cfg.focus_tau), focused_squares(sq_vol, cfg.focus_tau)
     terms = {
-        "surface": (f[:s] ** 2).sum() / max(n_s, 1),
+        "surface": sq_surf.sum() / max(n_s, 1),
         "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(1e-6)).sum() / max(n_s, 1),
         "eikonal": ((1.0 - gnorm) ** 2).sum() / max(n_s + n_v, 1),
     }
-    terms["sdf"] = ((f[s:] - vol_d) ** 2).sum() / max(n_v, 1) if vol_p.shape[0] else f.new_zeros(())
+    terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_p.shape[0] else f.new_zeros(())
     terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
                      + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
     return terms
+
+
+#: Cap of the focus weight's (r / τ)² (see ``SdfFitConfig.focus_tau``): early in a run, when residuals are
+#: many τ, the worst points would otherwise swamp the step.
+FOCUS_CAP = 16.0
+
+
+def focused_squares(sq: torch.Tensor, tau: float) -> torch.Tensor:
+    """Squared residuals ``sq`` weighted by 1 + min(sq / τ², :data:`FOCUS_CAP`), the weights constants of the
+    step (no gradient flows through them)."""
+    return sq * (1.0 + (sq.detach() / (tau * tau)).clamp_max(FOCUS_CAP))
 
 
 #: Hidden activations (points × width) per training micro-batch that ``micro_batches=0`` aims at: a

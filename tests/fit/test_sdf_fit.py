@@ -1,5 +1,6 @@
 """fit_sdf: quality floor on a sphere, seeds, resume, divergence handling, model files, CLI."""
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -139,6 +140,8 @@ def test_presets_and_config():
     ({"micro_batches": -1}, "micro_batches must be a non-negative integer"),
     ({"micro_batches": 1.5}, "micro_batches must be a non-negative integer"),
     ({"lr_min_factor": 0.0}, "lr_min_factor must be in"),
+    ({"focus_tau": -0.01}, "focus_tau must be a non-negative number"),
+    ({"focus_tau": math.inf}, "focus_tau must be a non-negative number"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -200,7 +203,8 @@ def test_bench_step_timing_parts():
         assert r["compiled_over_roofline"] == pytest.approx(r["compiled_s"] / r["roofline_s"])
 
 
-def test_bench_baseline_loss_equals_ours():
+@pytest.mark.parametrize("focus_tau", [0.0, 0.05, 0.5])
+def test_bench_baseline_loss_equals_ours(focus_tau):
     # the benchmark's double-backward baseline computes exactly our loss (so the timing compares like with like)
     from neural_bake.bench.fit import _autograd_terms
     from neural_bake.fit.sdf import sdf_loss_terms
@@ -211,13 +215,51 @@ def test_bench_baseline_loss_equals_ours():
     sp, vp = torch.rand(50, 3, generator=g, dtype=torch.float64), torch.rand(30, 3, generator=g, dtype=torch.float64)
     sn = torch.nn.functional.normalize(torch.randn(50, 3, generator=g, dtype=torch.float64), dim=1)
     vd = torch.rand(30, generator=g, dtype=torch.float64)
-    cfg = SdfFitConfig()
+    cfg = SdfFitConfig(focus_tau=focus_tau)
     ours = sdf_loss_terms(model, sp, sn, vp, vd, cfg)["loss"]
     ref = _autograd_terms(model, sp, sn, vp, vd, cfg)["loss"]
     assert float(ours.detach()) == pytest.approx(float(ref.detach()), rel=1e-10)
     (g1,) = torch.autograd.grad(ours, model.layers[1].weight)
     (g2,) = torch.autograd.grad(ref, model.layers[1].weight)
     assert torch.allclose(g1, g2, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_focused_squares_weights_and_cap(dtype):
+    from neural_bake.fit.sdf import FOCUS_CAP, focused_squares
+
+    r = torch.tensor([0.0, 1e-4, 1e-3, 2e-3, 5e-3, 1e-2, 0.5, 3.0], dtype=dtype, requires_grad=True)
+    tau = 2e-3
+    out = focused_squares(r ** 2, tau)
+    ref = [x * x * (1 + min((x / tau) ** 2, FOCUS_CAP)) for x in r.detach().double().tolist()]
+    assert out.detach().double().tolist() == pytest.approx(ref, rel=1e-5 if dtype == torch.float32 else 1e-12)
+    assert torch.isfinite(out).all()
+    # the weight is a constant of the step: d/dr = 2 r w, not the derivative of r^2 w(r)
+    (grad,) = torch.autograd.grad(out.sum(), r)
+    w = 1 + torch.clamp((r.detach() / tau) ** 2, max=FOCUS_CAP)
+    assert torch.allclose(grad, 2 * r.detach() * w, rtol=1e-5)
+
+
+def test_focus_weights_the_worst_residuals_and_micro_batches_still_add_up():
+    from neural_bake.fit.sdf import sdf_loss_terms, sdf_step_backward
+    from neural_bake.nets.siren import Siren
+
+    g = torch.Generator().manual_seed(3)
+    model = Siren(16, 1, generator=g).double()
+    sp, vp = torch.rand(64, 3, generator=g, dtype=torch.float64), torch.rand(40, 3, generator=g, dtype=torch.float64)
+    sn = torch.nn.functional.normalize(torch.randn(64, 3, generator=g, dtype=torch.float64), dim=1)
+    vd = torch.rand(40, generator=g, dtype=torch.float64) - 0.5
+    plain = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig())
+    cfg = SdfFitConfig(focus_tau=0.05)
+    focused = sdf_loss_terms(model, sp, sn, vp, vd, cfg)
+    assert float(focused["surface"]) > float(plain["surface"]) and float(focused["sdf"]) > float(plain["sdf"])
+    assert float(focused["normal"]) == pytest.approx(float(plain["normal"]), rel=1e-12)  # untouched terms
+    grads = []
+    for k in (1, 5):
+        model.zero_grad()
+        sdf_step_backward(sdf_loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k)
+        grads.append(torch.cat([p.grad.flatten() for p in model.parameters()]))
+    assert torch.allclose(grads[0], grads[1], rtol=1e-10, atol=1e-12)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
