@@ -30,6 +30,9 @@ __all__ = ["command"]
 @click.option("--zero-fraction", type=float, default=None,
               help="Part of each near batch drawn from mined points of the network's own zero level set, "
                    "trained to their true distance (default 0: off).")
+@click.option("--focus-tau", type=float, default=None,
+              help="Worst-point focus: residuals above this (unit frame) weigh up to 17x more, leaning the loss "
+                   "towards the maximum error (default: the preset's; 0: off).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint if it exists.")
 @click.option("--gemm-dtype", type=click.Choice(["auto", "float32", "bfloat16"]), default=None,
               help="Hidden GEMMs of the first 75% of the run: auto (default: bfloat16 where measured 1.5x "
@@ -43,7 +46,7 @@ __all__ = ["command"]
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch, checkpoint, hard_fraction,
-            zero_fraction, resume, gemm_dtype, compile_, micro_batches, metrics, progress):
+            zero_fraction, focus_tau, resume, gemm_dtype, compile_, micro_batches, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -57,8 +60,8 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
     m = load_mesh(mesh)
     given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "lr_min_factor": lr_min_factor,
              "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,
-             "zero_fraction": zero_fraction, "gemm_dtype": gemm_dtype, "compile": compile_,
-             "micro_batches": micro_batches}
+             "zero_fraction": zero_fraction, "focus_tau": focus_tau, "gemm_dtype": gemm_dtype,
+             "compile": compile_, "micro_batches": micro_batches}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}
