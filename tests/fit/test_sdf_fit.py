@@ -116,6 +116,8 @@ def test_presets_and_config():
     from neural_bake.fit.sdf import config_from
 
     assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
+    assert config_from(preset="256x3").lr_min_factor == 0.01 and config_from(preset="64x1").lr_min_factor == 0.05
+    assert config_from(preset="256x3").loop_config().lr_min_factor == 0.01
     c = config_from(preset="64x1", seed=3)
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
