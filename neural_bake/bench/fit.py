@@ -57,9 +57,8 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     (g,) = torch.autograd.grad(f.sum(), pts, create_graph=True)
     f = f[:, 0]
     gn = torch.linalg.vector_norm(g, dim=1)
-    sq_surf, sq_vol = f[:s] ** 2, (f[s:] - vol_d) ** 2
-    if cfg.focus_tau > 0:
-        sq_surf, sq_vol = focused_squares(sq_surf, cfg.focus_tau), focused_squares(sq_vol, cfg.focus_tau)
+    sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
+    sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
     loss = (cfg.w_surface * sq_surf.mean()
             + cfg.w_normal * (1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(1e-6)).mean()
             + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * sq_vol.mean())

@@ -380,9 +380,8 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         values, grads = gemm_gradient(model, pts, "reverse", differentiable=True)
     f = values[:, 0]
     gnorm = torch.linalg.vector_norm(grads, dim=1)
-    sq_surf, sq_vol = f[:s] ** 2, (f[s:] - vol_d) ** 2
-    if cfg.focus_tau > 0:
-        sq_surf, sq_vol = focused_squares(sq_surf, cfg.focus_tau), focused_squares(sq_vol, cfg.focus_tau)
+    sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
+    sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
     terms = {
         "surface": sq_surf.sum() / max(n_s, 1),
         "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(1e-6)).sum() / max(n_s, 1),
@@ -401,7 +400,9 @@ FOCUS_CAP = 16.0
 
 def focused_squares(sq: torch.Tensor, tau: float) -> torch.Tensor:
     """Squared residuals ``sq`` weighted by 1 + min(sq / τ², :data:`FOCUS_CAP`), the weights constants of the
-    step (no gradient flows through them)."""
+    step (no gradient flows through them); ``sq`` itself when τ ≤ 0 (the focus off)."""
+    if tau <= 0:
+        return sq
     return sq * (1.0 + (sq.detach() / (tau * tau)).clamp_max(FOCUS_CAP))
 
 

@@ -238,6 +238,7 @@ def test_focused_squares_weights_and_cap(dtype):
     ref = [x * x * (1 + min((x / tau) ** 2, FOCUS_CAP)) for x in r.detach().double().tolist()]
     assert out.detach().double().tolist() == pytest.approx(ref, rel=1e-5 if dtype == torch.float32 else 1e-12)
     assert torch.isfinite(out).all()
+    assert torch.equal(focused_squares(r ** 2, 0.0), r ** 2)  # tau 0: the focus is off
     # the weight is a constant of the step: d/dr = 2 r w, not the derivative of r^2 w(r)
     (grad,) = torch.autograd.grad(out.sum(), r)
     w = 1 + torch.clamp((r.detach() / tau) ** 2, max=FOCUS_CAP)
