@@ -71,9 +71,11 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     torch.compile where a compiler is available) vs double-backward autograd vs the roofline."""
     from ..fit.sdf import SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
     from ..nets.compiled import CompiledFn, compiler_available
+    from ..nets.heap import keep_freed_memory
     from ..nets.siren import Siren
     from .roofline import best_rates, measure_roofline, roofline_seconds, siren_cost
 
+    keep_freed_memory()  # as the training loop does: the steps timed here are the steps fit_sdf runs
     gen = torch.Generator().manual_seed(seed)
     model = Siren(width, depth, generator=gen)
     cfg = SdfFitConfig(width=width, depth=depth)

@@ -43,6 +43,7 @@ import torch
 
 from ..errors import FitError, NeuralBakeWarning
 from ..io.atomic import atomic_path
+from ..nets.heap import keep_freed_memory
 
 __all__ = ["LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
@@ -234,6 +235,7 @@ def train(
     """
     cfg = config or LoopConfig()
     _validate(cfg)
+    keep_freed_memory()  # a step's tensors reuse the last step's memory instead of page-faulting (nets.heap)
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise FitError(f"{cfg.desc}: the model has no trainable parameters")
