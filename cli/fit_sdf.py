@@ -33,6 +33,13 @@ __all__ = ["command"]
 @click.option("--focus-tau", type=float, default=None,
               help="Worst-point focus: residuals above this (unit frame) weigh up to 17x more, leaning the loss "
                    "towards the maximum error (default: the preset's; 0: off).")
+@click.option("--w-surface", type=float, default=None, help="Weight of f^2 on surface samples (default 3000).")
+@click.option("--w-normal", type=float, default=None,
+              help="Weight of the normal alignment 1 - cos(grad f, n) on surface samples (default 100).")
+@click.option("--w-eikonal", type=float, default=None, help="Weight of (1 - |grad f|)^2 on every point (default 50).")
+@click.option("--w-sdf", type=float, default=None,
+              help="Weight of (f - d)^2 on near and uniform samples (default 3000; on Spot, 64x1, 300 lowered "
+                   "Hausdorff but raised it on the Stanford bunny: BENCHMARKS.md).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint if it exists.")
 @click.option("--gemm-dtype", type=click.Choice(["auto", "float32", "bfloat16"]), default=None,
               help="Hidden GEMMs of the first 75% of the run: auto (default: bfloat16 where measured 1.5x "
@@ -46,7 +53,8 @@ __all__ = ["command"]
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch, checkpoint, hard_fraction,
-            zero_fraction, focus_tau, resume, gemm_dtype, compile_, micro_batches, metrics, progress):
+            zero_fraction, focus_tau, w_surface, w_normal, w_eikonal, w_sdf, resume, gemm_dtype, compile_,
+            micro_batches, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -60,7 +68,8 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
     m = load_mesh(mesh)
     given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "lr_min_factor": lr_min_factor,
              "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,
-             "zero_fraction": zero_fraction, "focus_tau": focus_tau, "gemm_dtype": gemm_dtype,
+             "zero_fraction": zero_fraction, "focus_tau": focus_tau, "w_surface": w_surface, "w_normal": w_normal,
+             "w_eikonal": w_eikonal, "w_sdf": w_sdf, "gemm_dtype": gemm_dtype,
              "compile": compile_, "micro_batches": micro_batches}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's

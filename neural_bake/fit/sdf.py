@@ -177,6 +177,9 @@ PRESETS: dict[str, dict] = {
     # lr 1e-3 (was 5e-4): three seeds on Spot, 2 min, compiled loss, AVX2 EPYC: Hausdorff 0.0101/0.0103/0.0122
     # against 0.0109/0.0106/0.0138; bumpy sphere (two seeds) 0.0022/0.0029 against 0.0028/0.0025.
     # lr_min_factor 0.01 did not help here (Spot seeds 0/1/2: 0.0100/0.0117/0.0104 against 0.0094/0.0090/0.0118)
+    # Not step-bound: 6 minutes (15,790 steps) read 0.0117 on Spot seed 2. w_sdf 300 (3,000) read 0.0093 / 0.0095 /
+    # 0.0094 / 0.0087 / 0.0086 on Spot seeds 0-4 (default 0.0094 / 0.0090 / 0.0118 / 0.0114 / 0.0086), but the bunny
+    # 0.0190 / 0.0160 (default 0.0133 / 0.0142) and the bumpy sphere 0.0030 (0.0026): a trade, not in the preset
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000},
     "128x2": {"width": 128, "depth": 2, "lr": 2e-4, "minutes": 5.0, "steps": 100_000},

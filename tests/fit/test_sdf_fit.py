@@ -163,13 +163,15 @@ def test_cli_fit_sdf(tmp_path, capsys):
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "5", "--no-progress",
                  "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25",
                  "--gemm-dtype", "float32", "--compile", "off", "--micro-batches", "2",
-                 "--lr-min-factor", "0.01", "--focus-tau", "0.003"])
+                 "--lr-min-factor", "0.01", "--focus-tau", "0.003", "--w-surface", "2000", "--w-normal", "50",
+                 "--w-eikonal", "20", "--w-sdf", "300"])
     assert code == 0, capsys.readouterr().err
     assert "5 steps" in capsys.readouterr().out
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
     assert fit.config.hard_fraction == 0.5 and fit.config.zero_fraction == 0.25 and fit.config.gemm_dtype == "float32" and fit.config.compile == "off"
     assert fit.config.micro_batches == 2 and fit.config.lr_min_factor == 0.01 and fit.config.focus_tau == 0.003
+    assert (fit.config.w_surface, fit.config.w_normal, fit.config.w_eikonal, fit.config.w_sdf) == (2000, 50, 20, 300)
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -188,6 +190,8 @@ def test_cli_fit_sdf_errors(tmp_path, capsys):
     assert "lr_min_factor must be in (0, 1]" in capsys.readouterr().err
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--focus-tau", "-1"]) == 2
     assert "focus_tau must be a non-negative number" in capsys.readouterr().err
+    assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--w-sdf", "-3"]) == 2
+    assert "w_sdf must be a non-negative number" in capsys.readouterr().err
     assert not (tmp_path / "x.sdf").exists()
 
 
