@@ -11,8 +11,8 @@ handful of faults per step, and (interleaved runs, same machine) a (256, 3) step
 
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
 :data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it
-owns the process's work: the training loop (:func:`neural_bake.fit.training.train`), the step timing of
-``bench fit``, and the CLI. Only glibc on Linux is tuned; elsewhere (and with ``NEURAL_BAKE_KEEP_HEAP=0``)
+owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
+CLI's ``fit`` commands) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and with ``NEURAL_BAKE_KEEP_HEAP=0``)
 nothing changes. :func:`status` says what happened.
 """
 
