@@ -59,7 +59,7 @@ def measure_roofline(
     tries = {"repeat": max(repeat, 20), "min_time": 0.3}
     t_sin = timeit(lambda: torch.sin(s, out=so), **tries)
     t_sin_kernel = math.nan
-    if dtype == torch.float32 and fastmath._sin_kernel() is not None:
+    if dtype == torch.float32 and fastmath.sin_kernel_available():
         sk = s.clone()  # in place: the values settle in [-1, 1]; the kernel's cost does not depend on them
         t_sin_kernel = timeit(lambda: fastmath.sin_(sk), **tries)
     t_cos = timeit(lambda: torch.cos(s, out=so), **tries)

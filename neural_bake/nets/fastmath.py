@@ -43,7 +43,8 @@ import torch
 
 from .compiled import env_switch
 
-__all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_available", "ENV_SWITCH"]
+__all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_available", "sin_kernel_available",
+           "ENV_SWITCH"]
 
 #: 0/off/false: torch.sin + torch.cos everywhere (A/B measurements, a misbehaving compiler); 1/on/true: the
 #: kernel wherever it builds, without the first-use timing.
@@ -174,6 +175,11 @@ def sin_status() -> str:
 def kernel_available() -> bool:
     """True when the fused C kernel is built, loaded and in use (measured faster than torch's, or forced)."""
     return _kernel() is not None
+
+
+def sin_kernel_available() -> bool:
+    """True when :func:`sin_` uses the kernel's sin-only entry (measured faster than ``torch.sin``, or forced)."""
+    return _sin_kernel() is not None
 
 
 def _takes_kernel(t: torch.Tensor) -> bool:

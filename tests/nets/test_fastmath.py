@@ -123,6 +123,7 @@ def test_sin_only_entry_accuracy_in_place_and_special_values(monkeypatch):
 def test_sin_status_says_which_sine():
     msg = fastmath.sin_status()
     assert ("fused C kernel" in msg) or ("torch.sin" in msg)
+    assert fastmath.sin_kernel_available() == (not msg.endswith("torch.sin"))  # fallbacks end ": torch.sin"
 
 
 def test_calibration_times_both():
@@ -143,6 +144,7 @@ def test_a_failed_build_falls_back_for_both_entries(monkeypatch):
         monkeypatch.setitem(fastmath._state, key, None)
     assert not kernel_available()
     assert fastmath.sin_status() == "no C compiler found: torch.sin"
+    assert not fastmath.sin_kernel_available()
     x = torch.linspace(-9, 9, 100)
     assert torch.equal(sin_(x.clone()), torch.sin(x))
 
