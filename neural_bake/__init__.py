@@ -80,6 +80,7 @@ _EXPORTS = {
     "SdfField": ".bake.fields",
     "ColorField": ".bake.fields",
     "BakeResult": ".bake.baker",
+    "TexelSample": ".bake.baker",
     "bake_report": ".bake.report",
 }
 
