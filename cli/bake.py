@@ -39,14 +39,22 @@ __all__ = ["command"]
 @click.option("--cage", type=float, default=None, help="Baseline ray distance (unit frame; default 0.05).")
 @click.option("--truth", default="auto", show_default=True,
               help="Ground truth of the report: auto (analytic if MESH is a bundled sample), mesh, sample:NAME.")
+@click.option("--texels", "texels_mode", type=click.Choice(["auto", "cache", "stream"]), default="auto",
+              show_default=True,
+              help="cache: keep every texel sample in memory (report over all of them); stream: bake band by band "
+                   "in bounded memory (report on a seeded uniform subsample); auto: cache up to 2^23 samples.")
+@click.option("--report-samples", type=int, default=1 << 18, show_default=True,
+              help="Texel samples a streamed bake keeps for the report's per-sample errors.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
-            supersample, padding, delta, baseline, cage, truth, out):
+            supersample, padding, delta, baseline, cage, truth, texels_mode, report_samples, out):
     """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
     and a quality report into OUT."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
 
     config = BakeAssetConfig(coarse=coarse, maps=maps_spec, size=size, texture=texture, normal_space=normal_space,
                              directx=directx, bits=int(bits), exr=exr, supersample=supersample, padding=padding,
-                             delta=delta, baseline=baseline, cage=cage, truth=truth)
+                             delta=delta, baseline=baseline, cage=cage, truth=truth,
+                             cache_texels={"auto": None, "cache": True, "stream": False}[texels_mode],
+                             report_samples=report_samples)
     bake_asset(mesh, sdf_path, out, config, texture_model=tex_path, log=click.echo)

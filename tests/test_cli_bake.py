@@ -103,6 +103,7 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--truth", "sample:cube"], "unknown sample 'cube'"),
         (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
         (["--delta", "-1"], "--delta -1.0: must be a positive distance"),
+        (["--report-samples", "0"], "report_samples 0: must be a positive integer"),
     ],
 )
 def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
@@ -247,3 +248,19 @@ def test_report_samples_must_be_positive(files, tmp_path):
     with pytest.raises(NeuralBakeError, match="report_samples 0: must be a positive integer"):
         bake_asset(files["obj"], files["sdf"], tmp_path / "o", BakeAssetConfig(report_samples=0), log=lambda s: None)
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_texels_and_report_samples(files, tmp_path, capsys):
+    """--texels stream with --report-samples N: the report says it measured N sampled texel samples."""
+    out = tmp_path / "out"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "32",
+                             "--maps", "normal", "--no-baseline", "--texels", "stream", "--report-samples", "200",
+                             "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["sampling"]["samples"] == 200 < rep["sampling"]["of"] and rep["vs_truth_deg"]["count"] == 200
+    code, _, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "32",
+                        "--maps", "normal", "--no-baseline", "--texels", "cache", "-o", str(tmp_path / "c")], capsys)
+    assert code == 0, err
+    rep = json.loads((tmp_path / "c" / "report.json").read_text())
+    assert rep["sampling"]["samples"] == rep["sampling"]["of"] and rep["sampling"]["sampled"] == []
