@@ -43,8 +43,8 @@ __all__ = ["command"]
               show_default=True,
               help="cache: keep every texel sample in memory (report over all of them); stream: bake band by band "
                    "in bounded memory (report on a seeded uniform subsample); auto: cache up to 2^23 samples.")
-@click.option("--report-samples", type=int, default=1 << 18, show_default=True,
-              help="Texel samples a streamed bake keeps for the report's per-sample errors.")
+@click.option("--report-samples", type=int, default=None,
+              help="Texel samples a streamed bake keeps for the report's per-sample errors (default 2^18).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
             supersample, padding, delta, baseline, cage, truth, texels_mode, report_samples, out):
@@ -52,9 +52,10 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
     and a quality report into OUT."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
 
+    given = {"report_samples": report_samples}  # unset: the pipeline's default
     config = BakeAssetConfig(coarse=coarse, maps=maps_spec, size=size, texture=texture, normal_space=normal_space,
                              directx=directx, bits=int(bits), exr=exr, supersample=supersample, padding=padding,
                              delta=delta, baseline=baseline, cage=cage, truth=truth,
                              cache_texels={"auto": None, "cache": True, "stream": False}[texels_mode],
-                             report_samples=report_samples)
+                             **{k: v for k, v in given.items() if v is not None})
     bake_asset(mesh, sdf_path, out, config, texture_model=tex_path, log=click.echo)

@@ -12,8 +12,8 @@ handful of faults per step, and (interleaved runs, same machine) a (256, 3) step
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
 :data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it
 owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
-CLI's ``fit`` commands) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and with ``NEURAL_BAKE_KEEP_HEAP=0``)
-nothing changes. :func:`status` says what happened.
+CLI's ``fit`` commands) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and
+with ``NEURAL_BAKE_KEEP_HEAP=0``) nothing changes. :func:`status` says what happened.
 """
 
 from __future__ import annotations
@@ -53,8 +53,10 @@ def _tune() -> str:
         return f"mallopt not found ({exc}): malloc left as it is"
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
-    if mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) != 1 or mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) != 1:
-        return "mallopt refused the thresholds: malloc left as it is"
+    if mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) != 1:
+        return "mallopt refused the mmap threshold: malloc left as it is"
+    if mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) != 1:
+        return f"mallopt refused the trim threshold: blocks up to {MMAP_THRESHOLD >> 20} MB come from the heap"
     return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse"
 
 

@@ -1,5 +1,6 @@
 """The malloc tuning of neural_bake.nets.heap: freed blocks are reused instead of page-faulting again."""
 
+import os
 import platform
 import subprocess
 import sys
@@ -37,10 +38,7 @@ _FAULTS = textwrap.dedent("""
 """)
 
 
-
 def _faults(env_value: str | None) -> tuple[float, str]:
-    import os
-
     env = dict(os.environ)
     env.pop(heap.ENV_SWITCH, None)
     if env_value is not None:
