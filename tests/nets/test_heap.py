@@ -15,6 +15,7 @@ GLIBC = platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
 _FAULTS = textwrap.dedent("""
     import resource, sys
     import torch
+    torch.set_num_threads(1)  # one thread, one malloc arena: the same allocations in every run
     from neural_bake.fit.sdf import SdfFitConfig, sdf_loss_terms, sdf_step_backward
     from neural_bake.nets.heap import keep_freed_memory
     from neural_bake.nets.siren import Siren
@@ -29,7 +30,7 @@ _FAULTS = textwrap.dedent("""
         opt.zero_grad(set_to_none=True)
         sdf_step_backward(sdf_loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=2)
         opt.step()
-    for _ in range(3):  # warm-up: the heap grows to a step's working set
+    for _ in range(10):  # warm-up: the heap (and each thread's arena) grows to a step's working set
         step()
     f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(10):
