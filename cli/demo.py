@@ -16,7 +16,7 @@ __all__ = ["command"]
 @click.option("--size", type=int, default=1024, show_default=True, help="Map side in texels.")
 @click.option("--progress/--no-progress", default=True, help="Progress bars on stderr.")
 def command(out, sample, sdf_minutes, texture_minutes, size, progress):
-    """Fit, coarsen, bake and report on a bundled sample (about 6 minutes on 2 CPU cores)."""
+    """Fit, coarsen, bake and report on a bundled sample (about 4 minutes on 2 CPU cores)."""
     from neural_bake.pipelines.demo import DemoConfig, run_demo
 
     run_demo(out, DemoConfig(sample=sample, sdf_minutes=sdf_minutes, texture_minutes=texture_minutes, size=size,

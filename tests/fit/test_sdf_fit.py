@@ -94,12 +94,15 @@ def test_divergence_is_detected_and_reported():
         fit_sdf(sphere(), steps=100, **dict(TINY, lr=1e4))
 
 
-def test_far_from_origin_and_huge_scale_fit_in_unit_frame():
-    m = trimesh.creation.icosphere(subdivisions=2, radius=5000.0)
-    mesh = mesh_from_arrays(np.asarray(m.vertices) + 1e6, np.asarray(m.faces))  # normalised on build
+@pytest.mark.parametrize("radius, offset", [(5000.0, 1e6), (1e-4, 0.0), (1e-4, 3.0)])
+def test_far_from_origin_huge_and_tiny_scales_fit_in_unit_frame(radius, offset):
+    m = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    mesh = mesh_from_arrays(np.asarray(m.vertices) + offset, np.asarray(m.faces))  # normalised on build
     fit = fit_sdf(mesh, steps=30, **TINY)
     assert torch.isfinite(weights(fit.model)).all()
-    assert fit.frame.scale == pytest.approx(1.8 / 10000.0, rel=1e-3)
+    assert fit.frame.scale == pytest.approx(1.8 / (2 * radius), rel=1e-3)
+    # the unit-frame mesh is the same whatever the input scale: the fit sees a sphere of radius ~0.9
+    assert np.linalg.norm(mesh.vertices, axis=1) == pytest.approx(0.9, rel=1e-3)
 
 
 def test_open_mesh_fits_without_nan():
