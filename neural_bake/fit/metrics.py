@@ -18,6 +18,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import torch
 
@@ -172,7 +174,7 @@ def _distance_to_zero_set(model, points: np.ndarray, mc_closest: np.ndarray, mc_
 
 
 def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolution: int = 128,
-                newton_steps: int = 2) -> dict:
+                newton_steps: int = 2, truth_normal: Callable[[np.ndarray], np.ndarray] | None = None) -> dict:
     """Chamfer-L1, Hausdorff and normal angular error of the SDF ``model`` against ``mesh`` (unit frame).
 
     Args:
@@ -182,15 +184,23 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         seed: seeds the samples.
         resolution: marching-cubes grid resolution over [-1, 1]³.
         newton_steps: projection steps of the network samples onto f = 0 (0: use the marching-cubes points).
+        truth_normal: the outward unit normals of the smooth surface the mesh approximates, as a callable of
+            (N, 3) unit-frame points (e.g. a sample's analytic ``normal`` composed with
+            ``mesh.frame.to_source``). The normal error against the mesh (its faces' normals) cannot fall
+            below the mesh's own faceting; with ``truth_normal`` the result also holds ∇f's error against the
+            smooth surface (``normal_truth_*``) and, for comparison, the mesh's face normals' error against it
+            (``mesh_normal_truth_*``: what the mesh itself gives), at the same mesh samples.
 
     Returns:
         ``{"chamfer_l1", "hausdorff", "normal_median_deg", "normal_mean_deg", "normal_p95_deg",
         "net_to_mesh_mean", "mesh_to_net_mean", "net_to_mesh_max", "mesh_to_net_max", "mesh_to_net_fallback",
-        "n", "resolution"}``
+        "n", "resolution"}``, plus with ``truth_normal`` ``"normal_truth_median_deg"``,
+        ``"normal_truth_p95_deg"``, ``"mesh_normal_truth_median_deg"``, ``"mesh_normal_truth_p95_deg"``
         (distances in unit-frame units; multiply by ``1 / mesh.frame.scale`` for source units).
 
     Raises:
-        FitError: n < 1, a resolution < 8, or a network with no zero crossing in [-1, 1]³.
+        FitError: n < 1, a resolution < 8, a network with no zero crossing in [-1, 1]³, or a ``truth_normal``
+        that does not return finite (n, 3) non-zero normals.
     """
     if int(n) != n or n < 1:
         raise FitError(f"sdf_metrics: n must be a positive integer, got {n!r}")
@@ -218,9 +228,15 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
     p = next(model.parameters())
     _, g = gemm_gradient(model, torch.as_tensor(surf.points, dtype=p.dtype, device=p.device))
     unit, valid = normalized_gradient(g)
-    cos = (unit.double().cpu().numpy() * surf.normals.astype(np.float64)).sum(axis=1)
-    ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    ang[~valid.cpu().numpy()] = 180.0
+    unit, valid = unit.double().cpu().numpy(), valid.cpu().numpy()
+    ang = _angles_deg(unit, surf.normals, valid)
+    out = {}
+    if truth_normal is not None:
+        truth = _truth_normals(truth_normal, surf_pts)
+        ours, faces = _angles_deg(unit, truth, valid), _angles_deg(surf.normals, truth)
+        out = {"normal_truth_median_deg": float(np.median(ours)), "normal_truth_p95_deg": float(np.percentile(ours, 95)),
+               "mesh_normal_truth_median_deg": float(np.median(faces)),
+               "mesh_normal_truth_p95_deg": float(np.percentile(faces, 95))}
     return {
         "chamfer_l1": 0.5 * (float(d_net.mean()) + float(d_mesh.mean())),
         "hausdorff": max(float(d_net.max()), float(d_mesh.max())),
@@ -231,4 +247,25 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         "net_to_mesh_max": float(d_net.max()), "mesh_to_net_max": float(d_mesh.max()),
         "mesh_to_net_fallback": fallback,
         "n": int(n), "resolution": int(resolution),
+        **out,
     }
+
+
+def _angles_deg(a: np.ndarray, b: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """Angles (degrees) between the unit rows of ``a`` and ``b``; 180° where ``valid`` is False."""
+    cos = (np.asarray(a, dtype=np.float64) * np.asarray(b, dtype=np.float64)).sum(axis=1)
+    ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    if valid is not None:
+        ang[~valid] = 180.0
+    return ang
+
+
+def _truth_normals(truth_normal, points: np.ndarray) -> np.ndarray:
+    """``truth_normal(points)`` checked (finite, (N, 3), no zero rows) and normalised; FitError otherwise."""
+    t = np.asarray(truth_normal(points), dtype=np.float64)
+    if t.shape != points.shape:
+        raise FitError(f"sdf_metrics: truth_normal must return ({points.shape[0]}, 3) normals, got {t.shape}")
+    norm = np.linalg.norm(t, axis=1, keepdims=True)
+    if not np.isfinite(t).all() or (norm < 1e-12).any():
+        raise FitError("sdf_metrics: truth_normal returned non-finite or zero normals at mesh samples")
+    return t / norm

@@ -19,5 +19,7 @@ def test_bench_fit_smallest_run_saves_models(tmp_path):
     assert row["mesh"] == "bumpy_sphere" and row["preset"] == "64x1" and row["steps"] >= 1
     assert 0 < row["chamfer_l1"] <= row["hausdorff"] < 2.0
     assert "target_met" not in row  # a quick run's shortened budgets are not the targets'
+    # a bundled sample: ∇f against its analytic surface, beside the mesh's own faces against it
+    assert 0 <= row["analytic_median_deg"] < 180 and 0 < row["mesh_faces_analytic_median_deg"] < 5
     model, meta = load_model(tmp_path / "models" / "bumpy_sphere-64x1.nbm")
     assert (model.width, model.depth) == (64, 1) and meta["kind"] == "sdf"

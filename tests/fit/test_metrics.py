@@ -95,6 +95,43 @@ def test_sdf_metrics_of_trained_sphere_network(sphere_siren):
     assert res["normal_median_deg"] <= res["normal_p95_deg"]
 
 
+def _radial(p):
+    return p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def test_sdf_metrics_against_the_smooth_surface(sphere_siren):
+    # oracle: a sphere's normals are its positions. A coarse icosphere's faces are several degrees off them
+    # (reference: trimesh's own samples of the same faces); the fitted network is smoother than that faceting
+    mesh = sphere(0.7, sub=2)
+    res = sdf_metrics(sphere_siren, mesh, n=20_000, resolution=48, truth_normal=_radial)
+    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    pts, idx = trimesh.sample.sample_surface(tm, 20_000, seed=3)
+    cos = (tm.face_normals[idx] * _radial(pts)).sum(axis=1)
+    faceting = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+    assert res["mesh_normal_truth_median_deg"] == pytest.approx(np.median(faceting), rel=0.05)
+    assert res["mesh_normal_truth_p95_deg"] == pytest.approx(np.percentile(faceting, 95), rel=0.05)
+    assert res["normal_truth_median_deg"] < 0.5 * res["mesh_normal_truth_median_deg"]
+    assert res["normal_truth_median_deg"] <= res["normal_truth_p95_deg"]
+    # against the faces the same gradients read about the faceting: the floor the smooth truth removes
+    assert res["normal_median_deg"] > res["normal_truth_median_deg"]
+    # the truth's length does not matter; pointing it inwards turns every angle around
+    scaled = sdf_metrics(sphere_siren, mesh, n=20_000, resolution=48, truth_normal=lambda q: 5 * _radial(q))
+    assert scaled["normal_truth_median_deg"] == pytest.approx(res["normal_truth_median_deg"], abs=1e-9)
+    flipped = sdf_metrics(sphere_siren, mesh, n=20_000, resolution=48, truth_normal=lambda q: -_radial(q))
+    assert flipped["normal_truth_median_deg"] == pytest.approx(180 - res["normal_truth_median_deg"], abs=1e-6)
+    assert "normal_truth_median_deg" not in sdf_metrics(sphere_siren, mesh, n=2_000, resolution=48)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (lambda q: q[:, :2], r"must return \(500, 3\) normals"),
+    (lambda q: np.full_like(q, np.nan), "non-finite or zero normals"),
+    (lambda q: np.zeros_like(q), "non-finite or zero normals"),
+])
+def test_sdf_metrics_rejects_a_bad_truth_normal(sphere_siren, bad, message):
+    with pytest.raises(FitError, match=message):
+        sdf_metrics(sphere_siren, sphere(0.7, sub=2), n=500, resolution=32, truth_normal=bad)
+
+
 def test_sdf_metrics_errors():
     mesh = sphere(0.7, sub=2)
     net = Siren(8, 0)
