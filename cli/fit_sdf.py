@@ -36,7 +36,8 @@ __all__ = ["command"]
 @click.option("--w-surface", type=float, default=None, help="Weight of f^2 on surface samples (default 3000).")
 @click.option("--w-normal", type=float, default=None,
               help="Weight of the normal alignment 1 - cos(grad f, n) on surface samples (default 100).")
-@click.option("--w-eikonal", type=float, default=None, help="Weight of (1 - |grad f|)^2 on every point (default 50).")
+@click.option("--w-eikonal", type=float, default=None,
+              help="Weight of (1 - |grad f|)^2 on every point (default 50; the 64x1 preset 10).")
 @click.option("--w-sdf", type=float, default=None,
               help="Weight of (f - d)^2 on near and uniform samples (default 3000; on Spot, 64x1, 300 lowered "
                    "Hausdorff but raised it on the Stanford bunny: BENCHMARKS.md).")
