@@ -19,8 +19,8 @@ Two tables, measured in the same run:
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error against
   the mesh's faces; unit frame; for the bundled samples also ∇f's normal error against the analytic surface,
-  beside the mesh's own face normals' error against it) and the issue's targets ((256, 3): Hausdorff ≤ 0.005 and median normal error ≤ 3° in 10 minutes;
-  (64, 1): Hausdorff ≤ 0.01 in 2 minutes).
+  beside the mesh's own face normals' error against it) and the issue's targets ((256, 3): Hausdorff ≤ 0.005
+  and median normal error ≤ 3° in 10 minutes; (64, 1): Hausdorff ≤ 0.01 in 2 minutes).
 
 Scope. Full run: the bundled samples ``bumpy_sphere``, ``torus``, ``jack`` plus ``spot`` and ``bunny`` from
 ``/work/shared/data`` when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh):

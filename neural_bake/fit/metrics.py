@@ -209,6 +209,9 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
     from .sampling import sample_surface
 
     rng = np.random.default_rng([seed, 7])
+    surf = sample_surface(mesh, int(n), seed=seed)
+    surf_pts = surf.points.astype(np.float64)
+    truth = _truth_normals(truth_normal, surf_pts) if truth_normal is not None else None  # checked before the work
     mv, mf = zero_level_mesh(model, int(resolution))
     net_pts, _ = _sample_triangles(mv, mf, int(n), rng)
     if newton_steps:
@@ -216,10 +219,8 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         # keep the projection only where it stayed close (a Newton step can jump off near critical points)
         moved = np.linalg.norm(proj - net_pts, axis=1)
         net_pts = np.where((moved < 4 * 2.0 / (resolution - 1))[:, None] & np.isfinite(proj), proj, net_pts)
-    surf = sample_surface(mesh, int(n), seed=seed)
     keep = ~mesh.degenerate if mesh.degenerate is not None else np.ones(mesh.n_faces, bool)
     d_net = _closest_distance(mesh.vertices, mesh.faces[keep], net_pts)
-    surf_pts = surf.points.astype(np.float64)
     d_mesh, closest = _closest(mv, mf, surf_pts)
     fallback = int(n)
     if newton_steps:
@@ -231,10 +232,10 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
     unit, valid = unit.double().cpu().numpy(), valid.cpu().numpy()
     ang = _angles_deg(unit, surf.normals, valid)
     out = {}
-    if truth_normal is not None:
-        truth = _truth_normals(truth_normal, surf_pts)
+    if truth is not None:
         ours, faces = _angles_deg(unit, truth, valid), _angles_deg(surf.normals, truth)
-        out = {"normal_truth_median_deg": float(np.median(ours)), "normal_truth_p95_deg": float(np.percentile(ours, 95)),
+        out = {"normal_truth_median_deg": float(np.median(ours)),
+               "normal_truth_p95_deg": float(np.percentile(ours, 95)),
                "mesh_normal_truth_median_deg": float(np.median(faces)),
                "mesh_normal_truth_p95_deg": float(np.percentile(faces, 95))}
     return {
