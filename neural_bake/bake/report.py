@@ -29,7 +29,7 @@ ERROR_MAP_MAX_DEG = 10.0
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles in degrees (M,) between unit vectors a and b (M, 3), float64; zero vectors give 180°."""
+    """Angles in degrees (M,) between unit vectors a and b (M, 3), float64; a zero vector gives 90°."""
     d = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
     return np.degrees(np.arccos(np.clip(d, -1.0, 1.0)))
 

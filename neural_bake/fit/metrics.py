@@ -206,6 +206,7 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         raise FitError(f"sdf_metrics: n must be a positive integer, got {n!r}")
     if int(resolution) != resolution or resolution < 8:
         raise FitError(f"sdf_metrics: resolution must be an integer >= 8, got {resolution!r}")
+    from ..bake.report import angular_error
     from .sampling import sample_surface
 
     rng = np.random.default_rng([seed, 7])
@@ -229,11 +230,13 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
     p = next(model.parameters())
     _, g = gemm_gradient(model, torch.as_tensor(surf.points, dtype=p.dtype, device=p.device))
     unit, valid = normalized_gradient(g)
-    unit, valid = unit.double().cpu().numpy(), valid.cpu().numpy()
-    ang = _angles_deg(unit, surf.normals, valid)
+    unit, invalid = unit.double().cpu().numpy(), ~valid.cpu().numpy()
+    ang = angular_error(unit, surf.normals)
+    ang[invalid] = 180.0  # no gradient direction: counted as the worst error
     out = {}
     if truth is not None:
-        ours, faces = _angles_deg(unit, truth, valid), _angles_deg(surf.normals, truth)
+        ours, faces = angular_error(unit, truth), angular_error(surf.normals, truth)
+        ours[invalid] = 180.0
         out = {"normal_truth_median_deg": float(np.median(ours)),
                "normal_truth_p95_deg": float(np.percentile(ours, 95)),
                "mesh_normal_truth_median_deg": float(np.median(faces)),
@@ -250,15 +253,6 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         "n": int(n), "resolution": int(resolution),
         **out,
     }
-
-
-def _angles_deg(a: np.ndarray, b: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Angles (degrees) between the unit rows of ``a`` and ``b``; 180° where ``valid`` is False."""
-    cos = (np.asarray(a, dtype=np.float64) * np.asarray(b, dtype=np.float64)).sum(axis=1)
-    ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    if valid is not None:
-        ang[~valid] = 180.0
-    return ang
 
 
 def _truth_normals(truth_normal, points: np.ndarray) -> np.ndarray:
