@@ -51,11 +51,14 @@ __all__ = ["command"]
 @click.option("--micro-batches", type=int, default=None,
               help="Run each step in this many micro-batches, each forward and backward on its own (same "
                    "gradients; default 0: auto, cache-sized parts on a CPU, one elsewhere).")
+@click.option("--polish-evals", type=int, default=None,
+              help="L-BFGS polish after Adam: this many full-batch loss evaluations, their time taken from the "
+                   "budget; kept only if a held-out loss falls (default: the preset's; 0: off).")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch, checkpoint, hard_fraction,
             zero_fraction, focus_tau, w_surface, w_normal, w_eikonal, w_sdf, resume, gemm_dtype, compile_,
-            micro_batches, metrics, progress):
+            micro_batches, polish_evals, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -71,7 +74,7 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
              "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,
              "zero_fraction": zero_fraction, "focus_tau": focus_tau, "w_surface": w_surface, "w_normal": w_normal,
              "w_eikonal": w_eikonal, "w_sdf": w_sdf, "gemm_dtype": gemm_dtype,
-             "compile": compile_, "micro_batches": micro_batches}
+             "compile": compile_, "micro_batches": micro_batches, "polish_evals": polish_evals}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}
@@ -79,6 +82,11 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
     click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
                f"final loss {last.get('loss', float('nan')):.4g}"
                + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
+    if fit.polish:
+        p = fit.polish
+        click.echo(f"L-BFGS polish: {p['evals']} evaluations in {p['seconds']:.1f} s, loss {p['loss_before']:.4g} -> "
+                   f"{p['loss_after']:.4g}, held-out {p['check_before']:.4g} -> {p['check_after']:.4g} "
+                   f"({'kept' if p['kept'] else 'not kept: ' + p['reason']})")
     if metrics:
         from neural_bake.fit.metrics import sdf_metrics
 

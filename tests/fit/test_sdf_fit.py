@@ -167,14 +167,16 @@ def test_cli_fit_sdf(tmp_path, capsys):
                  "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25",
                  "--gemm-dtype", "float32", "--compile", "off", "--micro-batches", "2",
                  "--lr-min-factor", "0.01", "--focus-tau", "0.003", "--w-surface", "2000", "--w-normal", "50",
-                 "--w-eikonal", "20", "--w-sdf", "300"])
+                 "--w-eikonal", "20", "--w-sdf", "300", "--polish-evals", "4"])
     assert code == 0, capsys.readouterr().err
-    assert "5 steps" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "5 steps" in printed and "L-BFGS polish: " in printed
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed) == (64, 1, 5, 2)
     assert fit.config.hard_fraction == 0.5 and fit.config.zero_fraction == 0.25 and fit.config.gemm_dtype == "float32" and fit.config.compile == "off"
     assert fit.config.micro_batches == 2 and fit.config.lr_min_factor == 0.01 and fit.config.focus_tau == 0.003
     assert (fit.config.w_surface, fit.config.w_normal, fit.config.w_eikonal, fit.config.w_sdf) == (2000, 50, 20, 300)
+    assert fit.config.polish_evals == 4 and fit.polish["evals"] >= 2
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -195,6 +197,8 @@ def test_cli_fit_sdf_errors(tmp_path, capsys):
     assert "focus_tau must be a non-negative number" in capsys.readouterr().err
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--w-sdf", "-3"]) == 2
     assert "w_sdf must be a non-negative number" in capsys.readouterr().err
+    assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--polish-evals", "-1"]) == 2
+    assert "polish_evals must be a non-negative integer" in capsys.readouterr().err
     assert not (tmp_path / "x.sdf").exists()
 
 
@@ -531,3 +535,160 @@ def test_fit_with_micro_batches_equals_one_batch():
     three = fit_sdf(m, micro_batches=3, **kw)
     assert torch.allclose(weights(one.model), weights(three.model), rtol=1e-7, atol=1e-9)
     assert replace(one.config, micro_batches=3).fingerprint_dict() == three.config.fingerprint_dict()
+
+
+# ----------------------------------------------------------------------------------------------- L-BFGS polish
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("lam", [0.0, 100.0])
+def test_polish_lowers_the_loss_and_the_distance_error(dtype, lam):
+    # analytic oracle: the sphere's signed distance is |x| - R. Without the worst-distance term the polish
+    # lowers the mean error everywhere; with it, the largest error on the surface, the mean not rising
+    mesh = sphere()
+    plain = fit_sdf(mesh, steps=150, seed=0, dtype=dtype, **TINY)
+    polished = fit_sdf(mesh, steps=150, seed=0, dtype=dtype, polish_evals=40, polish_points=4096,
+                       polish_max_weight=lam, **TINY)
+    assert plain.polish is None
+    p = polished.polish
+    assert p["kept"] and p["reason"] == "kept" and 2 < p["evals"] <= 40 + 25
+    assert p["loss_after"] < 0.7 * p["loss_before"] and p["check_after"] < p["check_before"]
+    assert polished.steps == plain.steps == 150 and polished.seconds > p["seconds"]
+    d = torch.randn(4000, 3, generator=torch.Generator().manual_seed(3), dtype=weights(polished.model).dtype)
+    d = d / d.norm(dim=1, keepdim=True)
+    with torch.no_grad():
+        err = [[(f.model(d * r)[:, 0] - (r - R)).abs() for r in (0.6, R, 0.95)] for f in (plain, polished)]
+    mean = [sum(float(e.mean()) for e in errs) for errs in err]
+    worst_on_surface = [float(errs[1].max()) for errs in err]
+    if lam == 0:
+        assert mean[1] < 0.8 * mean[0]
+    else:
+        assert worst_on_surface[1] < 0.85 * worst_on_surface[0] and mean[1] <= mean[0]
+    assert all(torch.isfinite(t).all() for t in polished.model.parameters())
+
+
+def test_polish_reproduces_and_its_record_survives_save_and_load(tmp_path):
+    kw = dict(steps=60, seed=1, polish_evals=12, polish_points=2048, **TINY)
+    a, b = fit_sdf(sphere(), **kw), fit_sdf(sphere(), **kw)
+    assert torch.equal(weights(a.model), weights(b.model)) and a.polish["loss_after"] == b.polish["loss_after"]
+    a.save(tmp_path / "p.sdf")
+    back = load_sdf(tmp_path / "p.sdf")
+    assert back.polish == a.polish and back.config.polish_evals == 12
+
+
+def test_polish_settings_are_not_part_of_the_fingerprint_so_a_checkpoint_can_be_polished(tmp_path):
+    ck = str(tmp_path / "run.ckpt")
+    first = fit_sdf(sphere(), steps=40, seed=0, checkpoint=ck, checkpoint_every=20, **TINY)
+    again = fit_sdf(sphere(), steps=40, seed=0, checkpoint=ck, checkpoint_every=20, resume=True,
+                    polish_evals=10, polish_points=2048, **TINY)
+    assert again.stopped_reason == "resumed finished run" and again.polish["kept"]
+    assert not torch.equal(weights(first.model), weights(again.model))
+
+
+def test_polish_time_comes_out_of_the_budget():
+    fit = fit_sdf(sphere(), steps=10**6, minutes=0.15, seed=0, polish_evals=30, polish_points=4096, **TINY)
+    assert fit.stopped_reason == "time budget" and fit.polish["evals"] > 2
+    assert fit.seconds < 0.15 * 60 * 1.25 + 1.0
+    assert fit.history[-1]["seconds"] < 0.15 * 60 - 0.5 * fit.polish["seconds"]  # Adam stopped early for it
+
+
+@pytest.mark.parametrize("kw, msg", [({"polish_evals": -1}, "polish_evals must be a non-negative integer"),
+                                     ({"polish_evals": 2.5}, "polish_evals must be a non-negative integer"),
+                                     ({"polish_points": 1}, "polish_points must be an integer of at least 2"),
+                                     ({"polish_max_weight": -1.0}, "polish_max_weight must be a non-negative"),
+                                     ({"polish_max_weight": math.inf}, "polish_max_weight must be a non-negative"),
+                                     ({"polish_max_p": 0.5}, r"polish_max_p must be a number in \[1, 64\]"),
+                                     ({"polish_max_p": math.nan}, r"polish_max_p must be a number in \[1, 64\]")])
+def test_bad_polish_settings(kw, msg):
+    with pytest.raises(FitError, match=msg):
+        fit_sdf(sphere(), steps=1, **TINY, **kw)
+
+
+def test_polish_batches_are_disjoint_where_the_pools_allow_and_keep_the_step_proportions():
+    from neural_bake.fit.sdf import _polish_batches
+
+    n_surf, n_near, n_uni = 1000, 800, 200
+    g = torch.Generator().manual_seed(0)
+    data = {"surf_p": torch.rand(n_surf, 3, generator=g), "surf_n": torch.rand(n_surf, 3, generator=g),
+            "vol_p": torch.rand(n_near + n_uni, 3, generator=g), "vol_d": torch.arange(n_near + n_uni).float(),
+            "n_near": n_near}
+    cfg = SdfFitConfig(batch=400, batch_near=400, batch_uniform=100, polish_points=900)
+    fit, check = _polish_batches(data, cfg)
+    assert [t.shape[0] for t in fit] == [400, 400, 500, 500] and [t.shape[0] for t in check] == [400, 400, 500, 500]
+    for a, b in ((fit[0], check[0]), (fit[2], check[2])):  # no row in both
+        assert not (a[:, None, :] == b[None, :, :]).all(dim=2).any()
+    ids = fit[3].long()  # vol_d holds each volume row's index: 400 near rows, then 100 uniform rows
+    assert (ids[:400] < n_near).all() and (ids[400:] >= n_near).all() and len(set(ids.tolist())) == 500
+    # pools smaller than two batches: the two overlap, but each is still drawn without repeats where it can
+    small = replace(cfg, polish_points=3000)
+    fit, check = _polish_batches(data, small)
+    assert fit[0].shape[0] == check[0].shape[0] and len(set(map(tuple, fit[0].tolist()))) == n_surf
+    assert torch.equal(_polish_batches(data, cfg)[0][0], _polish_batches(data, cfg)[0][0])  # seeded
+
+
+def test_polish_batches_draw_their_hard_tail_from_separate_halves_of_the_hard_set():
+    from neural_bake.fit.sdf import _polish_batches
+
+    g = torch.Generator().manual_seed(0)
+    data = {"surf_p": torch.arange(3000.0)[:, None].repeat(1, 3), "surf_n": torch.rand(3000, 3, generator=g),
+            "vol_p": torch.rand(2000, 3, generator=g), "vol_d": torch.arange(2000).float(), "n_near": 1600}
+    hard = {"surf": torch.arange(2900, 3000), "near": torch.arange(1500, 1600)}
+    cfg = SdfFitConfig(batch=400, batch_near=400, batch_uniform=100, polish_points=900, hard_fraction=0.25)
+    fit, check = _polish_batches(data, cfg, hard)
+    tails = []
+    for b in (fit, check):
+        surf_ids, vol_ids = b[0][:, 0].long(), b[3].long()
+        assert (surf_ids[-100:] >= 2900).all() and (vol_ids[300:400] >= 1500).all() and (vol_ids[300:400] < 1600).all()
+        assert (vol_ids[400:] >= 1600).all()  # the uniform part is untouched
+        tails.append((set(surf_ids[-100:].tolist()), set(vol_ids[300:400].tolist())))
+    assert not tails[0][0] & tails[1][0] and not tails[0][1] & tails[1][1]  # each batch its own half
+    plain = _polish_batches(data, replace(cfg, hard_fraction=0.0), hard)[0]
+    assert (plain[0][:, 0] < 2900).float().mean() > 0.9  # without a hard fraction: the uniform draw
+
+
+def _autograd_polish_objective(model, sp, sn, vp, vd, cfg):
+    """The polish objective with ∇f by double-backward autograd: an independent reference."""
+    from neural_bake.fit.sdf import sdf_loss_terms
+
+    x = sp.clone().requires_grad_(True)
+    f = model(x)[:, 0]
+    (g,) = torch.autograd.grad(f.sum(), x, create_graph=True)
+    r = f / torch.linalg.vector_norm(g, dim=1).clamp_min(0.1)
+    big_p = r.abs().pow(cfg.polish_max_p).mean().pow(1.0 / cfg.polish_max_p)
+    return sdf_loss_terms(model, sp, sn, vp, vd, cfg)["loss"] + cfg.polish_max_weight * big_p, r
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("micro", [1, 3, 8])
+@pytest.mark.parametrize("lam, p", [(100.0, 8.0), (7.0, 2.0), (0.0, 8.0)])
+def test_polish_objective_and_its_gradient_match_autograd_in_micro_batches(dtype, micro, lam, p):
+    from neural_bake.fit.sdf import _polish_loss, first_order_distance
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(24, 2, generator=torch.Generator().manual_seed(0)).to(dtype)
+    cfg = SdfFitConfig(polish_max_weight=lam, polish_max_p=p)
+    batch = _step_data(dtype, s=53, v=31)
+    ref, r = _autograd_polish_objective(model, *batch, cfg)
+    ref.backward()
+    ref_grads = [q.grad.clone() for q in model.parameters()]
+    model.zero_grad(set_to_none=True)
+    out = _polish_loss(batch, model=model, cfg=cfg, micro=micro)
+    rtol = 2e-4 if dtype == torch.float32 else 1e-10
+    assert float(out) == pytest.approx(float(ref), rel=rtol)
+    for a, b in zip((q.grad for q in model.parameters()), ref_grads):
+        torch.testing.assert_close(a, b, rtol=rtol, atol=rtol * float(b.abs().max()))
+    # the GEMM first-order distance is autograd's, chunked or not
+    for chunks in (1, 4):
+        torch.testing.assert_close(first_order_distance(model, batch[0], chunks), r.detach(), rtol=rtol, atol=1e-7)
+
+
+def test_polish_objective_is_finite_at_a_perfect_fit_and_where_the_slope_vanishes():
+    from neural_bake.fit.sdf import _polish_loss, first_order_distance
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(0)).double()
+    with torch.no_grad():  # f ≡ 0: every residual and every gradient is zero
+        for q in model.parameters():
+            q.zero_()
+    sp, sn, vp, vd = _step_data(torch.float64)
+    assert torch.equal(first_order_distance(model, sp), torch.zeros(sp.shape[0], dtype=torch.float64))
+    out = _polish_loss((sp, sn, vp, torch.zeros_like(vd)), model=model, cfg=SdfFitConfig(), micro=2)
+    assert math.isfinite(float(out)) and all(torch.isfinite(q.grad).all() for q in model.parameters() if q.grad is not None)
