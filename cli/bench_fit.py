@@ -20,7 +20,10 @@ __all__ = ["command"]
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit.")
 @click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None,
               help="Also save every fitted model as DIR/MESH-PRESET.nbm (e.g. for bench bake --sdf-model).")
-def command(quick, json_path, meshes, presets, minutes, seed, save_dir):
+@click.option("--compare-polish/--no-compare-polish", default=None,
+              help="Also fit presets that polish with L-BFGS without their polish, side by side (default: in "
+                   "full runs, not in --quick).")
+def command(quick, json_path, meshes, presets, minutes, seed, save_dir, compare_polish):
     """SDF fitting: Chamfer/Hausdorff/normal error against training time; step vs autograd and roofline.
 
     The full run fits every preset at its budget (2/5/8/10 min) on bumpy_sphere, torus, jack, spot and bunny:
@@ -29,5 +32,5 @@ def command(quick, json_path, meshes, presets, minutes, seed, save_dir):
     from neural_bake.bench.fit import run
 
     result = run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, minutes=minutes,
-                 seed=seed, save_dir=save_dir)
+                 seed=seed, save_dir=save_dir, compare_polish=compare_polish)
     report(result, json_path)

@@ -20,7 +20,9 @@ Two tables, measured in the same run:
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error against
   the mesh's faces; unit frame; for the bundled samples also ∇f's normal error against the analytic surface,
   beside the mesh's own face normals' error against it) and the issue's targets ((256, 3): Hausdorff ≤ 0.005
-  and median normal error ≤ 3° in 10 minutes; (64, 1): Hausdorff ≤ 0.01 in 2 minutes).
+  and median normal error ≤ 3° in 10 minutes; (64, 1): Hausdorff ≤ 0.01 in 2 minutes). A preset with an
+  L-BFGS polish (``SdfFitConfig.polish_evals``) is also fitted without it, Adam for the whole budget — the
+  loop a user would otherwise run — and the polished row carries the ratios ``*_vs_no_polish``.
 
 Scope. Full run: the bundled samples ``bumpy_sphere``, ``torus``, ``jack`` plus ``spot`` and ``bunny`` from
 ``/work/shared/data`` when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh):
@@ -169,7 +171,7 @@ def _analytic_normal(name: str, mesh):
 
 
 def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minutes: float | None = None,
-        step_networks=None, save_dir=None) -> dict:
+        step_networks=None, save_dir=None, compare_polish: bool | None = None) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
     Args:
@@ -180,6 +182,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
         minutes: override every preset's time budget.
         step_networks: (W, D) list of the step timing (default (64, 1) and (256, 3)).
         save_dir: also save each fitted model as ``save_dir/MESH-PRESET.nbm`` (the folder is created).
+        compare_polish: for presets with an L-BFGS polish, also fit without it (default: in full runs only).
     """
     import warnings
 
@@ -202,23 +205,35 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
             budget = minutes if minutes is not None else (
                 {"64x1": 0.5, "256x3": 1 / 3}.get(preset, 0.25) if quick else PRESETS[preset]["minutes"])
             extra = dict(pool_surface=50_000, pool_near=50_000, pool_uniform=10_000) if quick else {}
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NeuralBakeWarning)
-                fit = fit_sdf(mesh, preset=preset, minutes=budget, seed=seed, progress=False, **extra)
-            if save_dir is not None:
-                Path(save_dir).mkdir(parents=True, exist_ok=True)
-                fit.save(Path(save_dir) / f"{name}-{preset}.nbm")
-            m = sdf_metrics(fit.model, mesh, n=20_000 if quick else 100_000, resolution=96 if quick else 256,
-                            seed=seed, truth_normal=_analytic_normal(name, mesh))
-            row = {"mesh": name, "preset": preset, "minutes": budget, "steps": fit.steps,
-                   "seconds": round(fit.seconds, 1), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
-                   "normal_median_deg": m["normal_median_deg"], "normal_p95_deg": m["normal_p95_deg"],
-                   "analytic_median_deg": m.get("normal_truth_median_deg"),
-                   "mesh_faces_analytic_median_deg": m.get("mesh_normal_truth_median_deg")}
-            target = TARGETS.get(preset)
-            if target and not quick:
-                row["target_met"] = all(m[k] <= v for k, v in target.items())
-            rows.append(row)
+            # a preset that polishes is also run without its polish (Adam for the whole budget), side by side
+            variants = [("", {})]
+            if PRESETS[preset].get("polish_evals") and (not quick if compare_polish is None else compare_polish):
+                variants.append((" (no polish)", {"polish_evals": 0}))
+            for suffix, change in variants:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", NeuralBakeWarning)
+                    fit = fit_sdf(mesh, preset=preset, minutes=budget, seed=seed, progress=False, **extra, **change)
+                if save_dir is not None:
+                    Path(save_dir).mkdir(parents=True, exist_ok=True)
+                    fit.save(Path(save_dir) / f"{name}-{preset}{'-nopolish' if suffix else ''}.nbm")
+                m = sdf_metrics(fit.model, mesh, n=20_000 if quick else 100_000, resolution=96 if quick else 256,
+                                seed=seed, truth_normal=_analytic_normal(name, mesh))
+                polish = fit.polish or {}
+                row = {"mesh": name, "preset": preset + suffix, "minutes": budget, "steps": fit.steps,
+                       "polish_evals": polish.get("evals", 0),
+                       "polish_s": round(polish["seconds"], 1) if polish else 0.0,
+                       "seconds": round(fit.seconds, 1), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
+                       "normal_median_deg": m["normal_median_deg"], "normal_p95_deg": m["normal_p95_deg"],
+                       "analytic_median_deg": m.get("normal_truth_median_deg"),
+                       "mesh_faces_analytic_median_deg": m.get("mesh_normal_truth_median_deg")}
+                target = TARGETS.get(preset)
+                if target and not quick:
+                    row["target_met"] = all(m[k] <= v for k, v in target.items())
+                if suffix:  # the polished run's figures as ratios of this one's, measured in the same run
+                    base = rows[-1]
+                    for key in ("chamfer_l1", "hausdorff", "normal_median_deg"):
+                        base[f"{key}_vs_no_polish"] = round(base[key] / row[key], 3) if row[key] else None
+                rows.append(row)
 
     notes += [
         load_note(),
@@ -229,6 +244,9 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
         "normal errors at 100k mesh samples: normal_* against the mesh's face normals (floored by the mesh's "
         "faceting); for the bundled samples analytic_median_deg is ∇f against the analytic surface, beside "
         "mesh_faces_analytic_median_deg, the mesh's own face normals against it (the baseline: the mesh itself)",
+        "polish: presets with an L-BFGS polish (SdfFitConfig.polish_evals) spend polish_s of their budget on it "
+        "(Adam runs the rest); full runs also fit them without it ('(no polish)' rows: Adam for the whole "
+        "budget), and *_vs_no_polish is the polished figure over that one (< 1: the polish lowered it)",
         "targets: (256,3) Hausdorff <= 0.005 and median normal error <= 3 deg within 10 min (bumpy sphere, spot); "
         "(64,1) Hausdorff <= 0.01 within 2 min" + ("; NOT checked in --quick (shortened budgets)" if quick else ""),
         f"total bench time {time.perf_counter() - t0:.0f} s",

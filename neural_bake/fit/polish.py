@@ -23,7 +23,8 @@ from ..errors import FitError, NeuralBakeWarning
 __all__ = ["PolishResult", "lbfgs_polish"]
 
 #: L-BFGS iterations per ``step()`` call: between calls the polish checks its evaluation count and deadline
-#: (each call re-evaluates its starting point once, so a call of 25 iterations wastes ~3 % of the evaluations).
+#: (each call re-evaluates its starting point once, so a call of 25 iterations wastes ~3 % of the evaluations;
+#: near a deadline a call gets only the evaluations that fit before it, at the rate measured so far).
 CHUNK_ITERATIONS = 25
 
 
@@ -93,6 +94,7 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
         return float(loss_fn(batch))
 
     check_before = value(check_batch)
+    per_eval = time.perf_counter() - t0  # the rate until the polish has measured its own
     count = 0
     bar = None
     if progress:
@@ -117,8 +119,20 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
     loss_before = math.nan
     diverged = False
     try:
-        while count < evals and (deadline is None or time.perf_counter() < deadline):
-            opt.param_groups[0]["max_eval"] = max(2, min(int(evals) - count, CHUNK_ITERATIONS * 5 // 4))
+        t_run = time.perf_counter()
+        while count < evals:
+            budget = min(int(evals) - count, CHUNK_ITERATIONS * 5 // 4)
+            if deadline is not None:
+                now = time.perf_counter()
+                if now >= deadline:
+                    break
+                if count:
+                    per_eval = (now - t_run) / count
+                # no call that would run past the deadline, at the rate measured so far
+                budget = min(budget, int((deadline - now) / max(per_eval, 1e-9)))
+                if budget < 2:
+                    break
+            opt.param_groups[0]["max_eval"] = max(2, budget)
             start = count
             loss = float(opt.step(closure))  # the loss at the call's starting point
             if start == 0:

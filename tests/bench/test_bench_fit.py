@@ -23,3 +23,20 @@ def test_bench_fit_smallest_run_saves_models(tmp_path):
     assert 0 <= row["analytic_median_deg"] < 180 and 0 < row["mesh_faces_analytic_median_deg"] < 5
     model, meta = load_model(tmp_path / "models" / "bumpy_sphere-64x1.nbm")
     assert (model.width, model.depth) == (64, 1) and meta["kind"] == "sdf"
+
+
+def test_bench_fit_puts_a_polishing_preset_beside_its_run_without_polish(monkeypatch):
+    from neural_bake.fit import sdf
+
+    monkeypatch.setitem(sdf.PRESETS, "64x1", {**sdf.PRESETS["64x1"], "polish_evals": 6, "polish_points": 2048})
+    res = run(quick=True, presets=["64x1"], minutes=0.05, step_networks=[(16, 1)], compare_polish=True)
+    polished, plain = res["tables"]["accuracy vs time"]
+    assert (polished["preset"], plain["preset"]) == ("64x1", "64x1 (no polish)")
+    assert polished["polish_evals"] >= 2 and polished["polish_s"] > 0
+    assert plain["polish_evals"] == 0 and plain["polish_s"] == 0.0 and plain["steps"] > polished["steps"] // 2
+    for key in ("chamfer_l1", "hausdorff", "normal_median_deg"):
+        assert math.isclose(polished[f"{key}_vs_no_polish"], polished[key] / plain[key], rel_tol=1e-2)
+    assert any("no polish" in note for note in res["notes"])
+    # quick runs leave the comparison out unless asked
+    (row,) = run(quick=True, presets=["64x1"], minutes=0.02, step_networks=[(16, 1)])["tables"]["accuracy vs time"]
+    assert row["preset"] == "64x1" and "hausdorff_vs_no_polish" not in row

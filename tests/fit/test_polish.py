@@ -106,3 +106,17 @@ def test_a_model_without_trainable_parameters_is_refused():
     model = small_net(torch.float32).requires_grad_(False)
     with pytest.raises(FitError, match="no trainable parameters"):
         lbfgs_polish(model, mse(model), regression(torch.float32), regression(torch.float32), evals=5)
+
+
+def test_a_deadline_stops_the_polish_near_it_not_a_chunk_later():
+    model = small_net(torch.float64)
+    inner = mse(model)
+
+    def slow(batch):  # 20 ms an evaluation: a whole chunk (~31 evaluations) would take ~0.6 s
+        time.sleep(0.02)
+        return inner(batch)
+
+    t0 = time.perf_counter()
+    res = lbfgs_polish(model, slow, regression(torch.float64), regression(torch.float64, seed=1), evals=1000,
+                       deadline=t0 + 0.25)
+    assert 3 <= res.evals < 20 and time.perf_counter() - t0 < 0.25 + 0.2
