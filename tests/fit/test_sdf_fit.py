@@ -120,6 +120,7 @@ def test_presets_and_config():
 
     assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
     assert config_from(preset="256x3").lr_min_factor == 0.01 and config_from(preset="64x1").lr_min_factor == 0.05
+    assert config_from(preset="64x1").polish_evals == 150 and config_from(preset="256x3").polish_evals == 0
     assert config_from(preset="256x3").loop_config().lr_min_factor == 0.01
     c = config_from(preset="64x1", seed=3)
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
@@ -673,3 +674,18 @@ def test_polish_objective_is_finite_at_a_perfect_fit_and_where_the_slope_vanishe
     assert torch.equal(first_order_distance(model, sp), torch.zeros(sp.shape[0], dtype=torch.float64))
     out = _polish_loss((sp, sn, vp, torch.zeros_like(vd)), model=model, cfg=SdfFitConfig(), micro=2)
     assert math.isfinite(float(out)) and all(torch.isfinite(q.grad).all() for q in model.parameters() if q.grad is not None)
+
+
+@pytest.mark.parametrize("case", ["open", "huge_far", "tiny"])
+def test_polish_on_hard_inputs_keeps_finite_weights(case):
+    m = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    if case == "open":
+        keep = m.triangles_center[:, 2] < 0.6
+        with pytest.warns(NeuralBakeWarning):
+            mesh = mesh_from_arrays(m.vertices, m.faces[keep], normalise=False)
+    else:
+        scale, offset = (5000.0, 1e6) if case == "huge_far" else (1e-4, 0.0)
+        mesh = mesh_from_arrays(m.vertices * scale + offset, m.faces)  # normalised on build, as loading does
+    fit = fit_sdf(mesh, steps=40, polish_evals=15, polish_points=2048, **TINY)
+    assert torch.isfinite(weights(fit.model)).all() and fit.polish["evals"] >= 2
+    assert fit.polish["kept"] or fit.polish["reason"] == "held-out loss rose"
