@@ -14,6 +14,8 @@ The network f: R³ → R (unit frame) is trained on points drawn each step from 
 step's points come from ONE pass, and the loss needs ONE ordinary ``backward()`` — no double-backward. On
 a CPU the step runs in cache-sized micro-batches (``SdfFitConfig.micro_batches``), each forward and backward
 on its own, whose gradients add up to the whole batch's.
+After Adam, an optional L-BFGS polish (``SdfFitConfig.polish_evals``; the 64x1 preset's) minimises the same loss
+plus a smooth maximum of the first-order distance f/|∇f| over the surface samples on one large fixed batch.
 Pools are drawn from the mesh once per ``refresh_every`` steps (seeded by ``(seed, refresh index)`` so a
 resumed run rebuilds exactly the same pools); the loop (:mod:`neural_bake.fit.training`) gives budgets,
 progress, checkpoints/resume, seeds and divergence recovery.
@@ -153,11 +155,13 @@ class SdfFitConfig:
     polish_evals: int = 0
     """L-BFGS polish after the Adam run (0: off): this many loss evaluations (forward and backward of the
     whole polish batch, line-search evaluations included) of full-batch L-BFGS with a strong-Wolfe line
-    search on one fixed batch of ``polish_points`` pool points (:func:`~neural_bake.fit.polish.lbfgs_polish`). Adam's noisy
-    mini-batch steps stall short of the minimum a small network can reach; a few hundred curvature-aware
-    full-batch steps go further. With a time budget the polish's measured cost is taken from the Adam part
-    of the budget (at most half of it). Kept only if the loss on a second, held-out batch went down. Not
-    part of the fingerprint: a checkpointed Adam run can be polished with any setting."""
+    search on one fixed batch of ``polish_points`` pool points
+    (:func:`~neural_bake.fit.polish.lbfgs_polish`), minimising the training loss plus the worst-distance
+    term (``polish_max_weight``). Adam's noisy mini-batch steps stall short of what a small network can
+    reach, and its mean-square loss leaves the worst place to chance. With a time budget the polish's
+    measured cost is taken from the Adam part of the budget (at most half of it). Kept only if the loss on
+    a second, disjoint held-out batch went down. Not part of the fingerprint: a checkpointed Adam run can be
+    polished with any setting."""
     polish_points: int = 65536
     """Points of the polish batch (and of its held-out check batch), drawn like a step's: surface, near and
     uniform points in the step's proportions."""
@@ -165,9 +169,10 @@ class SdfFitConfig:
     """Weight λ of the polish's worst-distance term λ·(mean |r|^p)^(1/p) over the polish batch's surface
     points, r = f / max(|∇f|, 0.1) the first-order distance from a sample of the mesh to the network's zero
     set: a smooth maximum of the mesh → network half of the Hausdorff distance, which the mean-square
-    training loss leaves to chance (0: polish the training loss alone). Spot, (64, 1), four seeds:
-    Hausdorff 0.0089–0.0151 → 0.0057–0.0064 with λ 100 (300: the same Hausdorff, a little worse
-    Chamfer-L1 and normals; BENCHMARKS.md)."""
+    training loss leaves to chance (0: polish the training loss alone). Spot, (64, 1), ten seeds at equal
+    time: Hausdorff 0.0083–0.0151 → 0.0053–0.0063, Chamfer-L1 −25 %; the polish without this term lowered
+    Chamfer-L1 as much but not the Hausdorff; λ 300 matched 100 with slightly worse Chamfer-L1 and normals
+    (BENCHMARKS.md)."""
     polish_max_p: float = 8.0
     """Exponent p of the worst-distance term (larger: closer to the maximum, less smooth)."""
     device: str | None = None

@@ -673,7 +673,8 @@ def test_polish_objective_is_finite_at_a_perfect_fit_and_where_the_slope_vanishe
     sp, sn, vp, vd = _step_data(torch.float64)
     assert torch.equal(first_order_distance(model, sp), torch.zeros(sp.shape[0], dtype=torch.float64))
     out = _polish_loss((sp, sn, vp, torch.zeros_like(vd)), model=model, cfg=SdfFitConfig(), micro=2)
-    assert math.isfinite(float(out)) and all(torch.isfinite(q.grad).all() for q in model.parameters() if q.grad is not None)
+    assert math.isfinite(float(out))
+    assert all(torch.isfinite(q.grad).all() for q in model.parameters() if q.grad is not None)
 
 
 @pytest.mark.parametrize("case", ["open", "huge_far", "tiny"])
