@@ -26,8 +26,8 @@ __all__ = ["command"]
 def command(quick, json_path, meshes, presets, minutes, seed, save_dir, compare_polish):
     """SDF fitting: Chamfer/Hausdorff/normal error against training time; step vs autograd and roofline.
 
-    The full run fits every preset at its budget (2/5/8/10 min) on bumpy_sphere, torus, jack, spot and bunny:
-    about two hours. --quick: bumpy_sphere, 64x1 for 30 s and 256x3 for 20 s (< 2 minutes).
+    The full run fits every preset at its budget (2/5/8/10 min; 64x1 also without its L-BFGS polish) on
+    bumpy_sphere, torus, jack, spot and bunny: about two and a half hours. --quick: bumpy_sphere, 64x1 for 30 s and 256x3 for 20 s (< 2 minutes).
     """
     from neural_bake.bench.fit import run
 

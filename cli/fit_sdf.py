@@ -83,10 +83,10 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
                f"final loss {last.get('loss', float('nan')):.4g}"
                + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
     if fit.polish:
-        p = fit.polish
-        click.echo(f"L-BFGS polish: {p['evals']} evaluations in {p['seconds']:.1f} s, loss {p['loss_before']:.4g} -> "
-                   f"{p['loss_after']:.4g}, held-out {p['check_before']:.4g} -> {p['check_after']:.4g} "
-                   f"({'kept' if p['kept'] else 'not kept: ' + p['reason']})")
+        p = {k: ("n/a" if v is None else f"{v:.4g}" if isinstance(v, float) else v) for k, v in fit.polish.items()}
+        click.echo(f"L-BFGS polish: {p['evals']} evaluations in {p['seconds']} s, loss {p['loss_before']} -> "
+                   f"{p['loss_after']}, held-out {p['check_before']} -> {p['check_after']} "
+                   f"({'kept' if fit.polish['kept'] else 'not kept: ' + p['reason']})")
     if metrics:
         from neural_bake.fit.metrics import sdf_metrics
 
