@@ -19,6 +19,7 @@ from typing import Callable, Sequence
 import torch
 
 from ..errors import FitError, NeuralBakeWarning
+from .training import _all_finite
 
 __all__ = ["PolishResult", "lbfgs_polish"]
 
@@ -150,8 +151,7 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
     else:
         loss_after = value(fit_batch)
         check_after = value(check_batch)
-    finite = not diverged and all(bool(torch.isfinite(p).all()) for p in params) and math.isfinite(loss_after) \
-        and math.isfinite(check_after)
+    finite = not diverged and _all_finite(params) and math.isfinite(loss_after) and math.isfinite(check_after)
     if count == 0:
         reason = "no time left"
     elif not finite:
