@@ -13,7 +13,9 @@ Two tables, measured in the same run:
   work: an approximation stated as such (float32 roofline), priced at the best rates read in the step
   timing's own interleaved rounds (``sgemm_gflops``). ``fraction`` = roofline time / measured time (1.0 =
   at the roofline).
-  ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
+  ``autograd_graph_s``: the same step with ∇f's formulas on torch's autograd graph instead of the
+  hand-written backward (:class:`~neural_bake.nets.gemm._ReverseScalar`; ``fused_backward_speedup`` is
+  the ratio); ``ours_bf16_s``: the same step with the hidden GEMMs in bfloat16 (``SdfFitConfig.gemm_dtype``);
   ``compiled_s``: the same step with the loss through ``torch.compile`` (``SdfFitConfig.compile``, what
   fits of five minutes or more run), with the one-off ``compile_once_s`` it cost in this process.
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
@@ -74,6 +76,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     torch.compile where a compiler is available) vs double-backward autograd vs the roofline."""
     from ..fit.sdf import SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
     from ..nets.compiled import CompiledFn, compiler_available
+    from ..nets.gemm import autograd_graph_only
     from ..nets.heap import keep_freed_memory
     from ..nets.siren import Siren
     from .roofline import best_rates, measure_roofline, roofline_seconds, siren_cost
@@ -104,7 +107,12 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
         opt.step()
 
     # interleaved (as bench normals): every method sees the same machine state; best of the repetitions
-    methods = {"ours": step(sdf_loss_terms), "bf16": step(sdf_loss_terms, low_precision=True), "auto": baseline}
+    def graph_step():  # the same step with ∇f on torch's autograd graph instead of the hand-written backward
+        with autograd_graph_only():
+            step(sdf_loss_terms)()
+
+    methods = {"ours": step(sdf_loss_terms), "graph": graph_step, "bf16": step(sdf_loss_terms, low_precision=True),
+               "auto": baseline}
     compiled = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
                           desc=f"bench fit {width}x{depth}")
     t_compile = None
@@ -134,6 +142,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
                   "flops": 3 * c["gemm_flops"] + 2 * (c["flops"] - c["gemm_flops"])}
     t_roof = roofline_seconds(train_cost, roof)
     return {"network": f"{width}x{depth}", "points": n, "ours_s": t_ours, "ours_bf16_s": t_bf16,
+            "autograd_graph_s": best["graph"], "fused_backward_speedup": best["graph"] / t_ours,
             "autograd_2x_backward_s": t_auto, "speedup_vs_autograd": t_auto / t_ours,
             "bf16_speedup": t_ours / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
             "ours_over_roofline": t_ours / t_roof, "compiled_s": t_comp, "compile_once_s": t_compile,

@@ -10,8 +10,9 @@ The network f: R³ → R (unit frame) is trained on points drawn each step from 
 - every point: the eikonal term ``(1 − |∇f|)²``.
 
 ∇f is computed in the loss by :func:`~neural_bake.nets.gemm.gemm_gradient` with ``differentiable=True``
-(the closed-form GEMM gradient on the autograd graph of the weights): the values and gradients of all the
-step's points come from ONE pass, and the loss needs ONE ordinary ``backward()`` — no double-backward. On
+(the closed-form GEMM gradient as one autograd node with a hand-written backward): the values and
+gradients of all the step's points come from ONE pass, and the loss needs ONE ordinary ``backward()`` — no
+double-backward. On
 a CPU the step runs in cache-sized micro-batches (``SdfFitConfig.micro_batches``), each forward and backward
 on its own, whose gradients add up to the whole batch's.
 After Adam, an optional L-BFGS polish (``SdfFitConfig.polish_evals``; the 64x1 preset's) minimises the same loss

