@@ -11,6 +11,7 @@ BENCHES = {
     "normals": ("neural_bake.cli.bench_normals", "command"),
     "range": ("neural_bake.cli.bench_range", "command"),
     "fit": ("neural_bake.cli.bench_fit", "command"),
+    "nested": ("neural_bake.cli.bench_nested", "command"),
     "texture": ("neural_bake.cli.bench_texture", "command"),
     "bake": ("neural_bake.cli.bench_bake", "command"),
     "coarse": ("neural_bake.cli.bench_coarse", "command"),

@@ -34,6 +34,7 @@ from __future__ import annotations
 import heapq
 import json
 import math
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -468,8 +469,10 @@ def fit_nested(
     stability: list[list[dict]] = []
     for i in range(len(levels)):
         h, g = seq_levels[i], seq_levels[i + 1]
+        t_est = time.perf_counter()
         est = estimate_sup_norm(h, g, band=band, n=int(n_estimate), seed=int(seed) + 17 * i)
         infos[i]["sup_estimated"] = est
+        infos[i]["estimate_seconds"] = round(time.perf_counter() - t_est, 3)
         rows = []
         for s in stability_samples:
             for b in stability_bands:
@@ -480,8 +483,10 @@ def fit_nested(
         infos[i]["certify"] = None
         if certify:
             try:
+                t_cert = time.perf_counter()
                 cert = certify_sup_norm(h, g, band=band, estimate=est, rel_tol=certify_rel_tol,
                                         max_boxes=int(certify_max_boxes))
+                cert["seconds"] = round(time.perf_counter() - t_cert, 3)
             except ImportError:
                 warnings.warn("fit_nested: range analysis (neural_bake.nets.range_analysis) is not available; "
                               "δ is estimated only", NeuralBakeWarning, stacklevel=2)
