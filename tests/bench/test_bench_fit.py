@@ -35,7 +35,8 @@ def test_bench_fit_puts_a_polishing_preset_beside_its_run_without_polish(monkeyp
     assert polished["polish_evals"] >= 2 and polished["polish_s"] > 0
     assert plain["polish_evals"] == 0 and plain["polish_s"] == 0.0 and plain["steps"] > polished["steps"] // 2
     for key in ("chamfer_l1", "hausdorff", "normal_median_deg"):
-        assert math.isclose(polished[f"{key}_vs_no_polish"], polished[key] / plain[key], rel_tol=1e-2)
+        # the bench rounds the ratio to 3 decimals
+        assert math.isclose(polished[f"{key}_vs_no_polish"], polished[key] / plain[key], abs_tol=5e-4 + 1e-9)
     assert any("no polish" in note for note in res["notes"])
     # quick runs leave the comparison out unless asked
     (row,) = run(quick=True, presets=["64x1"], minutes=0.02, step_networks=[(16, 1)])["tables"]["accuracy vs time"]
