@@ -16,7 +16,7 @@ distilled level nests tighter). The second table is the estimate's stability ove
 paper's Table 5) for the distilled sequence.
 
 Scope. Full run: the bumpy sphere and, when present, Spot; f is the 128x2 preset (5 minutes); levels 64x1 and
-256x1, 2,000 Adam steps each; about 15 minutes per mesh. ``--quick``: the bumpy sphere, f a 64x1 fit of 20 s,
+256x1, 2,000 Adam steps each; about 9 minutes per mesh (17 in all here). ``--quick``: the bumpy sphere, f a 64x1 fit of 20 s,
 levels 16x1 and 32x1 of 300 steps, 2,000 boxes of certification: under two minutes.
 """
 
