@@ -12,6 +12,8 @@ import pytest
 import torch
 from hypothesis import settings
 
+from neural_bake.nets.siren import Siren
+
 torch.set_num_threads(1)
 
 settings.register_profile("neural_bake", database=None, deadline=None)
@@ -21,3 +23,23 @@ settings.load_profile("neural_bake")
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def _fit_sphere_siren(r: float = 0.7, width: int = 32, steps: int = 250, depth: int = 1, seed: int = 0) -> Siren:
+    """A small Siren (ω0 10) fitted to the sphere SDF |x| − r on [-1, 1]³ by ``steps`` Adam steps; seeded."""
+    net = Siren(width, depth, omega_0=10.0, generator=torch.Generator().manual_seed(seed))
+    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    gen = torch.Generator().manual_seed(seed + 1)
+    for _ in range(steps):
+        x = torch.rand(1024, 3, generator=gen) * 2 - 1
+        loss = ((net(x)[:, 0] - (x.norm(dim=1) - r)) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return net.eval()
+
+
+@pytest.fixture(scope="session")
+def fit_sphere_siren():
+    """The function that fits a small Siren to a sphere's SDF (:func:`_fit_sphere_siren`)."""
+    return _fit_sphere_siren

@@ -42,12 +42,12 @@ def _fine(name: str, mesh, quick: bool, seed: int, model_path):
     return fit, fit.seconds
 
 
-def _level_rows(mesh_name: str, method: str, seq, levels) -> list[dict]:
+def _level_rows(mesh_name: str, seq, levels) -> list[dict]:
     rows = []
     for i, (w, d) in enumerate(levels):
         info = seq.levels_info[i]
         cert, est = info.get("sup_certified"), info["sup_estimated"]
-        rows.append({"mesh": mesh_name, "level": f"{w}x{d}", "method": method, "seconds": info["seconds"],
+        rows.append({"mesh": mesh_name, "level": f"{w}x{d}", "method": "distilled", "seconds": info["seconds"],
                      "steps": info["steps"], "sup_estimated": est, "estimate_s": info["estimate_seconds"],
                      "sup_certified": cert, "certify_s": (info.get("certify") or {}).get("seconds"),
                      "certified_over_estimated": cert / est if cert is not None and est > 0 else None,
@@ -89,7 +89,7 @@ def run(quick: bool = False, *, meshes=None, model_path=None, levels=None, steps
             warnings.simplefilter("always", NeuralBakeWarning)
             base = fit_nested(fine, levels, mesh=mesh, **common)
         notes += [f"{name}: {w.message}" for w in caught if issubclass(w.category, NeuralBakeWarning)]
-        dist_rows = _level_rows(name, "distilled", base, levels)
+        dist_rows = _level_rows(name, base, levels)
         for i, (w, d) in enumerate(levels):
             stability += [{"mesh": name, "level": f"{w}x{d}", **r} for r in base.stability[i]]
         # the baseline: each level fitted to the mesh directly, in the time its distilled version took

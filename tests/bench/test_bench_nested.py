@@ -5,29 +5,14 @@ from __future__ import annotations
 import json
 import math
 
-import torch
 
 from neural_bake.cli.main import main
 from neural_bake.fit.sdf import SdfFit
-from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
 
 
-def _sphere_sdf(tmp_path):
-    net = Siren(16, 1, omega_0=10.0, generator=torch.Generator().manual_seed(0))
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
-    gen = torch.Generator().manual_seed(1)
-    for _ in range(150):
-        x = torch.rand(1024, 3, generator=gen) * 2 - 1
-        loss = ((net(x)[:, 0] - (x.norm(dim=1) - 0.8)) ** 2).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return SdfFit(model=net.eval(), frame=Frame()).save(tmp_path / "fine.sdf")
-
-
-def test_bench_nested_smallest_run(tmp_path, capsys):
-    model = _sphere_sdf(tmp_path)
+def test_bench_nested_smallest_run(tmp_path, capsys, fit_sphere_siren):
+    model = SdfFit(model=fit_sphere_siren(0.8, width=16, steps=150), frame=Frame()).save(tmp_path / "fine.sdf")
     out = tmp_path / "nested.json"
     code = main(["bench", "nested", "--quick", "--model", str(model), "--mesh", "sphere", "--levels", "8x0",
                  "--steps", "30", "--json", str(out)])

@@ -62,19 +62,9 @@ def test_zero_level_mesh_of_a_sphere():
 
 
 @pytest.fixture(scope="module")
-def sphere_siren():
+def sphere_siren(fit_sphere_siren):
     """A tiny Siren fitted to |x| - 0.7 in a few hundred Adam steps."""
-    torch.manual_seed(0)
-    net = Siren(32, 1, omega_0=10.0, generator=torch.Generator().manual_seed(0))
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
-    gen = torch.Generator().manual_seed(1)
-    for _ in range(300):
-        x = torch.rand(1024, 3, generator=gen) * 2 - 1
-        loss = ((net(x)[:, 0] - (x.norm(dim=1) - 0.7)) ** 2).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return net.eval()
+    return fit_sphere_siren(0.7, width=32, steps=300)
 
 
 def test_sdf_metrics_of_trained_sphere_network(sphere_siren):

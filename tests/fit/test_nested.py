@@ -17,22 +17,9 @@ SMALL = dict(steps=120, pool=8000, batch=1024, eval_every=40, eval_samples=2000,
              stability_samples=(500, 2000), stability_bands=(0.1, 0.2), certify_max_boxes=3000, progress=False)
 
 
-def _sphere_siren(r=0.7, width=32, depth=1, steps=250, seed=0):
-    net = Siren(width, depth, omega_0=10.0, generator=torch.Generator().manual_seed(seed))
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
-    gen = torch.Generator().manual_seed(seed + 1)
-    for _ in range(steps):
-        x = torch.rand(1024, 3, generator=gen) * 2 - 1
-        loss = ((net(x)[:, 0] - (x.norm(dim=1) - r)) ** 2).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return net.eval()
-
-
 @pytest.fixture(scope="module")
-def fine():
-    return _sphere_siren()
+def fine(fit_sphere_siren):
+    return fit_sphere_siren()
 
 
 @pytest.fixture(scope="module")
