@@ -50,7 +50,9 @@ __all__ = ["command"]
                    "compiles runs of 5 minutes or more where a C++ compiler is available.")
 @click.option("--micro-batches", type=int, default=None,
               help="Run each step in this many micro-batches, each forward and backward on its own (same "
-                   "gradients; default 0: auto, cache-sized parts on a CPU, one elsewhere).")
+                   "gradients; default 0: auto — on a CPU, runs with a time budget time the counts up to "
+                   "the cache-sized rule's and keep the fastest, runs with a step count use the rule; one "
+                   "elsewhere).")
 @click.option("--polish-evals", type=int, default=None,
               help="L-BFGS polish after Adam: this many full-batch loss evaluations, their time taken from the "
                    "budget; kept only if a held-out loss falls (default: the preset's; 0: off).")
@@ -82,6 +84,11 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
     click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
                f"final loss {last.get('loss', float('nan')):.4g}"
                + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
+    if fit.micro_batch_tuning:
+        last_tuning = fit.micro_batch_tuning[-1]
+        ms = ", ".join(f"{k}: {1e3 * t:.1f} ms" for k, t in last_tuning["seconds"].items())
+        click.echo(f"micro-batches: {last_tuning['choice']} (last of {len(fit.micro_batch_tuning)} tunings, "
+                   f"step {last_tuning['step']}: {ms})")
     if fit.polish:
         p = {k: ("n/a" if v is None else f"{v:.4g}" if isinstance(v, float) else v) for k, v in fit.polish.items()}
         click.echo(f"L-BFGS polish: {p['evals']} evaluations in {p['seconds']} s, loss {p['loss_before']} -> "

@@ -3,9 +3,10 @@
 Two tables, measured in the same run:
 
 - **training step**: one step of :func:`~neural_bake.fit.sdf.sdf_loss_terms` + ``backward()`` (∇f by the
-  differentiable GEMM gradient, one backward), run as ``fit_sdf`` runs it — in ``micro_batches``
-  cache-sized parts (:func:`~neural_bake.fit.sdf.sdf_step_backward`; ``compiled_one_batch_s``: the
-  compiled step in one part, to show what the split buys) — against the baseline a user would write — the
+  differentiable GEMM gradient, one backward), run as a time-budgeted ``fit_sdf`` runs it — in
+  micro-batches (:func:`~neural_bake.fit.sdf.sdf_step_backward`), at the fastest of the counts its tuner
+  tries (:class:`~neural_bake.fit.sdf.MicroBatchTuner`; every count's time is in ``eager_ms_by_parts`` and
+  ``compiled_ms_by_parts``, measured in the same rounds) — against the baseline a user would write — the
   same losses with ∇f from ``torch.autograd.grad(create_graph=True)`` (double-backward), in one batch — and
   against this machine's roofline (:mod:`neural_bake.bench.roofline`). The step's roofline counts the
   forward with GEMM gradients (``siren_cost(grad="reverse")``) and its backward as 2× those GEMM FLOPs
@@ -73,8 +74,14 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
 def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 4096, batch_uniform: int = 1024,
                 roof: dict | None = None, repeat: int = 5, seed: int = 0, compiled: bool = True) -> dict:
     """Seconds of one training step: GEMM-gradient losses (eager, bf16 GEMMs, and, with ``compiled``, through
-    torch.compile where a compiler is available) vs double-backward autograd vs the roofline."""
-    from ..fit.sdf import SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
+    torch.compile where a compiler is available) vs double-backward autograd vs the roofline.
+
+    ``ours_s`` and ``compiled_s`` are the steps a time-budgeted ``fit_sdf`` runs: the fastest of the
+    micro-batch counts its tuner tries (:class:`~neural_bake.fit.sdf.MicroBatchTuner`), all timed in the same
+    interleaved rounds (``eager_ms_by_parts``, ``compiled_ms_by_parts``: milliseconds by count; ``micro_batches`` is the rule's count,
+    ``ours_micro_batches`` and ``compiled_micro_batches`` the fastest). The variants compared with ours (the
+    autograd graph, bf16 GEMMs) run at the rule's count, and their ratios are to ours at that count."""
+    from ..fit.sdf import MicroBatchTuner, SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
     from ..nets.compiled import CompiledFn, compiler_available
     from ..nets.gemm import autograd_graph_only
     from ..nets.heap import keep_freed_memory
@@ -93,6 +100,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
     opt = torch.optim.Adam(model.parameters(), lr=1e-5)
 
     micro = micro_batch_count(cfg, batch + nv, "cpu")
+    counts = MicroBatchTuner(micro).candidates
 
     def step(fn, k=micro, low_precision=False):  # what fit_sdf runs: micro-batches, each forward + backward
         def go():
@@ -111,44 +119,50 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
         with autograd_graph_only():
             step(sdf_loss_terms)()
 
-    methods = {"ours": step(sdf_loss_terms), "graph": graph_step, "bf16": step(sdf_loss_terms, low_precision=True),
-               "auto": baseline}
+    methods = {("eager", k): step(sdf_loss_terms, k) for k in counts}
+    methods.update({"graph": graph_step, "bf16": step(sdf_loss_terms, low_precision=True), "auto": baseline})
     compiled = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
                           desc=f"bench fit {width}x{depth}")
     t_compile = None
     if compiled.enabled:
-        methods["compiled"] = step(compiled)
         t_compile = time.perf_counter()
-        methods["compiled"]()  # the compile itself (TorchInductor's on-disk cache makes repeats cheaper)
+        step(compiled)()  # the compile itself (TorchInductor's on-disk cache makes repeats cheaper)
         t_compile = time.perf_counter() - t_compile
-        if not compiled.compiled:
-            del methods["compiled"]
-        elif micro > 1:
-            methods["compiled_one_batch"] = step(compiled, 1)  # the same step without micro-batches
+        if compiled.compiled:
+            methods.update({("compiled", k): step(compiled, k) for k in counts})
     for fn in methods.values():
-        fn()  # warm-up
+        fn()  # warm-up (and the compiles of the other counts' shapes)
     # the roofline is probed inside the same rounds (as in bench normals): this VM's sgemm rate drifts by
     # up to 2x over minutes, so a peak read at another moment would misstate the step's fraction
     probes = [roof] if roof else []
     methods["_roofline probe"] = lambda: probes.append(measure_roofline(quick=True, width=width))
     best = timeit_interleaved(methods, repeat)
     roof = best_rates(probes)
-    t_ours, t_bf16, t_auto = best["ours"], best["bf16"], best["auto"]
-    t_comp = best.get("compiled")
-    t_one = best.get("compiled_one_batch", t_comp)
+    eager = {k: best[("eager", k)] for k in counts}
+    by_comp = {k: best[("compiled", k)] for k in counts if ("compiled", k) in best}
+    k_ours = min(eager, key=eager.get)
+    k_comp = min(by_comp, key=by_comp.get) if by_comp else None
+    t_ours, t_rule, t_bf16, t_auto = eager[k_ours], eager[micro], best["bf16"], best["auto"]
+    t_comp = by_comp[k_comp] if by_comp else None
     n = batch + nv
     c = siren_cost(width, depth, n, grad="reverse")
     train_cost = {"gemm_flops": 3 * c["gemm_flops"], "sines": 1.5 * c["sines"],
                   "flops": 3 * c["gemm_flops"] + 2 * (c["flops"] - c["gemm_flops"])}
     t_roof = roofline_seconds(train_cost, roof)
     return {"network": f"{width}x{depth}", "points": n, "ours_s": t_ours, "ours_bf16_s": t_bf16,
-            "autograd_graph_s": best["graph"], "fused_backward_speedup": best["graph"] / t_ours,
+            "autograd_graph_s": best["graph"], "fused_backward_speedup": best["graph"] / t_rule,
             "autograd_2x_backward_s": t_auto, "speedup_vs_autograd": t_auto / t_ours,
-            "bf16_speedup": t_ours / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
+            "bf16_speedup": t_rule / t_bf16, "roofline_s": t_roof, "fraction_of_roofline": t_roof / t_ours,
             "ours_over_roofline": t_ours / t_roof, "compiled_s": t_comp, "compile_once_s": t_compile,
             "compiled_speedup_vs_autograd": t_auto / t_comp if t_comp else None,
             "compiled_over_roofline": t_comp / t_roof if t_comp else None, "sgemm_gflops": roof["gflops_sgemm"],
-            "micro_batches": micro, "compiled_one_batch_s": t_one}
+            "micro_batches": micro, "ours_micro_batches": k_ours, "compiled_micro_batches": k_comp,
+            "eager_ms_by_parts": _ms(eager), "compiled_ms_by_parts": _ms(by_comp) if by_comp else None,
+            "compiled_one_batch_s": by_comp.get(1) if by_comp else None}
+
+
+def _ms(seconds_by_count: dict) -> dict:
+    return {str(k): round(v * 1e3, 1) for k, v in sorted(seconds_by_count.items())}
 
 
 def _meshes(quick: bool, names) -> tuple[list[tuple[str, object]], list[str]]:
@@ -230,7 +244,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
                 polish = fit.polish or {}
                 row = {"mesh": name, "preset": preset + suffix, "minutes": budget, "steps": fit.steps,
                        "polish_evals": polish.get("evals", 0),
-                       "polish_s": round(polish["seconds"], 1) if polish else 0.0,
+                       "polish_s": round(polish["seconds"], 3) if polish else 0.0,
                        "seconds": round(fit.seconds, 1), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
                        "normal_median_deg": m["normal_median_deg"], "normal_p95_deg": m["normal_p95_deg"],
                        "analytic_median_deg": m.get("normal_truth_median_deg"),

@@ -338,6 +338,9 @@ class SdfFit:
     """Divergence recoveries (learning-rate halvings)."""
     polish: dict | None = None
     """The L-BFGS polish's record (:class:`~neural_bake.fit.polish.PolishResult` as a dict; None: no polish)."""
+    micro_batch_tuning: list[dict] | None = None
+    """The micro-batch tunings of a time-budgeted run (:attr:`MicroBatchTuner.history`: step, loss variant,
+    count chosen, best seconds per count); None when the count was fixed."""
 
     def save(self, path) -> Path:
         """Write the model file (safetensors + JSON metadata: kind="sdf", frame, config, history summary)."""
@@ -348,7 +351,7 @@ class SdfFit:
             self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
             training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
                       "restarts": self.restarts, "final": summary, "history": self.history[-200:],
-                      "polish": self.polish},
+                      "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None},
             package_version=__version__,
         )
 
@@ -379,7 +382,8 @@ def load_sdf(path, *, device=None) -> SdfFit:
     return SdfFit(model=model, frame=frame, history=list(training.get("history", [])),
                   steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
                   config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
-                  restarts=int(training.get("restarts", 0)), polish=training.get("polish"))
+                  restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
+                  micro_batch_tuning=training.get("micro_batch_tuning"))
 
 
 def _jsonable(d):
@@ -504,6 +508,58 @@ def micro_batch_count(cfg: SdfFitConfig, n_points: int, device) -> int:
     if torch.device(device).type != "cpu" or n_points * cfg.width <= TRAIN_CHUNK_ELEMENTS:
         return 1
     return 2 ** max(0, round(math.log2(n_points * cfg.width / TRAIN_CHUNK_ELEMENTS)))
+
+
+#: Steps between two re-tunings of the micro-batch count of a time-budgeted run (:class:`MicroBatchTuner`).
+TUNE_EVERY = 200
+
+
+class MicroBatchTuner:
+    """The micro-batch count of a time-budgeted CPU run (``micro_batches=0``), chosen by timing real steps.
+
+    Which count is fastest depends on the machine and on its moment: on the AVX2 EPYC a (256, 3) step in one
+    part took 1.3–1.8x as long as in 8; on the AVX-512 EPYC that replaced it (2026-11-30) one part was the
+    fastest compiled step while the VM's memory traffic was slow (150 against 174 ms in 8) and 2–4 parts
+    otherwise (136–145 ms). So the tuner runs the powers of two from 1 up to the rule's count
+    (:func:`micro_batch_count`), at most four of them, in interleaved rounds on the run's own steps (``rounds``
+    steps each; the first tuning of a loss variant runs one more round, untimed, which pays any compile of its
+    shapes), keeps the fastest, and tunes again every ``every`` steps and whenever ``key`` (the loss variant:
+    bf16 or float32 GEMMs) changes. The steps it times are training steps like the others: the parts'
+    gradients add up to the whole batch's for any count, so tuning costs only the few steps run at a slower
+    count. Only for time-budgeted runs, which depend on the machine's speed anyway; a run with a step count
+    keeps the rule's count so that a seed reproduces bit for bit."""
+
+    def __init__(self, rule: int, *, rounds: int = 2, every: int = TUNE_EVERY):
+        top = max(1, int(rule))
+        self.candidates = [1 << i for i in range(top.bit_length()) if (1 << i) <= top][-4:]
+        self.rounds, self.every = int(rounds), int(every)
+        self.choice = top
+        self.history: list[dict] = []  # one per tuning: the step it began at, the variant, seconds per count
+        self._queue: list[int] = []
+        self._times: dict[int, float] = {}
+        self._seen: set = set()
+        self._key = None
+        self._last = None
+
+    def next(self, step: int, key=None) -> tuple[int, bool]:
+        """The count for this step and whether to time it (then report with :meth:`record`)."""
+        if len(self.candidates) == 1:
+            return self.choice, False
+        if not self._queue and (key != self._key or self._last is None or step - self._last >= self.every):
+            self._key, self._last, self._times = key, step, {}
+            warm = key not in self._seen
+            self._seen.add(key)
+            # (count, timed): the warm-up round of a new variant is not timed
+            self._queue = [(k, r >= warm) for r in range(self.rounds + warm) for k in self.candidates]
+        return self._queue.pop(0) if self._queue else (self.choice, False)
+
+    def record(self, k: int, seconds: float) -> None:
+        """A timed step's seconds; after the tuning's last step, the fastest count becomes the choice."""
+        self._times[k] = min(self._times.get(k, math.inf), float(seconds))
+        if not self._queue:
+            self.choice = min(self._times, key=self._times.get)
+            self.history.append({"step": int(self._last), "variant": str(self._key), "choice": self.choice,
+                                 "seconds": {int(c): round(t, 5) for c, t in sorted(self._times.items())}})
 
 
 def sdf_step_backward(loss_fn, model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig, *,
@@ -738,13 +794,20 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         return hard["idx"]
 
     micro = micro_batch_count(cfg, cfg.batch + cfg.batch_near + cfg.batch_uniform, device)
+    tuner = (MicroBatchTuner(micro) if cfg.micro_batches == 0 and cfg.minutes and device.type == "cpu"
+             else None)
 
     def step_fn(step: int, g: torch.Generator) -> dict:
         data = pools.get(step)
         sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
+        low = low_precision(step)
+        k, timed = tuner.next(step, "bf16" if low else "float32") if tuner else (micro, False)
+        t0 = time.perf_counter()
         # back-propagated here, part by part (the loop sees a detached loss and skips its own backward)
-        return sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=micro,
-                                 low_precision=low_precision(step))
+        terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low)
+        if timed:
+            tuner.record(k, time.perf_counter() - t0)
+        return terms
 
     loop_cfg = cfg.loop_config(f"fit sdf {cfg.width}x{cfg.depth}")
     polish_loss = partial(_polish_loss, model=model, cfg=cfg,
@@ -770,7 +833,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         polish, seconds = result.to_dict(), seconds + result.seconds
     model.eval()
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
-                  config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish)
+                  config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
+                  micro_batch_tuning=tuner.history if tuner else None)
 
 
 def _polish_loss(batch, *, model: Siren, cfg: SdfFitConfig, micro: int) -> torch.Tensor:

@@ -41,3 +41,14 @@ def test_bench_fit_puts_a_polishing_preset_beside_its_run_without_polish(monkeyp
     # quick runs leave the comparison out unless asked
     (row,) = run(quick=True, presets=["64x1"], minutes=0.02, step_networks=[(16, 1)])["tables"]["accuracy vs time"]
     assert row["preset"] == "64x1" and "hausdorff_vs_no_polish" not in row
+
+
+def test_bench_fit_step_timing_times_every_count_the_tuner_tries():
+    from neural_bake.bench.fit import step_timing
+
+    # 9,216 points × width 64: the rule's 2 parts; the tuner tries 1 and 2
+    row = step_timing(64, 1, repeat=1, compiled=False)
+    assert row["micro_batches"] == 2 and set(row["eager_ms_by_parts"]) == {"1", "2"}
+    assert row["ours_micro_batches"] in (1, 2)
+    assert math.isclose(row["ours_s"] * 1e3, min(row["eager_ms_by_parts"].values()), abs_tol=0.051)
+    assert row["compiled_ms_by_parts"] is None and row["compiled_one_batch_s"] is None

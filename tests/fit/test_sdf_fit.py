@@ -690,3 +690,65 @@ def test_polish_on_hard_inputs_keeps_finite_weights(case):
     fit = fit_sdf(mesh, steps=40, polish_evals=15, polish_points=2048, **TINY)
     assert torch.isfinite(weights(fit.model)).all() and fit.polish["evals"] >= 2
     assert fit.polish["kept"] or fit.polish["reason"] == "held-out loss rose"
+
+
+def test_micro_batch_tuner_keeps_the_fastest_count_and_retunes():
+    from neural_bake.fit.sdf import MicroBatchTuner
+
+    assert MicroBatchTuner(8).candidates == [1, 2, 4, 8]
+    assert MicroBatchTuner(16).candidates == [2, 4, 8, 16]  # at most four
+    one = MicroBatchTuner(1)
+    assert one.next(0, "float32") == (1, False) and one.history == []  # nothing to choose: never timed
+    speed = {1: 3.0, 2: 1.0, 4: 2.0, 8: 4.0}
+    t = MicroBatchTuner(8, rounds=2, every=50)
+    assert t.choice == 8  # the rule's count until a tuning has finished
+
+    def run(step, key):
+        k, timed = t.next(step, key)
+        if timed:
+            t.record(k, speed[k] + 0.01 * step)
+        return k, timed
+
+    first = [run(s, "float32") for s in range(12)]  # a warm-up round (untimed), then two timed rounds
+    assert [k for k, _ in first] == [1, 2, 4, 8] * 3
+    assert [timed for _, timed in first] == [False] * 4 + [True] * 8
+    assert t.choice == 2 and t.history[-1]["choice"] == 2 and t.history[-1]["variant"] == "float32"
+    assert t.history[-1]["seconds"] == {1: 3.04, 2: 1.05, 4: 2.06, 8: 4.07}  # the best of each count's rounds
+    assert run(12, "float32") == (2, False) and run(40, "float32") == (2, False)
+    speed.update({1: 0.5})  # the machine changed: the next tuning (every 50 steps) follows it
+    again = [run(s, "float32") for s in range(50, 58)]  # a variant seen before: no warm-up round
+    assert all(timed for _, timed in again) and t.choice == 1
+    bf16 = [run(s, "bf16") for s in range(60, 72)]  # a new variant is tuned at once, with its warm-up round
+    assert [timed for _, timed in bf16] == [False] * 4 + [True] * 8 and len(t.history) == 3
+
+
+def test_time_budgeted_fit_tunes_its_micro_batches_and_a_step_count_fit_does_not(tmp_path):
+    # 18,432 points × width 32 = 2.25 × 2^18: the rule says 2 parts, the tuner tries 1 and 2
+    kw = dict(TINY, batch=8192, batch_near=8192, batch_uniform=2048, gemm_dtype="float32", seed=1)
+    timed = fit_sdf(sphere(), minutes=0.04, steps=100_000, **kw)
+    tuning = timed.micro_batch_tuning
+    assert tuning and tuning[0]["step"] == 0 and set(tuning[0]["seconds"]) == {1, 2}
+    assert tuning[0]["choice"] in (1, 2) and all(s > 0 for s in tuning[0]["seconds"].values())
+    assert torch.isfinite(weights(timed.model)).all()
+    back = load_sdf(timed.save(tmp_path / "timed.model"))
+    assert back.micro_batch_tuning == json_roundtrip(tuning)
+    assert fit_sdf(sphere(), steps=3, **kw).micro_batch_tuning is None  # a step count reproduces bit for bit
+    assert fit_sdf(sphere(), minutes=0.02, micro_batches=2, **kw).micro_batch_tuning is None  # fixed by hand
+
+
+def json_roundtrip(obj):
+    import json
+
+    return json.loads(json.dumps(obj))
+
+
+def test_cli_fit_sdf_reports_the_micro_batch_tuning(tmp_path, capsys):
+    src = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src)
+    out = tmp_path / "ball.sdf"
+    code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--minutes", "0.03", "--batch", "8192",
+                 "--polish-evals", "0", "--gemm-dtype", "float32", "--no-progress", "--no-metrics"])
+    assert code == 0, capsys.readouterr().err
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("micro-batches: "))
+    assert "1: " in line and "2: " in line and "4: " in line and " ms" in line  # 13,312 points × 64: rule 4
+    assert load_sdf(out).micro_batch_tuning[0]["step"] == 0
