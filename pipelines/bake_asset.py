@@ -237,7 +237,7 @@ def _sample_truth(path: str, mesh, choice: str):
     import numpy as np
 
     from neural_bake.errors import NeuralBakeError
-    from neural_bake.samples.shapes import SAMPLES, get_sample
+    from neural_bake.samples.shapes import SAMPLES, get_sample, unit_frame_normals
 
     if choice == "mesh":
         return None, None, None
@@ -254,8 +254,7 @@ def _sample_truth(path: str, mesh, choice: str):
             raise NeuralBakeError(f"--truth {choice}: {path} is not the {name} sample (vertices off its surface)")
         return None, None, None
 
-    def normals(p):
-        return sample.normal(mesh.frame.to_source(p))
+    normals = unit_frame_normals(sample, mesh.frame)
 
     def colours(p):
         return sample.albedo(mesh.frame.to_source(p))

@@ -49,7 +49,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     from neural_bake.io.mesh_io import load_mesh
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
     from neural_bake.samples.generate import sample_path
-    from neural_bake.samples.shapes import get_sample
+    from neural_bake.samples.shapes import get_sample, unit_frame_normals
 
     cfg = config or DemoConfig()
     out = Path(out_dir)
@@ -66,7 +66,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     sdf.save(sdf_path)
     sample = get_sample(cfg.sample)
     sdf_q = sdf_metrics(sdf.model, mesh, n=50_000, resolution=128,
-                        truth_normal=lambda p: sample.normal(mesh.frame.to_source(p)))
+                        truth_normal=unit_frame_normals(sample, mesh.frame))
     log(f"      {sdf.steps} steps in {sdf.seconds:.0f} s: Chamfer-L1 {sdf_q['chamfer_l1']:.4f}, Hausdorff "
         f"{sdf_q['hausdorff']:.4f} (unit frame)")
     log(f"      median normal error {sdf_q['normal_truth_median_deg']:.2f}° against the analytic surface "

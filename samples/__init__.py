@@ -9,7 +9,7 @@ See :mod:`neural_bake.samples.shapes` for the shapes and their analytic function
 """
 
 from .generate import DATA_DIR, generate, sample_path
-from .shapes import SAMPLES, BumpySphere, Jack, SampleMesh, Sphere, Torus, get_sample
+from .shapes import SAMPLES, BumpySphere, Jack, SampleMesh, Sphere, Torus, get_sample, unit_frame_normals
 
 __all__ = ["SAMPLES", "SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "get_sample", "generate",
-           "sample_path", "DATA_DIR"]
+           "sample_path", "DATA_DIR", "unit_frame_normals"]

@@ -491,3 +491,9 @@ def get_sample(name: str):
         return SAMPLES[name]
     except KeyError:
         raise NeuralBakeError(f"unknown sample {name!r} (known: {', '.join(SAMPLES)})") from None
+
+
+def unit_frame_normals(sample, frame):
+    """``sample``'s analytic unit normals as a function of unit-frame points (numpy (N, 3) → (N, 3)), for a
+    mesh of it loaded with ``frame`` (the unit frame only scales and shifts, so directions are unchanged)."""
+    return lambda p: sample.normal(frame.to_source(p))

@@ -37,12 +37,15 @@ def _bumpy():
 
 def _analytic_field(sample, frame):
     from ..bake.fields import SdfField
+    from ..samples.shapes import unit_frame_normals
 
     def fn(p):
         return torch.as_tensor(sample.implicit(frame.to_source(p.cpu().numpy())) * frame.scale, dtype=p.dtype)
 
+    normals = unit_frame_normals(sample, frame)
+
     def grad(p):
-        return torch.as_tensor(sample.normal(frame.to_source(p.cpu().numpy())), dtype=p.dtype)
+        return torch.as_tensor(normals(p.cpu().numpy()), dtype=p.dtype)
 
     return SdfField(fn, grad, name="bumpy_sphere analytic")
 

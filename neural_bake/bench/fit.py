@@ -187,10 +187,10 @@ def _meshes(quick: bool, names) -> tuple[list[tuple[str, object]], list[str]]:
 
 def _analytic_normal(name: str, mesh):
     """The bundled sample ``name``'s analytic normals as a callable of unit-frame points (None for other meshes)."""
-    from ..samples import SAMPLES
+    from ..samples import SAMPLES, unit_frame_normals
 
     sample = SAMPLES.get(name)
-    return None if sample is None else (lambda p: sample.normal(mesh.frame.to_source(p)))
+    return None if sample is None else unit_frame_normals(sample, mesh.frame)
 
 
 def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minutes: float | None = None,

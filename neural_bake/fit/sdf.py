@@ -152,7 +152,9 @@ class SdfFitConfig:
     0: auto — on a CPU the power of two nearest to points × width / 2¹⁸ (about 2¹⁸ hidden activations per
     micro-batch, so a layer's working set stays in the L2 cache: (256, 3) 8 micro-batches of 1,152 points,
     (64, 1) 2), elsewhere 1. On the AVX2 EPYC a (256, 3) step 281 → 234 ms compiled, 402 → 226 ms eager
-    (:data:`TRAIN_CHUNK_ELEMENTS`). Not part of the fingerprint (the same trajectory up to rounding)."""
+    (:data:`TRAIN_CHUNK_ELEMENTS`). A run with a time budget on a CPU starts from that rule but times the
+    powers of two up to it on its own steps and keeps the fastest (:class:`MicroBatchTuner`): the best count
+    depends on the machine. Not part of the fingerprint (the same trajectory up to rounding)."""
     polish_evals: int = 0
     """L-BFGS polish after the Adam run (0: off): this many loss evaluations (forward and backward of the
     whole polish batch, line-search evaluations included) of full-batch L-BFGS with a strong-Wolfe line
@@ -535,7 +537,7 @@ class MicroBatchTuner:
         self.rounds, self.every = int(rounds), int(every)
         self.choice = top
         self.history: list[dict] = []  # one per tuning: the step it began at, the variant, seconds per count
-        self._queue: list[int] = []
+        self._queue: list[tuple[int, bool]] = []  # (count, timed) of the tuning under way
         self._times: dict[int, float] = {}
         self._seen: set = set()
         self._key = None

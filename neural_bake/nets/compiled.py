@@ -16,6 +16,7 @@ pure (no side effects), so re-running one eagerly after a failed compile is safe
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import warnings
@@ -86,6 +87,22 @@ def should_compile(mode: str, device: torch.device | str, *, long_run: bool) -> 
     return compiler_available(device)
 
 
+#: How many compiled versions (shapes, loss variants, networks) a wrapped function may collect in a process.
+#: torch's default is 8 a function, after which dynamo silently runs it eagerly: a time-budgeted (256, 3)
+#: fit alone needs 8 (four micro-batch counts, :class:`~neural_bake.fit.sdf.MicroBatchTuner`, × bf16 and
+#: float32 GEMMs), and a process that fits several networks (a benchmark, a batch over assets) needs more.
+RECOMPILE_LIMIT = 64
+
+
+def _recompile_limit(limit: int):
+    """Context raising dynamo's per-function recompile limit to ``limit`` (a no-op where torch lacks it)."""
+    config = getattr(getattr(torch, "_dynamo", None), "config", None)
+    for name in ("recompile_limit", "cache_size_limit"):  # the first is the newer name
+        if config is not None and hasattr(config, name):
+            return config.patch(**{name: max(int(getattr(config, name)), int(limit))})
+    return contextlib.nullcontext()
+
+
 class CompiledFn:
     """``fn`` compiled with ``torch.compile`` on first use, falling back to ``fn`` itself (with one
     warning naming ``desc``) when compiling or running the compiled version raises. ``enabled=False`` is
@@ -102,7 +119,8 @@ class CompiledFn:
         if self._compiled is None:
             return self.fn(*args, **kwargs)
         try:
-            out = self._compiled(*args, **kwargs)
+            with _recompile_limit(RECOMPILE_LIMIT):
+                out = self._compiled(*args, **kwargs)
         except NeuralBakeError:
             raise
         except Exception as exc:  # a compiler or dynamo failure: never fatal, the eager function is the same math

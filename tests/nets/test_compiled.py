@@ -86,3 +86,30 @@ def test_real_compile_matches_eager(dtype):
     assert fn.compiled is True
     tol = 1e-6 if dtype == torch.float32 else 1e-12
     torch.testing.assert_close(out, f(a, b), rtol=tol, atol=tol)
+
+
+def _sin_plus_one(x):  # module level: dynamo's compiled versions are kept per code object
+    return torch.sin(x) + 1
+
+
+def test_more_versions_than_torchs_default_limit_stay_compiled():
+    # a time-budgeted (256, 3) fit compiles 8 shapes × variants; a process fitting several networks more:
+    # past torch's default limit of 8, dynamo would run the function eagerly without a word
+    from neural_bake.nets.compiled import RECOMPILE_LIMIT
+
+    graphs = []
+
+    def counting_backend(gm, example_inputs):
+        graphs.append(tuple(example_inputs[0].shape))
+        return gm.forward
+
+    torch._dynamo.reset()
+    fn = CompiledFn(_sin_plus_one, enabled=True, desc="t", backend=counting_backend)
+    sizes = list(range(1, 15))
+    assert len(sizes) > 8 and len(sizes) < RECOMPILE_LIMIT
+    for n in sizes:
+        x = torch.linspace(0, 1, n)
+        assert torch.equal(fn(x), torch.sin(x) + 1)
+    assert len(graphs) == len(sizes) and fn.compiled is True
+    assert torch._dynamo.config.recompile_limit == 8  # torch's own setting is left as it was
+    torch._dynamo.reset()

@@ -10,7 +10,8 @@ from neural_bake.fit.sampling import sample_surface, signed_distance
 from neural_bake.io.colour import linear_to_srgb
 from neural_bake.io.images import read_image
 from neural_bake.io.mesh_io import mesh_from_arrays
-from neural_bake.samples import DATA_DIR, SAMPLES, BumpySphere, Jack, Sphere, Torus, generate, get_sample, sample_path
+from neural_bake.samples import (DATA_DIR, SAMPLES, BumpySphere, Jack, Sphere, Torus, generate, get_sample, sample_path,
+                                 unit_frame_normals)
 from neural_bake.samples.generate import obj_text
 
 LATLONG_AND_TORUS = ["sphere", "bumpy_sphere", "torus"]
@@ -221,3 +222,14 @@ def test_errors(tmp_path):
 def test_bundled_jack_is_what_the_generator_makes():
     # marching cubes + xatlas (~15 s): deterministic, so the committed file is reproducible
     assert sample_path("jack").read_text() == obj_text(SAMPLES["jack"].mesh(), "jack.mtl")
+
+
+def test_unit_frame_normals_of_the_bundled_sphere_point_away_from_its_centre():
+    mesh = nb.load_mesh(sample_path("sphere"))
+    normals = unit_frame_normals(get_sample("sphere"), mesh.frame)
+    centre = mesh.frame.to_unit(np.zeros((1, 3)))  # the source sphere is centred on the origin
+    radial = mesh.vertices - centre
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    got = normals(mesh.vertices)
+    assert got.shape == mesh.vertices.shape
+    np.testing.assert_allclose(got, radial, atol=1e-9)
