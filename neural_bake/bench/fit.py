@@ -161,6 +161,16 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
             "compiled_one_batch_s": by_comp.get(1) if by_comp else None}
 
 
+def _parts(fit) -> str:
+    """The micro-batch counts a fit ran at: how often its tuner chose each ("2x20 1x4": 2 parts in 20 of its
+    tunings, 1 in 4), else the fixed count."""
+    if fit.micro_batch_tuning:
+        from collections import Counter
+
+        return " ".join(f"{k}x{n}" for k, n in Counter(t["choice"] for t in fit.micro_batch_tuning).most_common())
+    return str(fit.config.micro_batches or "rule")
+
+
 def _ms(seconds_by_count: dict) -> dict:
     return {str(k): round(v * 1e3, 1) for k, v in sorted(seconds_by_count.items())}
 
@@ -245,7 +255,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
                 row = {"mesh": name, "preset": preset + suffix, "minutes": budget, "steps": fit.steps,
                        "polish_evals": polish.get("evals", 0),
                        "polish_s": round(polish["seconds"], 3) if polish else 0.0,
-                       "seconds": round(fit.seconds, 1), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
+                       "seconds": round(fit.seconds, 1), "micro_batches": _parts(fit), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
                        "normal_median_deg": m["normal_median_deg"], "normal_p95_deg": m["normal_p95_deg"],
                        "analytic_median_deg": m.get("normal_truth_median_deg"),
                        "mesh_faces_analytic_median_deg": m.get("mesh_normal_truth_median_deg")}

@@ -17,6 +17,7 @@ def test_bench_fit_smallest_run_saves_models(tmp_path):
     assert math.isclose(step[0]["speedup_vs_autograd"], step[0]["autograd_2x_backward_s"] / step[0]["ours_s"])
     (row,) = res["tables"]["accuracy vs time"]
     assert row["mesh"] == "bumpy_sphere" and row["preset"] == "64x1" and row["steps"] >= 1
+    assert row["micro_batches"].split()[0].split("x")[0] in ("1", "2")  # the tuner's choices: "2x3 1x1"
     assert 0 < row["chamfer_l1"] <= row["hausdorff"] < 2.0
     assert "target_met" not in row  # a quick run's shortened budgets are not the targets'
     # a bundled sample: ∇f against its analytic surface, beside the mesh's own faces against it
