@@ -78,9 +78,10 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
 
     ``ours_s`` and ``compiled_s`` are the steps a time-budgeted ``fit_sdf`` runs: the fastest of the
     micro-batch counts its tuner tries (:class:`~neural_bake.fit.sdf.MicroBatchTuner`), all timed in the same
-    interleaved rounds (``eager_ms_by_parts``, ``compiled_ms_by_parts``: milliseconds by count; ``micro_batches`` is the rule's count,
-    ``ours_micro_batches`` and ``compiled_micro_batches`` the fastest). The variants compared with ours (the
-    autograd graph, bf16 GEMMs) run at the rule's count, and their ratios are to ours at that count."""
+    interleaved rounds (``eager_ms_by_parts``, ``compiled_ms_by_parts``: milliseconds by count;
+    ``micro_batches`` is the rule's count, ``ours_micro_batches`` and ``compiled_micro_batches`` the fastest).
+    The variants compared with ours (the autograd graph, bf16 GEMMs) run at the rule's count, and their ratios
+    are to ours at that count."""
     from ..fit.sdf import MicroBatchTuner, SdfFitConfig, micro_batch_count, sdf_loss_terms, sdf_step_backward
     from ..nets.compiled import CompiledFn, compiler_available
     from ..nets.gemm import autograd_graph_only
@@ -157,8 +158,7 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
             "compiled_speedup_vs_autograd": t_auto / t_comp if t_comp else None,
             "compiled_over_roofline": t_comp / t_roof if t_comp else None, "sgemm_gflops": roof["gflops_sgemm"],
             "micro_batches": micro, "ours_micro_batches": k_ours, "compiled_micro_batches": k_comp,
-            "eager_ms_by_parts": _ms(eager), "compiled_ms_by_parts": _ms(by_comp) if by_comp else None,
-            "compiled_one_batch_s": by_comp.get(1) if by_comp else None}
+            "eager_ms_by_parts": _ms(eager), "compiled_ms_by_parts": _ms(by_comp) if by_comp else None}
 
 
 def _parts(fit) -> str:
@@ -255,7 +255,8 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
                 row = {"mesh": name, "preset": preset + suffix, "minutes": budget, "steps": fit.steps,
                        "polish_evals": polish.get("evals", 0),
                        "polish_s": round(polish["seconds"], 3) if polish else 0.0,
-                       "seconds": round(fit.seconds, 1), "micro_batches": _parts(fit), "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
+                       "seconds": round(fit.seconds, 1), "micro_batches": _parts(fit),
+                       "chamfer_l1": m["chamfer_l1"], "hausdorff": m["hausdorff"],
                        "normal_median_deg": m["normal_median_deg"], "normal_p95_deg": m["normal_p95_deg"],
                        "analytic_median_deg": m.get("normal_truth_median_deg"),
                        "mesh_faces_analytic_median_deg": m.get("mesh_normal_truth_median_deg")}
