@@ -56,11 +56,14 @@ __all__ = ["command"]
 @click.option("--polish-evals", type=int, default=None,
               help="L-BFGS polish after Adam: this many full-batch loss evaluations, their time taken from the "
                    "budget; kept only if a held-out loss falls (default: the preset's; 0: off).")
+@click.option("--polish-share", type=float, default=None,
+              help="With a time budget: the part of it set aside for the polish, which then runs until its "
+                   "evaluations or the budget end (0: set aside its estimated cost; the 64x1 preset 0.25).")
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr.")
 def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch, checkpoint, hard_fraction,
             zero_fraction, focus_tau, w_surface, w_normal, w_eikonal, w_sdf, resume, gemm_dtype, compile_,
-            micro_batches, polish_evals, metrics, progress):
+            micro_batches, polish_evals, polish_share, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
     from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
@@ -76,7 +79,8 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
              "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,
              "zero_fraction": zero_fraction, "focus_tau": focus_tau, "w_surface": w_surface, "w_normal": w_normal,
              "w_eikonal": w_eikonal, "w_sdf": w_sdf, "gemm_dtype": gemm_dtype,
-             "compile": compile_, "micro_batches": micro_batches, "polish_evals": polish_evals}
+             "compile": compile_, "micro_batches": micro_batches, "polish_evals": polish_evals,
+             "polish_share": polish_share}
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}

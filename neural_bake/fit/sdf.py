@@ -165,6 +165,12 @@ class SdfFitConfig:
     measured cost is taken from the Adam part of the budget (at most half of it). Kept only if the loss on
     a second, disjoint held-out batch went down. Not part of the fingerprint: a checkpointed Adam run can be
     polished with any setting."""
+    polish_share: float = 0.0
+    """With a time budget and ``polish_evals``: the part of the budget set aside for the polish, which then
+    runs until ``polish_evals`` evaluations or the budget's end, whichever comes first (0: set aside the
+    polish's cost estimated from one timed evaluation, which read 0.07–0.15 s against 0.09–0.11 s in the
+    polish on one machine, leaving up to 15 s of a 2-minute budget unused or cutting the polish short). A
+    share scales the evaluations with the machine's speed. Not part of the fingerprint."""
     polish_points: int = 65536
     """Points of the polish batch (and of its held-out check batch), drawn like a step's: surface, near and
     uniform points in the step's proportions."""
@@ -193,7 +199,7 @@ class SdfFitConfig:
     def fingerprint_dict(self) -> dict:
         """The settings that define the training trajectory (not budgets, paths or display)."""
         skip = {"steps", "minutes", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile",
-                "micro_batches", "polish_evals", "polish_points", "polish_max_weight", "polish_max_p"}
+                "micro_batches", "polish_evals", "polish_share", "polish_points", "polish_max_weight", "polish_max_p"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -229,8 +235,12 @@ PRESETS: dict[str, dict] = {
     # polish_evals 150 (L-BFGS with the worst-distance term after Adam; ~20-35 s of the 2 minutes): 4,400 fixed
     # Adam steps + the polish against 5,200 steps, Spot seeds 0-9: Hausdorff 0.0053-0.0063 against 0.0083-0.0151,
     # Chamfer-L1 -25 %; bunny seeds 0/1 0.0106 / 0.0108 against 0.0152 / 0.0120 (BENCHMARKS.md, seventh session)
+    # polish_share 0.25 with up to 400 evaluations (was 150 evaluations at an estimated cost): the polish's 30 s
+    # are what the 150 took on the AVX2 EPYC (22-31 s); on the faster AVX-512 EPYC 150 took ~10-17 s and left
+    # the bunny at Hausdorff 0.0110 (seed 0), 250-400 reached 0.0093-0.0094 (BENCHMARKS.md, ninth session)
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
-             "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 150},
+             "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
+             "polish_share": 0.25},
     # (128, 2) and (256, 2): the (256, 3) settings, _MULTI_LAYER (were lr 2e-4 and 1e-4, lr_min_factor 0.05, hard_pool
     # 0.02), seed 0 (BENCHMARKS.md, fifth session). 128x2, 5 min: Spot Hausdorff 0.0083 -> 0.0069, Chamfer-L1
     # 0.00081 -> 0.00062; Stanford bunny 0.0095 -> 0.0062, 0.00103 -> 0.00068. 256x2, 8 min: Spot 0.0063 -> 0.0049,
@@ -298,6 +308,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError(f"fit_sdf: zero_candidates must be a positive integer, got {cfg.zero_candidates!r}")
     if int(cfg.hard_every) != cfg.hard_every or cfg.hard_every < 1:
         raise FitError(f"fit_sdf: hard_every must be a positive integer, got {cfg.hard_every!r}")
+    if not (0.0 <= cfg.polish_share <= 0.5):
+        raise FitError(f"fit_sdf: polish_share must be in [0, 0.5], got {cfg.polish_share!r}")
     if int(cfg.polish_evals) != cfg.polish_evals or cfg.polish_evals < 0:
         raise FitError(f"fit_sdf: polish_evals must be a non-negative integer (0: no polish), got {cfg.polish_evals!r}")
     if int(cfg.polish_points) != cfg.polish_points or cfg.polish_points < 2:
@@ -815,7 +827,10 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     polish_loss = partial(_polish_loss, model=model, cfg=cfg,
                           micro=micro_batch_count(cfg, cfg.polish_points, device))
     reserve = 0.0
-    if cfg.polish_evals and cfg.minutes:
+    if cfg.polish_evals and cfg.minutes and cfg.polish_share > 0:
+        reserve = cfg.polish_share * 60.0 * cfg.minutes
+        loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
+    elif cfg.polish_evals and cfg.minutes:
         # the polish's cost (measured on a throw-away batch) comes out of Adam's part of the budget
         per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype)
         reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)  # + its held-out checks

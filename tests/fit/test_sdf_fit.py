@@ -120,7 +120,8 @@ def test_presets_and_config():
 
     assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
     assert config_from(preset="256x3").lr_min_factor == 0.01 and config_from(preset="64x1").lr_min_factor == 0.05
-    assert config_from(preset="64x1").polish_evals == 150 and config_from(preset="256x3").polish_evals == 0
+    assert config_from(preset="64x1").polish_evals == 400 and config_from(preset="256x3").polish_evals == 0
+    assert config_from(preset="64x1").polish_share == 0.25 and config_from(preset="256x3").polish_share == 0.0
     assert config_from(preset="256x3").loop_config().lr_min_factor == 0.01
     c = config_from(preset="64x1", seed=3)
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
@@ -168,7 +169,7 @@ def test_cli_fit_sdf(tmp_path, capsys):
                  "--no-metrics", "--seed", "2", "--hard-fraction", "0.5", "--zero-fraction", "0.25",
                  "--gemm-dtype", "float32", "--compile", "off", "--micro-batches", "2",
                  "--lr-min-factor", "0.01", "--focus-tau", "0.003", "--w-surface", "2000", "--w-normal", "50",
-                 "--w-eikonal", "20", "--w-sdf", "300", "--polish-evals", "4"])
+                 "--w-eikonal", "20", "--w-sdf", "300", "--polish-evals", "4", "--polish-share", "0.2"])
     assert code == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert "5 steps" in printed and "L-BFGS polish: " in printed
@@ -177,7 +178,7 @@ def test_cli_fit_sdf(tmp_path, capsys):
     assert fit.config.hard_fraction == 0.5 and fit.config.zero_fraction == 0.25 and fit.config.gemm_dtype == "float32" and fit.config.compile == "off"
     assert fit.config.micro_batches == 2 and fit.config.lr_min_factor == 0.01 and fit.config.focus_tau == 0.003
     assert (fit.config.w_surface, fit.config.w_normal, fit.config.w_eikonal, fit.config.w_sdf) == (2000, 50, 20, 300)
-    assert fit.config.polish_evals == 4 and fit.polish["evals"] >= 2
+    assert fit.config.polish_evals == 4 and fit.polish["evals"] >= 2 and fit.config.polish_share == 0.2
 
 
 def test_cli_fit_sdf_errors(tmp_path, capsys):
@@ -592,13 +593,27 @@ def test_polish_time_comes_out_of_the_budget():
     assert fit.seconds < 0.15 * 60 * 1.3 + 1.0
 
 
+def test_polish_share_sets_aside_part_of_the_budget_and_the_polish_runs_to_its_end():
+    # 30 % of 6 s for the polish: Adam stops near 4.2 s and the polish, with far more evaluations allowed than
+    # fit, runs until the budget's end instead of stopping at an estimate of its cost
+    fit = fit_sdf(sphere(), steps=10**6, minutes=0.1, seed=0, polish_evals=100_000, polish_share=0.3,
+                  polish_points=4096, **TINY)
+    adam = fit.history[-1]["seconds"]
+    assert fit.stopped_reason == "time budget" and fit.polish["evals"] > 2
+    assert 0.7 * 6 * 0.8 < adam < 0.7 * 6 + 1.0
+    assert 6 * 0.9 < fit.seconds < 6 * 1.2 + 1.0
+    assert fit.polish["seconds"] > 0.3 * 6 * 0.6
+
+
 @pytest.mark.parametrize("kw, msg", [({"polish_evals": -1}, "polish_evals must be a non-negative integer"),
                                      ({"polish_evals": 2.5}, "polish_evals must be a non-negative integer"),
                                      ({"polish_points": 1}, "polish_points must be an integer of at least 2"),
                                      ({"polish_max_weight": -1.0}, "polish_max_weight must be a non-negative"),
                                      ({"polish_max_weight": math.inf}, "polish_max_weight must be a non-negative"),
                                      ({"polish_max_p": 0.5}, r"polish_max_p must be a number in \[1, 64\]"),
-                                     ({"polish_max_p": math.nan}, r"polish_max_p must be a number in \[1, 64\]")])
+                                     ({"polish_max_p": math.nan}, r"polish_max_p must be a number in \[1, 64\]"),
+                                     ({"polish_share": -0.1}, r"polish_share must be in \[0, 0.5\]"),
+                                     ({"polish_share": 0.7}, r"polish_share must be in \[0, 0.5\]")])
 def test_bad_polish_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
         fit_sdf(sphere(), steps=1, **TINY, **kw)
