@@ -161,8 +161,9 @@ class SdfFitConfig:
     search on one fixed batch of ``polish_points`` pool points
     (:func:`~neural_bake.fit.polish.lbfgs_polish`), minimising the training loss plus the worst-distance
     term (``polish_max_weight``). Adam's noisy mini-batch steps stall short of what a small network can
-    reach, and its mean-square loss leaves the worst place to chance. With a time budget the polish's
-    measured cost is taken from the Adam part of the budget (at most half of it). Kept only if the loss on
+    reach, and its mean-square loss leaves the worst place to chance. With a time budget the polish's time
+    is taken from the Adam part of the budget: ``polish_share`` of it, or (share 0) its measured cost (at
+    most half of it). Kept only if the loss on
     a second, disjoint held-out batch went down. Not part of the fingerprint: a checkpointed Adam run can be
     polished with any setting."""
     polish_share: float = 0.0
