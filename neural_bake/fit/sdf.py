@@ -170,7 +170,7 @@ class SdfFitConfig:
     """With a time budget and ``polish_evals``: the part of the budget set aside for the polish, which then
     runs until ``polish_evals`` evaluations or the budget's end, whichever comes first (0: set aside the
     polish's cost estimated from one timed evaluation, which read 0.07–0.15 s against 0.09–0.11 s in the
-    polish on one machine, leaving up to 15 s of a 2-minute budget unused or cutting the polish short). A
+    polish on one machine, leaving up to 17 s of a 2-minute budget unused or cutting the polish short). A
     share scales the evaluations with the machine's speed. Not part of the fingerprint."""
     polish_points: int = 65536
     """Points of the polish batch (and of its held-out check batch), drawn like a step's: surface, near and
