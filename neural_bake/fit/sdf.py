@@ -827,14 +827,13 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     loop_cfg = cfg.loop_config(f"fit sdf {cfg.width}x{cfg.depth}")
     polish_loss = partial(_polish_loss, model=model, cfg=cfg,
                           micro=micro_batch_count(cfg, cfg.polish_points, device))
-    reserve = 0.0
-    if cfg.polish_evals and cfg.minutes and cfg.polish_share > 0:
-        reserve = cfg.polish_share * 60.0 * cfg.minutes
-        loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
-    elif cfg.polish_evals and cfg.minutes:
-        # the polish's cost (measured on a throw-away batch) comes out of Adam's part of the budget
-        per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype)
-        reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)  # + its held-out checks
+    reserve = 0.0  # seconds of the budget set aside for the polish: they come out of Adam's part
+    if cfg.polish_evals and cfg.minutes:
+        if cfg.polish_share > 0:
+            reserve = cfg.polish_share * 60.0 * cfg.minutes
+        else:  # its cost, measured on a throw-away batch (+ its held-out checks), at most half the budget
+            per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype)
+            reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)
         loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
     res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name})
     polish = None

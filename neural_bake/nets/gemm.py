@@ -227,7 +227,7 @@ class _ReverseScalar(torch.autograd.Function):
             pre.append(u)
             stream.append(u * coss[i - 1])
         grads = stream[-1] @ mats[0]
-        ctx.save_for_backward(*acts, *coss, *stream, *pre, *params)
+        ctx.save_for_backward(*acts, *coss, *stream, *pre, *mats, *params)
         ctx.depth = len(hidden) - 1
         return values, grads
 
@@ -240,10 +240,10 @@ class _ReverseScalar(torch.autograd.Function):
         coss = saved[d + 2: 2 * d + 3]  # c_0 … c_D
         stream = saved[2 * d + 3: 3 * d + 4][::-1]  # g_0 … g_D
         pre = (None,) + saved[3 * d + 4: 4 * d + 4][::-1]  # u_1 … u_D at index 1 … D
-        params = saved[4 * d + 4:]
+        mats = saved[4 * d + 4: 5 * d + 5]  # M_0 … M_D, as the forward built them
+        params = saved[5 * d + 5:]
         layers = list(zip(params[0::2], params[1::2]))
         w_n = layers[-1][0]
-        mats = _backward_mats(layers)
         # down the stream: M̄_i and c̄_i
         # (ψᵀ g_0)ᵀ, not g_0ᵀ ψ: a (3, N) @ (N, W) product runs ~3x faster than (W, N) @ (N, 3)
         d_mats = [(d_grads.t() @ stream[0]).t()]
