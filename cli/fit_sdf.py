@@ -39,8 +39,8 @@ __all__ = ["command"]
 @click.option("--w-eikonal", type=float, default=None,
               help="Weight of (1 - |grad f|)^2 on every point (default 50; the 64x1 preset 10).")
 @click.option("--w-sdf", type=float, default=None,
-              help="Weight of (f - d)^2 on near and uniform samples (default 3000; on Spot, 64x1, 300 lowered "
-                   "Hausdorff but raised it on the Stanford bunny: BENCHMARKS.md).")
+              help="Weight of (f - d)^2 on near and uniform samples (default 3000; a lower weight helps some "
+                   "meshes and hurts others: docs/findings.md).")
 @click.option("--resume", is_flag=True, help="Continue from the checkpoint if it exists.")
 @click.option("--gemm-dtype", type=click.Choice(["auto", "float32", "bfloat16"]), default=None,
               help="Hidden GEMMs of the first 75% of the run: auto (default: bfloat16 where measured 1.5x "

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 #: Longest side of the normalised bounding box: meshes are scaled so it measures this, centred at 0,
-#: so the unit frame leaves a margin inside the cube [-1, 1]^3 (DESIGN.md, "Frame").
+#: so the unit frame leaves a margin inside the cube [-1, 1]^3 (docs/design.md, "Frame").
 UNIT_FRAME_EXTENT = 1.8
 
 #: A face whose area (in the unit frame) is below this is degenerate: excluded from sampling.

@@ -17,7 +17,7 @@ __all__ = ["DemoConfig", "run_demo"]
 
 @dataclass
 class DemoConfig:
-    """Settings of :func:`run_demo`; the defaults take about 4 minutes on a 2-core CPU (3 min 46 s measured)."""
+    """Settings of :func:`run_demo`; the defaults take about 4 minutes on a 2-core CPU (BENCHMARKS.md)."""
 
     sample: str = "bumpy_sphere"
     """Bundled sample to bake (see `neural-bake samples`)."""

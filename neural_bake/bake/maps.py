@@ -1,6 +1,6 @@
 """Normal-map encoding and decoding, and assembling per-sample values into images.
 
-Conventions (DESIGN.md, "Tangent space"):
+Conventions (docs/design.md, "Tangent space"):
 
 - A *tangent-space* normal map stores the coordinates (x, y, z) of the object-space normal n in the frame
   a glTF renderer reconstructs at the texel: ``n = normalize(x·T + y·B + z·N)`` with N the normalised

@@ -2,7 +2,7 @@
 
 Adam on small random batches stalls at a noise floor set by its learning rate and the batch's variance; a
 small network that is short of capacity, not of steps, stops there well above the minimum it could reach
-(on Spot, (64, 1) read the same Hausdorff distance after 6 minutes as after 2). L-BFGS with a strong-Wolfe
+(three times the steps do not lower its Hausdorff distance: docs/findings.md). L-BFGS with a strong-Wolfe
 line search on one large fixed batch takes curvature-aware steps without that noise. The polish is kept
 only if the loss on a second, held-out batch went down (so it cannot over-fit its batch unnoticed) and
 every weight is finite; otherwise the weights are restored exactly.

@@ -1,6 +1,6 @@
 """Training data: points on and around a mesh, with normals, UVs, colours and signed distances.
 
-Everything here works in the mesh's *unit frame* (``Mesh.vertices``; DESIGN.md "Frame"). Randomness comes
+Everything here works in the mesh's *unit frame* (``Mesh.vertices``; docs/design.md, "Frame"). Randomness comes
 from ``numpy.random.default_rng(seed)``, so a seed gives identical arrays on every run.
 
 - :func:`sample_surface` — area-uniform points on the non-degenerate faces, with the outward normal, the

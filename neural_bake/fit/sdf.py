@@ -280,7 +280,7 @@ def _polish_batches(data: dict, cfg: SdfFitConfig):
     """The polish batch and its held-out check batch, ``polish_points`` pool points each: surface, near and
     uniform points in a step's proportions, seeded by ``cfg.seed``. No hard examples: the worst-distance
     term (``polish_max_weight``) weighs the worst places, and a fixed set of mined points is one the polish
-    over-fits (Spot, (64, 1): its loss −12 %, the held-out batch's −2 %). The two batches are disjoint where
+    over-fits (its own loss falls, the held-out batch's barely). The two batches are disjoint where
     the pools hold enough points (the presets' do), else they overlap as little as they can."""
     gen = torch.Generator().manual_seed(int(cfg.seed) * 1_000_033 + 977)
     n_near_pool = data["n_near"]

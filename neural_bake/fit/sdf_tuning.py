@@ -14,10 +14,7 @@ __all__ = ["TRAIN_CHUNK_ELEMENTS", "TUNE_EVERY", "micro_batch_count", "MicroBatc
 
 
 #: Hidden activations (points × width) per training micro-batch that ``micro_batches=0`` aims at: a
-#: (256, 3) step's working set per layer then stays in a core's 1 MB L2. Step timings on the AVX2 EPYC,
-#: 9,216 points, best of interleaved rounds, 1 part against the auto choice: (256, 3) 8 parts, compiled
-#: 281 → 234 ms, eager 402 → 226 ms; (128, 2) 4 parts, compiled 84 → 64 ms, eager 107 → 74 ms; (64, 1) 2 parts,
-#: eager 21.9 → 17.4 ms, compiled 13.9 → 14.2 ms (no gain: its activations nearly fit).
+#: (256, 3) step's working set per layer then stays in a core's 1 MB L2 (step timings: docs/findings.md).
 TRAIN_CHUNK_ELEMENTS = 1 << 18
 
 
@@ -37,10 +34,8 @@ TUNE_EVERY = 200
 class MicroBatchTuner:
     """The micro-batch count of a time-budgeted CPU run (``micro_batches=0``), chosen by timing real steps.
 
-    Which count is fastest depends on the machine and on its moment: on the AVX2 EPYC a (256, 3) step in one
-    part took 1.3–1.8x as long as in 8; on the AVX-512 EPYC that replaced it (2026-11-30) one part was the
-    fastest compiled step while the VM's memory traffic was slow (150 against 174 ms in 8) and 2–4 parts
-    otherwise (136–145 ms). So the tuner runs the powers of two from 1 up to the rule's count
+    Which count is fastest depends on the machine and on its moment (its cache sizes, the memory traffic of
+    other work on it: docs/findings.md). So the tuner runs the powers of two from 1 up to the rule's count
     (:func:`micro_batch_count`), at most four of them, in interleaved rounds on the run's own steps (``rounds``
     steps each; the first tuning of a loss variant runs one more round, untimed, which pays any compile of its
     shapes), keeps the fastest, and tunes again every ``every`` steps and whenever ``key`` (the loss variant:

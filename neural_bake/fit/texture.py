@@ -7,15 +7,13 @@ A colour SIREN ``g: R^3 -> RGB`` (linear RGB, unit frame) is trained with
 where ĝ is the mesh's texture (bilinear lookup through the UVs, linear RGB), the band is ``|f| ≤ δ`` around
 the zero set of a frozen SDF ``f`` and ``n = ∇f / |∇f|`` (GEMM normals, computed once under no_grad since f
 does not train). ``∇g`` is the differentiable GEMM Jacobian (3 × 3, out × in) of the colour network (default;
-``orth_method="directional"`` computes the same ⟨∇g_c, n⟩ as one forward-mode GEMM stream along n, measured
-1.3–2.4× cheaper for the term), so the second term makes the colours constant along the normal lines: a coarse surface up to δ away from the fine
+``orth_method="directional"`` computes the same ⟨∇g_c, n⟩ as one forward-mode GEMM stream along n, a
+cheaper term), so the second term makes the colours constant along the normal lines: a coarse surface up to δ away from the fine
 one reads the right colour. The term is real and on by default (λ > 0); λ = 0 is the ablation.
 
-Choosing λ (measured, equal steps, δ = 0.03; colour change across the band vs λ = 0, surface PSNR change):
-sphere (64, 1): λ = 1e-4 2.0× / +0.1 dB, 1e-3 5.4× / +0.1 dB, 1e-2 15× / 0 dB; torus: 1e-4 1.6× / −0.1 dB,
-1e-3 3.5× / −0.7 dB; Spot (128, 2): 1e-4 3.6× / −1.8 dB, 1e-3 7.9× / −5.3 dB, 1e-2 15× / −8.8 dB. The
-default 1e-3 passes the 2× target everywhere; detailed textures pay surface PSNR for it (the net must
-extrude every detail along the normals), so lower λ when the surface colour matters more than the band.
+Choosing λ: the default 1e-3 makes the colour across the band at least twice as constant as λ = 0 on the
+bench meshes; detailed textures pay surface PSNR for it (the net must extrude every detail along the
+normals), so lower λ when the surface colour matters more than the band (figures: docs/findings.md).
 
 Band samples: surface samples moved along their (mesh) normals by offsets uniform in [−δ, δ], plus uniform
 points of the unit cube kept where ``|f| ≤ δ`` (``band_uniform_fraction`` of each band batch).
@@ -122,11 +120,8 @@ class TextureFitConfig:
     """Torch dtype for training ("float32" or "float64")."""
 
 
-#: Named presets (fields overridden on top of the defaults). Times are wall-time budgets on this project's
-#: shared 2-core CPU; ``steps`` is an upper bound that a faster machine reaches first. Measured on Spot
-#: (exact mesh SDF, δ = 0.03, CPU shared with other jobs): "fine" 10 min with the default λ = 1e-3 → 5855
-#: steps, 31.1 dB surface PSNR, render MSE 0.00071 (0.0011 read ±δ off the surface); with λ = 0.01 → 26.3 dB;
-#: (128, 2) for 1516 steps (~2 min) with λ = 1e-3 → 28.0 dB.
+#: Named presets (fields overridden on top of the defaults). Times are wall-time budgets; ``steps`` is an
+#: upper bound that a faster machine reaches first. What they reach: BENCHMARKS.md.
 PRESETS: dict[str, dict] = {
     "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 5000, "batch": 2048, "lr": 5e-4},
     "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 10000, "batch": 4096, "lr": 5e-4},

@@ -1,6 +1,6 @@
 """Colour spaces and texture lookup.
 
-Convention (DESIGN.md): fit and compute in *linear* RGB. 8-bit and 16-bit colour images are taken as
+Convention (docs/design.md, "Colour"): fit and compute in *linear* RGB. 8-bit and 16-bit colour images are taken as
 sRGB-encoded and decoded to linear on read; colour maps are sRGB-encoded on write; normal maps, masks and
 float (EXR) images are data and never converted.
 """

@@ -3,7 +3,7 @@
 Arrays are (H, W, C) with row 0 the *top* row of the image as stored in the file, C = 1 (grey), 2 (grey +
 alpha), 3 (RGB) or 4 (RGBA, straight alpha).
 
-Colour handling (DESIGN.md, "Colour"): the toolkit computes in linear RGB.
+Colour handling (docs/design.md, "Colour"): the toolkit computes in linear RGB.
 
 - ``colour="srgb"``: the colour channels are sRGB-encoded in the file; read decodes them to linear,
   write encodes linear values to sRGB. Alpha (channel 2 of 2, channel 4 of 4) is never converted.

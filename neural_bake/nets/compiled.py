@@ -2,10 +2,8 @@
 
 TorchInductor fuses the element-wise work of a SIREN loss (bias, sin/cos, the gradient-stream products,
 the loss terms, and all of their backward) into a few C++/OpenMP (CPU) or Triton (CUDA) kernels, leaving
-the GEMMs to the BLAS. Measured on the 2-core AVX2 EPYC (one training step at the default batch of 9,216
-points, best of 5 interleaved): (64, 1) 21.8 → 18.1 ms, (256, 3) 376 → 340 ms (in another process 355 →
-302 ms: this machine jitters by ±15 %). Compiling costs time once per process: about 20 s with a cold cache,
-3–10 s when TorchInductor's on-disk cache (``/tmp/torchinductor_<user>``) already holds the kernels; so
+the GEMMs to the BLAS (step timings: BENCHMARKS.md). Compiling costs time once per process, less when
+TorchInductor's on-disk cache (``/tmp/torchinductor_<user>``) already holds the kernels; so
 :func:`should_compile` turns it on by default only for runs long enough to repay it.
 
 :class:`CompiledFn` wraps a function: the first call compiles it; if compiling fails (no C++ compiler, an
@@ -69,9 +67,7 @@ def compiler_available(device: torch.device | str) -> bool:
 
 def long_run(steps: int, minutes: float | None) -> bool:
     """Does a training run repay a one-off compile? A budget of at least five minutes, or, without a budget,
-    at least 5,000 steps. Measured on the AVX2 EPYC: a 10-minute (256, 3) run did 1,689 steps compiled
-    against 1,405 eager; a 2.5-minute (128, 2) run with a cold compile cache did 1,322 against 1,423 (21 s
-    of compiling for 7 % faster steps), and 2-minute (64, 1) runs were a wash (4,300–5,200 against 4,400)."""
+    at least 5,000 steps (shorter runs spend the faster steps' gain on compiling: docs/findings.md)."""
     if minutes is not None:
         return minutes >= 5.0
     return steps >= 5000
@@ -89,7 +85,7 @@ def should_compile(mode: str, device: torch.device | str, *, long_run: bool) -> 
 
 #: How many compiled versions (shapes, loss variants, networks) a wrapped function may collect in a process.
 #: torch's default is 8 a function, after which dynamo silently runs it eagerly: a time-budgeted (256, 3)
-#: fit alone needs 8 (four micro-batch counts, :class:`~neural_bake.fit.sdf.MicroBatchTuner`, × bf16 and
+#: fit alone needs 8 (four micro-batch counts, :class:`~neural_bake.fit.sdf_tuning.MicroBatchTuner`, × bf16 and
 #: float32 GEMMs), and a process that fits several networks (a benchmark, a batch over assets) needs more.
 RECOMPILE_LIMIT = 64
 

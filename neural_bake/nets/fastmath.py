@@ -2,17 +2,15 @@
 
 Reverse-mode normals need ``sin A`` (the activations) and ``cos A`` (the derivatives) of every hidden
 pre-activation. torch computes them as two passes with two range reductions, and for narrow networks those
-two passes are most of the cost (a (64, 1) chunk of 4,096 points spends 0.29 ms in ``torch.sin``, 0.29 ms in
-``torch.cos`` and 0.29 ms in each 64×64 GEMM on the AVX2 EPYC). ``sincos.c`` computes both from one shared
-reduction in one vectorised pass: 0.29 ms for the pair, the cost of ``torch.sin`` alone.
+two passes are most of the cost (each costs about as much as a 64×64 GEMM of the same chunk). ``sincos.c``
+computes both from one shared reduction in one vectorised pass, for about the cost of ``torch.sin`` alone.
 
 The C file is compiled on first use with the system's C compiler (``$CC``, cc, gcc or clang) into
 ``$XDG_CACHE_HOME/neural_bake`` (else ``~/.cache/neural_bake``, else the temp folder), named by a hash of
 source, flags, compiler and platform, written atomically, and loaded with ctypes. On x86-64 with GCC it
 carries an AVX2/FMA clone and a baseline one, chosen at run time. The kernel runs on the calling thread: on
-this 2-core machine splitting it across a second thread was slower (torch's OpenMP workers spin on the other
-core after each GEMM): one thread did a (9,216, 64) sin + cos in 0.74 ms, against 1.40 ms for torch's two
-threads. Because machines with many cores may run torch's parallel sin + cos faster than one thread, the
+a 2-core machine splitting it across a second thread was slower (torch's OpenMP workers spin on the other
+core after each GEMM; docs/findings.md). Because machines with many cores may run torch's parallel sin + cos faster than one thread, the
 first use times both on one (4,096, 64) chunk and keeps the faster (``NEURAL_BAKE_FAST_SINCOS=1`` forces the
 kernel, ``=0`` turns it off); when no compiler is found or the build fails, torch's functions are used.
 :func:`status` says which is in use and why.

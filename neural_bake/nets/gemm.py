@@ -46,12 +46,8 @@ MODES = ("reverse", "forward")
 
 #: Size (points × streams × width) of the largest buffer of a chunk of the no-grad path: 2^18 elements
 #: (1 MB in float32), i.e. 1,024 points of a (256, D) scalar SDF in reverse mode (341 in forward mode,
-#: 3 streams) and 4,096 of a (64, D) one. Chosen by measurement (the chunk sweep of `neural-bake bench
-#: normals` and a sweep of 2^17–2^20 elements at 262,144 points, interleaved best of 7, quiet): on the AVX2
-#: EPYC (1 MB L2 per core), (256, 3) reverse mode takes 2.47 s at 2^18, 2.55 s at 2^19, 2.82 s at 2^17 and
-#: 2.91 s at 2^20, and (64, 1) 0.156 s at 2^18 against 0.169 s at 2^20 (reverse mode keeps D + 1 cos
-#: buffers of this size: the working set must stay in cache); on the AMX Xeon measured earlier, (256, 3) was
-#: flat from 1,024 to 16,384 points per chunk.
+#: 3 streams) and 4,096 of a (64, D) one: reverse mode keeps D + 1 cos buffers of this size, and the
+#: working set must stay in a core's L2 cache (the chunk sweep of `neural-bake bench normals`: docs/findings.md).
 GEMM_CHUNK_ELEMENTS = 1 << 18
 
 
@@ -166,7 +162,7 @@ class _SinCos(torch.autograd.Function):
 
 def sin_cos(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(sin a, cos a)``; on the autograd graph (when ``a`` requires grad) one node whose backward needs no
-    transcendental function (measured ~10 % off a (256, 3) SDF training step)."""
+    transcendental function."""
     if torch.is_grad_enabled() and a.requires_grad:
         return _SinCos.apply(a)
     return sincos(a)
@@ -181,9 +177,8 @@ def _backward_mats(layers):
     w_n = layers[-1][0]
     if w_n.shape[0] == 1:
         mats[-1] = mats[-1] * w_n[0].unsqueeze(1)
-    # The last product, (N, W) @ W_0 with W_0 (W, in_dim), is skinny: MKL runs it about 2× faster when W_0
-    # is the transposed view of a contiguous (in_dim, W) array (4,096 × 64 @ 64 × 3: 0.29 → 0.14 ms;
-    # 1,024 × 256 @ 256 × 3: 0.20 → 0.06 ms, on the AVX2 EPYC).
+    # The last product, (N, W) @ W_0 with W_0 (W, in_dim), is skinny: MKL runs it faster when W_0 is the
+    # transposed view of a contiguous (in_dim, W) array.
     mats[0] = mats[0].t().contiguous().t()
     return mats
 
@@ -245,7 +240,7 @@ class _ReverseScalar(torch.autograd.Function):
         layers = list(zip(params[0::2], params[1::2]))
         w_n = layers[-1][0]
         # down the stream: M̄_i and c̄_i
-        # (ψᵀ g_0)ᵀ, not g_0ᵀ ψ: a (3, N) @ (N, W) product runs ~3x faster than (W, N) @ (N, 3)
+        # (ψᵀ g_0)ᵀ, not g_0ᵀ ψ: a (3, N) @ (N, W) product runs faster than (W, N) @ (N, 3)
         d_mats = [(d_grads.t() @ stream[0]).t()]
         d_cos = []
         dg = d_grads @ mats[0].t()

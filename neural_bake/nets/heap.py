@@ -3,11 +3,9 @@
 A training step allocates and frees the same few-megabyte tensors over and over (activations, their cosines,
 the gradient stream, their gradients). glibc's malloc serves blocks above its mmap threshold with a fresh
 ``mmap`` and returns them to the kernel on ``free``, and trims the top of its heaps past a trim threshold,
-so every step touches new pages, and each first touch is a page fault: on the project's 2-core AVX2 EPYC (a
-VM) 28,000–42,000 minor faults per (256, 3) SDF step and ~7,000 per (64, 1) step. :func:`keep_freed_memory`
-raises both thresholds (``mallopt``), so freed blocks stay in the heap and the next step reuses them: a
-handful of faults per step, and (interleaved runs, same machine) a (256, 3) step's median 389–425 →
-283–334 ms and a (64, 1) step's 46–51 → 20–24 ms.
+so every step touches new pages, and each first touch is a page fault (tens of thousands per (256, 3) SDF
+step). :func:`keep_freed_memory` raises both thresholds (``mallopt``), so freed blocks stay in the heap and
+the next step reuses them: a handful of faults per step, and markedly faster steps (docs/findings.md).
 
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
 :data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it

@@ -14,11 +14,8 @@ from .fastmath import sin_
 __all__ = ["Siren", "siren_forward_inference", "forward_chunk_size", "FORWARD_CHUNK_ELEMENTS"]
 
 #: Size (points × width) of a chunk of the inference forward pass: 2^18, i.e. 1,024 points of a width-256
-#: network (a 1 MB float32 buffer, one core's L2 on the AVX2 EPYC) and 4,096 of a width-64 one. Chosen by
-#: measurement (the chunk sweep of `neural-bake bench normals`, and a sweep at 262,144 points, interleaved
-#: best of 7, quiet): on the AVX2 EPYC (1 MB L2 per core) (256, 3) takes 1.05 s at 2^18 or 2^19 elements,
-#: 1.23 s at 2^17 and 1.24 s at 2^20; (64, 1) varies by under 10 % from 2^17 to 2^20. On the AMX Xeon
-#: measured earlier, (256, 3) was flat from 2^18 to 2^22. Much smaller chunks lose to per-call thread
+#: network (a 1 MB float32 buffer, a typical core's L2 cache) and 4,096 of a width-64 one. Chosen by the
+#: chunk sweep of `neural-bake bench normals` (docs/findings.md); much smaller chunks lose to per-call thread
 #: synchronisation.
 FORWARD_CHUNK_ELEMENTS = 1 << 18
 
