@@ -16,7 +16,11 @@ import click
 from neural_bake import __version__
 from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
 
-__all__ = ["main", "LazyGroup"]
+__all__ = ["main", "LazyGroup", "cli_message", "OPTIONS"]
+
+#: The CLI option of a library parameter whose option is not ``--`` and the name with dashes (``max_boxes`` →
+#: ``--max-boxes``); errors about a parameter's value name the option instead of the parameter.
+OPTIONS: dict[str, str] = {}
 
 
 class LazyGroup(click.Group):
@@ -92,12 +96,20 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except NeuralBakeError as exc:
-        click.echo(f"neural-bake: error: {exc}", err=True)
+        click.echo(f"neural-bake: error: {cli_message(exc)}", err=True)
         return 2
     except KeyboardInterrupt:
         click.echo("neural-bake: interrupted", err=True)
         return 130
     return 0
+
+
+def cli_message(exc: NeuralBakeError) -> str:
+    """The error's message as the CLI says it: a leading library parameter name becomes its option."""
+    message, name = str(exc), getattr(exc, "parameter", None)
+    if not name or not message.startswith(name):
+        return message
+    return OPTIONS.get(name, "--" + name.replace("_", "-")) + message[len(name):]
 
 
 def entry() -> None:  # pragma: no cover - console script wrapper

@@ -25,3 +25,73 @@ MERGE_DISTANCE = 1e-9
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
+
+#: A float64 vector no longer than this has no direction: normalising it gives the caller's fallback (+Z, the
+#: face normal, zero), never NaN.
+DIRECTION_EPS = 1e-12
+
+#: A float64 length no larger than this counts as zero in a division (an underflow guard: any other length
+#: still normalises).
+UNDERFLOW_EPS = 1e-300
+
+#: |du1 dv2 - du2 dv1| below this (twice the UV area) marks a face with degenerate UVs: it adds no tangent.
+UV_DET_EPS = 1e-14
+
+#: A tangent shorter than this after Gram-Schmidt is replaced by the fallback tangent.
+TANGENT_EPS = 1e-12
+
+#: UV coordinates that differ by at most this are the same point (one vertex UV; an edge that is no seam).
+UV_MATCH_TOL = 1e-9
+
+#: Barycentric tolerance for "texel centre inside the triangle" (in units of barycentric coordinates).
+TEXEL_INSIDE_EPS = 1e-9
+
+#: A texel centre whose barycentrics all exceed this is strictly inside one triangle (not on a shared edge).
+TEXEL_STRICT_EPS = 1e-7
+
+#: Twice the UV-pixel area below which a UV triangle is degenerate and covers no sample.
+UV_AREA_EPS = 1e-12
+
+#: Slack (in pixels) of the scanline spans; samples found are then tested with barycentrics.
+TEXEL_SPAN_TOL = 1e-6
+
+#: A UV edge whose height in pixels is below this is horizontal: it crosses no scanline.
+UV_FLAT_EDGE_EPS = 1e-12
+
+#: A texel square overlaps a triangle when the largest edge function over the square exceeds this (pixels²).
+TEXEL_OVERLAP_EPS = 1e-12
+
+#: A TBN frame whose determinant is below this fraction of its scale is degenerate: no tangent-space normal.
+TBN_DET_REL_EPS = 1e-8
+
+#: Floor of |∇f| in the training loss's normal term (cosine of ∇f and n): a vanishing gradient gives a bounded
+#: term, never NaN.
+LOSS_GRAD_FLOOR = 1e-6
+
+#: A mined point of the network's zero set is kept when its |f| after the Newton projection is at most this.
+MINED_ZERO_SET_TOL = 1e-3
+
+#: The Newton projection onto f = 0 leaves a point whose |∇f|² is at most this where it is (no NaN).
+NEWTON_MIN_GRAD_SQ = 1e-12
+
+#: The divergence test compares a step's loss with a multiple of the first loss, the first loss floored at this.
+BLOWUP_LOSS_FLOOR = 1e-6
+
+#: A model file's frame is the mesh's when centre and scale agree to this relative tolerance ...
+FRAME_RTOL = 1e-5
+#: ... and the centre to this absolute one (unit-frame units).
+FRAME_ATOL = 1e-6
+
+#: Relative margin on the input-rounding radius of a range-analysis box (covers the rounding of the radius
+#: computation itself, so the bound stays sound).
+RANGE_ROUNDING_MARGIN = 1e-6
+
+#: Distance floor (unit frame) of a winding-number dipole term: a query at a cluster's centre stays finite.
+DIPOLE_MIN_DISTANCE = 1e-30
+
+#: A duration (seconds) below this is taken as this when a rate divides by it.
+MIN_SECONDS = 1e-9
+
+#: The certificate of a nesting bound refines boxes until their bound is below the target, never a target
+#: below this (unit frame).
+CERTIFY_MIN_TARGET = 1e-9

@@ -84,3 +84,27 @@ def test_console_script(tmp_path):
     r = subprocess.run([str(EXE), "inspect", str(tmp_path / "none.obj")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr == f"neural-bake: error: {tmp_path / 'none.obj'}: no such file\n"
+
+
+def test_library_errors_name_parameters_and_the_cli_names_its_options(monkeypatch, tmp_path, capsys):
+    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.cli.main import OPTIONS, cli_message
+    from neural_bake.errors import NeuralBakeError
+    from neural_bake.fit.nested import parse_levels
+
+    for call, name in ((lambda: parse_coarse("melt:3"), "coarse"), (lambda: parse_levels("8by0"), "levels")):
+        with pytest.raises(NeuralBakeError) as info:
+            call()
+        assert info.value.parameter == name and str(info.value).startswith(name) and "--" not in str(info.value)
+        assert cli_message(info.value) == "--" + str(info.value)
+    assert cli_message(NeuralBakeError("max_boxes 3: too few", parameter="max_boxes")) == "--max-boxes 3: too few"
+    monkeypatch.setitem(OPTIONS, "max_boxes", "--boxes")
+    assert cli_message(NeuralBakeError("max_boxes 3: too few", parameter="max_boxes")) == "--boxes 3: too few"
+    # no parameter, or a message that does not start with it: the message as it is
+    assert cli_message(NeuralBakeError("levels.txt: missing")) == "levels.txt: missing"
+    assert cli_message(NeuralBakeError("bad levels", parameter="levels")) == "bad levels"
+    # end to end: the verb's error names its option
+    model = tmp_path / "m.sdf"
+    model.write_bytes(b"")
+    assert main(["fit", "nested", str(model), "-o", str(tmp_path / "o"), "--levels", "8by0"]) == 2
+    assert "neural-bake: error: --levels: '8by0' is not WIDTHxDEPTH" in capsys.readouterr().err

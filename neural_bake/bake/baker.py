@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..constants import DIRECTION_EPS, UNDERFLOW_EPS
 from ..errors import NeuralBakeError
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
@@ -166,8 +167,8 @@ def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
         np.add.at(acc, pid[mesh.faces[:, k]], fn)
     n = acc[pid]
     norm = np.linalg.norm(n, axis=1, keepdims=True)
-    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > 1e-300)
-    out[norm[:, 0] <= 1e-300] = (0.0, 0.0, 1.0)
+    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
+    out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)
     return out
 
 
@@ -434,8 +435,8 @@ class Baker:
         # the average of a texel's unit vectors, renormalised (the weight sum cancels out)
         vec = acc_vec
         norm = np.sqrt(np.einsum("ijk,ijk->ij", vec, vec))[:, :, None]
-        np.divide(vec, norm, out=vec, where=norm > 1e-12)
-        vec[norm[:, :, 0] <= 1e-12] = (0.0, 0.0, 1.0)  # texels whose samples cancel out, and the background
+        np.divide(vec, norm, out=vec, where=norm > DIRECTION_EPS)
+        vec[norm[:, :, 0] <= DIRECTION_EPS] = (0.0, 0.0, 1.0)  # texels whose samples cancel out, and the background
         normal_map = vec
         normal_map += 1.0
         normal_map *= 0.5
@@ -505,24 +506,24 @@ COARSE_KINDS = ("decimate", "march", "keep")
 
 def parse_coarse(spec: str) -> tuple[str, float | int | None]:
     """Parse a coarse-mesh spec: ``"decimate:2000"`` (faces), ``"decimate:0.1"`` (ratio), ``"march:64"``
-    (grid resolution) or ``"keep"``. Raises :class:`NeuralBakeError` naming ``--coarse`` otherwise."""
+    (grid resolution) or ``"keep"``. Raises :class:`NeuralBakeError` naming the parameter ``coarse`` otherwise."""
     kind, _, arg = str(spec).partition(":")
     usage = "expected decimate:FACES, decimate:RATIO, march:RESOLUTION or keep"
     if kind not in COARSE_KINDS:
-        raise NeuralBakeError(f"--coarse {spec!r}: unknown kind {kind!r} ({usage})")
+        raise NeuralBakeError(f"coarse {spec!r}: unknown kind {kind!r} ({usage})", parameter="coarse")
     if kind == "keep":
         if arg:
-            raise NeuralBakeError(f"--coarse {spec!r}: keep takes no value ({usage})")
+            raise NeuralBakeError(f"coarse {spec!r}: keep takes no value ({usage})", parameter="coarse")
         return kind, None
     try:
         value = float(arg)
     except ValueError:
-        raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs a number ({usage})") from None
+        raise NeuralBakeError(f"coarse {spec!r}: {kind} needs a number ({usage})", parameter="coarse") from None
     if kind == "decimate" and 0 < value < 1:
         return kind, value
     if value != int(value) or (kind == "decimate" and value < 4) or (kind == "march" and not 4 <= value <= 1024):
         limits = "a face count >= 4 or a ratio in (0, 1)" if kind == "decimate" else "a resolution in [4, 1024]"
-        raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs {limits}")
+        raise NeuralBakeError(f"coarse {spec!r}: {kind} needs {limits}", parameter="coarse")
     return kind, int(value)
 
 
@@ -552,13 +553,13 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mes
 
         field = getattr(sdf, "model", None) if sdf is not None else None
         if field is None:
-            raise NeuralBakeError(f"--coarse {spec!r}: march needs an SDF model (a Siren)")
+            raise NeuralBakeError(f"coarse {spec!r}: march needs an SDF model (a Siren)", parameter="coarse")
         from ..mesh.cleanup import clean_mesh
 
         out, stats = march(field, value, pruned="auto", frame=sdf.frame or mesh.frame)
         info["march"] = stats
         if out.n_faces == 0:
-            raise NeuralBakeError(f"--coarse {spec!r}: the SDF has no surface at resolution {value}")
+            raise NeuralBakeError(f"coarse {spec!r}: the SDF has no surface at resolution {value}", parameter="coarse")
         out, info["cleanup"] = clean_mesh(out)
     info.update(faces=out.n_faces, vertices=out.n_vertices, seconds=time.perf_counter() - t0)
     return out, info

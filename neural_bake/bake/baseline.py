@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
 from ..types import Mesh
 
@@ -58,7 +59,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
     uvs = res["primitive_uvs"].numpy().astype(np.float64)
     pts = res["points"].numpy().astype(np.float64)
     n = _interp(fine, prim, uvs, vertex_normals(fine)[fine.faces])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), DIRECTION_EPS)
     bary = np.stack([1.0 - uvs[:, 0] - uvs[:, 1], uvs[:, 0], uvs[:, 1]], axis=1)
     return {"points": pts, "face": prim, "bary": bary, "normals": n, "distance": np.linalg.norm(pts - points, axis=1)}
 
@@ -128,7 +129,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
 
     t0 = time.perf_counter()
     normals = _interp(fine, prim, uvs, vertex_normals(fine)[fine.faces])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), DIRECTION_EPS)
     colors = None
     if fine.uv is not None and fine.texture is not None:
         uv = _interp(fine, prim, uvs, np.asarray(fine.uv, dtype=np.float64))

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
 from ..io.atomic import atomic_path
 from ..types import Mesh
@@ -93,7 +94,7 @@ def export_glb(
     if mesh.n_faces == 0:
         raise MeshError(f"{mesh.name}: export_glb: mesh has no faces")
     nrm = vertex_normals(mesh) if normals is None else _check_vertex_array("normals", normals, mesh, (3,))
-    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), DIRECTION_EPS)
     attrs: list[tuple[str, np.ndarray]] = [
         ("POSITION", mesh.frame.to_source(mesh.vertices)),
         ("NORMAL", nrm),

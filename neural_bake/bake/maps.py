@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..constants import DIRECTION_EPS, TBN_DET_REL_EPS
 from ..errors import NeuralBakeError
 
 __all__ = [
@@ -31,12 +32,11 @@ __all__ = [
 NORMAL_SPACES = ("tangent", "object")
 Y_CONVENTIONS = ("opengl", "directx")
 
-_EPS = 1e-12
 
 
 def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     norm = np.linalg.norm(v, axis=-1, keepdims=True)
-    ok = (norm[..., 0] > _EPS) & np.isfinite(norm[..., 0])
+    ok = (norm[..., 0] > DIRECTION_EPS) & np.isfinite(norm[..., 0])
     out = np.divide(v, norm, out=np.zeros_like(v), where=ok[..., None])
     return out, ok
 
@@ -63,7 +63,8 @@ def encode_tangent_space(
     r0, r1, r2 = np.cross(b, g), np.cross(g, t), np.cross(t, b)
     det = np.einsum("ij,ij->i", t, r0)
     scale = np.linalg.norm(t, axis=-1) * np.linalg.norm(b, axis=-1) * np.linalg.norm(g, axis=-1)
-    ok = np.isfinite(det) & (np.abs(det) > 1e-8 * np.maximum(scale, _EPS)) & np.isfinite(n).all(axis=-1)
+    ok = (np.isfinite(det) & (np.abs(det) > TBN_DET_REL_EPS * np.maximum(scale, DIRECTION_EPS))
+          & np.isfinite(n).all(axis=-1))
     x = np.stack([np.einsum("ij,ij->i", r, n) for r in (r0, r1, r2)], axis=-1) * np.sign(det)[:, None]
     x, ok_norm = _unit(x)
     ok &= ok_norm

@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..constants import DIRECTION_EPS, UV_MATCH_TOL
 from ..errors import NeuralBakeError
 from ..types import Mesh
 from .maps import colors_to_normals, decode_tangent_space
@@ -116,7 +117,8 @@ def seam_discontinuity(
     a1, b1 = ea[first], eb[first]
     a2 = np.where(same, ea[second], eb[second])
     b2 = np.where(same, eb[second], ea[second])
-    seam = (np.abs(uvv[a1] - uvv[a2]).max(axis=1) > 1e-9) | (np.abs(uvv[b1] - uvv[b2]).max(axis=1) > 1e-9)
+    seam = ((np.abs(uvv[a1] - uvv[a2]).max(axis=1) > UV_MATCH_TOL)
+            | (np.abs(uvv[b1] - uvv[b2]).max(axis=1) > UV_MATCH_TOL))
     a1, b1, a2, b2 = a1[seam], b1[seam], a2[seam], b2[seam]
     if a1.size == 0:
         return {"edges": 0, "normal_deg": error_stats([]), "color": error_stats([])}
@@ -132,9 +134,9 @@ def seam_discontinuity(
             n_obj = x
         else:
             nn = lerp(vn)
-            nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-12)
+            nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), DIRECTION_EPS)
             tt = lerp(tangents[:, :3])
-            tt /= np.maximum(np.linalg.norm(tt, axis=1, keepdims=True), 1e-12)
+            tt /= np.maximum(np.linalg.norm(tt, axis=1, keepdims=True), DIRECTION_EPS)
             w = np.where(lerp(tangents[:, 3:]) < 0, -1.0, 1.0)
             n_obj = decode_tangent_space(x, tt, w * np.cross(nn, tt), nn, y_convention)
         col = None if albedo is None else sample_texture(albedo, uv, mesh.uv_policy)

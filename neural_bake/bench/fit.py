@@ -43,6 +43,7 @@ from pathlib import Path
 
 import torch
 
+from ..constants import LOSS_GRAD_FLOOR
 from .common import load_note, machine_info, timeit_interleaved
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
@@ -66,7 +67,7 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
     loss = (cfg.w_surface * sq_surf.mean()
-            + cfg.w_normal * (1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(1e-6)).mean()
+            + cfg.w_normal * (1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(LOSS_GRAD_FLOOR)).mean()
             + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * sq_vol.mean())
     return {"loss": loss}
 

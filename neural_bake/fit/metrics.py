@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..constants import DIRECTION_EPS, NEWTON_MIN_GRAD_SQ
 from ..errors import FitError
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
@@ -126,12 +127,13 @@ def zero_level_mesh(model, resolution: int = 128, *, bound: float = 1.0):
 def project_to_zero_set(model, x: torch.Tensor, steps: int = 2) -> torch.Tensor:
     """``steps`` Newton steps ``x ← x − f(x) ∇f(x) / |∇f(x)|²`` towards f = 0 (GEMM gradients, no autograd).
 
-    Points where |∇f|² ≤ 1e-12 stay where they are (no NaN); the caller checks |f| at the result.
+    Points where |∇f|² ≤ :data:`~neural_bake.constants.NEWTON_MIN_GRAD_SQ` stay where they are (no NaN); the
+    caller checks |f| at the result.
     """
     for _ in range(steps):
         f, g = gemm_gradient(model, x)
         g2 = (g * g).sum(dim=1, keepdim=True)
-        ok = g2 > 1e-12
+        ok = g2 > NEWTON_MIN_GRAD_SQ
         x = torch.where(ok, x - f * g / torch.where(ok, g2, torch.ones_like(g2)), x)
     return x
 
@@ -261,6 +263,6 @@ def _truth_normals(truth_normal, points: np.ndarray) -> np.ndarray:
     if t.shape != points.shape:
         raise FitError(f"sdf_metrics: truth_normal must return ({points.shape[0]}, 3) normals, got {t.shape}")
     norm = np.linalg.norm(t, axis=1, keepdims=True)
-    if not np.isfinite(t).all() or (norm < 1e-12).any():
+    if not np.isfinite(t).all() or (norm < DIRECTION_EPS).any():
         raise FitError("sdf_metrics: truth_normal returned non-finite or zero normals at mesh samples")
     return t / norm

@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..constants import CERTIFY_MIN_TARGET, DIRECTION_EPS
 from ..errors import FitError, ModelFileError, NeuralBakeWarning
 from ..io.atomic import atomic_path
 from ..io.jsonio import json_default
@@ -192,10 +193,10 @@ def parse_levels(text: str) -> list[tuple[int, int]]:
             if w < 1 or d < 0:
                 raise ValueError
         except ValueError:
-            raise FitError(f"--levels: {item!r} is not WIDTHxDEPTH (e.g. 64x1)") from None
+            raise FitError(f"levels: {item!r} is not WIDTHxDEPTH (e.g. 64x1)", parameter="levels") from None
         out.append((w, d))
     if not out:
-        raise FitError("--levels: give at least one level, e.g. 64x1,256x1")
+        raise FitError("levels: give at least one level, e.g. 64x1,256x1", parameter="levels")
     return out
 
 
@@ -258,8 +259,8 @@ def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, 
     Boxes (axis-aligned cubes) start as an ``initial``³ grid of [-1, 1]³; a box is dropped when the
     guaranteed ranges of h and g over it both miss [-band, band]; otherwise its bound is
     ``max(|lo|, |hi|)`` of :func:`~neural_bake.nets.range_analysis.difference_bound`. The box with the largest
-    bound is split into 8 while that bound exceeds ``max(estimate × (1 + rel_tol), 1e-9)``, the box is larger
-    than ``min_half`` and fewer than ``max_boxes`` boxes have been bounded.
+    bound is split into 8 while that bound exceeds ``max(estimate × (1 + rel_tol), CERTIFY_MIN_TARGET)``, the box
+    is larger than ``min_half`` and fewer than ``max_boxes`` boxes have been bounded.
 
     Returns ``{"sup_certified", "boxes_bounded", "boxes_final", "complete"}`` where ``complete`` says every
     final box met the target (False: the budget or the minimum size stopped the refinement first).
@@ -268,7 +269,7 @@ def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, 
 
     p = next(h.parameters())
     dtype, device = p.dtype, p.device
-    target = max((estimate or 0.0) * (1.0 + rel_tol), 1e-9)
+    target = max((estimate or 0.0) * (1.0 + rel_tol), CERTIFY_MIN_TARGET)
     k = int(initial)
     axis = (torch.arange(k, dtype=dtype) * 2 + 1) / k - 1
     cx, cy, cz = torch.meshgrid(axis, axis, axis, indexing="ij")
@@ -496,10 +497,11 @@ def fit_nested(
                 cert["sup_certified"] = max(cert["sup_certified"], est)
                 infos[i]["sup_certified"] = cert["sup_certified"]
                 infos[i]["certify"] = cert
-                if cert["sup_certified"] > warn_ratio * max(est, 1e-12):
+                if cert["sup_certified"] > warn_ratio * max(est, DIRECTION_EPS):
                     warnings.warn(
                         f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}): certified |h - g| bound "
-                        f"{cert['sup_certified']:.4g} is {cert['sup_certified'] / max(est, 1e-12):.1f}x the sampled "
+                        f"{cert['sup_certified']:.4g} is "
+                        f"{cert['sup_certified'] / max(est, DIRECTION_EPS):.1f}x the sampled "
                         f"estimate {est:.4g} (range analysis over {cert['boxes_bounded']} boxes"
                         f"{'' if cert['complete'] else ', budget reached'}); "
                         f"{'the certified δ is used' if cert['complete'] else 'δ uses the estimate, both are stored'}",

@@ -18,6 +18,7 @@ from typing import Callable, Sequence
 
 import torch
 
+from ..constants import MIN_SECONDS
 from ..errors import FitError, NeuralBakeWarning
 from .training import _all_finite
 
@@ -130,7 +131,7 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
                 if count:
                     per_eval = (now - t_run) / count
                 # no call that would run past the deadline, at the rate measured so far
-                budget = min(budget, int((deadline - now) / max(per_eval, 1e-9)))
+                budget = min(budget, int((deadline - now) / max(per_eval, MIN_SECONDS)))
                 if budget < 2:
                     break
             opt.param_groups[0]["max_eval"] = max(2, budget)

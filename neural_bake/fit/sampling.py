@@ -43,7 +43,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..constants import DEGENERATE_AREA
+from ..constants import DEGENERATE_AREA, DIPOLE_MIN_DISTANCE, DIRECTION_EPS
 from ..errors import MeshError
 from ..io.colour import sample_texture
 from ..types import Mesh
@@ -192,7 +192,7 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face") 
         vn = _vertex_normals(mesh)[mesh.faces[face]]
         nrm = np.einsum("nk,nkd->nd", bary, vn)
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
-        good = length[:, 0] > 1e-12
+        good = length[:, 0] > DIRECTION_EPS
         nrm = np.where(good[:, None], nrm / np.where(length > 0, length, 1.0), fn)
     else:
         nrm = fn
@@ -452,7 +452,7 @@ def _fast_winding(p: torch.Tensor, tri_np: np.ndarray) -> torch.Tensor:
         d = center_t[None] - q[:, None]  # (P, k, 3)
         r = d.norm(dim=-1)
         far = r > FAR_FACTOR * radius_t[None]
-        term = (d * dipole_t[None]).sum(-1) / (4 * math.pi * r.clamp_min(1e-30) ** 3)
+        term = (d * dipole_t[None]).sum(-1) / (4 * math.pi * r.clamp_min(DIPOLE_MIN_DISTANCE) ** 3)
         w = torch.where(far, term, torch.zeros_like(term)).sum(1)
         pi, ki = torch.nonzero(~far, as_tuple=True)
         if pi.numel():

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from ..constants import LOSS_GRAD_FLOOR
 from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from .sdf_config import SdfFitConfig
@@ -77,7 +78,7 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
     terms = {
         "surface": sq_surf.sum() / max(n_s, 1),
-        "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(1e-6)).sum() / max(n_s, 1),
+        "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(LOSS_GRAD_FLOOR)).sum() / max(n_s, 1),
         "eikonal": ((1.0 - gnorm) ** 2).sum() / max(n_s + n_v, 1),
     }
     terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_p.shape[0] else f.new_zeros(())

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..constants import MINED_ZERO_SET_TOL
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..types import Mesh
@@ -81,7 +82,7 @@ def _zero_set_samples(model: Siren, mesh: Mesh, near_p: torch.Tensor, cfg: SdfFi
     x = project_to_zero_set(model, torch.index_select(near_p, 0, pick), 2)
     with torch.no_grad():
         f = model(x)[:, 0]
-    ok = torch.isfinite(x).all(dim=1) & (f.abs() <= 1e-3)
+    ok = torch.isfinite(x).all(dim=1) & (f.abs() <= MINED_ZERO_SET_TOL)
     x = x[ok]
     if x.shape[0] == 0:
         return None

@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..constants import GRAD_EPS
+from ..constants import FRAME_ATOL, FRAME_RTOL, GRAD_EPS
 from ..errors import FitError, ImageError, MeshError, ModelFileError, NeuralBakeWarning
 from ..io.colour import sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
@@ -182,7 +182,7 @@ def _texture_rgb(mesh: Mesh, texture: np.ndarray | None) -> np.ndarray:
         raise MeshError(f"{mesh.name}: mesh has no UV coordinates; texture fitting needs UVs and a texture")
     tex = mesh.texture if texture is None else texture
     if tex is None:
-        raise MeshError(f"{mesh.name}: mesh has no texture image; pass one (--texture IMG) to fit a texture")
+        raise MeshError(f"{mesh.name}: mesh has no texture image; pass one (texture) to fit a texture")
     tex = np.asarray(tex)
     if tex.ndim == 2:
         tex = tex[:, :, None]
@@ -421,8 +421,8 @@ def _check_frames(mesh: Mesh, sdf: _Sdf, name: str) -> None:
         f = Frame.from_dict(fr)
     except (KeyError, TypeError, ValueError):
         raise ModelFileError(f"{name}: model file has an unreadable 'frame' entry") from None
-    if not (np.allclose(f.center, mesh.frame.center, rtol=1e-5, atol=1e-6)
-            and math.isclose(f.scale, mesh.frame.scale, rel_tol=1e-5)):
+    if not (np.allclose(f.center, mesh.frame.center, rtol=FRAME_RTOL, atol=FRAME_ATOL)
+            and math.isclose(f.scale, mesh.frame.scale, rel_tol=FRAME_RTOL)):
         raise FitError(f"{name}: the SDF was fitted in another frame than {mesh.name} "
                        f"(scale {f.scale:g} vs {mesh.frame.scale:g}); fit the SDF on this mesh")
 

@@ -41,6 +41,7 @@ from typing import Callable
 
 import torch
 
+from ..constants import BLOWUP_LOSS_FLOOR
 from ..errors import FitError, NeuralBakeWarning
 from ..io.atomic import atomic_path
 from ..nets.heap import keep_freed_memory
@@ -250,7 +251,7 @@ def train(
         model_state, opt_state, meta = load_checkpoint(cfg.checkpoint)
         if meta.get("fingerprint", "") != fingerprint:
             raise FitError(f"{cfg.checkpoint}: checkpoint belongs to another run (different network, mesh or "
-                           f"settings); remove it or choose another --checkpoint")
+                           f"settings); remove it or choose another checkpoint file")
         try:
             model.load_state_dict(model_state)
             opt.load_state_dict(opt_state)
@@ -310,7 +311,7 @@ def train(
             problem = None
             if not math.isfinite(loss_value):
                 problem = "non-finite loss"
-            elif first_loss is not None and loss_value > cfg.blowup * max(first_loss, 1e-6):
+            elif first_loss is not None and loss_value > cfg.blowup * max(first_loss, BLOWUP_LOSS_FLOOR):
                 problem = f"loss {loss_value:.3g} exploded (first loss {first_loss:.3g})"
             if problem is None:
                 if loss.requires_grad:

@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..constants import TANGENT_EPS, UNDERFLOW_EPS, UV_DET_EPS, UV_MATCH_TOL
 from ..errors import MeshError
 from ..types import Mesh
 
 __all__ = ["tangent_frames", "vertex_normals", "vertex_uv"]
 
-#: |du1 dv2 - du2 dv1| below this (UV area x 2) marks a face with degenerate UVs: it adds no tangent.
-_UV_DET_EPS = 1e-14
-#: A tangent shorter than this after Gram-Schmidt is replaced by the fallback tangent.
-_TANGENT_EPS = 1e-12
 
 
 def vertex_normals(mesh: Mesh) -> np.ndarray:
@@ -30,12 +27,12 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
         for k in range(3):
             np.add.at(n, mesh.faces[:, k], fn)
     norm = np.linalg.norm(n, axis=1, keepdims=True)
-    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > 1e-300)
-    out[norm[:, 0] <= 1e-300] = (0.0, 0.0, 1.0)
+    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
+    out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)
     return out
 
 
-def vertex_uv(mesh: Mesh, *, atol: float = 1e-9) -> np.ndarray:
+def vertex_uv(mesh: Mesh, *, atol: float = UV_MATCH_TOL) -> np.ndarray:
     """(V, 2) float64 per-vertex UVs of a mesh whose vertices are split at UV seams.
 
     Raises :class:`MeshError` if the mesh has no UVs or if two corners of one vertex carry different UVs
@@ -91,7 +88,7 @@ def tangent_frames(mesh: Mesh) -> np.ndarray:
     e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
     d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-    ok = np.abs(det) > _UV_DET_EPS
+    ok = np.abs(det) > UV_DET_EPS
     inv = np.divide(1.0, det, out=np.zeros_like(det), where=ok)
     ft = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv[:, None]  # dP/du
     fb = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv[:, None]  # dP/dv
@@ -111,13 +108,13 @@ def tangent_frames(mesh: Mesh) -> np.ndarray:
         np.add.at(acc_b, f[:, k], fb * ang)
     t = acc_t - n * np.sum(acc_t * n, axis=1, keepdims=True)
     tn = np.linalg.norm(t, axis=1)
-    good = tn > _TANGENT_EPS
+    good = tn > TANGENT_EPS
     t[good] /= tn[good, None]
     if (~good).any():
         # no usable dP/du: try the direction orthogonal to the accumulated bitangent, then any axis
         alt = np.cross(acc_b[~good], n[~good])
         an = np.linalg.norm(alt, axis=1)
-        fb_ok = an > _TANGENT_EPS
+        fb_ok = an > TANGENT_EPS
         alt[fb_ok] /= an[fb_ok, None]
         alt[~fb_ok] = _orthonormal_fallback(n[~good][~fb_ok])
         t[~good] = alt

@@ -8,18 +8,14 @@ from typing import Iterator
 
 import numpy as np
 
+from ..constants import (TEXEL_INSIDE_EPS, TEXEL_OVERLAP_EPS, TEXEL_SPAN_TOL, TEXEL_STRICT_EPS, UNDERFLOW_EPS,
+                         UV_AREA_EPS, UV_FLAT_EDGE_EPS)
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Mesh
 from .tangents import tangent_frames, vertex_normals, vertex_uv
 
 __all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points"]
 
-#: Barycentric tolerance for "texel centre inside the triangle" (in units of barycentric coordinates).
-_INSIDE_EPS = 1e-9
-#: Twice the UV-pixel area below which a UV triangle is degenerate and covers no sample.
-_UV_AREA_EPS = 1e-12
-#: Slack (in pixels) of the scanline spans; samples found are then tested with barycentrics.
-_SPAN_TOL = 1e-6
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
 
@@ -184,8 +180,8 @@ def _row_spans(x, y, py):
         j = (i + 1) % 3
         xi, xj, yi, yj = x[:, i], x[:, j], y[:, i], y[:, j]
         dy = yj - yi
-        on = (py >= np.minimum(yi, yj) - _SPAN_TOL) & (py <= np.maximum(yi, yj) + _SPAN_TOL)
-        flat = np.abs(dy) < 1e-12
+        on = (py >= np.minimum(yi, yj) - TEXEL_SPAN_TOL) & (py <= np.maximum(yi, yj) + TEXEL_SPAN_TOL)
+        flat = np.abs(dy) < UV_FLAT_EDGE_EPS
         t = np.clip(np.divide(py - yi, dy, out=np.zeros_like(dy), where=~flat), 0.0, 1.0)
         xa = xi + t * (xj - xi)
         lo = np.where(flat, np.minimum(xi, xj), xa)
@@ -209,7 +205,7 @@ def _sample_hits(xs, ys, hs, ws, rows):
     r0 = np.maximum(np.ceil(ymin), a).astype(np.int64)
     r1 = np.minimum(np.floor(ymax), b - 1).astype(np.int64)
     area2 = (xs[:, 1] - xs[:, 0]) * (ys[:, 2] - ys[:, 0]) - (xs[:, 2] - xs[:, 0]) * (ys[:, 1] - ys[:, 0])
-    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > _UV_AREA_EPS))
+    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > UV_AREA_EPS))
     if live.size == 0:
         e = np.zeros(0, np.int64)
         return e, e, e, np.zeros((0, 3)), 0
@@ -225,8 +221,8 @@ def _sample_hits(xs, ys, hs, ws, rows):
         rowv = r0[ids][slot] + np.arange(len(slot), dtype=np.int64) - np.repeat(start, nr[sl])
         kr = ids[slot]
         xl, xr = _row_spans(xs[kr], ys[kr], rowv.astype(np.float64))
-        cl = np.maximum(np.ceil(xl - _SPAN_TOL), 0).astype(np.int64)
-        cr = np.minimum(np.floor(xr + _SPAN_TOL), ws - 1).astype(np.int64)
+        cl = np.maximum(np.ceil(xl - TEXEL_SPAN_TOL), 0).astype(np.int64)
+        cr = np.minimum(np.floor(xr + TEXEL_SPAN_TOL), ws - 1).astype(np.int64)
         ncol = np.maximum(cr - cl + 1, 0)
         for sl2 in _chunks_by_budget(ncol, _MAX_CANDIDATES):
             n2 = ncol[sl2]
@@ -236,8 +232,8 @@ def _sample_hits(xs, ys, hs, ws, rows):
             rr = rowv[slot2]
             k = kr[slot2]
             bary, _ = _bary(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
-            inside = (bary >= -_INSIDE_EPS).all(axis=1)
-            strict = (bary > 1e-7).all(axis=1)
+            inside = (bary >= -TEXEL_INSIDE_EPS).all(axis=1)
+            strict = (bary > TEXEL_STRICT_EPS).all(axis=1)
             strict_ids.append((rr[strict] - a) * ws + cc[strict])
             out_k.append(k[inside])
             out_r.append(rr[inside])
@@ -264,7 +260,7 @@ def _sample_hits(xs, ys, hs, ws, rows):
 def _closest_on_triangles(x, y, px, py):
     """Closest point of 2-D triangles (K, 3) to points (K,): (distance (K,), clamped bary (K, 3))."""
     bary, d = _bary(x, y, px, py)
-    inside = (bary >= 0).all(axis=1) & (np.abs(d) > _UV_AREA_EPS)
+    inside = (bary >= 0).all(axis=1) & (np.abs(d) > UV_AREA_EPS)
     best_d = np.full(len(px), np.inf)
     best_b = np.zeros((len(px), 3))
     for i in range(3):
@@ -294,7 +290,7 @@ def _border_hits(xs, ys, h, w, rows, covered):
     r0 = np.maximum(np.ceil(ys.min(axis=1) - 0.5), a).astype(np.int64)
     r1 = np.minimum(np.floor(ys.max(axis=1) + 0.5), b - 1).astype(np.int64)
     area2 = (xs[:, 1] - xs[:, 0]) * (ys[:, 2] - ys[:, 0]) - (xs[:, 2] - xs[:, 0]) * (ys[:, 1] - ys[:, 0])
-    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > _UV_AREA_EPS))
+    live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > UV_AREA_EPS))
     ks, rs, cs, ds, bs = [], [], [], [], []
     if live.size:
         nr, nc = r1[live] - r0[live] + 1, c1[live] - c0[live] + 1
@@ -316,7 +312,7 @@ def _border_hits(xs, ys, h, w, rows, covered):
                 ex, ey = x[:, j] - x[:, i], y[:, j] - y[:, i]
                 # edge function, positive inside; its largest value over the texel square must be > 0
                 e = sgn * (ex * (py - y[:, i]) - ey * (px - x[:, i]))
-                overlap &= e + 0.5 * (np.abs(ex) + np.abs(ey)) > 1e-12
+                overlap &= e + 0.5 * (np.abs(ex) + np.abs(ey)) > TEXEL_OVERLAP_EPS
             k, rr, cc = k[overlap], rr[overlap], cc[overlap]
             if k.size == 0:
                 continue
@@ -359,8 +355,8 @@ def _prepare_tangents(mesh: Mesh, tangents) -> np.ndarray:
 
 def _unit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = np.linalg.norm(x, axis=1, keepdims=True)
-    ok = n[:, 0] > 1e-300
-    return np.divide(x, n, out=np.zeros_like(x), where=n > 1e-300), ok
+    ok = n[:, 0] > UNDERFLOW_EPS
+    return np.divide(x, n, out=np.zeros_like(x), where=n > UNDERFLOW_EPS), ok
 
 
 def iter_texels(

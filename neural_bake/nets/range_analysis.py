@@ -60,6 +60,7 @@ from typing import Sequence
 
 import torch
 
+from ..constants import RANGE_ROUNDING_MARGIN
 from ..errors import NeuralBakeError
 
 __all__ = [
@@ -305,7 +306,7 @@ def _input_form(center: torch.Tensor, axes: torch.Tensor, u_in: float, cdtype: t
     # less precise than the input, the rounding of this conversion of c and v
     u_c = _unit_roundoff(cdtype)
     rel = (s + 1) * u_in + (2.0 * (s + 1) * u_c if u_c > u_in else 0.0)
-    rho = rel * (c.abs() + v.abs().sum(1)) * (1.0 + 1e-6)
+    rho = rel * (c.abs() + v.abs().sum(1)) * (1.0 + RANGE_ROUNDING_MARGIN)
     if method == "interval":
         rad = _abs_sum(v, 1, u_c) + rho
         return c, c.new_zeros((0, c.shape[0], c.shape[1])), rad
