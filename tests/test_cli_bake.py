@@ -218,6 +218,7 @@ def test_streamed_bake_writes_a_sampled_report(files, tmp_path):
     m = cached["sampling"]["of"]
     assert cached["sampling"]["sampled"] == [] and cached["sampling"]["samples"] == m > 1000
     assert rep["sampling"]["samples"] == 300 and rep["sampling"]["of"] == m and "note" not in rep
+    assert streamed["sampling"]["samples"] == 300  # the returned report is the written one
     assert {"vs_truth_deg", "vs_gradient_deg", "color_psnr_db", "baseline.vs_truth_deg"} <= set(rep["sampling"]["sampled"])
     assert rep["truth"] == "analytic (sphere sample)" and rep["vs_truth_deg"]["count"] == 300
     lo, hi = rep["vs_truth_deg"]["median_ci95"]

@@ -123,15 +123,15 @@ def step_timing(width: int, depth: int, *, batch: int = 4096, batch_near: int = 
 
     methods = {("eager", k): step(sdf_loss_terms, k) for k in counts}
     methods.update({"graph": graph_step, "bf16": step(sdf_loss_terms, low_precision=True), "auto": baseline})
-    compiled = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
-                          desc=f"bench fit {width}x{depth}")
+    compiled_fn = CompiledFn(sdf_loss_terms, enabled=compiled and compiler_available("cpu"),
+                             desc=f"bench fit {width}x{depth}")
     t_compile = None
-    if compiled.enabled:
+    if compiled_fn.enabled:
         t_compile = time.perf_counter()
-        step(compiled)()  # the compile itself (TorchInductor's on-disk cache makes repeats cheaper)
+        step(compiled_fn)()  # the compile itself (TorchInductor's on-disk cache makes repeats cheaper)
         t_compile = time.perf_counter() - t_compile
-        if compiled.compiled:
-            methods.update({("compiled", k): step(compiled, k) for k in counts})
+        if compiled_fn.compiled:
+            methods.update({("compiled", k): step(compiled_fn, k) for k in counts})
     for fn in methods.values():
         fn()  # warm-up (and the compiles of the other counts' shapes)
     # the roofline is probed inside the same rounds (as in bench normals): this VM's sgemm rate drifts by

@@ -28,7 +28,7 @@ import numpy as np
 from ..constants import DEGENERATE_AREA, MERGE_DISTANCE, UV_POLICIES
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Frame, Mesh
-from .atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from .atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["load_mesh", "mesh_from_arrays", "save_mesh", "MESH_FORMATS", "SAVE_FORMATS"]
 

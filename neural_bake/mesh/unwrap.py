@@ -143,7 +143,7 @@ def unwrap(mesh: Mesh, config: UnwrapConfig | None = None, **options) -> Mesh:
     """:func:`unwrap_with_mapping` without the mapping; see there. The mapping is also kept on the result
     as ``result.source_vertex`` ((V',) int64)."""
     out, vmap = unwrap_with_mapping(mesh, config, **options)
-    out.source_vertex = vmap  # plain attribute: the dataclass has no field for it
+    out.source_vertex = vmap  # type: ignore[attr-defined]  # plain attribute: the dataclass has no field for it
     return out
 
 

@@ -21,7 +21,7 @@ def _reference_forward(model, x):
 def test_architecture_and_shapes(width, depth):
     m = Siren(width, depth)
     assert len(m.layers) == depth + 2
-    assert [l.weight.shape for l in m.layers[1:-1]] == [(width, width)] * depth
+    assert [layer.weight.shape for layer in m.layers[1:-1]] == [(width, width)] * depth
     assert m.architecture == {"width": width, "depth": depth, "in_dim": 3, "out_dim": 1,
                               "omega_0": 30.0, "hidden_omega": 30.0}
     assert m(torch.zeros(5, 3)).shape == (5, 1)
