@@ -33,7 +33,6 @@ NORMAL_SPACES = ("tangent", "object")
 Y_CONVENTIONS = ("opengl", "directx")
 
 
-
 def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     norm = np.linalg.norm(v, axis=-1, keepdims=True)
     ok = (norm[..., 0] > DIRECTION_EPS) & np.isfinite(norm[..., 0])

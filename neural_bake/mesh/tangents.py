@@ -11,7 +11,6 @@ from ..types import Mesh
 __all__ = ["tangent_frames", "vertex_normals", "vertex_uv"]
 
 
-
 def vertex_normals(mesh: Mesh) -> np.ndarray:
     """(V, 3) float64 unit outward vertex normals of ``mesh``.
 
