@@ -21,3 +21,11 @@ UV_POLICIES = ("wrap", "clamp")
 #: Vertices closer than this (unit frame) are welded on load: the splits that OBJ ``v/vt`` pairs and glTF
 #: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
 MERGE_DISTANCE = 1e-9
+
+#: Hybrid bake: a texel whose source-surface point (where the classical bake's ray lands) has |f| above this
+#: (unit frame) is one the neural field does not represent; it takes the classical mesh-to-mesh normal.
+HYBRID_SDF_TOL = 0.01
+
+#: Hybrid bake: a texel whose ∇f differs from the source mesh's normal there by more than this many degrees
+#: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
+HYBRID_ANGLE_DEG = 20.0
