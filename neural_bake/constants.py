@@ -29,3 +29,7 @@ HYBRID_SDF_TOL = 0.01
 #: Hybrid bake: a texel whose ∇f differs from the source mesh's normal there by more than this many degrees
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
+
+#: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
+#: the view: it has no image basis and is refused.
+CAMERA_PARALLEL_EPS = 1e-9
