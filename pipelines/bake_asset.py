@@ -81,6 +81,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import NeuralBakeError
+    from neural_bake.io.asset import read_asset, shading_mesh
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.images import write_image
     from neural_bake.io.jsonio import dumps
@@ -129,8 +130,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
+    asset = read_asset(mesh, fine)
+    # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
+    reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+    keep = parse_coarse(coarse)[0] == "keep"
     timings["load"] = time.perf_counter() - t0
-    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
+    coarse_m, coarse_info = coarse_mesh(reference if keep else fine, coarse, sdf)
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
@@ -153,7 +158,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             if cfg.hybrid and "normal" in maps:
                 from neural_bake.bake.hybrid import HybridFallback
 
-                hybrid = HybridFallback(fine, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
+                hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
                                         keep_baseline=baseline and baker.cache)
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
                              hybrid=hybrid)
@@ -178,9 +183,19 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                     written.append("albedo.exr")
             # a glTF normalTexture is tangent space, +Y up: an object-space or DirectX map stays loose
             gltf_normals = "normal" in maps and normal_space == "tangent" and not directx
+            # onto the asset itself, the GLB keeps what was not baked: its base colour, normal, AO/roughness/metal
+            kept_maps = asset.maps if keep else {}
+            albedo_out = res.albedo if res.albedo is not None or not keep else fine.texture
             export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
-                       albedo=res.albedo, tangents=baker.tangents)
+                       albedo=albedo_out, tangents=baker.tangents, material_maps=kept_maps,
+                       same_image=asset.same_image, material_factors=asset.factors)
             written.append("asset.glb")
+            if keep:
+                report["kept"] = {
+                    "vertex_normals": "the asset's" if asset.corner_normals is not None else "computed",
+                    "uv": "the asset's" if fine.uv is not None else "unwrapped",
+                    "maps": sorted((["base_colour"] if res.albedo is None and fine.texture is not None else [])
+                                   + [k for k in kept_maps if not (k == "normal" and gltf_normals)])}
             timings["write"] = time.perf_counter() - t0
             base = base_fn = None
             if baseline:
@@ -189,17 +204,17 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                 if res.normals is not None:  # every texel sample in memory: one baseline bake of them all
                     base = hybrid.baseline() if hybrid is not None else None  # the hybrid's, if it kept it
                     if base is None:
-                        base = baseline_bake(baker.mesh, fine, baker.texels, cage=cage)
+                        base = baseline_bake(baker.mesh, reference, baker.texels, cage=cage)
                     log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
                         f"{base['fallback']} closest-point fallbacks")
                 else:  # streamed: the report runs it on its sampled texels and band by band for the error map
-                    scene = raycasting_scene(fine)
+                    scene = raycasting_scene(reference)
 
                     def base_fn(texels):
-                        return baseline_bake(baker.mesh, fine, texels, cage=cage, scene=scene)
+                        return baseline_bake(baker.mesh, reference, texels, cage=cage, scene=scene)
 
             normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
-            rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else fine,
+            rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else reference,
                               truth_colors=colours_fn, baseline=base, baseline_fn=base_fn, bits=nbits,
                               timings=timings, out_dir=stage)
             if sample_name:
