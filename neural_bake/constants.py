@@ -33,3 +33,7 @@ HYBRID_ANGLE_DEG = 20.0
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
+
+#: A time-budgeted fit that made fewer than this fraction of the steps its preset makes on this machine
+#: warns that it was slowed (the machine was busy) and is weaker than the preset's.
+BUDGET_WARN_FRACTION = 0.5
