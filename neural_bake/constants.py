@@ -37,3 +37,11 @@ CAMERA_PARALLEL_EPS = 1e-9
 #: A time-budgeted fit that made fewer than this fraction of the steps its preset makes on this machine
 #: warns that it was slowed (the machine was busy) and is weaker than the preset's.
 BUDGET_WARN_FRACTION = 0.5
+
+#: Pixels peeled off the common mask of two renders before an "interior" comparison: the outline of a coarse
+#: mesh differs from its source's by a pixel or two, and those pixels would swamp the shading differences.
+INTERIOR_ERODE_PX = 2
+
+#: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
+#: sample; a normal map with its green channel flipped, or no maps, stays below it.
+BAKED_RENDER_MIN_PSNR_DB = 45.0
