@@ -44,3 +44,11 @@ SHADOW_BIAS = 4e-3
 
 #: The guaranteed caster's tolerance δ of Spelunking's Procedure 2 (unit frame): it reports a hit within δ.
 GUARANTEED_TOLERANCE = 1e-3
+
+#: Pixels peeled off the common mask of two renders before an "interior" comparison: the outline of a coarse
+#: mesh differs from its source's by a pixel or two, and those pixels would swamp the shading differences.
+INTERIOR_ERODE_PX = 2
+
+#: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
+#: sample; a normal map with its green channel flipped, or no maps, stays below it.
+BAKED_RENDER_MIN_PSNR_DB = 45.0
