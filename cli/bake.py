@@ -16,7 +16,7 @@ __all__ = ["command"]
 @click.option("--texture-model", "tex_path", metavar="MODEL", default=None,
               help="Texture model file (kind 'texture'): bakes the albedo map.")
 @click.option("--coarse", default="decimate:2000", show_default=True,
-              help="Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep.")
+              help="Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION (a nested sequence's level I marched) or keep.")
 @click.option("--maps", "maps_spec", default=None,
               help="What to bake, comma-separated: normal, albedo (needs --texture-model), vertex (per-vertex "
                    "GLB). Default: normal,albedo with a texture model, else normal.")

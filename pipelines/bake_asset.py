@@ -26,7 +26,7 @@ class BakeAssetConfig:
     """Settings of :func:`bake_asset`; one line per field (the CLI options mirror them)."""
 
     coarse: str = "decimate:2000"
-    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep."""
+    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION (a nested sequence's level I marched) or keep."""
     maps: str | None = None
     """Comma-separated maps: normal, albedo (needs a texture model), vertex; None: normal[,albedo]."""
     size: int = 2048
@@ -72,7 +72,6 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
     from neural_bake.bake.baker import Baker, bake_vertices, coarse_mesh, parse_coarse
     from neural_bake.bake.export import export_glb, export_vertex_ply
-    from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import NeuralBakeError
     from neural_bake.io.atomic import atomic_write_text
@@ -109,14 +108,15 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    sdf = load_field(sdf_path, "sdf", argument="--sdf")
-    tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
+    sdf_file = _load_field(sdf_path, "--sdf", "sdf")
+    sdf = _sdf_for(sdf_file, coarse)
+    tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
     if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
         delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
     timings["load"] = time.perf_counter() - t0
-    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
+    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf_file)
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
@@ -220,6 +220,31 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
 
     return report
+
+
+def _load_field(path, option: str, want: str):
+    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field."""
+    from neural_bake.errors import ModelFileError
+    from neural_bake.fields import NestedSequence, SdfField, TextureField, load_field
+
+    if not Path(path).exists():
+        raise ModelFileError(f"{option} {path}: no such model file")
+    field = load_field(path)
+    types, expected = ((SdfField, NestedSequence), "an SDF (kind 'sdf' or a nested sequence)") if want == "sdf" \
+        else ((TextureField,), "a texture field (kind 'texture')")
+    if not isinstance(field, types):
+        raise ModelFileError(f"{option} {path}: a {type(field).__name__} file, expected {expected}")
+    return field
+
+
+def _sdf_for(field, coarse: str):
+    """The SdfField to bake: a nested sequence gives its fine f with the band δ of the level the coarse mesh
+    is marched from (``level:I:RES``), else of its coarsest level (the widest band)."""
+    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.fields import to_sdf_field
+
+    kind, value = parse_coarse(coarse)
+    return to_sdf_field(field, band_level=value[0] if kind == "level" else 0)
 
 
 def _parse_maps(spec: str) -> list[str]:

@@ -45,7 +45,8 @@ from .polish import CHUNK_ITERATIONS, lbfgs_polish
 from .training import LoopConfig, train
 
 __all__ = ["SdfFitConfig", "SdfFit", "PRESETS", "fit_sdf", "load_sdf", "sdf_loss_terms", "sdf_step_backward",
-           "micro_batch_count", "mixed_gradient", "focused_squares", "first_order_distance"]
+           "micro_batch_count", "mixed_gradient", "focused_squares", "first_order_distance",
+           "sampled_distance_error", "DISTANCE_ERROR_SOURCE"]
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -356,14 +357,20 @@ class SdfFit:
     micro_batch_tuning: list[dict] | None = None
     """The micro-batch tunings of a time-budgeted run (:attr:`MicroBatchTuner.history`: step, loss variant,
     count chosen, best seconds per count); None when the count was fixed."""
+    distance_error: float | None = None
+    """Sampled distance error to the mesh (unit frame): max |f| at mesh surface samples
+    (:func:`sampled_distance_error`); saved as the file's δ, the band a texture fit uses. None: not measured."""
 
     def save(self, path) -> Path:
-        """Write the model file (safetensors + JSON metadata: kind="sdf", frame, config, history summary)."""
-        from ..nets.model_io import save_model
+        """Write the model file (safetensors + JSON metadata: kind="sdf", frame, δ (the sampled distance
+        error, ``delta_source`` says so), config, history summary)."""
+        from ..fields import save_model
 
         summary = self.history[-1] if self.history else {}
+        delta = {} if self.distance_error is None else {
+            "delta": self.distance_error, "delta_source": DISTANCE_ERROR_SOURCE}
         return save_model(
-            self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
+            self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)), **delta,
             training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
                       "restarts": self.restarts, "final": summary, "history": self.history[-200:],
                       "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None},
@@ -377,28 +384,47 @@ class SdfFit:
 
 
 def load_sdf(path, *, device=None) -> SdfFit:
-    """Read an SDF model file written by :meth:`SdfFit.save` into an :class:`SdfFit`."""
-    from ..nets.model_io import load_model
+    """Read an SDF model file written by :meth:`SdfFit.save` into an :class:`SdfFit` (through
+    :func:`neural_bake.fields.load_field`, which checks the header)."""
+    from ..fields import SdfField, load_field
 
-    model, meta = load_model(path, device=device)
-    if meta.get("kind") != "sdf":
-        raise ModelFileError(f"{path}: not an SDF model file (kind {meta.get('kind')!r})")
-    if model.in_dim != 3 or model.out_dim != 1:
-        raise ModelFileError(f"{path}: an SDF maps R^3 to R, this network maps R^{model.in_dim} to R^{model.out_dim}")
+    field = load_field(path, device=device)
+    if not isinstance(field, SdfField):
+        raise ModelFileError(f"{path}: not an SDF model file (a {type(field).__name__} file)")
+    if field.frame is None:
+        raise ModelFileError(f"{path}: SDF model file without a frame")
+    model, meta = field.model, field.metadata
     names = {f.name for f in fields(SdfFitConfig)}
-    cfg_dict = {k: v for k, v in meta.get("config", {}).items() if k in names}
+    cfg = meta.get("config") if isinstance(meta.get("config"), dict) else {}
+    cfg_dict = {k: v for k, v in cfg.items() if k in names}
     if "sigmas" in cfg_dict:
         cfg_dict["sigmas"] = tuple(cfg_dict["sigmas"])
-    training = meta.get("training", {})
+    training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
     try:
-        frame = Frame.from_dict(meta["frame"])
-    except (KeyError, TypeError, ValueError):
-        raise ModelFileError(f"{path}: SDF model file without a valid frame") from None
-    return SdfFit(model=model, frame=frame, history=list(training.get("history", [])),
-                  steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
-                  config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
-                  restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
-                  micro_batch_tuning=training.get("micro_batch_tuning"))
+        config = SdfFitConfig(**cfg_dict)
+        return SdfFit(model=model, frame=field.frame, history=list(training.get("history", [])),
+                      steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
+                      config=config, stopped_reason=str(training.get("stopped_reason", "")),
+                      restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
+                      micro_batch_tuning=training.get("micro_batch_tuning"), distance_error=field.delta)
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: unreadable training record ({exc})") from None
+
+
+#: How an SDF fit's δ was obtained (stored as ``delta_source`` in its file).
+DISTANCE_ERROR_SOURCE = "sampled distance error: max |f| at mesh surface samples"
+
+
+@torch.no_grad()
+def sampled_distance_error(model: Siren, mesh: Mesh, n: int = 20_000, seed: int = 0) -> float:
+    """max |f| (unit frame) at ``n`` area-uniform surface samples of ``mesh`` (seeded): a sampled estimate
+    of how far the mesh strays from f's zero set in f's units, i.e. the band |f| ≤ δ that holds the mesh."""
+    from .sampling import sample_surface
+
+    p = next(model.parameters())
+    pts = torch.as_tensor(sample_surface(mesh, int(n), seed=seed).points, dtype=p.dtype, device=p.device)
+    values = torch.cat([model(pts[s:s + 65536])[:, 0] for s in range(0, pts.shape[0], 65536)])
+    return float(values.abs().max())
 
 
 def _jsonable(d):
@@ -851,7 +877,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     model.eval()
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
-                  micro_batch_tuning=tuner.history if tuner else None)
+                  micro_batch_tuning=tuner.history if tuner else None,
+                  distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 
 def _polish_loss(batch, *, model: Siren, cfg: SdfFitConfig, micro: int) -> torch.Tensor:
