@@ -52,3 +52,7 @@ SDF_MISMATCH_MEDIAN = 0.02
 
 #: Surface samples of the fine mesh at which the bake measures the SDF's median |f|.
 SDF_CHECK_SAMPLES = 4096
+
+#: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
+#: the view: it has no image basis and is refused.
+CAMERA_PARALLEL_EPS = 1e-9
