@@ -45,9 +45,12 @@ __all__ = ["command"]
                    "in bounded memory (report on a seeded uniform subsample); auto: cache up to 2^23 samples.")
 @click.option("--report-samples", type=int, default=None,
               help="Texel samples a streamed bake keeps for the report's per-sample errors (default 2^18).")
+@click.option("--force", is_flag=True,
+              help="Bake even when the SDF does not describe MESH (frames differ, or median |f| on its surface "
+                   "above the threshold).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
-            supersample, padding, delta, baseline, cage, truth, texels_mode, report_samples, out):
+            supersample, padding, delta, baseline, cage, truth, texels_mode, report_samples, force, out):
     """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
     and a quality report into OUT."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
@@ -55,7 +58,7 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
     given = {"report_samples": report_samples}  # unset: the pipeline's default
     config = BakeAssetConfig(coarse=coarse, maps=maps_spec, size=size, texture=texture, normal_space=normal_space,
                              directx=directx, bits=int(bits), exr=exr, supersample=supersample, padding=padding,
-                             delta=delta, baseline=baseline, cage=cage, truth=truth,
+                             delta=delta, baseline=baseline, cage=cage, truth=truth, force=force,
                              cache_texels={"auto": None, "cache": True, "stream": False}[texels_mode],
                              **{k: v for k, v in given.items() if v is not None})
     bake_asset(mesh, sdf_path, out, config, texture_model=tex_path, log=click.echo)

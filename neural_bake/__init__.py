@@ -53,6 +53,7 @@ _EXPORTS = {
     "save_field": ".fields",
     "save_model": ".fields",
     "load_sdf_field": ".fields",
+    "to_sdf_field": ".fields",
     # fit
     "SurfaceSamples": ".fit.sampling",
     "VolumeSamples": ".fit.sampling",
@@ -79,6 +80,7 @@ _EXPORTS = {
     "vertex_uv": ".mesh.tangents",
     # bake
     "Baker": ".bake.baker",
+    "coarse_mesh": ".bake.baker",
     "bake_vertices": ".bake.baker",
     "bake_texels": ".bake.baker",
     "pad_charts": ".bake.padding",

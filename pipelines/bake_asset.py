@@ -58,6 +58,8 @@ class BakeAssetConfig:
     on a seeded uniform subsample); None: cache up to 2**23 samples (2048² with supersample 2)."""
     report_samples: int = 1 << 18
     """Texel samples a streamed bake keeps for the report's per-sample errors (uniform, seed 0)."""
+    force: bool = False
+    """Bake even when the SDF does not describe the mesh (frames differ, or median |f| on its surface too large)."""
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
@@ -116,6 +118,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
     timings["load"] = time.perf_counter() - t0
+    from neural_bake.bake.agreement import check_sdf_describes_mesh
+
+    sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
+    if not sdf_check["passed"]:
+        log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
+            f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
     coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf_file)
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
@@ -127,7 +135,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     try:
         written: list[str] = []
         report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
-                        "maps": maps}
+                        "maps": maps, "sdf_check": sdf_check}
         texel_maps = [m for m in maps if m in ("normal", "albedo")]
         if texel_maps:
             t0 = time.perf_counter()

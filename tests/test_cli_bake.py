@@ -36,7 +36,9 @@ def files(tmp_path_factory):
 
 
 def run(args, capsys):
-    code = main(["bake", *args])
+    # --force: the fixture's SDF is an untrained network, not the sphere's (tests/bake/test_agreement.py checks
+    # that a bake refuses it without)
+    code = main(["bake", *args, "--force"])
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 
@@ -207,7 +209,7 @@ def test_streamed_bake_writes_a_sampled_report(files, tmp_path):
     coverage, misses, seams and error maps over every texel, equal to the cached run's."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
 
-    common = dict(coarse="decimate:200", size=64, maps="normal,albedo", delta=0.05)
+    common = dict(coarse="decimate:200", size=64, maps="normal,albedo", delta=0.05, force=True)  # untrained SDF
     logs: list[str] = []
     cached = bake_asset(files["obj"], files["sdf"], tmp_path / "c", BakeAssetConfig(**common),
                         texture_model=files["tex"], log=lambda s: None)
