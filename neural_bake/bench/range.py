@@ -142,9 +142,9 @@ def run(
 def _run(quick, seed, omega, model_path, methods, truncate_keep) -> dict:
     g = torch.Generator().manual_seed(seed)
     if model_path is not None:
-        from ..fields import load_sdf_field
+        from ..nets.model_io import load_model  # any network: range analysis does not care what it is
 
-        model = load_sdf_field(model_path, dtype=torch.float32).model
+        model, _ = load_model(model_path, dtype=torch.float32)
         nets = [(f"{model_path} ({model.width},{model.depth})", model)]
     else:
         nets = [(f"({w},{d}) random SIREN ω0={omega:g}", Siren(w, d, omega_0=omega, hidden_omega=omega, generator=g))
