@@ -76,3 +76,15 @@ INTERIOR_ERODE_PX = 2
 #: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
 #: sample; a normal map with its green channel flipped, or no maps, stays below it.
 BAKED_RENDER_MIN_PSNR_DB = 45.0
+
+#: Silhouette agreement (intersection over union) of model-viewer's picture of a bake in headless Chromium
+#: and our render of the same view: the camera mapping (orbit, target, field of view) is right.
+BROWSER_MASK_MIN_IOU = 0.97
+
+#: Interior PSNR (dB, sRGB) between model-viewer's picture (PBR, sun HDR, neutral tone mapping) and our
+#: Blinn-Phong render of the same view: the two shaders differ, so this checks agreement, not equality.
+BROWSER_MATCH_MIN_PSNR_DB = 21.0
+
+#: Correlation of the fine detail (image minus its Gaussian blur, σ = 4 px) of model-viewer's picture with
+#: our render's: the normal map's bumps sit where ours do (a flipped green channel moves them).
+BROWSER_DETAIL_MIN_CORR = 0.9
