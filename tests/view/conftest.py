@@ -7,7 +7,7 @@ import torch
 
 from neural_bake.bake.baker import Baker
 from neural_bake.bake.export import export_glb
-from neural_bake.bake.fields import ColorField, SdfField
+from neural_bake.fields import ColorField, SdfField
 from neural_bake.io.mesh_io import mesh_from_arrays
 from neural_bake.mesh.decimate import decimate
 from neural_bake.samples.shapes import get_sample
