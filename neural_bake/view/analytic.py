@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 __all__ = ["AnalyticBake", "analytic_bake"]
 
@@ -17,7 +18,7 @@ __all__ = ["AnalyticBake", "analytic_bake"]
 class AnalyticBake:
     """What :func:`analytic_bake` made: the sample, its fine mesh (unit frame), the Baker, the result, the GLB."""
 
-    sample: object
+    sample: Any  # a bundled sample (neural_bake.samples.shapes): .normal, .albedo, …
     fine: object
     baker: object
     result: object
