@@ -302,12 +302,13 @@ def _sdf_for(field, coarse: str):
 
 
 def _fidelity_warnings(report: dict, coarse: str) -> list[str]:
-    """One-line warnings on what the normal map gives: the coarse mesh is the source itself, or the map does
-    not beat the coarse mesh's own normals (median angle to the truth)."""
-    out = []
+    """One-line warning on what the normal map gives: the coarse mesh is the source itself (then its own normals
+    are the reference and no map beats them), or the map does not beat the coarse mesh's own normals (median
+    angle to the truth)."""
     if coarse == "keep":
-        out.append("--coarse keep: the map is baked onto the source mesh itself, so it can at best reproduce the "
-                   "asset's own normals")
+        return [f"--coarse keep: the map is baked onto the source mesh itself, so it can at best reproduce the "
+                f"asset's own normals (map median {(report.get('vs_truth_deg') or {}).get('median') or 0:.2f}° off them)"]
+    out = []
     ours, own = (report.get(k) or {} for k in ("vs_truth_deg", "geometric_vs_truth_deg"))
     if ours.get("median") is not None and own.get("median") is not None and ours["median"] >= own["median"]:
         out.append(f"the normal map (median {ours['median']:.2f}°) does not beat the coarse mesh's own normals "

@@ -305,5 +305,5 @@ def test_coarse_keep_warns(files, tmp_path, capsys):
                              "--maps", "normal", "--no-baseline", "-o", str(out)], capsys)
     assert code == 0, err
     rep = json.loads((out / "report.json").read_text())
-    assert any(w.startswith("--coarse keep:") for w in rep["warnings"])
-    assert any(line.startswith("warning: --coarse keep:") for line in stdout.splitlines())
+    assert len(rep["warnings"]) == 1 and rep["warnings"][0].startswith("--coarse keep:")  # one line, not two
+    assert [line for line in stdout.splitlines() if line.startswith("warning:")] == ["warning: " + rep["warnings"][0]]
