@@ -17,6 +17,7 @@ BENCHES = {
     "coarse": ("neural_bake.cli.bench_coarse", "command"),
     "render": ("neural_bake.cli.bench_render", "command"),
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
+    "view": ("neural_bake.cli.bench_view", "command"),
 }
 
 
