@@ -31,7 +31,7 @@ def analytic_bake(folder, name: str = "bumpy_sphere", *, faces: int = 1500, size
 
     from ..bake.baker import Baker
     from ..bake.export import export_glb
-    from ..bake.fields import ColorField, SdfField
+    from ..fields import ColorField, SdfField
     from ..io.mesh_io import mesh_from_arrays
     from ..mesh.decimate import decimate
     from ..samples.shapes import get_sample
