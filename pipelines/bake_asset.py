@@ -2,15 +2,15 @@
 
 The job behind `neural-bake bake` and the demo: load, coarsen (decimate / march / keep), unwrap, bake the
 neural normals (and colours) per texel and per vertex, run the classical mesh-to-mesh baseline on the same
-texels, measure errors, and write everything. Files are first written into a staging folder inside the
-output folder, then each is moved into place (an atomic rename each) with ``report.json`` last: a failed run
-leaves the output folder as it was (and removes it if it created it).
+texels, measure errors, and write everything. The output folder is committed as a unit
+(:class:`neural_bake.io.outdir.OutputFolder`): files are written into a staging folder beside it, which
+replaces the old folder in one exchange at the end; a failed or killed run leaves the output folder as it
+was, and a second run into the same folder fails at once naming the first.
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
+import contextlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +64,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                log: Callable[[str], None] = print) -> dict:
     """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
 
+    ``out`` is a path (committed as a unit when the bake succeeds) or an entered
+    :class:`~neural_bake.io.outdir.OutputFolder` whose set the bake is part of (the caller commits it).
+
     Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
     and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
     Raises NeuralBakeError (one line) for bad input, before anything is written.
@@ -79,6 +82,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.io.images import write_image
     from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.io.outdir import OutputFolder
 
     cfg = config or BakeAssetConfig()
     coarse, size, texture, normal_space, directx = cfg.coarse, cfg.size, cfg.texture, cfg.normal_space, cfg.directx
@@ -101,30 +105,32 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         raise NeuralBakeError(f"report_samples {report_samples!r}: must be a positive integer")
     if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
         raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise NeuralBakeError(f"-o {out}: exists and is not a folder")
-    if not out_dir.parent.is_dir():
-        raise NeuralBakeError(f"-o {out}: folder {out_dir.parent} does not exist")
+    if truth.startswith("sample:"):
+        from neural_bake.samples.shapes import get_sample
 
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    sdf = load_field(sdf_path, "sdf", argument="--sdf")
-    tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
-    if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
-        delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
-        log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
-    fine = load_mesh(mesh, texture)
-    timings["load"] = time.perf_counter() - t0
-    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
-    timings["coarse"] = coarse_info["seconds"]
-    log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+        try:  # an unknown name is refused before any work
+            get_sample(truth.split(":", 1)[1])
+        except NeuralBakeError as exc:
+            raise NeuralBakeError(f"--truth {truth}: {exc}") from None
+    nested = isinstance(out, OutputFolder)
+    folder = out if nested else OutputFolder(out)
+    out_dir = folder.out
+    with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        sdf = load_field(sdf_path, "sdf", argument="--sdf")
+        tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
+        if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
+            delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
+            log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
+        fine = load_mesh(mesh, texture)
+        if truth.startswith("sample:"):
+            _sample_truth(mesh, fine, truth)  # a mesh that is not the sample is refused before the bake
+        timings["load"] = time.perf_counter() - t0
+        coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
+        timings["coarse"] = coarse_info["seconds"]
+        log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
-    created = not out_dir.exists()
-    out_dir.mkdir(exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".bake-", dir=out_dir))
-    ok = False
-    try:
         written: list[str] = []
         report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
                         "maps": maps}
@@ -199,13 +205,6 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         report["seconds_total"] = timings["total"]
         report["files"] = written + ["report.json"]
         atomic_write_text(stage / "report.json", dumps(report))
-        for name in written + ["report.json"]:  # each move is an atomic rename; the report comes last
-            (stage / name).replace(out_dir / name)
-        ok = True
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-        if created and not ok:
-            shutil.rmtree(out_dir, ignore_errors=True)
     summary = report.get("vs_truth_deg") or {}
     if summary.get("median") is not None:
         line = f"normal error vs truth: median {summary['median']:.2f}°, p95 {summary['p95']:.2f}°"

@@ -47,7 +47,7 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
                              "--coarse", "decimate:200", "--size", "64", "--maps", "normal,albedo,vertex",
                              "--bits", "16", "--exr", "-o", str(out)], capsys)
     assert code == 0, err
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb", "vertex.ply",
                             "report.json", "error_normal.png", "error_baseline.png", "miss.png"])
     rep = json.loads((out / "report.json").read_text())
