@@ -21,3 +21,7 @@ UV_POLICIES = ("wrap", "clamp")
 #: Vertices closer than this (unit frame) are welded on load: the splits that OBJ ``v/vt`` pairs and glTF
 #: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
 MERGE_DISTANCE = 1e-9
+
+#: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
+#: the view: it has no image basis and is refused.
+CAMERA_PARALLEL_EPS = 1e-9
