@@ -132,8 +132,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
         written: list[str] = []
-        report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
-                        "maps": maps}
+        report: dict = {"mesh": str(mesh), "sdf": folder.shown(sdf_path),
+                        "texture_model": tex_path and folder.shown(tex_path), "coarse": coarse_info, "maps": maps}
         texel_maps = [m for m in maps if m in ("normal", "albedo")]
         if texel_maps:
             t0 = time.perf_counter()

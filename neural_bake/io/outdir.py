@@ -302,11 +302,17 @@ class OutputFolder:
             shutil.rmtree(self.stage, ignore_errors=True)
             self.stage = None
 
+    def shown(self, path, stage: Path | None = None) -> str:
+        """``path`` as the user will see it: a path inside the staging folder as the same path inside ``out``."""
+        where, stage = os.fspath(path), stage if stage is not None else self.stage
+        if stage is not None and where.startswith(os.fspath(stage)):
+            return str(self.out) + where[len(os.fspath(stage)):]
+        return where
+
     def _os_error(self, exc: OSError, stage: Path | None) -> WriteError:
-        """The one-line error for ``exc``, a path inside the staging folder shown as the same path in ``out``."""
-        where = os.fspath(exc.filename) if exc.filename is not None else ""
-        inside = stage is not None and where.startswith(os.fspath(stage))
-        return os_error(exc, str(self.out) + where[len(os.fspath(stage)):] if inside else self.out)
+        """The one-line error for ``exc``, naming ``out`` (or the same file inside it), never the stage."""
+        where = self.shown(exc.filename, stage) if exc.filename is not None else str(self.out)
+        return os_error(exc, where if where.startswith(str(self.out)) else self.out)
 
     def _reword(self, exc: BaseException, stage: Path | None) -> None:
         """A NeuralBakeError naming the staging folder names ``out`` instead."""
