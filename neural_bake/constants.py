@@ -25,3 +25,11 @@ MERGE_DISTANCE = 1e-9
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
+
+#: Pixels peeled off the common mask of two renders before an "interior" comparison: the outline of a coarse
+#: mesh differs from its source's by a pixel or two, and those pixels would swamp the shading differences.
+INTERIOR_ERODE_PX = 2
+
+#: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
+#: sample; a normal map with its green channel flipped, or no maps, stays below it.
+BAKED_RENDER_MIN_PSNR_DB = 45.0
