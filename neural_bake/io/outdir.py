@@ -10,7 +10,8 @@ Why a swap and not a versioned subfolder behind a pointer: OUT stays a plain fol
 themselves (no symlink to follow, copy or archive, and no pointer convention for readers to know), and the
 exchange is as atomic as a pointer replacement. Where the exchange is not available (not Linux, or a file
 system without it) two renames do it: OUT -> ``.OUT.old-PID-XXXX``, stage -> OUT. A process killed between
-them leaves no OUT for a moment; the next run for OUT moves the old set back before anything else.
+them leaves no OUT for a moment; the next run for OUT moves the old set back before anything else. SIGINT
+and SIGTERM arriving during the renames are held until they are done.
 
 One writer per output: :class:`OutputLock` holds an ``fcntl.flock`` on ``.OUT.lock`` beside the output (a
 file or a folder), which names the holder's pid; a second run fails at once naming it. Under the lock, the
@@ -96,17 +97,26 @@ def _fsync_dir(path: Path) -> None:
 
 @contextlib.contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM back (delivered on exit) so a commit's renames are not split by a handler."""
-    sigs = {signal.SIGINT, signal.SIGTERM}
+    """Hold SIGINT and SIGTERM back for the body, then let the handlers in force act on them.
+
+    Python-level handlers (not a thread signal mask): a process-directed signal may be delivered to any
+    thread, but Python runs its handler in the main thread, between two renames if it were not held here.
+    Outside the main thread handlers cannot be changed and the body runs as it is.
+    """
+    caught: list[int] = []
+    previous: dict = {}
     try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    except (AttributeError, ValueError, OSError):  # not POSIX, or not the main thread: nothing to hold
-        yield
-        return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda signum, frame: caught.append(signum))
+    except ValueError:  # not the main thread
+        pass
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):
+            signal.raise_signal(sig)
 
 
 class OutputLock:
@@ -156,6 +166,7 @@ class OutputLock:
         self._fd = fd
         try:
             self._recover()
+            fault_point("locked")
         except BaseException:
             self.release()
             raise
@@ -193,12 +204,11 @@ class OutputLock:
         """
         me = os.getpid()
         found = [f for f in self._leftovers() if f[1] != me and not _pid_alive(f[1])]
-        stages = {pid for kind, pid, _ in found if kind == "stage"}
-        for kind, pid, p in found:
-            # OUT missing, its old set aside and the same run's stage still there: cut between the renames
-            if kind == "old" and pid in stages and not os.path.lexists(self.path):
-                os.rename(p, self.path)
-                _fsync_dir(self.parent)
+        olds = sorted((p for kind, _, p in found if kind == "old"), key=lambda p: p.stat().st_mtime)
+        if olds and not os.path.lexists(self.path):
+            # OUT missing beside an old set: a two-rename commit cut between its renames; the old set goes back
+            os.rename(olds[-1], self.path)
+            _fsync_dir(self.parent)
         for _, _, p in found:
             if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p, ignore_errors=True)
@@ -251,7 +261,6 @@ class OutputFolder:
             raise OutputError(f"{out}: folder {self._lock.parent} does not exist")
         self._lock.acquire()
         try:
-            fault_point("locked")
             self._check_foreign()
             try:
                 self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
@@ -356,8 +365,8 @@ class OutputFolder:
             return stage
         old = Path(tempfile.mktemp(prefix=f".{out.name}.old-{os.getpid()}-", dir=self._lock.parent))
         os.rename(out, old)
-        fault_point("moved-old")
         try:
+            fault_point("moved-old")
             os.rename(stage, out)
         except BaseException:
             os.rename(old, out)  # put the old set back: the commit did not happen
