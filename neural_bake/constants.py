@@ -18,6 +18,10 @@ DEFAULT_OMEGA_0 = 30.0
 #: UV policies for coordinates outside [0, 1].
 UV_POLICIES = ("wrap", "clamp")
 
+#: A vertex coordinate larger than this in magnitude (source frame) is refused on load: squared distances
+#: between such points overflow float64 (k-d trees, normals, the unit frame's scale).
+MAX_COORDINATE = 1e100
+
 #: Vertices closer than this (unit frame) are welded on load: the splits that OBJ ``v/vt`` pairs and glTF
 #: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
 MERGE_DISTANCE = 1e-9

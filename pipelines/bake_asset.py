@@ -77,7 +77,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
-    from neural_bake.errors import NeuralBakeError
+    from neural_bake.errors import MeshError, NeuralBakeError
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.images import write_image
     from neural_bake.io.jsonio import dumps
@@ -130,6 +130,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
         timings["coarse"] = coarse_info["seconds"]
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+        if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:
+            _check_uv_area(mesh, coarse_m.uv, size)
 
         written: list[str] = []
         report: dict = {"mesh": str(mesh), "sdf": folder.shown(sdf_path),
@@ -142,6 +144,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                           padding=None if padding == "none" else padding, cache_texels=cfg.cache_texels)
             timings["prepare"] = time.perf_counter() - t0
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples))
+            if res.stats["texels_covered"] == 0:
+                raise MeshError(f"{mesh}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
             log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
                        f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
             t0 = time.perf_counter()
@@ -219,6 +223,20 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
 
     return report
+
+
+def _check_uv_area(path, uv, size: int) -> None:
+    """MeshError if a mesh's own UV layout ((F, 3, 2) per-corner UVs) covers less than one texel of the map."""
+    import numpy as np
+
+    from neural_bake.errors import MeshError
+
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
+    if not area * size * size >= 1.0:
+        raise MeshError(f"{path}: its UV layout covers {area:.3g} of the UV square, less than one texel of the "
+                        f"{size}x{size} map; bake with --coarse decimate or march, which unwrap a new layout")
 
 
 def _parse_maps(spec: str) -> list[str]:

@@ -67,9 +67,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
 
 def _safetensors_os_error(exc: BaseException, dest: Path) -> OSError:
-    """The OSError behind a safetensors I/O error (its message carries ``code: N``), naming ``dest``."""
-    found = re.search(r"code: (\d+)", str(exc))
-    code = int(found.group(1)) if found else errno.EIO
+    """The OSError behind a safetensors I/O error (its message ends ``(os error N)``), naming ``dest``."""
+    found = re.search(r"os error (\d+)|code: (\d+)", str(exc))
+    code = int(found.group(1) or found.group(2)) if found else errno.EIO
     return OSError(code, os.strerror(code), str(dest))
 
 

@@ -86,6 +86,16 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _folder_mode(out: Path) -> int:
+    """Permission bits for the new set's folder: those of the folder it replaces, else 0o777 minus the umask."""
+    try:
+        return out.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o777 & ~umask
+
+
 def _fsync_dir(path: Path) -> None:
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
@@ -264,6 +274,7 @@ class OutputFolder:
             self._check_foreign()
             try:
                 self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
+                os.chmod(self.stage, _folder_mode(out))  # mkdtemp's 0700 would become the output's mode
             except OSError as exc:
                 raise os_error(exc, out) from None
         except BaseException:

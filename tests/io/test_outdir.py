@@ -38,9 +38,13 @@ def test_commit_new_folder_then_replace_the_set_as_a_whole(tmp_path, commit_way)
     write_set(out, {"a.txt": "one", "b.txt": "one"})
     assert files_of(out) == {"a.txt": "one", "b.txt": "one", MANIFEST: (out / MANIFEST).read_text()}
     assert json.loads((out / MANIFEST).read_text())["files"] == ["a.txt", "b.txt"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~umask  # a folder's usual mode, not a staging folder's 0700
+    os.chmod(out, 0o750)
     write_set(out, {"a.txt": "two"})  # b.txt is not part of the new set: it goes with the old one
     assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "a.txt"]
-    assert (out / "a.txt").read_text() == "two"
+    assert (out / "a.txt").read_text() == "two" and out.stat().st_mode & 0o777 == 0o750  # the mode is kept
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging, old set or lock file left
 
 
