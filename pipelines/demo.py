@@ -37,6 +37,8 @@ class DemoConfig:
     """Seed of the fits (same seed, same models)."""
     progress: bool = True
     """Progress bars on stderr during the fits."""
+    report_views: int = 8
+    """Turntable views of the HTML report (0: no report)."""
 
 
 def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], None] = print) -> dict:
@@ -53,6 +55,8 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
         summary = _demo(stage, folder, mesh_path, cfg, log)
     log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
         f"figures in {out / 'report.json'} and {out / 'demo.json'}")
+    if "report" in summary:
+        log(f"check the bake by eye: {summary['report']}")
     return summary
 
 
@@ -107,4 +111,9 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
         "outputs": sorted({p.name for p in stage.iterdir() if not p.name.startswith(".")} | {"demo.json"}),
     }
     atomic_write_text(stage / "demo.json", dumps(summary))
+    if cfg.report_views > 0:  # the HTML report is part of the set: written before the commit
+        from neural_bake.view.report import ReportConfig, write_asset_report
+
+        index = write_asset_report(stage, ReportConfig(views=cfg.report_views), log=lambda m: None)
+        summary["report"] = folder.shown(index)
     return summary

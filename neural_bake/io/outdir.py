@@ -42,7 +42,7 @@ from ..errors import OutputBusyError, OutputError, WriteError, os_error
 from .atomic import atomic_write_text
 from .faults import fault_point
 
-__all__ = ["OutputFolder", "OutputLock", "locked_outputs", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
+__all__ = ["OutputFolder", "OutputLock", "locked_outputs", "record_in_set", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
 
 #: The file inside a committed folder that lists its set (JSON: format, files, pid).
 MANIFEST = ".neural-bake-set.json"
@@ -399,3 +399,20 @@ class OutputFolder:
                     os.rmdir(os.path.join(root, d))
         with contextlib.suppress(OSError):
             os.rmdir(old)
+
+
+def record_in_set(folder: str | os.PathLike, *names: str) -> None:
+    """Add entries ``names`` (top-level names inside ``folder``) that a later step wrote into a committed
+    folder to its set, so the next run into ``folder`` replaces them with the rest instead of refusing them as
+    foreign. A folder that is not a committed set is left as it is."""
+    folder = Path(folder)
+    manifest = folder / MANIFEST
+    if not manifest.is_file():
+        return
+    with OutputLock(folder):
+        try:
+            data = json.loads(manifest.read_text(encoding="utf-8"))
+            data["files"] = sorted(set(data["files"]) | set(names))
+        except (ValueError, KeyError, TypeError):
+            return
+        atomic_write_text(manifest, json.dumps(data, indent=1) + "\n")

@@ -11,7 +11,7 @@ import pytest
 
 from neural_bake.errors import NeuralBakeError, OutputBusyError, OutputError, WriteError
 from neural_bake.io.atomic import atomic_write_text
-from neural_bake.io.outdir import MANIFEST, NO_EXCHANGE_ENV, OutputFolder, OutputLock, locked_outputs
+from neural_bake.io.outdir import MANIFEST, NO_EXCHANGE_ENV, OutputFolder, OutputLock, locked_outputs, record_in_set
 
 DEAD_PID = 4_194_305  # above Linux's largest pid_max (2**22): never a living process
 
@@ -155,6 +155,23 @@ def test_cut_between_two_renames_is_rolled_back(tmp_path):
     with OutputLock(out):
         pass
     assert (out / "a.txt").read_text() == "old" and not old.exists()
+
+
+def test_entries_added_later_join_the_set(tmp_path):
+    """A report written into a committed bake folder (neural-bake view) is recorded, so the next run
+    replaces it with the rest instead of refusing the folder."""
+    out = tmp_path / "out"
+    write_set(out, {"a.txt": "1"})
+    (out / "report").mkdir()
+    (out / "report" / "index.html").write_text("<html>")
+    record_in_set(out, "report")
+    assert json.loads((out / MANIFEST).read_text())["files"] == ["a.txt", "report"]
+    write_set(out, {"a.txt": "2"})
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "a.txt"]
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    record_in_set(plain, "x")  # not a committed set: nothing written
+    assert list(plain.iterdir()) == []
 
 
 def test_os_errors_name_the_output_never_the_stage(tmp_path):
