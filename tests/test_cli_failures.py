@@ -19,12 +19,12 @@ import torch
 from neural_bake.cli.main import main
 from neural_bake.io.mesh_io import load_mesh
 from neural_bake.io.outdir import OutputLock
-from neural_bake.nets.model_io import save_model
+from neural_bake.fields import save_model
 from neural_bake.nets.siren import Siren
 from neural_bake.samples.shapes import get_sample
 
 EXE = Path(sys.executable).with_name("neural-bake")
-TINY_BAKE = ["--coarse", "decimate:100", "--size", "16", "--maps", "normal", "--no-baseline"]
+TINY_BAKE = ["--coarse", "decimate:100", "--size", "16", "--maps", "normal", "--no-baseline", "--force"]  # untrained SDF
 TINY_FIT = ["--preset", "64x1", "--steps", "2", "--batch", "64", "--no-metrics", "--no-progress", "--compile", "off",
             "--micro-batches", "1", "--polish-evals", "0"]
 

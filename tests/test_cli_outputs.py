@@ -20,12 +20,12 @@ import torch
 
 from neural_bake.io.mesh_io import load_mesh
 from neural_bake.io.outdir import MANIFEST, NO_EXCHANGE_ENV, OutputLock
-from neural_bake.nets.model_io import save_model
+from neural_bake.fields import save_model
 from neural_bake.nets.siren import Siren
 from neural_bake.samples.shapes import get_sample
 
 EXE = Path(sys.executable).with_name("neural-bake")
-TINY = ["--coarse", "decimate:200", "--size", "16", "--no-baseline"]
+TINY = ["--coarse", "decimate:200", "--size", "16", "--no-baseline", "--force"]  # --force: an untrained SDF
 OLD_MAPS = ["--maps", "normal,vertex"]  # the old set has vertex.glb/.ply, the new one does not
 NEW_MAPS = ["--maps", "normal"]
 
