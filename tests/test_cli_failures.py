@@ -68,7 +68,7 @@ def test_huge_mesh_is_a_clear_mesh_error(files, capsys):
 def test_uvs_all_at_one_point_with_coarse_keep_are_refused(files, tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["bake", files["flatuv"], "--sdf", files["sdf"], "--coarse", "keep", "--size", "16", "--no-baseline",
-                 "-o", str(out)]) == 2
+                 "--force", "-o", str(out)]) == 2
     assert one_line(capsys.readouterr().err) == (
         f"{files['flatuv']}: its UV layout covers 0 of the UV square, less than one texel of the 16x16 map; "
         f"bake with --coarse decimate or march, which unwrap a new layout")

@@ -243,3 +243,29 @@ def test_failed_run_into_a_new_folder_deletes_nothing_another_run_made(files, tm
     r = cli("bake", files["obj"], "--sdf", flat, "--coarse", "march:8", "--size", "16", "--no-baseline", "-o", out)
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert snapshot(out) == good and leftovers(tmp_path) == []
+
+
+FIT = ["--preset", "64x1", "--steps", "3", "--batch", "64", "--no-metrics", "--no-progress", "--compile", "off",
+       "--micro-batches", "1", "--polish-evals", "0"]
+
+
+def test_fit_sdf_killed_between_checkpoint_and_model_then_resumed(files, tmp_path):
+    """fit sdf writes its checkpoint, then its model, each atomically: killed between them the old model is
+    intact and the checkpoint whole; SIGTERM leaves no temporary file; --resume then finishes the run."""
+    from neural_bake.fit.training import load_checkpoint
+
+    model, ckpt = tmp_path / "m.sdf", tmp_path / "m.sdf.ckpt"
+    shutil.copy(files["sdf"], model)
+    old = model.read_bytes()
+    args = ["fit", "sdf", files["obj"], "-o", model, *FIT]
+    r = cli(*args, "--checkpoint", ckpt, fault="file-temp#2:TERM")  # the model's temporary file is complete
+    assert r.returncode == 143 and r.stderr.splitlines()[-1] == "neural-bake: terminated"
+    assert model.read_bytes() == old and sorted(p.name for p in tmp_path.iterdir()) == ["m.sdf", "m.sdf.ckpt"]
+    r = cli(*args, "--checkpoint", ckpt, fault="file-temp#2:KILL")
+    assert r.returncode == -signal.SIGKILL
+    assert model.read_bytes() == old and load_checkpoint(ckpt)[2]["step"] == 3
+    assert any(p.name.startswith(".m.sdf.") and ".tmp" in p.name for p in tmp_path.iterdir())  # the dead run's
+    r = cli(*args, "--resume")  # the default checkpoint OUTPUT.ckpt, finished: writes the model
+    assert r.returncode == 0, r.stderr
+    assert model.read_bytes() != old and "resumed finished run" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.sdf", "m.sdf.ckpt"]  # leftovers removed

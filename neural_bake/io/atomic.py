@@ -59,7 +59,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        if isinstance(exc, OSError) and exc.filename in (tmp_name, tmp):
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename in (None, tmp_name, tmp):
             raise OSError(exc.errno, exc.strerror, str(dest)) from exc
         if type(exc).__name__ == "SafetensorError":  # safetensors reports I/O failures as its own error type
             raise _safetensors_os_error(exc, dest) from exc
