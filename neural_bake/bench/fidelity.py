@@ -120,11 +120,11 @@ def _source_bytes(path: Path) -> int:
     return size
 
 
-def _stats(rep: dict, key: str) -> tuple[float | None, float | None]:
+def _stats(rep: dict, key: str, what=("median", "p95")) -> tuple:
     head, _, tail = key.partition(".")
     d = rep.get(head) or {}
     d = d.get(tail) or {} if tail else d
-    return d.get("median"), d.get("p95")
+    return tuple(d.get(w) for w in what)
 
 
 def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -> dict:
@@ -142,7 +142,9 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
         "cap_max": None if caps is None else caps["cap_max"],
         "map_median_deg": med, "map_p95_deg": p95, "neural_median_deg": n_med, "neural_p95_deg": n_p95,
         "classical_median_deg": b_med, "classical_p95_deg": b_p95, "coarse_median_deg": g_med,
-        "coarse_p95_deg": g_p95, "hybrid_pct": 100.0 * (rep.get("hybrid") or {}).get("hybrid_fraction", 0.0),
+        "coarse_p95_deg": g_p95, "map_max_deg": _stats(rep, "vs_truth_deg", ("max",))[0],
+        "classical_max_deg": _stats(rep, "baseline.vs_truth_deg", ("max",))[0],
+        "coarse_max_deg": _stats(rep, "geometric_vs_truth_deg", ("max",))[0], "hybrid_pct": 100.0 * (rep.get("hybrid") or {}).get("hybrid_fraction", 0.0),
         "bake_s": bake_s, "classical_s": (rep.get("baseline") or {}).get("seconds", {}).get("total"),
         "texture_psnr_db": None if tex is None else tex.get("psnr"),
         "classical_texture_psnr_db": None if tex is None else tex.get("classical_psnr"),
