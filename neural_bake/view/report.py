@@ -226,7 +226,14 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
             r_baked = render_mesh(baked, cam)
             r_bare = render_mesh(bare, cam)
             r_src = render_mesh(source, cam) if source is not None else None
-            r_neu = neural(cam) if neural is not None else None
+            r_neu = None
+            if neural is not None:
+                try:
+                    r_neu = neural(cam)
+                except Exception as exc:  # noqa: BLE001 - a preview that cannot draw leaves its slot, not the report
+                    if k > 0:
+                        raise
+                    neural, neural_note = None, f"the preview renderer failed: {' '.join(str(exc).split())}"
             panels = []
             for name, r in (("source", r_src), ("baked", r_baked), ("bare", r_bare), ("neural", r_neu)):
                 if r is not None:

@@ -151,3 +151,15 @@ def test_view_verb_writes_the_report_or_headless_frames(bake_folder, tmp_path, c
         assert err.startswith("neural-bake: error:") and msg in err and err.count("\n") == 1
     assert main(["view", str(folder), "--headless", "--views", "0"]) == 2
     assert "whole number" in capsys.readouterr().err
+
+
+def test_a_preview_that_cannot_draw_leaves_its_slot_with_the_reason(bake_folder):
+    folder, _ = bake_folder
+
+    def broken(camera):
+        raise RuntimeError("no surface\nat all")
+
+    index = write_asset_report(folder, ReportConfig(views=2, size=32), neural=broken, log=lambda m: None)
+    view = json.loads((index.parent / "view.json").read_text())
+    assert not view["neural"] and view["neural_note"] == "the preview renderer failed: no surface at all"
+    assert "neural_vs_source" not in view["metrics"]
