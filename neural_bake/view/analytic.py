@@ -20,9 +20,9 @@ class AnalyticBake:
     """What :func:`analytic_bake` made: the sample, its fine mesh (unit frame), the Baker, the result, the GLB."""
 
     sample: Any  # a bundled sample (neural_bake.samples.shapes): .normal, .albedo, …
-    fine: object
-    baker: object
-    result: object
+    fine: Any  # Mesh
+    baker: Any  # Baker
+    result: Any  # BakeResult
     glb: Path
 
 
