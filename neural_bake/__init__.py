@@ -23,6 +23,7 @@ _EXPORTS = {
     "ImageError": ".errors",
     "ModelFileError": ".errors",
     "FitError": ".errors",
+    "TimeRangeError": ".errors",
     "NeuralBakeWarning": ".errors",
     # io
     "atomic_path": ".io.atomic",
@@ -59,6 +60,10 @@ _EXPORTS = {
     "sdf_metrics": ".fit.metrics",
     "TextureFitConfig": ".fit.texture",
     "fit_texture": ".fit.texture",
+    "SpaceTimeFitConfig": ".fit.spacetime",
+    "SpaceTimeFit": ".fit.spacetime",
+    "fit_morph": ".fit.spacetime",
+    "fit_sequence": ".fit.spacetime",
     "texture_metrics": ".fit.texture",
     # mesh
     "decimate": ".mesh.decimate",

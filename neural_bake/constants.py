@@ -25,3 +25,7 @@ MERGE_DISTANCE = 1e-9
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
+
+#: A time this close to a space-time field's fitted range [t0, t1] (relative to its length; absolute for a
+#: single time) is clamped onto it; farther out is refused (no extrapolation).
+TIME_RANGE_TOL = 1e-9
