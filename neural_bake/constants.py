@@ -29,3 +29,11 @@ CAMERA_PARALLEL_EPS = 1e-9
 #: A time this close to a space-time field's fitted range [t0, t1] (relative to its length; absolute for a
 #: single time) is clamped onto it; farther out is refused (no extrapolation).
 TIME_RANGE_TOL = 1e-9
+
+#: Pixels peeled off the common mask of two renders before an "interior" comparison: the outline of a coarse
+#: mesh differs from its source's by a pixel or two, and those pixels would swamp the shading differences.
+INTERIOR_ERODE_PX = 2
+
+#: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
+#: sample; a normal map with its green channel flipped, or no maps, stays below it.
+BAKED_RENDER_MIN_PSNR_DB = 45.0
