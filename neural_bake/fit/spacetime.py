@@ -35,16 +35,18 @@ the shape shrinks away and grows back — a property of the distance blend, not 
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import torch
 
 from ..constants import TIME_RANGE_TOL, UNIT_FRAME_EXTENT
-from ..errors import FitError, TimeRangeError
+from ..errors import FitError, ModelFileError, TimeRangeError
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
 from ..nets.timeslice import fix_last_input
@@ -52,7 +54,10 @@ from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
 __all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "reframe",
-           "common_frame", "time_to_tau", "spacetime_metrics"]
+           "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND", "parse_times"]
+
+#: The ``kind`` of a space-time SDF model file.
+SPACETIME_KIND = "spacetime_sdf"
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -182,6 +187,29 @@ def time_to_tau(t, time_range: tuple[float, float], extent: float, *, name: str 
     if t1 == t0:
         return np.zeros_like(ts)
     return (2.0 * (ts - t0) / (t1 - t0) - 1.0) * float(extent)
+
+
+def parse_times(text: str, *, name: str = "times") -> list[float]:
+    """Times from a spec: ``"a:b:n"`` (n evenly spaced times from a to b, both included; n = 1 gives a) or a
+    comma-separated list ``"0,0.25,1"``. NeuralBakeError (one line naming ``name``) for anything else."""
+    from ..errors import NeuralBakeError
+
+    text = str(text).strip()
+    try:
+        if ":" in text:
+            a, b, n = text.split(":")
+            a, b, n = float(a), float(b), int(n)
+            if n < 1:
+                raise ValueError
+            out = np.linspace(a, b, n).tolist() if n > 1 else [a]
+        else:
+            out = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise NeuralBakeError(f"{name}: {text!r:.60} is not START:STOP:COUNT (e.g. 0:1:60) or a comma-separated "
+                              f"list of times") from None
+    if not out or not all(math.isfinite(v) for v in out):
+        raise NeuralBakeError(f"{name}: {text!r:.60} gives no finite times")
+    return [float(v) for v in out]
 
 
 # ----------------------------------------------------------------------------------------------- frames
@@ -362,6 +390,23 @@ class SpaceTimeFit:
         """(N, 4) network inputs of unit-frame ``points`` (N, 3) at time ``t`` (dtype/device of the points)."""
         tau = float(self.tau(float(t)))
         return torch.cat([points, points.new_full((points.shape[0], 1), tau)], dim=1)
+
+    def header(self) -> dict:
+        """The JSON metadata of the model file (kind, frame, time range, how it was fitted)."""
+        last = self.history[-1] if self.history else {}
+        return {"kind": SPACETIME_KIND, "frame": self.frame.to_dict(), "time_range": list(self.time_range),
+                "time_extent": self.time_extent, "animation": {"kind": self.kind, "method": self.method,
+                                                               "times": list(self.times)},
+                "config": json.loads(json.dumps(asdict(self.config), default=str)),
+                "training": {"steps": self.steps, "seconds": round(self.seconds, 3),
+                             "stopped_reason": self.stopped_reason, "restarts": self.restarts, "final": last,
+                             "history": self.history[-200:]}}
+
+    def save(self, path) -> Path:
+        """Write the model file (safetensors + JSON metadata, kind ``"spacetime_sdf"``) atomically."""
+        from ..nets.model_io import save_model
+
+        return save_model(self.model, path, **self.header())
 
 
 # ----------------------------------------------------------------------------------------------- losses
@@ -578,3 +623,55 @@ def spacetime_metrics(fit: SpaceTimeFit, mesh: Mesh, t: float, **kwargs) -> dict
     from .metrics import sdf_metrics
 
     return sdf_metrics(fit.at(t), reframe(mesh, fit.frame), **kwargs)
+
+
+# ----------------------------------------------------------------------------------------------- files
+def spacetime_from_header(model: Siren, meta: dict, path) -> SpaceTimeFit:
+    """A :class:`SpaceTimeFit` of a loaded network and its file metadata; ModelFileError (one line naming
+    ``path`` and the field) for anything that is not a valid space-time SDF header."""
+    if meta.get("kind") != SPACETIME_KIND:
+        raise ModelFileError(f"{path}: not a space-time SDF model file (kind {meta.get('kind')!r:.40})")
+    if model.in_dim != 4 or model.out_dim != 1:
+        raise ModelFileError(f"{path}: a space-time SDF maps R^4 to R, this network maps R^{model.in_dim} to "
+                             f"R^{model.out_dim}")
+    try:
+        frame = Frame.from_dict(meta["frame"])
+        if not (math.isfinite(frame.scale) and frame.scale > 0 and np.isfinite(frame.center).all()):
+            raise ValueError
+    except (KeyError, TypeError, ValueError):
+        raise ModelFileError(f"{path}: space-time SDF model file without a valid frame") from None
+    tr = meta.get("time_range")
+    try:
+        t0, t1 = (float(v) for v in tr)
+        ok = math.isfinite(t0) and math.isfinite(t1) and t0 <= t1
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ModelFileError(f"{path}: time_range = {tr!r:.40} is not two finite times t0 <= t1")
+    extent = meta.get("time_extent")
+    if not isinstance(extent, (int, float)) or isinstance(extent, bool) or not (math.isfinite(extent) and extent > 0):
+        raise ModelFileError(f"{path}: time_extent = {extent!r:.40} is not a positive number")
+    anim = meta.get("animation") if isinstance(meta.get("animation"), dict) else {}
+    training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
+    names = {f.name for f in fields(SpaceTimeFitConfig)}
+    cfg = {k: v for k, v in (meta.get("config") or {}).items() if k in names}
+    if "sigmas" in cfg:
+        cfg["sigmas"] = tuple(cfg["sigmas"])
+    try:
+        config = SpaceTimeFitConfig(**cfg)
+    except TypeError:
+        config = SpaceTimeFitConfig()
+    return SpaceTimeFit(model=model, frame=frame, time_range=(t0, t1), time_extent=float(extent),
+                        kind=str(anim.get("kind", "morph")), method=str(anim.get("method", "")),
+                        times=[float(t) for t in anim.get("times", [])], history=list(training.get("history", [])),
+                        steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
+                        config=config, stopped_reason=str(training.get("stopped_reason", "")),
+                        restarts=int(training.get("restarts", 0)))
+
+
+def load_spacetime(path, *, device=None) -> SpaceTimeFit:
+    """Read a space-time SDF model file written by :meth:`SpaceTimeFit.save` (ModelFileError otherwise)."""
+    from ..nets.model_io import load_model
+
+    model, meta = load_model(path, device=device)
+    return spacetime_from_header(model, meta, path)
