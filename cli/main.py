@@ -56,6 +56,8 @@ COMMANDS = {
     "bake": ("neural_bake.cli.bake", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),
+    "render": ("neural_bake.cli.render", "command"),
+    "view": ("neural_bake.cli.view", "command"),
 }
 
 

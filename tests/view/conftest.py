@@ -36,3 +36,8 @@ def analytic_bake(folder, name="bumpy_sphere", faces=1500, size=256):
 @pytest.fixture(scope="session")
 def bumpy_bake(tmp_path_factory):
     return analytic_bake(tmp_path_factory.mktemp("bumpy"))
+
+
+@pytest.fixture(scope="session")
+def make_analytic_bake():
+    return analytic_bake
