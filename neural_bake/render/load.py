@@ -27,7 +27,8 @@ def read_field(path, *, argument: str = "MODEL", device=None):
 
 
 class _NetworkFile:
-    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``."""
+    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``; a space-time
+    SDF (kind ``spacetime_sdf``) also its ``time_range`` and ``time_input`` (t ↦ the network's time input)."""
 
     def __init__(self, model, frame, delta, kind, name):
         self.model, self.frame, self.delta, self.kind, self.name = model, frame, delta, kind, name
@@ -38,7 +39,13 @@ def _read_network_file(path: Path, device):
 
     model, meta = load_model(path, device=device)
     frame = Frame.from_dict(meta["frame"]) if meta.get("frame") else None
-    return _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
+    out = _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
+    from ..fit.spacetime import SPACETIME_KIND, spacetime_from_header
+
+    if meta.get("kind") == SPACETIME_KIND:  # its time input is t mapped onto [-E, E]: TimeRangeError outside
+        fit = spacetime_from_header(model, meta, path)
+        out.time_range, out.time_input = fit.time_range, lambda t: float(fit.tau(float(t)))
+    return out
 
 
 def _is_texture(field) -> bool:
@@ -87,9 +94,10 @@ def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset |
     names = level_names(nets)
     tex_model = tex.model if tex is not None else None
     time_range = tuple(getattr(field, "time_range", None) or (0.0, 1.0))
+    time_input = getattr(field, "time_input", None) or float  # t ↦ the networks' time input
 
     def at(t: float) -> RenderAsset:
-        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=t)
+        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t))
                   for i, (m, d, n) in enumerate(zip(nets, ds, names))]
         tx = None
         if tex_model is not None:
