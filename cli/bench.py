@@ -17,6 +17,7 @@ BENCHES = {
     "coarse": ("neural_bake.cli.bench_coarse", "command"),
     "dynamic": ("neural_bake.cli.bench_dynamic", "command"),
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
+    "view": ("neural_bake.cli.bench_view", "command"),
 }
 
 

@@ -46,6 +46,37 @@ GUARANTEED_TOLERANCE = 1e-3
 #: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
 MERGE_DISTANCE = 1e-9
 
+# --- model files: what a header may ask for before anything is allocated (neural_bake.fields) --------------
+#: Widest hidden layer a model file may declare (the papers' fine networks are 256 wide).
+MAX_NET_WIDTH = 4096
+
+#: Most hidden W×W matrices a model file may declare (the papers' fine networks have 3).
+MAX_NET_DEPTH = 32
+
+#: Largest input dimension a model file may declare (3 for space, 4 for space-time).
+MAX_NET_IN_DIM = 8
+
+#: Largest output dimension a model file may declare (1 for an SDF, 3 or 4 for colour).
+MAX_NET_OUT_DIM = 16
+
+#: Most levels a nested-sequence file may declare.
+MAX_NESTED_LEVELS = 16
+
+#: Deepest JSON nesting ([ and {) a model file's header may have; deeper is refused before parsing.
+MAX_HEADER_DEPTH = 32
+
+# --- bake: does the SDF describe the mesh? ---------------------------------------------------------------------
+#: Frames (centre and scale) of an SDF and the mesh it bakes onto may differ by this much, relative to the
+#: unit frame (centre offset × scale, |scale ratio − 1|), before the bake refuses the SDF.
+FRAME_MISMATCH_TOL = 1e-3
+
+#: Median |f| (unit frame) at the fine mesh's surface samples above which the bake refuses the SDF: a fitted
+#: SDF of that mesh reads well under this (its sampled distance error), another shape's reads far above.
+SDF_MISMATCH_MEDIAN = 0.02
+
+#: Surface samples of the fine mesh at which the bake measures the SDF's median |f|.
+SDF_CHECK_SAMPLES = 4096
+
 #: Hybrid bake: a texel whose source-surface point (where the classical bake's ray lands) has |f| above this
 #: (unit frame) is one the neural field does not represent; it takes the classical mesh-to-mesh normal.
 HYBRID_SDF_TOL = 0.01
