@@ -50,6 +50,7 @@ _EXPORTS = {
     "TextureField": ".fields",
     "ColorField": ".fields",
     "NestedSequence": ".fields",
+    "SpaceTimeField": ".fields",
     "load_field": ".fields",
     "save_field": ".fields",
     "save_model": ".fields",
@@ -72,6 +73,7 @@ _EXPORTS = {
     "SpaceTimeFit": ".fit.spacetime",
     "fit_morph": ".fit.spacetime",
     "fit_sequence": ".fit.spacetime",
+    "nest_spacetime": ".fit.spacetime",
     "texture_metrics": ".fit.texture",
     # mesh
     "decimate": ".mesh.decimate",

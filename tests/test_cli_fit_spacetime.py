@@ -55,7 +55,7 @@ def test_errors(files, tmp_path, capsys):
     assert main(["fit", "sequence", str(tmp_path), "-o", str(tmp_path / "m"), *TINY]) == 2
     assert "a folder without frames.json" in capsys.readouterr().err
     with pytest.raises(ModelFileError, match="not a space-time SDF model file"):
-        from neural_bake.nets.model_io import save_model
+        from neural_bake.fields.files import save_model
         from neural_bake.nets.siren import Siren
 
         save_model(Siren(8, 1, in_dim=4), tmp_path / "x.safetensors", kind="sdf")

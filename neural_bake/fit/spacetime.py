@@ -6,7 +6,8 @@ time mapped linearly from the fitted range [t0, t1] onto [−E, E] (E = ``time_e
 a single frame). f(·, t) is a static SDF: :meth:`SpaceTimeFit.at` returns it as an ordinary 3-D Siren
 (:func:`~neural_bake.nets.timeslice.fix_last_input`), so marching cubes, GEMM normals, range analysis and the
 renderer apply to it unchanged. A t outside [t0, t1] is refused (:class:`~neural_bake.errors.TimeRangeError`),
-never extrapolated.
+never extrapolated. :meth:`SpaceTimeFit.field` is the fit as a field-layer
+:class:`~neural_bake.fields.spacetime.SpaceTimeField` (what files hold).
 
 Losses. Every step evaluates the values and the full gradient (∂f/∂x, ∂f/∂τ) of all its points in ONE
 differentiable GEMM pass (:func:`~neural_bake.nets.gemm.gemm_gradient`, the closed-form gradient with a
@@ -45,8 +46,9 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..constants import TIME_RANGE_TOL, UNIT_FRAME_EXTENT
-from ..errors import FitError, ModelFileError, TimeRangeError
+from ..constants import UNIT_FRAME_EXTENT
+from ..errors import FitError, ModelFileError
+from ..fields.spacetime import SPACETIME_KIND, SpaceTimeField, check_time_mapping, time_to_tau
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
 from ..nets.timeslice import fix_last_input
@@ -57,8 +59,6 @@ __all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "M
            "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND", "parse_times",
            "nest_spacetime", "nesting_by_time"]
 
-#: The ``kind`` of a space-time SDF model file.
-SPACETIME_KIND = "spacetime_sdf"
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -169,27 +169,6 @@ def _config_from(config: SpaceTimeFitConfig | None, fn: str, **overrides) -> Spa
 
 
 # ----------------------------------------------------------------------------------------------- time
-def time_to_tau(t, time_range: tuple[float, float], extent: float, *, name: str = "t") -> np.ndarray:
-    """The network's time input τ of times ``t`` (scalar or array): [t0, t1] ↦ [−extent, extent] linearly
-    (τ = 0 when t0 = t1). Times within :data:`~neural_bake.constants.TIME_RANGE_TOL` of the range (relative
-    to its length, absolute for a single time) are clamped onto it.
-
-    Raises:
-        TimeRangeError: a non-finite t or one outside [t0, t1] (one line naming ``name`` and the range).
-    """
-    t0, t1 = float(time_range[0]), float(time_range[1])
-    ts = np.asarray(t, dtype=np.float64)
-    tol = TIME_RANGE_TOL * max(t1 - t0, 1.0)
-    bad = ~np.isfinite(ts) | (ts < t0 - tol) | (ts > t1 + tol)
-    if bad.any():
-        first = float(ts.reshape(-1)[np.argmax(bad.reshape(-1))])
-        raise TimeRangeError(f"{name} = {first:g} is outside the fitted time range [{t0:g}, {t1:g}]")
-    ts = np.clip(ts, t0, t1)
-    if t1 == t0:
-        return np.zeros_like(ts)
-    return (2.0 * (ts - t0) / (t1 - t0) - 1.0) * float(extent)
-
-
 def parse_times(text: str, *, name: str = "times") -> list[float]:
     """Times from a spec: ``"a:b:n"`` (n evenly spaced times from a to b, both included; n = 1 gives a) or a
     comma-separated list ``"0,0.25,1"``. NeuralBakeError (one line naming ``name``) for anything else."""
@@ -403,11 +382,15 @@ class SpaceTimeFit:
                              "stopped_reason": self.stopped_reason, "restarts": self.restarts, "final": last,
                              "history": self.history[-200:]}}
 
-    def save(self, path) -> Path:
-        """Write the model file (safetensors + JSON metadata, kind ``"spacetime_sdf"``) atomically."""
-        from ..nets.model_io import save_model
+    def field(self) -> SpaceTimeField:
+        """The fit as a field-layer :class:`~neural_bake.fields.spacetime.SpaceTimeField` (metadata: the header)."""
+        return SpaceTimeField(self.model, frame=self.frame, time_range=self.time_range, time_extent=self.time_extent,
+                              name=f"{self.kind} {self.method}", metadata=self.header())
 
-        return save_model(self.model, path, **self.header())
+    def save(self, path) -> Path:
+        """Write the model file (safetensors + JSON metadata, kind ``"spacetime_sdf"``) atomically;
+        :func:`~neural_bake.fields.load_field` reads it as a SpaceTimeField, :func:`load_spacetime` as a fit."""
+        return self.field().save(path)
 
 
 # ----------------------------------------------------------------------------------------------- losses
@@ -706,17 +689,7 @@ def spacetime_from_header(model: Siren, meta: dict, path) -> SpaceTimeFit:
             raise ValueError
     except (KeyError, TypeError, ValueError):
         raise ModelFileError(f"{path}: space-time SDF model file without a valid frame") from None
-    tr = meta.get("time_range")
-    try:
-        t0, t1 = (float(v) for v in tr)
-        ok = math.isfinite(t0) and math.isfinite(t1) and t0 <= t1
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ModelFileError(f"{path}: time_range = {tr!r:.40} is not two finite times t0 <= t1")
-    extent = meta.get("time_extent")
-    if not isinstance(extent, (int, float)) or isinstance(extent, bool) or not (math.isfinite(extent) and extent > 0):
-        raise ModelFileError(f"{path}: time_extent = {extent!r:.40} is not a positive number")
+    (t0, t1), extent = check_time_mapping(meta, path)
     anim = meta.get("animation") if isinstance(meta.get("animation"), dict) else {}
     training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
     names = {f.name for f in fields(SpaceTimeFitConfig)}

@@ -27,8 +27,7 @@ def read_field(path, *, argument: str = "MODEL", device=None):
 
 
 class _NetworkFile:
-    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``; a space-time
-    SDF (kind ``spacetime_sdf``) also its ``time_range`` and ``time_input`` (t ↦ the network's time input)."""
+    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``."""
 
     def __init__(self, model, frame, delta, kind, name):
         self.model, self.frame, self.delta, self.kind, self.name = model, frame, delta, kind, name
@@ -39,13 +38,7 @@ def _read_network_file(path: Path, device):
 
     model, meta = load_model(path, device=device)
     frame = Frame.from_dict(meta["frame"]) if meta.get("frame") else None
-    out = _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
-    from ..fit.spacetime import SPACETIME_KIND, spacetime_from_header
-
-    if meta.get("kind") == SPACETIME_KIND:  # its time input is t mapped onto [-E, E]: TimeRangeError outside
-        fit = spacetime_from_header(model, meta, path)
-        out.time_range, out.time_input = fit.time_range, lambda t: float(fit.tau(float(t)))
-    return out
+    return _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
 
 
 def _is_texture(field) -> bool:
@@ -93,8 +86,12 @@ def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset |
                           "(x, y, z, t)")
     names = level_names(nets)
     tex_model = tex.model if tex is not None else None
-    time_range = tuple(getattr(field, "time_range", None) or (0.0, 1.0))
-    time_input = getattr(field, "time_input", None) or float  # t ↦ the networks' time input
+    from ..fields.spacetime import time_mapping
+
+    # the file's time range and t ↦ the networks' time input (TimeRangeError outside the range)
+    time_range, time_input = (time_mapping(field) or (None, None))
+    time_range = tuple(time_range or getattr(field, "time_range", None) or (0.0, 1.0))
+    time_input = time_input or getattr(field, "time_input", None) or float
 
     def at(t: float) -> RenderAsset:
         levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t))

@@ -242,3 +242,66 @@ def test_space_time_nesting_holds_at_every_sampled_t(sphere_to_torus):
                            seed=5)
     assert info["delta_source"] == "estimated"
     assert len(rows) == 7 and all(r["sup"] <= 1.1 * r["allowed"] for r in rows), rows
+
+
+# ------------------------------------------------------------------------------------------ files
+def test_space_time_file_through_the_field_layer(sphere_to_torus, tmp_path):
+    from neural_bake.fields import SpaceTimeField, load_field, save_field
+    from neural_bake.fit.spacetime import load_spacetime
+
+    path = sphere_to_torus.save(tmp_path / "morph.nbm")
+    field = load_field(path)
+    assert isinstance(field, SpaceTimeField) and field.time_range == (0.0, 1.0) and field.time_extent == 1.0
+    x = torch.rand(300, 3) * 2 - 1
+    for t in (0.0, 0.3, 1.0):
+        sdf = field.at(t)
+        with torch.no_grad():
+            torch.testing.assert_close(sdf.model(x), sphere_to_torus.at(t)(x))
+        assert sdf.frame == sphere_to_torus.frame
+    with pytest.raises(TimeRangeError, match=r"t = -0.5 is outside the fitted time range \[0, 1\]"):
+        field.at(-0.5)
+    again = save_field(field, tmp_path / "again.nbm")
+    fit = load_spacetime(again)
+    assert fit.kind == "morph" and fit.method == "lse" and fit.steps == sphere_to_torus.steps
+
+
+def test_space_time_file_errors(tmp_path):
+    from neural_bake.errors import ModelFileError
+    from neural_bake.fields import load_field
+    from neural_bake.fields.files import save_model
+
+    m = Siren(8, 1, in_dim=4)
+    frame = {"center": [0, 0, 0], "scale": 1.0}
+    cases = {"time_range": ([1.0, 0.0], r"time_range = \[1.0, 0.0\] is not two finite times t0 <= t1"),
+             "time_extent": (0.0, "time_extent = 0.0 is not a positive number")}
+    for key, (bad, msg) in cases.items():
+        meta = {"kind": "spacetime_sdf", "frame": frame, "time_range": [0.0, 1.0], "time_extent": 1.0, key: bad}
+        save_model(m, tmp_path / "bad.nbm", **meta)
+        with pytest.raises(ModelFileError, match=msg):
+            load_field(tmp_path / "bad.nbm")
+    save_model(Siren(8, 1, in_dim=3), tmp_path / "three.nbm", kind="spacetime_sdf", frame=frame,
+               time_range=[0, 1], time_extent=1.0)
+    with pytest.raises(ModelFileError, match=r"a space-time SDF maps R\^4 to R, this network maps R\^3"):
+        load_field(tmp_path / "three.nbm")
+
+
+def test_render_verb_maps_t_onto_the_network_time_input(sphere_to_torus, tmp_path, capsys):
+    from neural_bake.cli.main import main
+    from neural_bake.io.images import read_image
+    from neural_bake.render.load import load_asset
+
+    path = sphere_to_torus.save(tmp_path / "morph.nbm")
+    asset = load_asset(path)
+    assert asset.time_range == (0.0, 1.0)
+    x = torch.rand(200, 3) * 2 - 1
+    for t in (0.0, 1.0):  # the renderer's level at t is the fit's f(·, t), not the network at τ = t
+        lv = asset.at(t).levels[-1]
+        torch.testing.assert_close(lv.value(x), sphere_to_torus.at(t)(x)[:, 0], atol=2e-5, rtol=0)
+    out = tmp_path / "morph.gif"
+    assert main(["render", str(path), "-o", str(out), "--frames", "3", "--size", "32"]) == 0
+    frames = sorted((tmp_path / "morph_frames").glob("*.png"))
+    assert len(frames) == 3 and out.is_file()
+    first, last = read_image(frames[0]), read_image(frames[-1])
+    assert np.abs(first - last).mean() > 0.01  # the sphere became a torus
+    assert main(["render", str(path), "-o", str(out), "--frames", "2", "--size", "16", "--time-range", "0,2"]) == 2
+    assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
