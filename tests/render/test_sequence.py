@@ -7,7 +7,7 @@ import torch
 
 from neural_bake.cli.main import main
 from neural_bake.io.images import read_image
-from neural_bake.nets.model_io import save_model
+from neural_bake.fields import save_model
 from neural_bake.nets.siren import Siren
 from neural_bake.render.asset import RenderAsset, RenderError, SpaceTimeAsset, analytic_level
 from neural_bake.render.camera import Camera
