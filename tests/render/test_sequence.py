@@ -98,7 +98,8 @@ def test_cli_renders_a_space_time_network(tmp_path, capsys, monkeypatch):
     net = Siren(16, 1, in_dim=4, omega_0=5.0, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():  # f(x, t) ≈ |x| − (0.3 + 0.3 t) is not needed: any 4-input network animates
         net.layers[-1].bias.fill_(-0.05)
-    path = save_model(net, tmp_path / "st.sdf", kind="sdf", frame=Frame().to_dict())
+    path = save_model(net, tmp_path / "st.sdf", kind="spacetime_sdf", frame=Frame().to_dict(), time_range=[0.0, 1.0],
+                      time_extent=1.0)
     code = main(["render", str(path), "-o", str(tmp_path / "a.gif"), "--frames", "3", "--size", "16",
                  "--time-range", "0,0.5", "--stats", str(tmp_path / "a.json")])
     captured = capsys.readouterr()
