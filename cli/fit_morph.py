@@ -93,13 +93,22 @@ def check_output(output: str) -> None:
 @click.option("--method", type=click.Choice(["lse", "interpolate"]), default="lse", show_default=True,
               help="lse: level set equation df/dt + v|grad f| = 0 with v = d_A - d_B; interpolate: supervised "
                    "blend of the two distances plus the eikonal term.")
+@click.option("--align", type=click.Choice(["source", "unit"]), default="source", show_default=True,
+              help="source: the shapes keep their places; unit: each is centred and scaled first (unrelated models).")
 @network_options
-def command(a, b, output, method, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics, progress):
+def command(a, b, output, method, align, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics,
+            progress):
     """Fit a space-time SDF morphing shape A (t = 0) into shape B (t = 1); A and B are meshes or SDF model files."""
     from neural_bake.fit.spacetime import fit_morph
 
     check_output(output)
     sa, sb = load_shape(a), load_shape(b)
-    fit = fit_morph(sa, sb, method=method, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed,
+    fit = fit_morph(sa, sb, method=method, align=align, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed,
                     lr=lr, time_extent=time_extent, progress=progress, **pools(pool))
+    if align == "unit":  # the metrics compare with the shapes as the fit saw them
+        from dataclasses import replace
+
+        from neural_bake.types import Frame, Mesh
+
+        sa, sb = (replace(s, frame=Frame()) if isinstance(s, Mesh) else s for s in (sa, sb))
     report_fit(fit, [(0.0, sa), (1.0, sb)], metrics, output)

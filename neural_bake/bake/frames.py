@@ -9,8 +9,6 @@ place (a reader sees the whole old set or the whole new set; a failed run leaves
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +18,7 @@ import numpy as np
 import torch
 
 from ..errors import NeuralBakeError
+from ..io.atomic import atomic_folder
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..nets.siren import Siren
 from ..types import Frame
@@ -87,9 +86,8 @@ def bake_frames(
         raise NeuralBakeError(f"{out_dir}: folder {parent} does not exist")
     for t in times:  # every time checked before any work: a bad one fails fast
         coarse_at(t)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=parent))
     files, stats = [], []
-    try:
+    with atomic_folder(out_dir) as tmp:
         for i, t in enumerate(times):
             t0 = time.perf_counter()
             coarse, fine = coarse_at(t), fine_at(t)
@@ -118,14 +116,4 @@ def bake_frames(
                           "invalid_normals": int(bad.sum())})
         (tmp / "frames.json").write_text(json.dumps({"times": times, "frames": [f.name for f in files],
                                                      "stats": stats}, indent=1) + "\n")
-        if out_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=parent))
-            out_dir.rename(old / out_dir.name)
-            tmp.rename(out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return FrameBake(files, times, stats)

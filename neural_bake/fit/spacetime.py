@@ -529,7 +529,7 @@ def _run(shapes, taus, kind: str, method: str, cfg: SpaceTimeFitConfig, frame: F
                         stopped_reason=res.stopped_reason, restarts=res.restarts)
 
 
-def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, **overrides) -> SpaceTimeFit:
+def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, *, align: str = "source", **overrides) -> SpaceTimeFit:
     """Train a space-time Siren whose zero level set moves from shape ``a`` at t = 0 to shape ``b`` at t = 1.
 
     Args:
@@ -539,6 +539,9 @@ def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, **overrides) -> Sp
             (:func:`common_frame`), so their relative position in the source frame is kept.
         config: the settings (default :class:`SpaceTimeFitConfig`); ``method`` chooses "lse" or
             "interpolate" (module docstring).
+        align: "source" (default): the shapes keep their places in the source frame; "unit": each is first
+            centred and scaled into its own unit frame (two unrelated models, e.g. Spot into the bunny), and
+            the result's frame is the identity.
         **overrides: any :class:`SpaceTimeFitConfig` field, e.g. ``width=64, depth=1, steps=300``.
 
     Returns:
@@ -549,6 +552,10 @@ def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, **overrides) -> Sp
             divergence that learning-rate halvings did not cure.
     """
     cfg = _config_from(config, "fit_morph", **overrides)
+    if align not in ("source", "unit"):
+        raise FitError(f"fit_morph: align must be 'source' or 'unit', got {align!r}")
+    if align == "unit":
+        a, b = _unit_aligned(a), _unit_aligned(b)
     frame = common_frame([a, b]) if all(isinstance(s, Mesh) or hasattr(s, "frame") for s in (a, b)) else None
     if frame is None:
         raise FitError(f"fit_morph: expected two Meshes or fitted SDFs, got {type(a).__name__} and {type(b).__name__}")
@@ -556,6 +563,18 @@ def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, **overrides) -> Sp
     e = cfg.time_extent
     return _run(shapes, [-e, e], "morph", cfg.method, cfg, frame, (0.0, 1.0), [0.0, 1.0],
                 f"fit morph {cfg.method} {cfg.width}x{cfg.depth}")
+
+
+def _unit_aligned(s):
+    """A shape whose source frame is its own unit frame (centred, longest side 1.8)."""
+    if isinstance(s, Mesh):
+        return replace(s, frame=Frame())
+
+    class _Aligned:  # a fitted SDF seen in its unit frame
+        def __init__(self, model):
+            self.model, self.frame = model, Frame()
+
+    return _Aligned(_field_parts(s, "shape")[0])
 
 
 def fit_sequence(meshes: Sequence[Mesh], times: Sequence[float], config: SpaceTimeFitConfig | None = None,

@@ -305,3 +305,12 @@ def test_render_verb_maps_t_onto_the_network_time_input(sphere_to_torus, tmp_pat
     assert np.abs(first - last).mean() > 0.01  # the sphere became a torus
     assert main(["render", str(path), "-o", str(out), "--frames", "2", "--size", "16", "--time-range", "0,2"]) == 2
     assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
+
+
+def test_unit_alignment_puts_unrelated_models_in_one_place():
+    a, b = _mesh("sphere", 300), _mesh("sphere", 300, shift=(50.0, 0.0, 0.0), scale=10.0)
+    fit = fit_morph(a, b, align="unit", steps=60, **TINY)
+    # both spheres centred and scaled into [-0.9, 0.9]^3: the common frame is the identity
+    assert fit.frame.center == (0.0, 0.0, 0.0) and abs(fit.frame.scale - 1.0) < 1e-12
+    with pytest.raises(FitError, match="align must be 'source' or 'unit', got 'middle'"):
+        fit_morph(a, b, align="middle")
