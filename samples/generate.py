@@ -23,7 +23,7 @@ from neural_bake.io.atomic import atomic_write_text
 from .animated import ANIMATED
 from .shapes import SAMPLES, SampleMesh, get_sample
 
-__all__ = ["generate", "sample_path", "write_sample", "write_animation", "obj_text", "DATA_DIR", "FRAMES_FILE"]
+__all__ = ["generate", "check_generate_args", "sample_path", "write_sample", "write_animation", "obj_text", "DATA_DIR", "FRAMES_FILE"]
 
 #: The index file of an animation's folder: ``{"name", "sdf_kind", "times": [...], "frames": [...]}``.
 FRAMES_FILE = "frames.json"
@@ -110,26 +110,33 @@ def generate(
 
     Raises :class:`NeuralBakeError` for an unknown name or an output path that is not a folder.
     """
+    samples = check_generate_args(names, resolution, texture_size)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise NeuralBakeError(f"{out}: not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    written = {}
+    for s in samples:
+        if s.name in ANIMATED:
+            written[s.name] = write_animation(s, out, resolution=resolution)
+        else:
+            written[s.name] = write_sample(s.mesh(resolution, texture_size), out, s.name)
+    return written
+
+
+def check_generate_args(names: Iterable[str] | None, resolution: int | None, texture_size: int | None) -> list:
+    """The samples and animations ``names`` (default: all) stands for; NeuralBakeError for an unknown name or a
+    bad size."""
     names = [*SAMPLES, *ANIMATED] if names is None else list(names)
     unknown = [n for n in names if n not in SAMPLES and n not in ANIMATED]
     if unknown:
         raise NeuralBakeError(f"unknown sample {unknown[0]!r} (known: {', '.join([*SAMPLES, *ANIMATED])})")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise NeuralBakeError(f"{out}: not a folder")
+    samples = [ANIMATED[n] if n in ANIMATED else get_sample(n) for n in names]
     if resolution is not None and int(resolution) < 32:
         raise NeuralBakeError(f"resolution must be an approximate face count >= 32, got {resolution}")
     if texture_size is not None and int(texture_size) < 8:
         raise NeuralBakeError(f"texture size must be at least 8 texels, got {texture_size}")
-    out.mkdir(parents=True, exist_ok=True)
-    written = {}
-    for n in names:
-        if n in ANIMATED:
-            written[n] = write_animation(ANIMATED[n], out, resolution=resolution)
-        else:
-            s = get_sample(n)
-            written[n] = write_sample(s.mesh(resolution, texture_size), out, s.name)
-    return written
+    return samples
 
 
 def main() -> None:  # pragma: no cover - `python -m neural_bake.samples.generate` refreshes the bundled files

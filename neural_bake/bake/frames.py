@@ -2,8 +2,8 @@
 neural normals ∇f(·, t) / |∇f(·, t)| of the fine level at the same t (GEMM normals), written as numbered PLY
 or GLB frames.
 
-The frames go to a folder committed as a unit: written into a temporary folder beside it, then renamed into
-place (a reader sees the whole old set or the whole new set; a failed run leaves the old folder untouched).
+The frames go to a folder committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
+whole old set or the whole new set; a failed run leaves the old folder untouched).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from ..errors import NeuralBakeError
-from ..io.atomic import atomic_folder
+from ..io.outdir import OutputFolder
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..nets.siren import Siren
 from ..types import Frame
@@ -87,7 +87,7 @@ def bake_frames(
     for t in times:  # every time checked before any work: a bad one fails fast
         coarse_at(t)
     files, stats = [], []
-    with atomic_folder(out_dir) as tmp:
+    with OutputFolder(out_dir) as tmp:
         for i, t in enumerate(times):
             t0 = time.perf_counter()
             coarse, fine = coarse_at(t), fine_at(t)

@@ -8,13 +8,15 @@ imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships)
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from ..io.atomic import atomic_folder, atomic_path
+from ..io.atomic import atomic_path
 from ..io.colour import linear_to_srgb
 from ..io.images import write_image
 from .asset import RenderError, SpaceTimeAsset
@@ -84,7 +86,8 @@ def render_sequence(
     scene = scene.with_(camera=camera)
     counter = EvalCounter()
     per_frame, images = [], []
-    with atomic_folder(frames_dir) as tmp:  # the frames folder is committed as a unit
+    tmp = Path(tempfile.mkdtemp(prefix=f".{frames_dir.name}.", dir=parent))
+    try:
         paths = []
         for i, t in enumerate(times):
             res = render(asset.at(t), scene)
@@ -99,6 +102,16 @@ def render_sequence(
             per_frame.append({"time": t, "seconds": res.stats["seconds"]["total"], "hit": res.stats["pixels"]["hit"]})
             if progress is not None:
                 progress(i + 1, len(times), res.stats["seconds"]["total"])
+        if frames_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{frames_dir.name}.old.", dir=parent))
+            frames_dir.rename(old / frames_dir.name)
+            tmp.rename(frames_dir)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(frames_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     if anim is not None:
         _write_animation(anim, images, fps)
     stats = {"frames": per_frame, "evaluations": counter.to_dict(), "camera": camera.to_dict(),

@@ -79,6 +79,7 @@ def screenshot_viewer(index, out, *, show: str = "baked", timeout_s: float = 180
             page.wait_for_function("window.NEURAL_BAKE_VISIBLE === true", timeout=wait)
             loaded = time.perf_counter() - t0
             page.wait_for_timeout(settle_ms)  # the environment's prefiltering and a few frames
+            page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
             box = page.locator("#viewer").bounding_box()
             page.screenshot(path=str(out), clip={"x": round(box["x"]), "y": round(box["y"]),
                                                  "width": round(box["width"]), "height": round(box["height"])})

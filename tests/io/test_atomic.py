@@ -91,22 +91,3 @@ def test_missing_folder_raises_and_writes_nothing(tmp_path):
     with pytest.raises(FileNotFoundError):
         atomic_write_bytes(tmp_path / "no" / "a.bin", b"1")
     assert not list(tmp_path.iterdir())
-
-
-def test_atomic_folder_replaces_the_whole_set_or_nothing(tmp_path):
-    from neural_bake.io.atomic import atomic_folder
-
-    dest = tmp_path / "frames"
-    with atomic_folder(dest) as tmp:
-        (tmp / "a.txt").write_text("1")
-        assert not dest.exists()  # nothing visible before the commit
-    assert sorted(p.name for p in dest.iterdir()) == ["a.txt"]
-    with atomic_folder(dest) as tmp:
-        (tmp / "b.txt").write_text("2")
-    assert sorted(p.name for p in dest.iterdir()) == ["b.txt"]  # the old set is gone as a whole
-    with pytest.raises(RuntimeError, match="boom"):
-        with atomic_folder(dest) as tmp:
-            (tmp / "c.txt").write_text("3")
-            raise RuntimeError("boom")
-    assert sorted(p.name for p in dest.iterdir()) == ["b.txt"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]  # no temporary folder left behind

@@ -84,7 +84,7 @@ def test_report_without_model_viewer_says_why_and_keeps_pictures(tmp_path, monke
 
 def test_the_source_toggle_loads_the_source_mesh(browser_report, tmp_path):
     index, _ = browser_report
-    info = screenshot_viewer(index, tmp_path / "source.png", show="source", settle_ms=1000)
+    info = screenshot_viewer(index, tmp_path / "source.png", show="source", settle_ms=3000)
     assert not [e for e in info["console"] if e[0] in ("error", "pageerror")]
     shot = read_image(tmp_path / "source.png", colour="data")[..., :3]
     bg = np.asarray(read_image(index.parent / "views" / "source_0.png", colour="data"))[0, 0, :3]

@@ -80,6 +80,7 @@ def test_report_errors(tmp_path):
 
 def test_batch_index_over_two_bakes_and_failures(bake_folder, tmp_path, make_analytic_bake):
     folder, _ = bake_folder
+    write_asset_report(folder, ReportConfig(views=1, size=32), log=lambda m: None)
     second = tmp_path / "second"
     second.mkdir()
     make_analytic_bake(second, name="sphere", faces=300, size=32)
