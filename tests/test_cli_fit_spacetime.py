@@ -68,3 +68,16 @@ def test_parse_times():
     for bad in ("0:1:0", "a,b", "0:1", "", "nan"):
         with pytest.raises(Exception, match="times"):
             parse_times(bad)
+
+
+def test_bake_frames_verb(files, tmp_path, capsys):
+    model = tmp_path / "seq.nbm"
+    assert main(["fit", "sequence", str(files["splitting_sphere"]), "-o", str(model), "--no-metrics", "--width",
+                 "32", "--depth", "1", "--steps", "150", "--lr", "1e-3", "--pool", "4000", "--no-progress"]) == 0
+    out = tmp_path / "frames"
+    assert main(["bake-frames", str(model), "--t", "0:1:3", "-o", str(out), "--resolution", "24"]) == 0
+    assert "baked 3 frames" in capsys.readouterr().out
+    assert sorted(p.name for p in out.glob("*.ply")) == [f"frame_{i:04d}.ply" for i in range(3)]
+    assert main(["bake-frames", str(model), "--t", "0,2", "-o", str(out)]) == 2
+    assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
+    assert main(["bake-frames", str(files["sphere"]).replace(".obj", ".png"), "--t", "0", "-o", str(out)]) == 2
