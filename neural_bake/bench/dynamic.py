@@ -42,10 +42,9 @@ def _hausdorff(fit, mesh, t, n, res):
 def run(quick: bool = False, *, minutes: float | None = None, frames: int | None = None, size: int | None = None,
         progress: bool = False) -> dict:
     """Run the benchmark; ``quick`` shrinks networks, steps, frames and images (under two minutes)."""
-    import torch
-
     from ..bake.frames import bake_frames
     from ..fit.spacetime import fit_morph, fit_sequence, nest_spacetime, nesting_by_time
+    from ..nets.timeslice import fix_last_input
     from ..samples import ANIMATED, SAMPLES
 
     net = dict(width=32, depth=1, lr=1e-3) if quick else dict(width=128, depth=2, lr=2e-4)
@@ -110,8 +109,9 @@ def run(quick: bool = False, *, minutes: float | None = None, frames: int | None
         render_s = time.perf_counter() - t0
         rendered = code == 0
         t0 = time.perf_counter()
-        coarse_at = (lambda t: __import__("neural_bake.nets.timeslice", fromlist=["x"]).fix_last_input(
-            nested.levels[0], float(fine.tau(t))))
+        def coarse_at(t):
+            return fix_last_input(nested.levels[0], float(fine.tau(t)))
+
         from ..errors import NeuralBakeError
 
         bake_times = np.linspace(0, 1, 5 if quick else 10)
@@ -134,7 +134,6 @@ def run(quick: bool = False, *, minutes: float | None = None, frames: int | None
     notes.append("morph sphere -> torus; both methods get the same wall-clock budget "
                  f"({budget} min each); Hausdorff in common-unit-frame units")
     notes.append("render: one space-time network (no coarse level), shading + neural normals, fixed camera")
-    torch.set_grad_enabled(True)
     return {"name": "dynamic", "title": "dynamic SDFs: morph methods, sequence, nesting, render/bake cost, storage",
             "tables": {"morph (equal time)": rows_morph, "sequence splitting_sphere": rows_seq,
                        "nesting over space-time": rows_nest, "render and bake cost, storage": rows_cost},
