@@ -118,6 +118,16 @@ def test_a_space_time_kind_slots_in_without_changing_callers(tmp_path):
         KINDS.pop("sdf4d")
 
 
+def test_space_time_sdf_carries_its_input_dimension(tmp_path):
+    f = load_field(save_model(_net(in_dim=4), tmp_path / "st.sdf", kind="sdf", frame=FRAME.to_dict()))
+    assert f.in_dim == 4 and f.value_and_gradient(torch.rand(5, 4))[1].shape == (5, 4)
+    with pytest.raises(ModelFileError, match=r"st\.sdf: a space-time SDF \(4 inputs\); a static one"):
+        load_sdf_field(tmp_path / "st.sdf")  # what bake and fit texture read
+    with pytest.raises(ModelFileError, match=r"five\.sdf: an SDF maps R\^3 \(or R\^4 with time\) to R, this network "
+                                             r"maps R\^5 to R\^1"):
+        load_field(save_model(_net(in_dim=5), tmp_path / "five.sdf", kind="sdf", frame=FRAME.to_dict()))
+
+
 def test_save_field_errors(tmp_path):
     with pytest.raises(ModelFileError, match=r"a\.sdf: analytic is an analytic field; only fitted networks"):
         save_field(SdfField(lambda p: p[:, 0]), tmp_path / "a.sdf")
