@@ -54,6 +54,7 @@ COMMANDS = {
     "inspect": ("neural_bake.cli.inspect", "command"),
     "fit": ("neural_bake.cli.fit", "group"),
     "bake": ("neural_bake.cli.bake", "command"),
+    "batch": ("neural_bake.cli.batch", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),
 }
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.formatwarning = _format_warning
     warnings.simplefilter("always", NeuralBakeWarning)
     try:
-        cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
+        code = cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("neural-bake: aborted", err=True)
         return 130
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("neural-bake: interrupted", err=True)
         return 130
-    return 0
+    return code if isinstance(code, int) else 0  # a verb's click.exceptions.Exit(code), else 0
 
 
 def entry() -> None:  # pragma: no cover - console script wrapper

@@ -61,16 +61,19 @@ class BakeAssetConfig:
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
-               log: Callable[[str], None] = print) -> dict:
+               coarse_mesh=None, log: Callable[[str], None] = print) -> dict:
     """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
 
     Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
     and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
+    ``coarse_mesh``: a ``(Mesh, info)`` pair made earlier (by the batch's coarse stage, from ``config.coarse``)
+    to bake onto instead of making it here.
     Raises NeuralBakeError (one line) for bad input, before anything is written.
     """
     import numpy as np
 
-    from neural_bake.bake.baker import Baker, bake_vertices, coarse_mesh, parse_coarse
+    from neural_bake.bake.baker import Baker, bake_vertices, parse_coarse
+    from neural_bake.bake.baker import coarse_mesh as make_coarse_mesh
     from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
@@ -116,7 +119,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
     timings["load"] = time.perf_counter() - t0
-    coarse_m, coarse_info = coarse_mesh(fine, coarse, sdf)
+    coarse_m, coarse_info = coarse_mesh if coarse_mesh is not None else make_coarse_mesh(fine, coarse, sdf)
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
