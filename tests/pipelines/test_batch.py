@@ -18,27 +18,6 @@ from neural_bake.io.images import read_image
 from neural_bake.pipelines.batch import BatchConfig, plan_workers, run_batch
 from neural_bake.pipelines.stages import resolve_stages
 
-#: Stage options small enough for a test: seconds per asset (process start and imports dominate).
-TINY = {
-    "sdf": {"width": 16, "depth": 1, "steps": 10, "minutes": None, "pool_surface": 4000, "pool_near": 4000,
-            "pool_uniform": 1000, "batch": 512, "batch_near": 512, "batch_uniform": 128, "polish_evals": 0,
-            "compile": "off", "gemm_dtype": "float32", "micro_batches": 1},
-    "nested": {"levels": "8x0", "steps": 20, "certify": False},
-    "texture": {"width": 16, "depth": 1, "steps": 20, "minutes": None, "pool": 4000, "batch": 512},
-    "coarse": {"spec": "decimate:200"},
-    "bake": {"size": 32, "baseline": False},
-}
-
-CLI_TINY = [f"--set={stage}.{k}={'none' if v is None else v}" for stage, opts in TINY.items() for k, v in opts.items()]
-
-
-def tiny(**stage_overrides) -> dict:
-    out = {s: dict(o) for s, o in TINY.items()}
-    for stage, opts in stage_overrides.items():
-        out.setdefault(stage, {}).update(opts)
-    return out
-
-
 @pytest.fixture(scope="module")
 def samples(tmp_path_factory):
     from neural_bake.samples.generate import write_sample
@@ -53,7 +32,7 @@ def statuses(summary, name):
     return {s: r["status"] for s, r in summary["assets"][name]["stages"].items()}
 
 
-def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples):
+def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples, tiny):
     manifest = tmp_path / "assets.csv"
     manifest.write_text("mesh,name,sdf.steps,bake.size\n"
                         f"{samples['sphere']},ball,,\n"
@@ -116,7 +95,7 @@ def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples):
     assert statuses(moved, "ball") == dict.fromkeys(("sdf", "nested", "texture", "coarse", "bake"), "done")
 
 
-def test_worker_killed_mid_asset_batch_goes_on_and_rerun_completes(tmp_path, samples):
+def test_worker_killed_mid_asset_batch_goes_on_and_rerun_completes(tmp_path, samples, tiny):
     manifest = tmp_path / "m.json"
     # the first asset's nested stage runs for its time budget: long enough to be killed in it
     manifest.write_text(json.dumps([{"mesh": str(samples["sphere"]), "name": "victim",
@@ -159,11 +138,11 @@ def _cli(args, **kwargs):
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 
-def test_ctrl_c_then_rerun(tmp_path, samples):
+def test_ctrl_c_then_rerun(tmp_path, samples, cli_tiny):
     manifest = tmp_path / "m.txt"
     manifest.write_text(f"{samples['sphere']}\n{samples['torus']}\n")
     out = tmp_path / "out"
-    proc = _cli([str(manifest), "-o", str(out), "--workers", "1", *CLI_TINY, "--set", "nested.steps=10000000",
+    proc = _cli([str(manifest), "-o", str(out), "--workers", "1", *cli_tiny, "--set", "nested.steps=10000000",
                  "--set", "nested.minutes=0.5"], start_new_session=True)
     deadline = time.monotonic() + 120
     while not (out / "sphere" / "sdf.safetensors").is_file() and time.monotonic() < deadline:
@@ -179,7 +158,7 @@ def test_ctrl_c_then_rerun(tmp_path, samples):
     left = subprocess.run(["ps", "-o", "stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
     assert all(line.startswith("Z") for line in left.splitlines()), left  # no worker left running
     assert not list(out.rglob(".*.tmp*"))
-    done = _cli([str(manifest), "-o", str(out), "--workers", "1", *CLI_TINY, "-q"])
+    done = _cli([str(manifest), "-o", str(out), "--workers", "1", *cli_tiny, "-q"])
     text, err = done.communicate(timeout=600)
     assert done.returncode == 0, err
     summary = json.loads((out / "batch.json").read_text())
