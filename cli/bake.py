@@ -43,19 +43,25 @@ __all__ = ["command"]
               show_default=True,
               help="cache: keep every texel sample in memory (report over all of them); stream: bake band by band "
                    "in bounded memory (report on a seeded uniform subsample); auto: cache up to 2^23 samples.")
+@click.option("--hybrid/--no-hybrid", default=True, show_default=True,
+              help="Texels where the neural field is not faithful (|f| at the source surface above --hybrid-tol, or "
+                   "∇f more than --hybrid-angle off the source normal) take the classical mesh-to-mesh normal.")
+@click.option("--hybrid-tol", type=float, default=None, help="Hybrid bake: |f| tolerance (unit frame; default 0.01).")
+@click.option("--hybrid-angle", type=float, default=None, help="Hybrid bake: angle threshold in degrees (default 20).")
 @click.option("--report-samples", type=int, default=None,
               help="Texel samples a streamed bake keeps for the report's per-sample errors (default 2^18).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
-            supersample, padding, delta, baseline, cage, truth, texels_mode, report_samples, out):
+            supersample, padding, delta, baseline, cage, truth, texels_mode, hybrid, hybrid_tol, hybrid_angle,
+            report_samples, out):
     """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
     and a quality report into OUT."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
 
-    given = {"report_samples": report_samples}  # unset: the pipeline's default
+    given = {"report_samples": report_samples, "hybrid_tol": hybrid_tol, "hybrid_angle": hybrid_angle}  # unset: default
     config = BakeAssetConfig(coarse=coarse, maps=maps_spec, size=size, texture=texture, normal_space=normal_space,
                              directx=directx, bits=int(bits), exr=exr, supersample=supersample, padding=padding,
-                             delta=delta, baseline=baseline, cage=cage, truth=truth,
+                             delta=delta, baseline=baseline, cage=cage, truth=truth, hybrid=hybrid,
                              cache_texels={"auto": None, "cache": True, "stream": False}[texels_mode],
                              **{k: v for k, v in given.items() if v is not None})
     bake_asset(mesh, sdf_path, out, config, texture_model=tex_path, log=click.echo)

@@ -15,6 +15,7 @@ BENCHES = {
     "texture": ("neural_bake.cli.bench_texture", "command"),
     "bake": ("neural_bake.cli.bench_bake", "command"),
     "coarse": ("neural_bake.cli.bench_coarse", "command"),
+    "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
 }
 
 

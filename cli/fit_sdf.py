@@ -14,8 +14,10 @@ __all__ = ["command"]
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'sdf').")
-@click.option("--preset", type=click.Choice(["64x1", "128x2", "256x2", "256x3"]), default="256x3", show_default=True,
-              help="Network (W, D) and time budget: 64x1 ≈2 min, 128x2 ≈5, 256x2 ≈8, 256x3 ≈10 min.")
+@click.option("--preset", type=click.Choice(["64x1", "128x2", "256x2", "256x3", "quick", "default", "high"]),
+              default="256x3", show_default=True,
+              help="Network (W, D) and time budget: 64x1 ≈2 min, 128x2 ≈5, 256x2 ≈8, 256x3 ≈10 min; quick, "
+                   "default and high are 64x1, 128x2 and 256x3.")
 @click.option("--steps", type=int, default=None, help="Maximum optimiser steps (default: the preset's).")
 @click.option("--minutes", type=float, default=None, help="Wall-clock budget in minutes (default: the preset's).")
 @click.option("--seed", type=int, default=None, help="Seed of weights and samples (same seed, same model).")
@@ -84,7 +86,10 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
     fit = fit_sdf(m, preset=preset, resume=resume, progress=progress,
                   **{k: v for k, v in given.items() if v is not None})  # unset options keep the preset's
     last = fit.history[-1] if fit.history else {}
-    how = fit.stopped_reason + ("; loss compiled" if fit.config.compile == "on" else "")
+    b = fit.budget
+    how = (fit.stopped_reason if b is None else b["stopped"]) + ("; loss compiled" if fit.config.compile == "on" else "")
+    if b is not None and b["expected_steps"]:
+        how += f"; this machine makes ~{b['expected_steps']} Adam steps in {b['budget_seconds']:.0f} s"
     click.echo(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
                f"final loss {last.get('loss', float('nan')):.4g}"
                + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))

@@ -59,8 +59,9 @@ def _opt(*decls, field: str, **kwargs):
               help="The fitted SDF model file of this mesh (kind 'sdf'); its δ is the default band.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Texture model file to write (safetensors + JSON metadata).")
-@click.option("--preset", type=click.Choice(["fast", "medium", "fine"]), default=None,
-              help="Network size and time budget preset (fast ≈1 min, medium ≈4 min, fine ≈10 min).")
+@click.option("--preset", type=click.Choice(["quick", "default", "high", "fast", "medium", "fine"]), default=None,
+              help="Network size and time budget preset: quick (64x1, ≈1 min), default (128x2, ≈4 min), high "
+                   "(256x3, ≈10 min); fast, medium and fine are their earlier names.")
 @click.option("--texture", "texture_path", type=click.Path(dir_okay=False), default=None,
               help="Texture image to fit instead of the one the mesh file names (8/16-bit sRGB or float linear).")
 @click.option("--uv-policy", type=click.Choice(["wrap", "clamp"]), default="wrap", show_default=True,
@@ -96,8 +97,12 @@ def command(mesh, sdf_path, output, preset, texture_path, uv_policy, lam, delta,
     fit = fit_texture(m, sdf_path, progress=progress, **overrides)
     fit.save(output)
     cfg = fit.config
+    b = fit.budget
+    how = fit.stopped_reason if b is None else b["stopped"]
+    if b is not None and b["expected_steps"]:
+        how += f"; this machine makes ~{b['expected_steps']} in the budget"
     click.echo(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
-               f"({fit.stopped_reason}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame)")
+               f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame)")
     if metrics:
         q = texture_metrics(fit.model, m, sdf_path, delta=fit.delta, n=20000, n_views=4,
                             resolution=96)

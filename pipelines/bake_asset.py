@@ -58,6 +58,12 @@ class BakeAssetConfig:
     on a seeded uniform subsample); None: cache up to 2**23 samples (2048² with supersample 2)."""
     report_samples: int = 1 << 18
     """Texel samples a streamed bake keeps for the report's per-sample errors (uniform, seed 0)."""
+    hybrid: bool = True
+    """Texels where the neural field is not faithful take the classical mesh-to-mesh normal (hybrid bake)."""
+    hybrid_tol: float | None = None
+    """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
+    hybrid_angle: float | None = None
+    """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
@@ -78,6 +84,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import NeuralBakeError
+    from neural_bake.io.asset import read_asset, shading_mesh
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.images import write_image
     from neural_bake.io.jsonio import dumps
@@ -102,6 +109,14 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         raise NeuralBakeError(f"--delta {delta}: must be a positive distance")
     if isinstance(report_samples, bool) or int(report_samples) != report_samples or report_samples < 1:
         raise NeuralBakeError(f"report_samples {report_samples!r}: must be a positive integer")
+    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_SDF_TOL
+
+    hybrid_tol = HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol
+    hybrid_angle = HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle
+    if not hybrid_tol > 0:
+        raise NeuralBakeError(f"--hybrid-tol {hybrid_tol}: must be a positive distance")
+    if not 0 < hybrid_angle <= 180:
+        raise NeuralBakeError(f"--hybrid-angle {hybrid_angle}: must be in (0, 180] degrees")
     if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
         raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
     out_dir = Path(out)
@@ -118,8 +133,13 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
     fine = load_mesh(mesh, texture)
+    asset = read_asset(mesh, fine)
+    # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
+    reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+    keep = parse_coarse(coarse)[0] == "keep"
     timings["load"] = time.perf_counter() - t0
-    coarse_m, coarse_info = coarse_mesh if coarse_mesh is not None else make_coarse_mesh(fine, coarse, sdf)
+    coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
+                             else make_coarse_mesh(reference if keep else fine, coarse, sdf))
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
@@ -138,7 +158,17 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                           y_convention="directx" if directx else "opengl",
                           padding=None if padding == "none" else padding, cache_texels=cfg.cache_texels)
             timings["prepare"] = time.perf_counter() - t0
-            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples))
+            hybrid = None
+            if cfg.hybrid and "normal" in maps:
+                from neural_bake.bake.hybrid import HybridFallback
+
+                hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
+                                        keep_baseline=baseline and baker.cache)
+            res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
+                             hybrid=hybrid)
+            if hybrid is not None:
+                log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
+                    f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
             log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
                        f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
             t0 = time.perf_counter()
@@ -157,26 +187,38 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                     written.append("albedo.exr")
             # a glTF normalTexture is tangent space, +Y up: an object-space or DirectX map stays loose
             gltf_normals = "normal" in maps and normal_space == "tangent" and not directx
+            # onto the asset itself, the GLB keeps what was not baked: its base colour, normal, AO/roughness/metal
+            kept_maps = asset.maps if keep else {}
+            albedo_out = res.albedo if res.albedo is not None or not keep else fine.texture
             export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
-                       albedo=res.albedo, tangents=baker.tangents)
+                       albedo=albedo_out, tangents=baker.tangents, material_maps=kept_maps,
+                       same_image=asset.same_image, material_factors=asset.factors)
             written.append("asset.glb")
+            if keep:
+                report["kept"] = {
+                    "vertex_normals": "the asset's" if asset.corner_normals is not None else "computed",
+                    "uv": "the asset's" if fine.uv is not None else "unwrapped",
+                    "maps": sorted((["base_colour"] if res.albedo is None and fine.texture is not None else [])
+                                   + [k for k in kept_maps if not (k == "normal" and gltf_normals)])}
             timings["write"] = time.perf_counter() - t0
             base = base_fn = None
             if baseline:
                 from neural_bake.bake.baseline import baseline_bake, raycasting_scene
 
                 if res.normals is not None:  # every texel sample in memory: one baseline bake of them all
-                    base = baseline_bake(baker.mesh, fine, baker.texels, cage=cage)
+                    base = hybrid.baseline() if hybrid is not None else None  # the hybrid's, if it kept it
+                    if base is None:
+                        base = baseline_bake(baker.mesh, reference, baker.texels, cage=cage)
                     log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
                         f"{base['fallback']} closest-point fallbacks")
                 else:  # streamed: the report runs it on its sampled texels and band by band for the error map
-                    scene = raycasting_scene(fine)
+                    scene = raycasting_scene(reference)
 
                     def base_fn(texels):
-                        return baseline_bake(baker.mesh, fine, texels, cage=cage, scene=scene)
+                        return baseline_bake(baker.mesh, reference, texels, cage=cage, scene=scene)
 
             normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
-            rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else fine,
+            rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else reference,
                               truth_colors=colours_fn, baseline=base, baseline_fn=base_fn, bits=nbits,
                               timings=timings, out_dir=stage)
             if sample_name:
@@ -188,7 +230,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             if rep["sampling"]["sampled"]:
                 log(f"report: {rep['sampling']['note']}")
             written += rep.pop("files", [])
+            if hybrid is not None:
+                rep.setdefault("hybrid", {}).update(hybrid.summary())
             report.update(rep)
+            report["warnings"] = _fidelity_warnings(report, coarse)
+            for w in report["warnings"]:
+                log(f"warning: {w}")
         if "vertex" in maps:
             t0 = time.perf_counter()
             vb = bake_vertices(coarse_m, sdf, tex)
@@ -223,6 +270,20 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
 
     return report
+
+
+def _fidelity_warnings(report: dict, coarse: str) -> list[str]:
+    """One-line warnings on what the normal map gives: the coarse mesh is the source itself, or the map does
+    not beat the coarse mesh's own normals (median angle to the truth)."""
+    out = []
+    if coarse == "keep":
+        out.append("--coarse keep: the map is baked onto the source mesh itself, so it can at best reproduce the "
+                   "asset's own normals")
+    ours, own = (report.get(k) or {} for k in ("vs_truth_deg", "geometric_vs_truth_deg"))
+    if ours.get("median") is not None and own.get("median") is not None and ours["median"] >= own["median"]:
+        out.append(f"the normal map (median {ours['median']:.2f}°) does not beat the coarse mesh's own normals "
+                   f"(median {own['median']:.2f}°)")
+    return out
 
 
 def _parse_maps(spec: str) -> list[str]:

@@ -6,6 +6,8 @@ import tempfile
 
 # hypothesis keeps caches in ./.hypothesis unless told otherwise: keep them out of the working tree
 os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gettempdir(), "neural-bake-hypothesis"))
+# the fit budgets' record of this machine's best GEMM rate (neural_bake.fit.budget) stays out of the home folder
+os.environ.setdefault("NEURAL_BAKE_CACHE_DIR", tempfile.mkdtemp(prefix="neural-bake-cache-"))
 
 import numpy as np
 import pytest

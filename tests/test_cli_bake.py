@@ -49,7 +49,7 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
     assert code == 0, err
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb", "vertex.ply",
-                            "report.json", "error_normal.png", "error_baseline.png", "miss.png"])
+                            "report.json", "error_normal.png", "error_baseline.png", "miss.png", "hybrid.png"])
     rep = json.loads((out / "report.json").read_text())
     assert rep["truth"] == "analytic (sphere sample)"
     assert rep["coarse"]["faces"] <= 220 and rep["bake"]["size"] == [64, 64]
@@ -104,6 +104,8 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
         (["--delta", "-1"], "--delta -1.0: must be a positive distance"),
         (["--report-samples", "0"], "report_samples 0: must be a positive integer"),
+        (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
+        (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
     ],
 )
 def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
@@ -264,3 +266,42 @@ def test_cli_texels_and_report_samples(files, tmp_path, capsys):
     assert code == 0, err
     rep = json.loads((tmp_path / "c" / "report.json").read_text())
     assert rep["sampling"]["samples"] == rep["sampling"]["of"] and rep["sampling"]["sampled"] == []
+
+
+def test_hybrid_bake_report_map_and_warnings(files, tmp_path, capsys):
+    """An untrained field is unfaithful nearly everywhere: the hybrid map is the classical bake's, the report
+    says how many texels took it; without the hybrid, the report warns that the map does not beat the coarse
+    mesh's own normals."""
+    out = tmp_path / "h"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "48",
+                             "--maps", "normal", "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    h = rep["hybrid"]
+    assert h["hybrid_texels"] > 0.9 * rep["texels_covered"] and h["replaced"] == h["hybrid_samples"]
+    assert h["sdf_tol"] == 0.01 and h["angle_deg"] == 20.0 and h["samples"] == rep["bake"]["samples"]
+    # the untrained field alone is far off; the hybrid map is as good as the classical bake
+    assert rep["neural_vs_truth_deg"]["median"] > 20.0
+    assert rep["vs_truth_deg"]["median"] < rep["baseline"]["vs_truth_deg"]["median"] + 0.5
+    hmap = read_image(out / "hybrid.png", colour="data")
+    assert int((hmap[..., 0] > 0.5).sum()) == h["hybrid_texels"]
+    assert "hybrid bake:" in stdout and "took the classical normal" in stdout
+    # without the hybrid: the neural map, no hybrid map, and a warning that it does not beat the coarse mesh
+    out2 = tmp_path / "n"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "48",
+                             "--maps", "normal", "--no-hybrid", "-o", str(out2)], capsys)
+    assert code == 0, err
+    rep2 = json.loads((out2 / "report.json").read_text())
+    assert "hybrid" not in rep2 and not (out2 / "hybrid.png").exists()
+    assert len(rep2["warnings"]) == 1 and "does not beat the coarse mesh's own normals" in rep2["warnings"][0]
+    assert sum(line.startswith("warning: ") for line in stdout.splitlines()) == 1
+
+
+def test_coarse_keep_warns(files, tmp_path, capsys):
+    out = tmp_path / "k"
+    code, stdout, err = run([files["obj"], "--sdf", files["sdf"], "--coarse", "keep", "--size", "32",
+                             "--maps", "normal", "--no-baseline", "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert any(w.startswith("--coarse keep:") for w in rep["warnings"])
+    assert any(line.startswith("warning: --coarse keep:") for line in stdout.splitlines())

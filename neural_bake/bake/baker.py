@@ -58,6 +58,7 @@ class TexelSample:
     - ``index``: (N,) int64 position of each in the full order.
     - ``normals``, ``encoded``, ``valid``, ``values``, ``colors``: as in :class:`BakeResult`, for these N.
     - ``total``: M, the bake's sample count; ``seed``: the key seed.
+    - ``replaced``, ``neural``: as in :class:`BakeResult`, for these N (hybrid bakes; else None).
     """
 
     texels: TexelSet
@@ -69,6 +70,8 @@ class TexelSample:
     colors: np.ndarray | None
     total: int
     seed: int
+    replaced: np.ndarray | None = None
+    neural: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -119,7 +122,7 @@ class _Reservoir:
                           **{k: d[k] for k in _TEXEL_FIELDS})
         return TexelSample(texels=texels, index=self.index, normals=d["normals"], encoded=d["encoded"],
                            valid=d["valid"], values=d["values"], colors=d.get("colors"), total=self.seen,
-                           seed=self.seed)
+                           seed=self.seed, replaced=d.get("replaced"), neural=d.get("neural"))
 
 
 @dataclass
@@ -139,6 +142,9 @@ class BakeResult:
     - ``stats``: counts and seconds per stage (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
+    - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
+    - ``replaced``: (M,) bool, the samples that took it; ``neural``: (M, 3) their ∇f before (hybrid bakes
+      that keep their samples; None otherwise).
     """
 
     normal_map: np.ndarray
@@ -152,6 +158,9 @@ class BakeResult:
     colors: np.ndarray | None
     stats: dict = field(default_factory=dict)
     sample: TexelSample | None = None
+    hybrid: np.ndarray | None = None
+    replaced: np.ndarray | None = None
+    neural: np.ndarray | None = None
 
 
 def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
@@ -350,6 +359,7 @@ class Baker:
         keep_samples: bool | None = None,
         report_samples: int = REPORT_SAMPLES,
         seed: int = 0,
+        hybrid=None,
     ) -> BakeResult:
         """Bake ∇f (and g) at every texel sample into the maps.
 
@@ -358,7 +368,9 @@ class Baker:
         Without them the result keeps ``result.sample``: up to ``report_samples`` samples drawn uniformly
         without replacement (seeded by ``seed``, independent of the banding) with their values, for the
         quality report (0: none). Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and
-        are counted.
+        are counted. ``hybrid``: a :class:`~neural_bake.bake.hybrid.HybridFallback` (or any callable
+        ``(mesh, texels, normals, valid) -> (normals, replaced mask)``) run on each band before encoding:
+        the samples it replaces are flagged in ``result.hybrid`` and counted.
         """
         if delta is None:
             delta = sdf.delta
@@ -375,10 +387,12 @@ class Baker:
         acc_col = None
         wsum = np.zeros((h, w), dtype=np.float32)
         miss_count = np.zeros((h, w), dtype=np.float32)
+        hybrid_count = np.zeros((h, w), dtype=np.float32) if hybrid is not None else None
         covered = np.zeros((h, w), dtype=bool)
-        kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors")}
-        counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0}
-        secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0}
+        kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors", "replaced",
+                                                 "neural")}
+        counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0, "hybrid": 0}
+        secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0, "hybrid": 0.0}
         t_all = time.perf_counter()
         t_band = time.perf_counter()
         for tx in self.bands():
@@ -392,6 +406,13 @@ class Baker:
             normals, valid, values = ev["normals"], ev["valid"], ev["values"]
             if (~valid).any():  # zero gradient: the interpolated geometric normal
                 normals[~valid] = tx.normal[~valid]
+            neural = replaced = None
+            if hybrid is not None:
+                t1 = time.perf_counter()
+                neural = normals
+                normals, replaced = hybrid(self.mesh, tx, neural, valid)
+                replaced = np.asarray(replaced, dtype=bool)
+                secs["hybrid"] += time.perf_counter() - t1
             if self.normal_space == "tangent":
                 encoded, frame_ok = encode_tangent_space(normals, tx.tangent, tx.bitangent, tx.normal, self.y_convention)
             else:
@@ -408,6 +429,9 @@ class Baker:
                 if miss_s.any():
                     miss_count[band] += splat(np.ones((int(miss_s.sum()), 1)), pix[miss_s], None, self.shape,
                                               rows=(r0, r1))[1]
+                if replaced is not None and replaced.any():
+                    hybrid_count[band] += splat(np.ones((int(replaced.sum()), 1)), pix[replaced], None, self.shape,
+                                                rows=(r0, r1))[1]
                 if texture is not None:
                     col, _ = splat(ev["colors"], pix, tx.weight, self.shape, rows=(r0, r1), average=False)
                     if acc_col is None:
@@ -420,14 +444,19 @@ class Baker:
             counts["invalid"] += int((~valid).sum())
             counts["singular"] += int((~frame_ok).sum())
             counts["miss"] += int(miss_s.sum())
+            counts["hybrid"] += 0 if replaced is None else int(replaced.sum())
             if keep:
                 for k, v in (("normals", normals), ("encoded", encoded), ("valid", valid), ("values", values)):
                     kept[k].append(v)
                 if texture is not None:
                     kept["colors"].append(ev["colors"])
+                if replaced is not None:
+                    kept["replaced"].append(replaced)
+                    kept["neural"].append(neural)
             if reservoir is not None:
                 reservoir.add({**{k: getattr(tx, k) for k in _TEXEL_FIELDS}, "normals": normals, "encoded": encoded,
-                               "valid": valid, "values": values, "colors": ev.get("colors")})
+                               "valid": valid, "values": values, "colors": ev.get("colors"),
+                               "replaced": replaced, "neural": neural})
             secs["maps"] += time.perf_counter() - t0
             t_band = time.perf_counter()
         t0 = time.perf_counter()
@@ -447,6 +476,7 @@ class Baker:
             np.divide(albedo, wsum[:, :, None], out=albedo, where=wsum[:, :, None] > 0)
         miss = miss_count > 0
         secs["maps"] += time.perf_counter() - t0
+        hybrid_map = None if hybrid_count is None else hybrid_count > 0
         t0 = time.perf_counter()
         if self.padding is not None:
             normal_map = pad_charts(normal_map, covered, method=self.padding, pixels=self.padding_pixels)
@@ -468,6 +498,9 @@ class Baker:
             "delta": delta,
             "miss_samples": counts["miss"],
             "miss_texels": int(miss.sum()),
+            **({} if hybrid_map is None else {"hybrid_samples": counts["hybrid"],
+                                              "hybrid_texels": int(hybrid_map.sum()),
+                                              "hybrid_fraction": float(hybrid_map.sum() / max(1, n_texels))}),
             "seconds": {
                 **{k: float(v) for k, v in self.timings.items()},
                 **{k: float(v) for k, v in secs.items()},
@@ -490,6 +523,9 @@ class Baker:
             colors=cat("colors"),
             stats=stats,
             sample=None if reservoir is None else reservoir.sample(self.shape, self.supersample),
+            hybrid=hybrid_map,
+            replaced=cat("replaced"),
+            neural=cat("neural"),
         )
 
 

@@ -76,9 +76,9 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
       default: built here (its time is ``seconds["setup"]``).
 
     Returns ``{"normals": (M, 3) unit object-space normals of the fine mesh, "colors": (M, C) linear or
-    None, "hit": (M,) bool (a ray hit within the cage), "fallback": misses resolved by the closest point,
-    "distance": (M,) distance to the chosen point, "cage", "seconds": {"setup", "rays", "closest", "shade",
-    "total"}}``.
+    None, "points": (M, 3) the chosen points on the fine mesh (its unit frame), "hit": (M,) bool (a ray hit
+    within the cage), "fallback": misses resolved by the closest point, "distance": (M,) distance to the
+    chosen point, "cage", "seconds": {"setup", "rays", "closest", "shade", "total"}}``.
     """
     from ..io.colour import sample_texture
     from ..mesh.tangents import vertex_normals
@@ -129,6 +129,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     t0 = time.perf_counter()
     normals = _interp(fine, prim, uvs, vertex_normals(fine)[fine.faces])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    points = _interp(fine, prim, uvs, fine.triangles)
     colors = None
     if fine.uv is not None and fine.texture is not None:
         uv = _interp(fine, prim, uvs, np.asarray(fine.uv, dtype=np.float64))
@@ -137,6 +138,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     return {
         "normals": normals,
         "colors": colors,
+        "points": points,
         "hit": hit,
         "fallback": int((~hit).sum()),
         "distance": dist,

@@ -65,6 +65,9 @@ def export_glb(
     tangents: np.ndarray | None = None,
     vertex_colors: np.ndarray | None = None,
     normals: np.ndarray | None = None,
+    material_maps: dict[str, np.ndarray] | None = None,
+    same_image: list[tuple[str, str]] | None = None,
+    material_factors: dict[str, float] | None = None,
     name: str = "neural_bake",
 ) -> Path:
     """Write ``mesh`` and its baked maps as one GLB file at ``path`` (atomically); return the path.
@@ -78,6 +81,11 @@ def export_glb(
     - ``tangents``: (V, 4) glTF tangents, xyz unit, w = ±1 (``Baker.tangents``).
     - ``vertex_colors``: (V, 3|4) linear RGB(A) in [0, 1] (per-vertex bakes), written as COLOR_0.
     - ``normals``: (V, 3) unit vertex normals (per-vertex bakes); default the mesh's vertex normals.
+    - ``material_maps``: maps the bake did not make, kept from the asset (:class:`~neural_bake.io.asset.Asset`
+      ``maps``): "normal" (written only when ``normal_map`` is None), "metallic_roughness", "occlusion";
+      (H, W, 3) float data in [0, 1], written unchanged (no colour encoding). ``same_image``: pairs of those
+      names that are one image (written once); ``material_factors``: ``metallicFactor``/``roughnessFactor``
+      of the asset's material (default 1.0 with a metallic-roughness map, else 0.0 and 1.0).
 
     Raises :class:`NeuralBakeError` for arrays of the wrong shape, a normal map without tangents, and
     :class:`MeshError` for a texture map on a mesh without UVs or not split at seams.
@@ -87,7 +95,15 @@ def export_glb(
     path = Path(path)
     if normal_map is not None and tangents is None:
         raise NeuralBakeError("export_glb: a tangent-space normal_map needs tangents (Baker.tangents)")
-    textured = normal_map is not None or albedo is not None
+    kept = {k: _check_image(k, v, (3, 4)) for k, v in (material_maps or {}).items()}
+    bad = sorted(set(kept) - {"normal", "metallic_roughness", "occlusion"})
+    if bad:
+        raise NeuralBakeError(f"export_glb: unknown material map {bad[0]!r} (normal, metallic_roughness, occlusion)")
+    if normal_map is not None:
+        kept.pop("normal", None)  # the baked map replaces the asset's
+    if "normal" in kept and tangents is None:
+        raise NeuralBakeError("export_glb: the asset's normal map needs tangents (Baker.tangents)")
+    textured = normal_map is not None or albedo is not None or bool(kept)
     if textured and mesh.uv is None:
         raise MeshError(f"{mesh.name}: export_glb: texture maps need a mesh with UVs")
     if mesh.n_faces == 0:
@@ -164,6 +180,21 @@ def export_glb(
     if normal_map is not None:
         nm = _check_image("normal_map", normal_map, (3,))
         gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data")}
+    shared = {b: a for a, b in (same_image or [])}
+    index: dict[str, int] = {}
+    for key, slot in (("normal", "normalTexture"), ("metallic_roughness", "metallicRoughnessTexture"),
+                      ("occlusion", "occlusionTexture")):
+        if key not in kept:
+            continue
+        twin = shared.get(key)
+        index[key] = index[twin] if twin in index else add_texture(np.clip(kept[key][..., :3], 0, 1), "data")
+        if key == "metallic_roughness":
+            pbr = gltf["materials"][0]["pbrMetallicRoughness"]
+            pbr[slot] = {"index": index[key]}
+            pbr["metallicFactor"] = float((material_factors or {}).get("metallicFactor", 1.0))
+            pbr["roughnessFactor"] = float((material_factors or {}).get("roughnessFactor", 1.0))
+        else:
+            gltf["materials"][0][slot] = {"index": index[key]}
     if not textures:  # no maps: glTF's default material (trimesh then shows COLOR_0 as vertex colours)
         del gltf["materials"], gltf["meshes"][0]["primitives"][0]["material"]
     else:

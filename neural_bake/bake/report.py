@@ -220,7 +220,7 @@ def _median_ci95(err: np.ndarray) -> list[float] | None:
 
 #: Report entries measured on the texel samples the report holds (a subsample for a streamed bake).
 SAMPLED_FIGURES = ("vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
-                   "color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
+                   "neural_vs_truth_deg", "hybrid.replaced_vs_truth_deg", "color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
                    "baseline.fallback")
 
 
@@ -256,7 +256,11 @@ def bake_report(
     - ``bits``: quantise the normal map to this many bits before decoding (the PNG's depth; None: float).
     - ``timings``: extra stage times (seconds) to list, e.g. loading, coarse mesh, export.
     - ``out_dir``: if given, writes ``error_normal.png`` (angle to ground truth, white = 10°+),
-      ``error_baseline.png`` and ``miss.png`` there (atomically) and lists them under ``"files"``.
+      ``error_baseline.png``, ``miss.png`` and (a hybrid bake) ``hybrid.png`` (white: the texels that took
+      the classical normal) there (atomically) and lists them under ``"files"``.
+
+    A hybrid bake (``result.hybrid``) adds ``"hybrid"`` (samples and texels that took the classical normal,
+    their share of the covered texels, their error) and ``"neural_vs_truth_deg"`` (∇f alone).
 
     Returns a JSON-ready dict. Angles are in degrees.
     """
@@ -267,9 +271,11 @@ def bake_report(
     full = baker.texels is not None and result.normals is not None
     if full:
         tx, normals, valid, total = baker.texels, result.normals, result.valid, len(result.normals)
+        replaced, neural = result.replaced, result.neural
     elif getattr(result, "sample", None) is not None:
         smp = result.sample
         tx, normals, valid, total = smp.texels, smp.normals, smp.valid, smp.total
+        replaced, neural = smp.replaced, smp.neural
     else:
         raise NeuralBakeError("bake_report: needs the per-sample values (a cached Baker with keep_samples=True, "
                               "or a streamed bake with report_samples > 0)")
@@ -295,6 +301,12 @@ def bake_report(
         rep["vs_truth_deg"] = stats(err)
         rep["gradient_vs_truth_deg"] = stats(angular_error(normals, truth_n))
         rep["geometric_vs_truth_deg"] = stats(angular_error(tx.normal, truth_n))
+        if neural is not None:  # a hybrid bake: what ∇f alone would have given
+            rep["neural_vs_truth_deg"] = stats(angular_error(neural, truth_n))
+    if result.hybrid is not None:
+        rep["hybrid"] = {k: result.stats.get(k) for k in ("hybrid_samples", "hybrid_texels", "hybrid_fraction")}
+        if replaced is not None and err is not None and replaced.any():
+            rep["hybrid"]["replaced_vs_truth_deg"] = stats(err[replaced])
     if result.albedo is not None and truth_c is not None:
         k = min(3, truth_c.shape[1])
         ours = linear_to_srgb(result.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :k].astype(np.float64))
@@ -353,6 +365,9 @@ def bake_report(
             files.append("error_baseline.png")
         write_image(out_dir / "miss.png", result.miss.astype(np.float32), colour="data")
         files.append("miss.png")
+        if result.hybrid is not None:
+            write_image(out_dir / "hybrid.png", result.hybrid.astype(np.float32), colour="data")
+            files.append("hybrid.png")
         rep["files"] = files
         rep["error_map_scale_deg"] = ERROR_MAP_MAX_DEG
     return rep

@@ -31,6 +31,7 @@ import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -78,6 +79,9 @@ class SdfFit:
     micro_batch_tuning: list[dict] | None = None
     """The micro-batch tunings of a time-budgeted run (:attr:`MicroBatchTuner.history`: step, loss variant,
     count chosen, best seconds per count); None when the count was fixed."""
+    budget: dict | None = None
+    """A time-budgeted run's account (:func:`neural_bake.fit.budget.fit_budget`): Adam steps made beside the
+    steps the preset makes on this machine in Adam's part of the budget, why it stopped, the warning if any."""
 
     def save(self, path) -> Path:
         """Write the model file (safetensors + JSON metadata: kind="sdf", frame, config, history summary)."""
@@ -88,7 +92,8 @@ class SdfFit:
             self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
             training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
                       "restarts": self.restarts, "final": summary, "history": self.history[-200:],
-                      "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None},
+                      "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None,
+                      "budget": self.budget},
             package_version=__version__,
         )
 
@@ -120,7 +125,7 @@ def load_sdf(path, *, device=None) -> SdfFit:
                   steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
                   config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
                   restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
-                  micro_batch_tuning=training.get("micro_batch_tuning"))
+                  micro_batch_tuning=training.get("micro_batch_tuning"), budget=training.get("budget"))
 
 
 def _jsonable(d):
@@ -137,15 +142,18 @@ def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- fitting
-def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None, **overrides) -> SdfFit:
+def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None,
+            clock: Callable[[], float] | None = None, **overrides) -> SdfFit:
     """Train a Siren SDF of ``mesh`` (unit frame) and return an :class:`SdfFit`.
 
     Args:
         mesh: a :class:`~neural_bake.types.Mesh` (unit frame; e.g. from ``load_mesh``). Open meshes are
             signed by the generalised winding number (see :mod:`neural_bake.fit.sampling`).
         config: the settings (default :class:`SdfFitConfig`).
-        preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), applied before
-            ``overrides``.
+        preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), or the shared names
+            ``"quick"``, ``"default"``, ``"high"`` (64x1, 128x2, 256x3), applied before ``overrides``.
+        clock: the seconds Adam's time budget measures (default ``time.perf_counter``; tests simulate a
+            slow machine with their own).
         **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
 
     Returns:
@@ -233,7 +241,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype)
             reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)
         loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
-    res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name})
+    res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name},
+                **({} if clock is None else {"clock": clock}))
+    budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None)
     polish = None
     seconds = res.seconds
     if cfg.polish_evals:
@@ -249,7 +259,23 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     model.eval()
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
-                  micro_batch_tuning=tuner.history if tuner else None)
+                  micro_batch_tuning=tuner.history if tuner else None, budget=budget)
+
+
+def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None) -> dict | None:
+    """The budget account of Adam's part of a run (its steps against the preset's on this machine); the
+    preset counts only when the run kept its network and batch (else its step cost is another)."""
+    from .budget import fit_budget
+    from .presets import SDF_ALIASES, resolve_preset
+
+    key = None if preset is None else resolve_preset(preset, SDF_ALIASES, PRESETS)
+    if key is not None:
+        ref = replace(SdfFitConfig(), **PRESETS[key])
+        if (cfg.width, cfg.depth, cfg.batch, cfg.batch_near, cfg.batch_uniform) != (
+                ref.width, ref.depth, ref.batch, ref.batch_near, ref.batch_uniform):
+            key = None
+    return fit_budget(key, steps=res.steps, seconds=res.seconds, minutes=cfg.minutes, step_cap=int(cfg.steps),
+                      stopped_reason=res.stopped_reason, budget_seconds=adam_seconds)
 
 
 def _polish_loss(batch, *, model: Siren, cfg: SdfFitConfig, micro: int) -> torch.Tensor:

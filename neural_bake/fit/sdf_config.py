@@ -230,9 +230,13 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
     """
     cfg = config or SdfFitConfig()
     if preset is not None:
-        if preset not in PRESETS:
-            raise FitError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
-        cfg = replace(cfg, **PRESETS[preset])
+        from .presets import SDF_ALIASES, resolve_preset
+
+        key = resolve_preset(preset, SDF_ALIASES, PRESETS)
+        if key is None:
+            raise FitError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)} or "
+                           f"{', '.join(f'{a} ({k})' for a, k in SDF_ALIASES.items())}")
+        cfg = replace(cfg, **PRESETS[key])
     names = {f.name for f in fields(SdfFitConfig)}
     unknown = sorted(set(overrides) - names)
     if unknown:

@@ -127,10 +127,13 @@ class TextureFitConfig:
 #: (exact mesh SDF, δ = 0.03, CPU shared with other jobs): "fine" 10 min with the default λ = 1e-3 → 5855
 #: steps, 31.1 dB surface PSNR, render MSE 0.00071 (0.0011 read ±δ off the surface); with λ = 0.01 → 26.3 dB;
 #: (128, 2) for 1516 steps (~2 min) with λ = 1e-3 → 28.0 dB.
+#: The step caps are safety nets far above what a budget reaches, so a preset runs its whole budget (a cap of
+#: 5,000 stopped the 1-minute preset after a fifth of it). Names: :mod:`neural_bake.fit.presets` (the earlier
+#: fast, medium and fine are aliases of quick, default and high).
 PRESETS: dict[str, dict] = {
-    "fast": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 5000, "batch": 2048, "lr": 5e-4},
-    "medium": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 10000, "batch": 4096, "lr": 5e-4},
-    "fine": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 20000, "batch": 2048, "lr": 2e-4},
+    "quick": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048, "lr": 5e-4},
+    "default": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 200_000, "batch": 4096, "lr": 5e-4},
+    "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 
 
@@ -146,6 +149,8 @@ class TextureFit:
       absent when λ = 0).
     - ``steps``, ``seconds``: steps done and wall time; ``stopped_reason``: "steps" or "time budget";
       ``restarts``: divergence recoveries (each halved the learning rate).
+    - ``budget``: a time-budgeted fit's account (:func:`neural_bake.fit.budget.fit_budget`: steps made
+      beside the steps its preset makes on this machine, why it stopped, the warning if any); else None.
     """
 
     model: Siren
@@ -158,10 +163,14 @@ class TextureFit:
     seconds: float = 0.0
     stopped_reason: str = "steps"
     restarts: int = 0
+    budget: dict | None = None
 
     def metadata(self) -> dict:
-        """The JSON metadata stored with the model file."""
-        return _metadata(self.frame, self.delta, self.lam, self.config, self.steps)
+        """The JSON metadata stored with the model file (with ``budget`` when the fit had a time budget)."""
+        meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps)
+        if self.budget is not None:
+            meta["budget"] = self.budget
+        return meta
 
     def save(self, path) -> Path:
         """Write the model file (safetensors + metadata kind="texture", frame, delta, lam, config)."""
@@ -358,9 +367,13 @@ def _resolve_config(config: TextureFitConfig | None, overrides: dict) -> Texture
     config = config or TextureFitConfig()
     preset = overrides.pop("preset", None)
     if preset is not None:
-        if preset not in PRESETS:
-            raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
-        config = replace(config, **PRESETS[preset])
+        from .presets import TEXTURE_ALIASES, resolve_preset
+
+        key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
+        if key is None:
+            raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)}; "
+                           f"{', '.join(TEXTURE_ALIASES)} are aliases)")
+        config = replace(config, **PRESETS[key])
     names = {f.name for f in fields(TextureFitConfig)}
     bad = sorted(set(overrides) - names)
     if bad:
@@ -434,7 +447,7 @@ def _check_frames(mesh: Mesh, sdf: _Sdf, name: str) -> None:
 
 def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *,
                 texture: np.ndarray | None = None, callback: Callable[[dict], None] | None = None,
-                **overrides) -> TextureFit:
+                clock: Callable[[], float] | None = None, **overrides) -> TextureFit:
     """Fit a gradient-orthogonal colour SIREN to ``mesh``'s texture in the δ-band of ``sdf_model``.
 
     - ``mesh``: a :class:`Mesh` (unit frame) with ``uv`` and ``texture`` (else :class:`MeshError`).
@@ -442,9 +455,12 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
       "sdf"; its "delta" is the default δ and its "frame" must be the mesh's), or a callable
       ``points (N, 3) -> (values (N,), grads (N, 3))`` (analytic SDFs, tests).
     - ``config`` / ``**overrides``: a :class:`TextureFitConfig`, fields overridden by keyword;
-      ``preset="fast" | "medium" | "fine"`` applies :data:`PRESETS` first (then the other overrides).
+      ``preset="quick" | "default" | "high"`` (or the aliases fast, medium, fine) applies :data:`PRESETS`
+      first (then the other overrides).
     - ``texture``: an (H, W, C) image used instead of ``mesh.texture`` (integer arrays are sRGB, float linear).
     - ``callback``: called with each logged history row (progress reporting).
+    - ``clock``: the seconds the time budget measures (default ``time.perf_counter``; tests simulate a slow
+      machine with their own).
 
     The loop is :func:`neural_bake.fit.training.train` (time budget, per-step seeds, checkpoints and
     resume, divergence recovery with learning-rate halving). Returns a :class:`TextureFit`; raises
@@ -453,6 +469,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     from .training import LoopConfig, train
 
     overrides = dict(overrides)
+    preset = overrides.get("preset")
     config = _resolve_config(config, overrides)
     rgb = _texture_rgb(mesh, texture)
     sdf_name = str(sdf_model) if isinstance(sdf_model, (str, Path)) else "sdf model"
@@ -505,11 +522,20 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
                               "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
                               "pool": config.pool, "seed": config.seed}, sort_keys=True)
     result = train(model, step_fn, loop, fingerprint=fingerprint,
-                   metadata=_metadata(mesh.frame, delta, lam, config, 0), on_log=callback)
+                   metadata=_metadata(mesh.frame, delta, lam, config, 0), on_log=callback,
+                   **({} if clock is None else {"clock": clock}))
     model.eval()
+    from .budget import fit_budget
+    from .presets import TEXTURE_ALIASES, resolve_preset
+
+    key = None if preset is None else resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
+    arch = {k: getattr(config, k) for k in ("width", "depth", "batch")}
+    same = key is not None and all(PRESETS[key][k] == v for k, v in arch.items())  # the preset's step cost
+    budget = fit_budget(f"texture:{key}" if same else None, steps=result.steps, seconds=result.seconds,
+                        minutes=config.minutes, step_cap=int(config.steps), stopped_reason=result.stopped_reason)
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
-                      stopped_reason=result.stopped_reason, restarts=result.restarts)
+                      stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget)
 
 
 # ----------------------------------------------------------------------------------------------------------

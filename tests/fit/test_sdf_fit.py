@@ -127,10 +127,42 @@ def test_presets_and_config():
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
     assert config_from(preset="64x1", minutes=None).minutes is None  # ... except where None means "none"
+    # the shared names are aliases of the architecture presets
+    for alias, key in (("quick", "64x1"), ("default", "128x2"), ("high", "256x3")):
+        assert config_from(preset=alias) == config_from(preset=key)
+
+
+def test_slow_sdf_fit_warns_and_records(tmp_path):
+    """A fit whose clock says each Adam step took 20 s makes 6 steps in its 2 minutes, far below what the
+    preset makes here: one warning line, and both figures in the model file."""
+    from neural_bake.fit.sdf import load_sdf
+
+    t = [0.0]
+
+    def clock():  # +10 s a read, two reads a step
+        t[0] += 10.0
+        return t[0]
+
+    with pytest.warns(NeuralBakeWarning, match=r"^64x1: made 6 steps of the ~\d+ this machine makes in 120 s"):
+        fit = fit_sdf(sphere(sub=2), preset="quick", clock=clock, polish_evals=0, pool_surface=20000,
+                      pool_near=20000, pool_uniform=5000, progress=False)
+    b = fit.budget
+    assert fit.steps == b["steps"] == 6 and b["expected_steps"] > 12 and b["budget_seconds"] == 120.0
+    assert b["stopped"] == "time budget (120 s) used" and b["preset"] == "64x1"
+    fit.save(tmp_path / "s.sdf")
+    assert load_sdf(tmp_path / "s.sdf").budget == b
+    # another batch is another step cost: no expectation, no warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        t[0] = 0.0
+        other = fit_sdf(sphere(sub=2), preset="quick", clock=clock, polish_evals=0, minutes=0.5, **TINY)
+    assert other.budget["expected_steps"] is None and other.budget["warning"] is None
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"preset": "512x9"}, "unknown preset '512x9'"),
+    ({"preset": "512x9"}, "unknown preset '512x9'.*quick \\(64x1\\)"),
     ({"bogus": 1}, "unknown setting"),
     ({"batch": 0}, "batch must be a positive integer"),
     ({"w_eikonal": -1.0}, "w_eikonal must be a non-negative"),

@@ -291,8 +291,15 @@ def test_presets_are_valid_and_applied(sphere):
         assert values["minutes"] > 0
         replace(TextureFitConfig(), **values)
     fit = fit_texture(sphere, sphere_sdf, preset="fast", steps=3, pool=2000, batch=64, minutes=None)
-    assert (fit.model.width, fit.model.depth) == (PRESETS["fast"]["width"], PRESETS["fast"]["depth"])
-    assert fit.steps == 3
+    assert (fit.model.width, fit.model.depth) == (PRESETS["quick"]["width"], PRESETS["quick"]["depth"])
+    assert fit.steps == 3 and fit.budget is None  # no time budget, no account
+    # the shared names, and the earlier ones as aliases
+    assert set(PRESETS) == {"quick", "default", "high"}
+    for old, new in (("medium", "default"), ("fine", "high")):
+        a = fit_texture(sphere, sphere_sdf, preset=old, steps=1, pool=2000, batch=64, minutes=None)
+        assert (a.model.width, a.model.depth) == (PRESETS[new]["width"], PRESETS[new]["depth"])
+    with pytest.raises(FitError, match="unknown preset 'huge'.*fast, medium, fine are aliases"):
+        fit_texture(sphere, sphere_sdf, preset="huge", steps=1)
     # the orthogonality term is on by default
     assert TextureFitConfig().lam > 0 and fit.lam == TextureFitConfig().lam and "orth" in fit.history[-1]
 

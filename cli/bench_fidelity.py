@@ -1,0 +1,28 @@
+"""`neural-bake bench fidelity`: baked normal error on the real meshes beside the classical bake (thin verb)."""
+
+from __future__ import annotations
+
+import click
+
+from .bench import bench_options, report
+
+
+@click.command("fidelity")
+@bench_options
+@click.option("--mesh", "meshes", multiple=True,
+              help="A mesh of the data folder by name (nefertiti, fandisk, cabinet, …) or a mesh file; repeatable "
+                   "(default: all of them; --quick: fandisk).")
+@click.option("--preset", "presets", multiple=True, help="SDF preset, repeatable (default quick and high; --quick: quick).")
+@click.option("--faces", type=int, default=None, help="Decimation target (default 3000; --quick 1000).")
+@click.option("--size", type=int, default=None, help="Map side in texels (default 1024; --quick 256).")
+@click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")
+@click.option("--texture/--no-texture", default=None, help="Fit and bake textures of textured assets (default: "
+              "yes, not with --quick).")
+def command(quick, json_path, meshes, presets, faces, size, minutes, texture) -> None:
+    """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
+    ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
+    without their caps); times; texture PSNR; storage. Meshes not present are skipped, saying so."""
+    from neural_bake.bench.fidelity import run
+
+    report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
+               minutes=minutes, texture=texture, log=click.echo), json_path)

@@ -1,0 +1,25 @@
+"""One naming scheme for the SDF and texture presets: ``quick``, ``default`` and ``high``.
+
+Each kind keeps its own preset table (:data:`neural_bake.fit.sdf.PRESETS` by architecture "WxD",
+:data:`neural_bake.fit.texture.PRESETS` by name); the shared names are aliases onto them, and the texture
+presets' earlier names (fast, medium, fine) stay as aliases too.
+"""
+
+from __future__ import annotations
+
+__all__ = ["PRESET_NAMES", "SDF_ALIASES", "TEXTURE_ALIASES", "resolve_preset"]
+
+#: The shared preset names, cheapest first.
+PRESET_NAMES = ("quick", "default", "high")
+
+#: SDF preset names onto the architecture presets.
+SDF_ALIASES = {"quick": "64x1", "default": "128x2", "high": "256x3"}
+
+#: Earlier texture preset names onto the shared ones.
+TEXTURE_ALIASES = {"fast": "quick", "medium": "default", "fine": "high"}
+
+
+def resolve_preset(name: str, aliases: dict[str, str], known) -> str | None:
+    """The key of ``known`` that ``name`` means (itself or its alias), or None when it means none."""
+    key = aliases.get(name, name)
+    return key if key in known else None

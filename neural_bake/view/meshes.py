@@ -1,0 +1,206 @@
+"""What the mesh renderer draws: a triangle mesh in the source frame with the attributes a glTF viewer reads.
+
+A :class:`ViewMesh` is plain arrays: positions, faces, vertex normals, per-corner UVs, glTF tangents (xyz,
+handedness in w), a linear base-colour texture and a tangent-space normal map (+Y green up, encoded
+``(n + 1) / 2``). :func:`view_mesh_from_glb` reads a baked ``asset.glb`` exactly as a viewer does (the
+exported NORMAL and TANGENT, not recomputed); :func:`view_mesh_from_mesh` takes a loaded source mesh with
+its own normals and texture.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NeuralBakeError
+from ..types import Mesh
+
+__all__ = ["ViewMesh", "ViewError", "view_mesh_from_glb", "view_mesh_from_mesh", "load_view_mesh"]
+
+
+class ViewError(NeuralBakeError):
+    """A file or setting the visual checks cannot use (not a GLB, no output folder, bad view count, …)."""
+
+
+@dataclass(frozen=True)
+class ViewMesh:
+    """A renderable mesh, source frame.
+
+    - ``positions``: (V, 3) float64; ``faces``: (F, 3) int64, counter-clockwise seen from outside.
+    - ``normals``: (V, 3) float64 unit vertex normals.
+    - ``uv``: (F, 3, 2) float64 per-corner texture coordinates, v = 0 at the image's bottom row, or None.
+    - ``tangents``: (V, 4) float64 glTF tangents (xyz unit, w = ±1: bitangent ``w · cross(n, t)``), or None.
+    - ``albedo``: (H, W, 3) float32 linear RGB base-colour texture (row 0 on top), or None.
+    - ``normal_map``: (H, W, 3) float32 in [0, 1], tangent space, +Y green up, or None (needs tangents).
+    - ``vertex_colors``: (V, 3) float64 linear RGB, or None (used where there is no albedo texture).
+    - ``name``: what reports call it.
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray | None = None
+    tangents: np.ndarray | None = None
+    albedo: np.ndarray | None = None
+    normal_map: np.ndarray | None = None
+    vertex_colors: np.ndarray | None = None
+    name: str = "mesh"
+
+    def __post_init__(self):
+        v = np.asarray(self.positions, dtype=np.float64)
+        f = np.asarray(self.faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise ViewError(f"{self.name}: positions must be (V, 3) with V ≥ 1, got shape {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise ViewError(f"{self.name}: faces must be (F, 3) with F ≥ 1, got shape {f.shape}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ViewError(f"{self.name}: face index {int(f.max())} out of range ({len(v)} vertices)")
+        object.__setattr__(self, "positions", v)
+        object.__setattr__(self, "faces", f)
+        n = np.asarray(self.normals, dtype=np.float64)
+        if n.shape != v.shape:
+            raise ViewError(f"{self.name}: normals must have shape {v.shape}, got {n.shape}")
+        object.__setattr__(self, "normals", n)
+        if self.uv is not None:
+            uv = np.asarray(self.uv, dtype=np.float64)
+            if uv.shape != (len(f), 3, 2):
+                raise ViewError(f"{self.name}: uv must have shape {(len(f), 3, 2)}, got {uv.shape}")
+            object.__setattr__(self, "uv", uv)
+        if self.tangents is not None:
+            t = np.asarray(self.tangents, dtype=np.float64)
+            if t.shape != (len(v), 4):
+                raise ViewError(f"{self.name}: tangents must have shape {(len(v), 4)}, got {t.shape}")
+            object.__setattr__(self, "tangents", t)
+        for name in ("albedo", "normal_map"):
+            img = getattr(self, name)
+            if img is not None:
+                img = np.asarray(img, dtype=np.float32)
+                if img.ndim != 3 or img.shape[2] < 3:
+                    raise ViewError(f"{self.name}: {name} must be (H, W, 3), got shape {img.shape}")
+                if self.uv is None:
+                    raise ViewError(f"{self.name}: a {name} texture needs UVs")
+                object.__setattr__(self, name, img[..., :3])
+        if self.normal_map is not None and self.tangents is None:
+            raise ViewError(f"{self.name}: a tangent-space normal map needs tangents")
+        if self.vertex_colors is not None:
+            c = np.asarray(self.vertex_colors, dtype=np.float64)[:, :3]
+            if c.shape != v.shape:
+                raise ViewError(f"{self.name}: vertex_colors must have shape {v.shape}, got {c.shape}")
+            object.__setattr__(self, "vertex_colors", c)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) corners of the bounding box, source frame."""
+        return self.positions.min(axis=0), self.positions.max(axis=0)
+
+    def without_maps(self) -> "ViewMesh":
+        """The same geometry with neither texture: what the coarse mesh alone shows."""
+        return replace(self, albedo=None, normal_map=None, name=f"{self.name} (no maps)")
+
+    def with_normal_map(self, normal_map: np.ndarray | None) -> "ViewMesh":
+        """The same mesh with another normal map (e.g. a deliberately broken one, for tests)."""
+        return replace(self, normal_map=normal_map)
+
+
+def _decode_png(data: bytes, colour: str) -> np.ndarray:
+    from ..io.images import read_image
+
+    with tempfile.TemporaryDirectory(prefix="neural_bake_view_") as d:
+        p = Path(d) / "map.png"
+        p.write_bytes(data)
+        return read_image(p, colour=colour)
+
+
+def view_mesh_from_glb(path) -> ViewMesh:
+    """A GLB written by :func:`neural_bake.bake.export.export_glb`, as a glTF viewer reads it.
+
+    POSITION (source frame), NORMAL, TEXCOORD_0 (glTF's v points down: flipped back to v up), TANGENT, COLOR_0,
+    the baseColorTexture (sRGB PNG, decoded to linear) and the normalTexture (linear data). Raises
+    :class:`ViewError` naming the file for a missing file or one that is not such a GLB.
+    """
+    from ..bake.export import read_glb
+
+    p = Path(path)
+    if not p.is_file():
+        raise ViewError(f"{p}: no such GLB file")
+    try:
+        gltf, arr, images = read_glb(p)
+    except NeuralBakeError:
+        raise
+    except (KeyError, IndexError, ValueError, TypeError) as exc:
+        raise ViewError(f"{p}: unreadable GLB ({type(exc).__name__}: {exc})") from None
+    if "POSITION" not in arr:
+        raise ViewError(f"{p}: GLB primitive without POSITION")
+    faces = np.asarray(arr["indices"], dtype=np.int64)
+    positions = np.asarray(arr["POSITION"], dtype=np.float64)
+    if "NORMAL" in arr:
+        normals = np.asarray(arr["NORMAL"], dtype=np.float64)
+    else:
+        from ..mesh.tangents import vertex_normals
+
+        normals = vertex_normals(Mesh(vertices=positions, faces=faces))
+    uv = None
+    if "TEXCOORD_0" in arr:
+        t = np.asarray(arr["TEXCOORD_0"], dtype=np.float64)
+        uv = np.stack([t[:, 0], 1.0 - t[:, 1]], axis=1)[faces]
+    tangents = np.asarray(arr["TANGENT"], dtype=np.float64) if "TANGENT" in arr else None
+    colors = np.asarray(arr["COLOR_0"], dtype=np.float64)[:, :3] if "COLOR_0" in arr else None
+    albedo = normal_map = None
+    materials = gltf.get("materials") or []
+    if materials:
+        mat = materials[0]
+        textures = gltf.get("textures", [])
+
+        def image_of(ref) -> bytes:
+            return images[textures[ref["index"]]["source"]]
+
+        base = mat.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+        if base is not None:
+            albedo = _decode_png(image_of(base), "srgb")[..., :3]
+        if mat.get("normalTexture") is not None:
+            normal_map = _decode_png(image_of(mat["normalTexture"]), "data")[..., :3]
+    return ViewMesh(positions, faces, normals, uv=uv, tangents=tangents, albedo=albedo, normal_map=normal_map,
+                    vertex_colors=colors, name=p.name)
+
+
+def view_mesh_from_mesh(mesh: Mesh, name: str | None = None) -> ViewMesh:
+    """A loaded :class:`Mesh` in its source frame, with its own vertex normals, UVs and texture."""
+    from ..mesh.tangents import vertex_normals
+
+    albedo = None
+    if mesh.texture is not None and mesh.uv is not None:
+        albedo = np.asarray(mesh.texture, dtype=np.float32)
+        if albedo.shape[2] < 3:  # grey (+ alpha): replicate to RGB
+            albedo = np.repeat(albedo[..., :1], 3, axis=2)
+    return ViewMesh(mesh.frame.to_source(mesh.vertices), mesh.faces, vertex_normals(mesh),
+                    uv=mesh.uv if albedo is not None else None, albedo=albedo,
+                    name=name or Path(mesh.source).name or "mesh")
+
+
+def load_view_mesh(path, texture=None) -> ViewMesh:
+    """A mesh file as a :class:`ViewMesh`: our GLBs through :func:`view_mesh_from_glb` (maps and tangents as
+    exported), any other mesh (OBJ, PLY, a foreign GLB) through :func:`~neural_bake.io.mesh_io.load_mesh`."""
+    from ..io.mesh_io import load_mesh
+
+    p = Path(path)
+    if p.suffix.lower() == ".glb" and p.is_file() and _written_by_us(p):
+        return view_mesh_from_glb(p)
+    return view_mesh_from_mesh(load_mesh(p, texture), name=p.name)
+
+
+def _written_by_us(path: Path) -> bool:
+    import json
+    import struct
+
+    data = path.read_bytes()
+    if len(data) < 20 or data[:4] != b"glTF":
+        return False
+    (jlen,) = struct.unpack_from("<I", data, 12)
+    try:
+        gltf = json.loads(data[20:20 + jlen])
+    except ValueError:
+        return False
+    return gltf.get("asset", {}).get("generator") == "neural_bake"

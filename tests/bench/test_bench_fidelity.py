@@ -1,0 +1,53 @@
+"""`bench fidelity` on generated meshes (the data folder is never needed): rows, open caps, skipping."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_bake.bench.fidelity import open_caps, run
+from neural_bake.types import Mesh
+
+
+def open_sphere(radius=0.7, z_cut=0.4, sub=4):
+    m = trimesh.creation.icosphere(subdivisions=sub, radius=radius)
+    keep = m.triangles_center[:, 2] < z_cut
+    sub_m = m.submesh([np.flatnonzero(keep)], append=True)
+    return Mesh(vertices=np.asarray(sub_m.vertices), faces=np.asarray(sub_m.faces, dtype=np.int64), watertight=False)
+
+
+def test_open_caps_split_the_hole_from_the_surface(fit_sphere_siren):
+    net = fit_sphere_siren(r=0.7, steps=300)
+    mesh = open_sphere()
+    caps = open_caps(net, mesh, n=20000, resolution=64)
+    # the cap over the hole is the sphere's zone above z = 0.4: (0.7 - 0.4) / 1.4 of its area
+    assert caps["cap_share"] == pytest.approx(0.3 / 1.4, abs=0.03)
+    assert caps["hausdorff_without_caps"] < 0.05 < 0.5 < caps["cap_max"]  # the pole is ~0.65 from the rim
+    closed = trimesh.creation.icosphere(subdivisions=3, radius=0.7)
+    assert open_caps(net, Mesh(vertices=np.asarray(closed.vertices), faces=np.asarray(closed.faces))) is None
+
+
+def test_missing_data_is_skipped_saying_so(tmp_path):
+    res = run(quick=True, meshes=["nefertiti"], data=tmp_path / "nowhere")
+    assert res["rows"] == [] and any("nefertiti: skipped, no data folder" in n for n in res["notes"])
+    (tmp_path / "d").mkdir()
+    res = run(quick=True, meshes=["fandisk"], data=tmp_path / "d")
+    assert res["rows"] == [] and any(n.startswith("fandisk: skipped,") and "not found" in n for n in res["notes"])
+
+
+def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
+    path = tmp_path / "cup.obj"
+    m = open_sphere(sub=3)
+    trimesh.Trimesh(m.vertices, m.faces, process=False).export(path)
+    res = run(quick=True, meshes=[str(path)], minutes=0.02, size=48, faces=200)
+    (row,) = res["rows"]
+    assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "64x1" and row["steps"] >= 1
+    assert row["cap_max"] is not None and row["hausdorff_without_caps"] is not None
+    # the classical bake of a mesh onto its own decimation is close; the coarse mesh's own normals are not
+    assert row["classical_median_deg"] < 2.0 < row["coarse_median_deg"]
+    # a field of a second's training is poor: the hybrid takes the classical normal where it is off
+    assert row["hybrid_pct"] > 0 and row["map_median_deg"] <= row["neural_median_deg"]
+    assert row["networks_kb"] == pytest.approx((3 * 64 + 64 + 64 * 64 + 64 + 64 + 1) * 4 / 1024)
+    assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)
+    json.dumps(res)

@@ -1,0 +1,123 @@
+"""Honest budgets: the GEMM-rate probe, the expected steps, the one-line warning, and a fit on a slow clock."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.errors import NeuralBakeWarning
+from neural_bake.fit.budget import STEP_WORK, budget_record, expected_steps, probe_gflops, stop_note
+from neural_bake.fit.training import LoopConfig, train
+
+
+class Ticker:
+    """A clock that advances ``dt`` seconds on every call: every measured interval is a multiple of it."""
+
+    def __init__(self, dt):
+        self.t, self.dt, self.calls = 0.0, dt, 0
+
+    def __call__(self):
+        self.t += self.dt
+        self.calls += 1
+        return self.t
+
+
+def test_probe_measures_the_best_product_with_the_clock():
+    # each product is timed by two consecutive calls: one tick
+    g = probe_gflops(size=64, repeat=3, clock=Ticker(1e-3))
+    assert math.isclose(g, 2 * 64**3 / 1e-3 / 1e9)
+    real = probe_gflops(size=64, repeat=3)
+    assert real > 0 and probe_gflops(size=64, repeat=3) == real  # measured once per process
+
+
+def test_expected_steps_scale_with_rate_and_time():
+    assert expected_steps("64x1", 90.0, gflops=200.0) == int(90 * 200 / STEP_WORK["64x1"])
+    assert expected_steps("64x1", 90.0, gflops=100.0) == int(90 * 100 / STEP_WORK["64x1"])
+    assert expected_steps("9x9", 90.0, gflops=200.0) is None and expected_steps("64x1", None, gflops=1.0) is None
+    assert set(STEP_WORK) >= {"64x1", "128x2", "256x2", "256x3", "texture:quick", "texture:default", "texture:high"}
+
+
+def test_budget_record_warns_below_half():
+    ok = budget_record(60, 100, preset="64x1", seconds=90, stopped_reason="time budget")
+    assert ok["warning"] is None and ok["ratio"] == 0.6 and ok["expected_steps"] == 100
+    low = budget_record(49, 100, preset="64x1", seconds=90, stopped_reason="time budget")
+    assert low["warning"] == ("64x1: made 49 steps of the ~100 this machine makes in 90 s (49 %): the machine "
+                              "was busy or slowed; the fit is weaker than the preset's")
+    assert "\n" not in low["warning"]
+    # a run that stopped at its step cap was not short of time
+    assert budget_record(10, 100, preset="64x1", seconds=90, stopped_reason="steps")["warning"] is None
+    assert budget_record(10, None)["ratio"] is None
+
+
+def test_stop_notes():
+    assert stop_note("time budget", 10, 60.0, 1.0, 500) == "time budget (60 s) used"
+    assert stop_note("steps", 500, 12.04, 1.0, 500) == "step cap (500) reached after 12.0 s of the 60-s budget"
+    assert stop_note("steps", 500, 12.0, None, 500) == "step count (500) done"
+
+
+def test_train_budget_follows_the_injected_clock():
+    model = torch.nn.Linear(3, 1)
+    x = torch.randn(32, 3)
+
+    def step_fn(step, gen):
+        loss = (model(x) ** 2).mean()
+        return {"loss": loss}
+
+    clock = Ticker(10.0)  # every step looks like it took 20 s (two clock reads a step)
+    res = train(model, step_fn, LoopConfig(steps=1000, minutes=1.0, progress=False, log_every=1), clock=clock)
+    assert res.stopped_reason == "time budget" and res.steps == 3  # 60 s of budget, 20 s a step
+    assert [h["seconds"] for h in res.history] == [20.0, 40.0, 60.0]
+    assert res.seconds == pytest.approx(80.0)  # the budget check at 70 s stops it; the end is read at 80 s
+
+
+def test_slow_texture_fit_warns_and_records(tmp_path):
+    """A texture fit whose clock says each step took 20 s makes 3 of the thousands of steps its preset makes
+    here: it warns in one line and the model file records both figures."""
+    from neural_bake.fit.texture import fit_texture
+    from neural_bake.nets.model_io import load_model
+
+    from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.samples.generate import write_sample
+    from neural_bake.samples.shapes import get_sample
+
+    mesh = load_mesh(write_sample(get_sample("sphere").mesh(resolution=400, texture_size=64), tmp_path, "sphere"))
+
+    def sphere_sdf(x):  # the sample sphere fills the unit frame: radius 0.9
+        n = x.norm(dim=1, keepdim=True)
+        return n[:, 0] - 0.9, x / n.clamp_min(1e-12)
+
+    with pytest.warns(NeuralBakeWarning, match=r"texture:quick: made 3 steps of the ~\d+ this machine makes in 60 s"):
+        fit = fit_texture(mesh, sphere_sdf, preset="quick", pool=2000, clock=Ticker(10.0))
+    b = fit.budget
+    assert b["steps"] == fit.steps == 3 and b["expected_steps"] > 6 and b["ratio"] < 0.5
+    assert b["stopped"] == "time budget (60 s) used" and b["gflops"] > 0
+    fit.save(tmp_path / "t.tex")
+    _, meta = load_model(tmp_path / "t.tex")
+    assert meta["budget"]["steps"] == 3 and meta["budget"]["expected_steps"] == b["expected_steps"]
+    # a fit that stops at its step cap says so, and does not warn
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        capped = fit_texture(mesh, sphere_sdf, preset="quick", pool=2000, steps=2)
+    assert capped.budget["stopped"].startswith("step cap (2) reached after") and capped.budget["warning"] is None
+    np.testing.assert_equal(capped.steps, 2)
+
+
+def test_best_rate_is_recorded_and_kept(tmp_path, monkeypatch):
+    """A busy moment's low probe does not lower the machine's recorded speed; a higher one raises it; a
+    corrupt cache file is replaced."""
+    import json
+
+    from neural_bake.fit import budget
+
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path))
+    assert budget.cache_file() == tmp_path / "gflops.json"
+    assert budget._best_seen("cpu|2|512", 150.0) == 150.0
+    assert budget._best_seen("cpu|2|512", 20.0) == 150.0  # busy: the record stands
+    assert budget._best_seen("cpu|2|512", 180.0) == 180.0
+    assert json.loads((tmp_path / "gflops.json").read_text()) == {"cpu|2|512": 180.0}
+    (tmp_path / "gflops.json").write_text("{not json")
+    assert budget._best_seen("cpu|2|512", 30.0) == 30.0
+    assert json.loads((tmp_path / "gflops.json").read_text()) == {"cpu|2|512": 30.0}
