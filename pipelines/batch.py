@@ -35,28 +35,28 @@ SUMMARY_NAME = "batch.json"
 SUMMARY_FORMAT = "neural_bake.batch.v1"
 EXECUTORS = ("local", "ray")
 
-#: Stage options of the presets, one naming scheme across stages.
-#: quick: about a minute per asset on a 2-core CPU (smoke runs); default: the verbs' defaults at moderate
-#: budgets; high: the largest networks and longest budgets.
+#: Stage options of the batch presets; the names are the fits' own (:mod:`neural_bake.fit.presets`).
+#: quick: about a minute per asset on a 2-core CPU (smoke runs: the quick fits at shorter budgets);
+#: default: the fits' default presets; high: the largest networks and longest budgets.
 PRESETS: dict[str, dict[str, dict]] = {
     "quick": {
-        "sdf": {"preset": "64x1", "minutes": 0.4},
+        "sdf": {"preset": "quick", "minutes": 0.4},
         "nested": {"levels": "32x1", "steps": 300, "certify": False},
-        "texture": {"preset": "fast", "minutes": 0.2},
+        "texture": {"preset": "quick", "minutes": 0.2},
         "coarse": {"spec": "decimate:1000"},
         "bake": {"size": 512},
     },
     "default": {
-        "sdf": {"preset": "128x2"},
+        "sdf": {"preset": "default"},
         "nested": {"levels": "64x1", "steps": 2000},
-        "texture": {"preset": "medium"},
+        "texture": {"preset": "default"},
         "coarse": {"spec": "decimate:2000"},
         "bake": {"size": 2048},
     },
     "high": {
-        "sdf": {"preset": "256x3"},
+        "sdf": {"preset": "high"},
         "nested": {"levels": "64x1,256x1", "steps": 4000},
-        "texture": {"preset": "fine"},
+        "texture": {"preset": "high"},
         "coarse": {"spec": "decimate:5000"},
         "bake": {"size": 4096, "supersample": 2},
     },
