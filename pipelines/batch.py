@@ -17,6 +17,7 @@ per torch thread and one GPU per task when the device is CUDA; OUT must be on st
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -28,7 +29,8 @@ from neural_bake.errors import NeuralBakeError
 from .manifest import STAGE_NAMES, AssetSpec, read_manifest
 
 __all__ = ["BatchConfig", "PRESETS", "run_batch", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
-           "OutputNotWritable", "summary_lines"]
+           "OutputNotWritable", "summary_lines",
+           "batch_config", "resolved_config"]
 
 #: The summary of a batch, in OUT.
 SUMMARY_NAME = "batch.json"
@@ -95,6 +97,48 @@ class OutputNotWritable(NeuralBakeError):
     exit_code = 1
 
 
+def batch_config(table: dict | None = None, *, where: str = "config", **overrides) -> BatchConfig:
+    """A BatchConfig from a settings table (a TOML file's: batch fields at the top, one table per stage) with
+    ``overrides`` (the command line's) applied last; NeuralBakeError naming ``where`` and the key otherwise."""
+    table = dict(table or {})
+    names = {f.name for f in dataclasses.fields(BatchConfig)} - {"stages"}
+    stages: dict[str, dict] = {}
+    values = {}
+    for k, v in table.items():
+        if k in STAGE_NAMES:
+            if not isinstance(v, dict):
+                raise NeuralBakeError(f"{where}: [{k}] must be a table of {k} settings")
+            stages[k] = dict(v)
+        elif k in names:
+            values[k] = None if v == "none" else v
+        else:
+            raise NeuralBakeError(f"{where}: unknown key {k!r} (batch settings: {', '.join(sorted(names))}; "
+                                  f"stage tables: {', '.join(STAGE_NAMES)})")
+    for stage, opts in (overrides.pop("stages", None) or {}).items():
+        stages.setdefault(stage, {}).update(opts)
+    return BatchConfig(**{**values, **overrides, "stages": stages})
+
+
+def resolved_config(cfg: BatchConfig) -> tuple[dict, dict]:
+    """(table, comments) of ``cfg`` with every stage's settings resolved (preset, config, command line), as
+    ``--print-config`` writes it: a TOML file that gives the same run."""
+    from neural_bake.configs import field_docs
+
+    from .stages import _stage_classes, resolve_stages, stage_key_config
+
+    if cfg.preset not in PRESETS:
+        raise NeuralBakeError(f"preset {cfg.preset!r}: unknown (choose from {', '.join(PRESETS)})")
+    resolved = resolve_stages(_batch_options(cfg))
+    table = {k: v for k, v in asdict(cfg).items() if k != "stages"}
+    comments = {k: field_docs(BatchConfig).get(k, "") for k in table}
+    classes = _stage_classes()
+    for stage in STAGE_NAMES:
+        table[stage] = {k: v for k, v in stage_key_config(resolved[stage]).items()
+                        if not (stage == "bake" and k in ("coarse", "texture"))}  # coarse.spec; per asset
+        comments[stage] = {k: field_docs(classes[stage]).get(k, "").split(". ")[0] for k in table[stage]}
+    return table, comments
+
+
 def usable_cores() -> int:
     """CPU cores this process may run on."""
     try:
@@ -122,21 +166,26 @@ def _merge(*layers: dict) -> dict:
     return out
 
 
+def _batch_options(cfg: BatchConfig) -> dict[str, dict]:
+    """The stage options of every asset before its manifest row's: preset, seed and device, ``cfg.stages``."""
+    common: dict[str, dict] = {}
+    if cfg.seed is not None:
+        common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
+    if cfg.device is not None:
+        common = _merge(common, {"sdf": {"device": cfg.device}, "texture": {"device": cfg.device}})
+    return _merge(copy.deepcopy(PRESETS[cfg.preset]), common, cfg.stages)
+
+
 def _tasks(assets: list[AssetSpec], out: Path, cfg: BatchConfig, threads: int) -> tuple[list[dict], list[dict]]:
     """(tasks to run, records of assets refused before running: bad options or output paths)."""
     from neural_bake.io.paths import inside
 
     from .stages import resolve_stages
 
-    base = copy.deepcopy(PRESETS[cfg.preset])
-    common: dict[str, dict] = {}
-    if cfg.seed is not None:
-        common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
-    if cfg.device is not None:
-        common = _merge(common, {"sdf": {"device": cfg.device}, "texture": {"device": cfg.device}})
+    batch_options = _batch_options(cfg)
     tasks, refused = [], []
     for a in assets:
-        options = _merge(base, common, cfg.stages, a.options)
+        options = _merge(batch_options, a.options)
         try:
             if not Path(a.mesh).is_file():
                 raise NeuralBakeError(f"{a.mesh}: no such mesh file" if not Path(a.mesh).exists()

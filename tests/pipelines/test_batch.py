@@ -262,3 +262,53 @@ def test_cli_bad_set_and_preset(tmp_path, samples):
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--set", "size"]) == 2
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--set", "render.size=3"]) == 2
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--preset", "huge"]) == 2
+
+
+def test_config_file_then_flags_and_print_config_round_trip(tmp_path, capsys):
+    from neural_bake.cli.main import main
+
+    (tmp_path / "b.toml").write_text('preset = "quick"\nworkers = 3\n[sdf]\nsteps = 77\n[bake]\nsize = 128\n')
+    assert main(["batch", "--config", str(tmp_path / "b.toml"), "--set", "bake.size=256", "--print-config"]) == 0
+    text = capsys.readouterr().out
+    import tomllib
+
+    printed = tomllib.loads(text)
+    assert printed["preset"] == "quick" and printed["workers"] == 3  # from the file
+    assert printed["bake"]["size"] == 256  # the command line wins
+    assert printed["sdf"]["steps"] == 77 and printed["sdf"]["width"] == 64  # the file over the quick preset's
+    assert printed["sdf"]["minutes"] == 0.4 and printed["texture"]["minutes"] == 0.2
+    assert printed["seed"] == "none" and printed["nested"]["minutes"] == "none"  # None round-trips as "none"
+    assert "coarse" not in printed["bake"] and printed["coarse"]["spec"] == "decimate:1000"
+    assert "# Map side in texels." in text  # each field's help, from the config dataclass
+    # the printed file is a config that resolves to itself
+    (tmp_path / "p.toml").write_text(text)
+    assert main(["batch", "--config", str(tmp_path / "p.toml"), "--print-config"]) == 0
+    assert capsys.readouterr().out == text
+    # flags override the file, the file overrides the defaults
+    assert main(["batch", "--config", str(tmp_path / "b.toml"), "--workers", "1", "--preset", "high",
+                 "--print-config"]) == 0
+    again = tomllib.loads(capsys.readouterr().out)
+    assert again["workers"] == 1 and again["sdf"]["width"] == 256 and again["sdf"]["steps"] == 77
+
+
+@pytest.mark.parametrize("text,message", [
+    ("size = 3\n", "unknown key 'size'"),
+    ("bake = 3\n", r"\[bake\] must be a table"),
+    ("[bake]\nsize = \n", "not valid TOML"),
+    ("[bake]\nsise = 3\n", "bake.sise: unknown setting"),
+])
+def test_bad_config_files(tmp_path, capsys, text, message):
+    from neural_bake.cli.main import main
+
+    (tmp_path / "b.toml").write_text(text)
+    assert main(["batch", "--config", str(tmp_path / "b.toml"), "--print-config"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("neural-bake: error: ")
+    import re
+
+    assert re.search(message, err), err
+    assert main(["batch", "--config", str(tmp_path / "missing.toml"), "--print-config"]) == 2
+    assert "no such config file" in capsys.readouterr().err
+    assert main(["batch", "--print-config", "-o", str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert main(["batch", "-o", str(tmp_path / "o")]) == 2  # no manifest
