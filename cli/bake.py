@@ -16,7 +16,7 @@ __all__ = ["command"]
 @click.option("--texture-model", "tex_path", metavar="MODEL", default=None,
               help="Texture model file (kind 'texture'): bakes the albedo map.")
 @click.option("--coarse", default="decimate:2000", show_default=True,
-              help="Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep.")
+              help="Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION (a nested sequence's level I marched) or keep.")
 @click.option("--maps", "maps_spec", default=None,
               help="What to bake, comma-separated: normal, albedo (needs --texture-model), vertex (per-vertex "
                    "GLB). Default: normal,albedo with a texture model, else normal.")
@@ -50,10 +50,13 @@ __all__ = ["command"]
 @click.option("--hybrid-angle", type=float, default=None, help="Hybrid bake: angle threshold in degrees (default 20).")
 @click.option("--report-samples", type=int, default=None,
               help="Texel samples a streamed bake keeps for the report's per-sample errors (default 2^18).")
+@click.option("--force", is_flag=True,
+              help="Bake even when the SDF does not describe MESH (frames differ, or median |f| on its surface "
+                   "above the threshold).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_space, directx, bits, exr,
             supersample, padding, delta, baseline, cage, truth, texels_mode, hybrid, hybrid_tol, hybrid_angle,
-            report_samples, out):
+            report_samples, force, out):
     """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
     and a quality report into OUT."""
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
@@ -61,7 +64,7 @@ def command(mesh, sdf_path, tex_path, coarse, maps_spec, size, texture, normal_s
     given = {"report_samples": report_samples, "hybrid_tol": hybrid_tol, "hybrid_angle": hybrid_angle}  # unset: default
     config = BakeAssetConfig(coarse=coarse, maps=maps_spec, size=size, texture=texture, normal_space=normal_space,
                              directx=directx, bits=int(bits), exr=exr, supersample=supersample, padding=padding,
-                             delta=delta, baseline=baseline, cage=cage, truth=truth, hybrid=hybrid,
+                             delta=delta, baseline=baseline, cage=cage, truth=truth, hybrid=hybrid, force=force,
                              cache_texels={"auto": None, "cache": True, "stream": False}[texels_mode],
                              **{k: v for k, v in given.items() if v is not None})
     bake_asset(mesh, sdf_path, out, config, texture_model=tex_path, log=click.echo)

@@ -56,7 +56,8 @@ def _opt(*decls, field: str, **kwargs):
 @click.command(cls=_ConfigHelpCommand)
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("--sdf", "sdf_path", required=True, type=click.Path(dir_okay=False),
-              help="The fitted SDF model file of this mesh (kind 'sdf'); its δ is the default band.")
+              help="The fitted SDF of this mesh: a `fit sdf` file (its sampled distance error is the default band δ) "
+                   "or a `fit nested` file (normals from its fine level, band δ of its coarsest level).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Texture model file to write (safetensors + JSON metadata).")
 @click.option("--preset", type=click.Choice(["quick", "default", "high", "fast", "medium", "fine"]), default=None,

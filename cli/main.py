@@ -57,6 +57,8 @@ COMMANDS = {
     "batch": ("neural_bake.cli.batch", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),
+    "render": ("neural_bake.cli.render", "command"),
+    "view": ("neural_bake.cli.view", "command"),
 }
 
 

@@ -18,9 +18,60 @@ DEFAULT_OMEGA_0 = 30.0
 #: UV policies for coordinates outside [0, 1].
 UV_POLICIES = ("wrap", "clamp")
 
+# --- preview renderer (neural_bake.render)
+#: Sphere tracing's threshold mode stops a level's iterations where |traced value| is at most this (unit frame).
+TRACE_EPSILON = 1e-4
+
+#: After tracing, a ray whose last |traced value| is at most this (unit frame) hit the surface; else it missed.
+TRACE_HIT_TOLERANCE = 1e-3
+
+#: In the fixed-iteration mode a ray whose step is shorter than this (unit frame) no longer moves at float32
+#: resolution of unit-frame coordinates: it leaves the batch (its remaining iterations would not change it).
+TRACE_STILL_STEP = 1e-6
+
+#: Half-side of the cube (unit frame) rays are clipped to: the domain the networks were fitted on.
+TRACE_BOUND = 1.0
+
+#: Shadow and ambient-occlusion rays start this far (unit frame) off the surface, along its normal.
+SHADOW_BIAS = 4e-3
+
+#: The guaranteed caster's tolerance δ of Spelunking's Procedure 2 (unit frame): it reports a hit within δ.
+GUARANTEED_TOLERANCE = 1e-3
+
 #: Vertices closer than this (unit frame) are welded on load: the splits that OBJ ``v/vt`` pairs and glTF
 #: make at UV seams are undone, so the mesh gets its true topology (watertightness, genus).
 MERGE_DISTANCE = 1e-9
+
+# --- model files: what a header may ask for before anything is allocated (neural_bake.fields) --------------
+#: Widest hidden layer a model file may declare (the papers' fine networks are 256 wide).
+MAX_NET_WIDTH = 4096
+
+#: Most hidden W×W matrices a model file may declare (the papers' fine networks have 3).
+MAX_NET_DEPTH = 32
+
+#: Largest input dimension a model file may declare (3 for space, 4 for space-time).
+MAX_NET_IN_DIM = 8
+
+#: Largest output dimension a model file may declare (1 for an SDF, 3 or 4 for colour).
+MAX_NET_OUT_DIM = 16
+
+#: Most levels a nested-sequence file may declare.
+MAX_NESTED_LEVELS = 16
+
+#: Deepest JSON nesting ([ and {) a model file's header may have; deeper is refused before parsing.
+MAX_HEADER_DEPTH = 32
+
+# --- bake: does the SDF describe the mesh? ---------------------------------------------------------------------
+#: Frames (centre and scale) of an SDF and the mesh it bakes onto may differ by this much, relative to the
+#: unit frame (centre offset × scale, |scale ratio − 1|), before the bake refuses the SDF.
+FRAME_MISMATCH_TOL = 1e-3
+
+#: Median |f| (unit frame) at the fine mesh's surface samples above which the bake refuses the SDF: a fitted
+#: SDF of that mesh reads well under this (its sampled distance error), another shape's reads far above.
+SDF_MISMATCH_MEDIAN = 0.02
+
+#: Surface samples of the fine mesh at which the bake measures the SDF's median |f|.
+SDF_CHECK_SAMPLES = 4096
 
 #: Hybrid bake: a texel whose source-surface point (where the classical bake's ray lands) has |f| above this
 #: (unit frame) is one the neural field does not represent; it takes the classical mesh-to-mesh normal.
@@ -45,3 +96,15 @@ INTERIOR_ERODE_PX = 2
 #: Interior PSNR (dB, sRGB) a correct bake's render reaches against the analytic reference render of its
 #: sample; a normal map with its green channel flipped, or no maps, stays below it.
 BAKED_RENDER_MIN_PSNR_DB = 45.0
+
+#: Silhouette agreement (intersection over union) of model-viewer's picture of a bake in headless Chromium
+#: and our render of the same view: the camera mapping (orbit, target, field of view) is right.
+BROWSER_MASK_MIN_IOU = 0.97
+
+#: Interior PSNR (dB, sRGB) between model-viewer's picture (PBR, sun HDR, neutral tone mapping) and our
+#: Blinn-Phong render of the same view: the two shaders differ, so this checks agreement, not equality.
+BROWSER_MATCH_MIN_PSNR_DB = 21.0
+
+#: Correlation of the fine detail (image minus its Gaussian blur, σ = 4 px) of model-viewer's picture with
+#: our render's: the normal map's bumps sit where ours do (a flipped green channel moves them).
+BROWSER_DETAIL_MIN_CORR = 0.9

@@ -26,7 +26,7 @@ class BakeAssetConfig:
     """Settings of :func:`bake_asset`; one line per field (the CLI options mirror them)."""
 
     coarse: str = "decimate:2000"
-    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION or keep."""
+    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION (a nested sequence's level I marched) or keep."""
     maps: str | None = None
     """Comma-separated maps: normal, albedo (needs a texture model), vertex; None: normal[,albedo]."""
     size: int = 2048
@@ -58,6 +58,8 @@ class BakeAssetConfig:
     on a seeded uniform subsample); None: cache up to 2**23 samples (2048² with supersample 2)."""
     report_samples: int = 1 << 18
     """Texel samples a streamed bake keeps for the report's per-sample errors (uniform, seed 0)."""
+    force: bool = False
+    """Bake even when the SDF does not describe the mesh (frames differ, or median |f| on its surface too large)."""
     hybrid: bool = True
     """Texels where the neural field is not faithful take the classical mesh-to-mesh normal (hybrid bake)."""
     hybrid_tol: float | None = None
@@ -81,7 +83,6 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.bake.baker import Baker, bake_vertices, parse_coarse
     from neural_bake.bake.baker import coarse_mesh as make_coarse_mesh
     from neural_bake.bake.export import export_glb, export_vertex_ply
-    from neural_bake.bake.fields import load_field
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import NeuralBakeError
     from neural_bake.io.asset import read_asset, shading_mesh
@@ -127,8 +128,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    sdf = load_field(sdf_path, "sdf", argument="--sdf")
-    tex = load_field(tex_path, "texture", argument="--texture-model") if tex_path else None
+    sdf_file = _load_field(sdf_path, "--sdf", "sdf")
+    sdf = _sdf_for(sdf_file, coarse)
+    tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
     if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
         delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
@@ -138,8 +140,14 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
     keep = parse_coarse(coarse)[0] == "keep"
     timings["load"] = time.perf_counter() - t0
+    from neural_bake.bake.agreement import check_sdf_describes_mesh
+
+    sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
+    if not sdf_check["passed"]:
+        log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
+            f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
     coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
-                             else make_coarse_mesh(reference if keep else fine, coarse, sdf))
+                             else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
     timings["coarse"] = coarse_info["seconds"]
     log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
 
@@ -150,7 +158,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     try:
         written: list[str] = []
         report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
-                        "maps": maps}
+                        "maps": maps, "sdf_check": sdf_check}
         texel_maps = [m for m in maps if m in ("normal", "albedo")]
         if texel_maps:
             t0 = time.perf_counter()
@@ -272,13 +280,39 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     return report
 
 
+def _load_field(path, option: str, want: str):
+    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field."""
+    from neural_bake.errors import ModelFileError
+    from neural_bake.fields import NestedSequence, SdfField, TextureField, load_field
+
+    if not Path(path).exists():
+        raise ModelFileError(f"{option} {path}: no such model file")
+    field = load_field(path)
+    types, expected = ((SdfField, NestedSequence), "an SDF (kind 'sdf' or a nested sequence)") if want == "sdf" \
+        else ((TextureField,), "a texture field (kind 'texture')")
+    if not isinstance(field, types):
+        raise ModelFileError(f"{option} {path}: a {type(field).__name__} file, expected {expected}")
+    return field
+
+
+def _sdf_for(field, coarse: str):
+    """The SdfField to bake: a nested sequence gives its fine f with the band δ of the level the coarse mesh
+    is marched from (``level:I:RES``), else of its coarsest level (the widest band)."""
+    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.fields import to_sdf_field
+
+    kind, value = parse_coarse(coarse)
+    return to_sdf_field(field, band_level=value[0] if kind == "level" else 0)
+
+
 def _fidelity_warnings(report: dict, coarse: str) -> list[str]:
-    """One-line warnings on what the normal map gives: the coarse mesh is the source itself, or the map does
-    not beat the coarse mesh's own normals (median angle to the truth)."""
-    out = []
+    """One-line warning on what the normal map gives: the coarse mesh is the source itself (then its own normals
+    are the reference and no map beats them), or the map does not beat the coarse mesh's own normals (median
+    angle to the truth)."""
     if coarse == "keep":
-        out.append("--coarse keep: the map is baked onto the source mesh itself, so it can at best reproduce the "
-                   "asset's own normals")
+        return [f"--coarse keep: the map is baked onto the source mesh itself, so it can at best reproduce the "
+                f"asset's own normals (map median {(report.get('vs_truth_deg') or {}).get('median') or 0:.2f}° off them)"]
+    out = []
     ours, own = (report.get(k) or {} for k in ("vs_truth_deg", "geometric_vs_truth_deg"))
     if ours.get("median") is not None and own.get("median") is not None and ours["median"] >= own["median"]:
         out.append(f"the normal map (median {ours['median']:.2f}°) does not beat the coarse mesh's own normals "

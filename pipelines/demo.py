@@ -37,6 +37,8 @@ class DemoConfig:
     """Seed of the fits (same seed, same models)."""
     progress: bool = True
     """Progress bars on stderr during the fits."""
+    report_views: int = 8
+    """Turntable views of the HTML report (0: no report)."""
 
 
 def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], None] = print) -> dict:
@@ -97,4 +99,10 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     atomic_write_text(out / "demo.json", dumps(summary))
     log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
         f"figures in {out / 'report.json'} and {out / 'demo.json'}")
+    if cfg.report_views > 0:
+        from neural_bake.view.report import ReportConfig, write_asset_report
+
+        index = write_asset_report(out, ReportConfig(views=cfg.report_views), log=lambda m: None)
+        summary["report"] = str(index)
+        log(f"check the bake by eye: {index}")
     return summary

@@ -44,3 +44,27 @@ fi
 say "installing neural-bake and its dependencies"
 "${PIP[@]}" -e ".[test]"
 "$VENV/bin/python" -c "import open3d, torch, OpenImageIO, pymeshlab, xatlas; print('setup: ok: torch', torch.__version__)"
+
+# 5. The visual checks: model-viewer (npm) beside the reports, Chromium for the browser test.
+MV_VERSION=4.4.0
+MV_DIR=.cache/model-viewer
+if [ ! -f "$MV_DIR/node_modules/@google/model-viewer/dist/model-viewer-umd.min.js" ]; then
+  if command -v npm >/dev/null 2>&1; then
+    say "fetching @google/model-viewer@$MV_VERSION into $MV_DIR (the reports' glTF viewer)"
+    mkdir -p "$MV_DIR"
+    npm install --prefix "$MV_DIR" --no-audit --no-fund --silent "@google/model-viewer@$MV_VERSION" >/dev/null \
+      || say "warning: npm could not fetch @google/model-viewer: reports will show pictures without the viewer"
+  else
+    say "note: npm not found: reports will show pictures without the interactive glTF viewer"
+  fi
+fi
+if ! command -v chromium >/dev/null 2>&1 && [ ! -x /usr/bin/chromium ]; then
+  if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    say "installing chromium (the browser test of the reports)"
+    { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium; } >/dev/null 2>&1 \
+      || say "warning: could not install chromium: the browser test will be skipped (it fails under CI)"
+  else
+    say "note: no chromium and no apt-get: the browser test will be skipped"
+  fi
+fi

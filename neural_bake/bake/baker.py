@@ -17,9 +17,9 @@ import numpy as np
 import torch
 
 from ..errors import NeuralBakeError
+from ..fields import NestedSequence, SdfField, TextureField
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
-from .fields import ColorField, SdfField
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
 from .padding import PADDING_METHODS, pad_charts
 
@@ -196,7 +196,7 @@ def _to_field_frame(points: np.ndarray, mesh_frame: Frame, field_frame: Frame | 
 
 
 def _evaluate(
-    points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: ColorField | None, chunk_size: int
+    points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: TextureField | None, chunk_size: int
 ) -> dict:
     """f, unit ∇f, valid and g at ``points`` (M, 3) (mesh unit frame), in chunks of ``chunk_size``."""
     m = len(points)
@@ -233,7 +233,7 @@ def _check_chunk(chunk_size) -> int:
 
 
 def bake_vertices(
-    mesh: Mesh, sdf: SdfField, texture: ColorField | None = None, *, chunk_size: int = DEFAULT_CHUNK
+    mesh: Mesh, sdf: SdfField, texture: TextureField | None = None, *, chunk_size: int = DEFAULT_CHUNK
 ) -> dict:
     """Per-vertex neural normal (and texture) mapping.
 
@@ -353,7 +353,7 @@ class Baker:
     def bake(
         self,
         sdf: SdfField,
-        texture: ColorField | None = None,
+        texture: TextureField | None = None,
         *,
         delta: float | None = None,
         keep_samples: bool | None = None,
@@ -530,26 +530,37 @@ class Baker:
 
 
 def bake_texels(
-    mesh: Mesh, sdf: SdfField, texture: ColorField | None = None, size: int = 1024, *, delta: float | None = None, **options
+    mesh: Mesh, sdf: SdfField, texture: TextureField | None = None, size: int = 1024, *, delta: float | None = None, **options
 ) -> BakeResult:
     """One-off bake: ``Baker(mesh, size, **options).bake(sdf, texture, delta=delta)``."""
     return Baker(mesh, size, **options).bake(sdf, texture, delta=delta)
 
 
-COARSE_KINDS = ("decimate", "march", "keep")
+COARSE_KINDS = ("decimate", "march", "level", "keep")
+_COARSE_USAGE = "expected decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION or keep"
 
 
-def parse_coarse(spec: str) -> tuple[str, float | int | None]:
+def parse_coarse(spec: str) -> tuple[str, float | int | tuple[int, int] | None]:
     """Parse a coarse-mesh spec: ``"decimate:2000"`` (faces), ``"decimate:0.1"`` (ratio), ``"march:64"``
-    (grid resolution) or ``"keep"``. Raises :class:`NeuralBakeError` naming ``--coarse`` otherwise."""
+    (grid resolution), ``"level:0:256"`` (marching cubes of a nested sequence's level 0 at 256³; value
+    ``(0, 256)``) or ``"keep"``. Raises :class:`NeuralBakeError` naming ``--coarse`` otherwise."""
     kind, _, arg = str(spec).partition(":")
-    usage = "expected decimate:FACES, decimate:RATIO, march:RESOLUTION or keep"
+    usage = _COARSE_USAGE
     if kind not in COARSE_KINDS:
         raise NeuralBakeError(f"--coarse {spec!r}: unknown kind {kind!r} ({usage})")
     if kind == "keep":
         if arg:
             raise NeuralBakeError(f"--coarse {spec!r}: keep takes no value ({usage})")
         return kind, None
+    if kind == "level":
+        level, _, res = arg.partition(":")
+        try:
+            level, res = int(level), int(res)
+        except ValueError:
+            raise NeuralBakeError(f"--coarse {spec!r}: level needs LEVEL:RESOLUTION, e.g. level:0:256") from None
+        if level < 0 or not 4 <= res <= 1024:
+            raise NeuralBakeError(f"--coarse {spec!r}: level needs a level >= 0 and a resolution in [4, 1024]")
+        return kind, (level, res)
     try:
         value = float(arg)
     except ValueError:
@@ -562,12 +573,13 @@ def parse_coarse(spec: str) -> tuple[str, float | int | None]:
     return kind, int(value)
 
 
-def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mesh, dict]:
+def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | NestedSequence | None = None) -> tuple[Mesh, dict]:
     """The coarse mesh a bake targets, from a :func:`parse_coarse` spec; returns (mesh, info).
 
     ``decimate``: quadric edge collapse of ``mesh`` (UVs dropped: the Baker unwraps). ``march``: marching
-    cubes of ``sdf`` (a Siren field; cost-aware range pruning, ``pruned="auto"``) at that resolution, in the
-    field's frame, then :func:`~neural_bake.mesh.cleanup.clean_mesh` (weld duplicate vertices, drop
+    cubes of ``sdf`` (a Siren field, or a nested sequence's fine f; cost-aware range pruning,
+    ``pruned="auto"``) at that resolution, in the field's frame; ``level:I:RES``: the same of level I of a
+    nested sequence (the paper's coarse surface: its zero set lies in f's band δ_I), then :func:`~neural_bake.mesh.cleanup.clean_mesh` (weld duplicate vertices, drop
     degenerate and duplicate faces and components under 1% of the largest one's faces; non-manifold and
     boundary edges are counted, not repaired). ``keep``: ``mesh`` itself (its own UVs, if any, are kept).
 
@@ -584,14 +596,20 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | None = None) -> tuple[Mes
 
         out = decimate(mesh, **({"ratio": value} if isinstance(value, float) else {"faces": value}))
     else:
+        from ..mesh.cleanup import clean_mesh
         from ..mesh.marching import march
 
-        field = getattr(sdf, "model", None) if sdf is not None else None
-        if field is None:
+        if kind == "level":
+            if not isinstance(sdf, NestedSequence):
+                raise NeuralBakeError(f"--coarse {spec!r}: level needs a nested-sequence SDF file (fit nested)")
+            level, value = value
+            field = sdf.level(level)  # NeuralBakeError naming the levels there are
+            info["level"] = {"index": field.metadata["level"], "delta": field.delta}
+        else:
+            field = sdf.finest if isinstance(sdf, NestedSequence) else sdf
+        if getattr(field, "model", None) is None:
             raise NeuralBakeError(f"--coarse {spec!r}: march needs an SDF model (a Siren)")
-        from ..mesh.cleanup import clean_mesh
-
-        out, stats = march(field, value, pruned="auto", frame=sdf.frame or mesh.frame)
+        out, stats = march(field.model, value, pruned="auto", frame=field.frame or mesh.frame)
         info["march"] = stats
         if out.n_faces == 0:
             raise NeuralBakeError(f"--coarse {spec!r}: the SDF has no surface at resolution {value}")

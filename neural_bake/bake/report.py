@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import NeuralBakeError
+from ..geometry import angular_error
 from ..types import Mesh
 from .maps import colors_to_normals, decode_tangent_space
 
@@ -26,12 +27,6 @@ __all__ = ["bake_report", "angular_error", "error_stats", "psnr", "seam_disconti
 
 #: Angular errors at or above this many degrees are drawn white in the error maps.
 ERROR_MAP_MAX_DEG = 10.0
-
-
-def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles in degrees (M,) between unit vectors a and b (M, 3), float64; a zero vector gives 90°."""
-    d = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
-    return np.degrees(np.arccos(np.clip(d, -1.0, 1.0)))
 
 
 def error_stats(err: np.ndarray) -> dict:

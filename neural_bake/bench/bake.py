@@ -36,7 +36,7 @@ def _bumpy():
 
 
 def _analytic_field(sample, frame):
-    from ..bake.fields import SdfField
+    from ..fields import SdfField
     from ..samples.shapes import unit_frame_normals
 
     def fn(p):
@@ -80,8 +80,9 @@ def run(
     """
     from ..bake.baker import Baker
     from ..bake.baseline import baseline_bake
-    from ..bake.fields import SdfField, load_field
-    from ..bake.report import angular_error, decode_map
+    from ..bake.report import decode_map
+    from ..fields import SdfField, load_sdf_field
+    from ..geometry import angular_error
     from ..mesh.decimate import decimate
     from ..nets.siren import Siren
 
@@ -129,7 +130,7 @@ def run(
     # -- error vs time ---------------------------------------------------------------------------------
     fields = [("analytic ∇f", _analytic_field(sample, fine.frame))]
     if sdf_model:
-        fields.append(("model ∇f", load_field(sdf_model, "sdf")))
+        fields.append(("model ∇f", load_sdf_field(sdf_model)))
     err_rows = []
     for nf in faces:
         t0 = time.perf_counter()

@@ -102,6 +102,24 @@ def open_caps(model, mesh, *, n: int = 50_000, resolution: int = 128, seed: int 
             "cap_max": float(d[cap].max()) if cap.any() else 0.0}
 
 
+def _source_bytes(path: Path) -> int:
+    """Bytes of a mesh file, with a .gltf's external buffers (its .bin); textures not counted."""
+    size = path.stat().st_size
+    if path.suffix.lower() == ".gltf":
+        import json
+        from urllib.parse import unquote
+
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return size
+        for buf in doc.get("buffers", []):
+            uri = buf.get("uri") if isinstance(buf, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:") and (path.parent / unquote(uri)).is_file():
+                size += (path.parent / unquote(uri)).stat().st_size
+    return size
+
+
 def _stats(rep: dict, key: str) -> tuple[float | None, float | None]:
     head, _, tail = key.partition(".")
     d = rep.get(head) or {}
@@ -179,7 +197,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     rows = []
     for name, path, spec in jobs:
         mesh = load_mesh(path, spec.get("texture"))
-        source_mb = path.stat().st_size / 2**20
+        source_mb = _source_bytes(path) / 2**20
         coarse = spec.get("coarse", f"decimate:{faces}")
         for preset in presets:
             say(f"{name} {preset}: fitting the SDF")

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from ..errors import FitError
+from ..geometry import angular_error
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
 
@@ -206,7 +207,6 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         raise FitError(f"sdf_metrics: n must be a positive integer, got {n!r}")
     if int(resolution) != resolution or resolution < 8:
         raise FitError(f"sdf_metrics: resolution must be an integer >= 8, got {resolution!r}")
-    from ..bake.report import angular_error
     from .sampling import sample_surface
 
     rng = np.random.default_rng([seed, 7])

@@ -23,6 +23,7 @@ The sup-norm is
   box bound: a guaranteed upper bound of |h − g| on the band. A :class:`NeuralBakeWarning` is issued when
   it exceeds the estimate by more than ``warn_ratio``.
 
+The sequence itself (the asset, its file) is :class:`neural_bake.fields.NestedSequence`, re-exported here.
 Both δ are stored per level (``delta_estimated``, ``delta_certified``); :attr:`NestedSequence.deltas` (what
 a renderer uses) takes a level's certified sup-norm only where its certification met the target, else the
 estimate: affine bounds over boxes of a ω0 = 30 network are loose until the boxes are tiny, and a
@@ -32,152 +33,21 @@ guaranteed but huge δ would make the coarse levels useless.
 from __future__ import annotations
 
 import heapq
-import json
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
 
-import numpy as np
 import torch
 
 from .. import __version__
-from ..errors import FitError, ModelFileError, NeuralBakeWarning
-from ..io.atomic import atomic_path
-from ..io.jsonio import json_default
+from ..errors import FitError, NeuralBakeWarning
+from ..fields.nested import NESTED_FORMAT, NestedSequence
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
 __all__ = ["NestedSequence", "fit_nested", "band_samples", "estimate_sup_norm", "certify_sup_norm",
            "parse_levels", "NESTED_FORMAT"]
-
-#: The ``format`` value of a nested-sequence file.
-NESTED_FORMAT = "neural_bake.nested"
-NESTED_FORMAT_VERSION = 1
-
-
-# ----------------------------------------------------------------------------------------------- the object
-@dataclass
-class NestedSequence:
-    """Neural SDFs ``levels = [h_1, …, h_k, f]`` (coarse to fine) with their nesting thresholds.
-
-    All networks map unit-frame points (N, 3) to (N, 1) signed distances; ``frame`` maps back to the
-    source frame. ``levels_info[i]`` describes level i (coarse levels only have δ entries):
-    ``{"width", "depth", "steps", "best_step", "seconds", "sup_estimated", "sup_certified",
-    "delta_estimated", "delta_certified", "certify": {...}}``; the fine level's δ is ``eps``.
-    """
-
-    levels: list[Siren]
-    """Networks coarse to fine; the last one is the fine SDF f."""
-    frame: Frame = field(default_factory=Frame)
-    """Source ↔ unit frame transform."""
-    levels_info: list[dict] = field(default_factory=list)
-    """Per level: architecture, training iterations, sup-norms and δ (see the class docstring)."""
-    band: float = 0.1
-    """Δ: half-width of the band (unit frame) where the sup-norms are measured."""
-    eps: float = 1e-3
-    """ε of Prop. 1 added to the sup-norms (and the fine level's δ)."""
-    stability: list[list[dict]] = field(default_factory=list)
-    """Per coarse level: rows ``{"samples", "band", "sup"}`` of the estimate over sample sizes and Δ."""
-    metadata: dict = field(default_factory=dict)
-    """Free JSON metadata (source model, settings, package version)."""
-
-    @property
-    def deltas(self) -> list[float]:
-        """δ per level (coarse to fine) to render with: ``levels_info[i]["delta"]``, built from the certified
-        sup-norm of each level whose certification met its target (within ``certify_rel_tol`` of the
-        estimate) and from the estimate elsewhere (``"delta_source"`` says which)."""
-        return [float(info["delta"]) for info in self.levels_info]
-
-    @property
-    def deltas_estimated(self) -> list[float]:
-        """δ per level from the sampled sup-norms."""
-        return [float(i["delta_estimated"]) for i in self.levels_info]
-
-    @property
-    def deltas_certified(self) -> list[float | None]:
-        """δ per level from the certified sup-norms (None where certification was not run)."""
-        return [None if i.get("delta_certified") is None else float(i["delta_certified"]) for i in self.levels_info]
-
-    @property
-    def iterations(self) -> list[int]:
-        """Training steps of each level (0 for the fine level, trained elsewhere)."""
-        return [int(i.get("steps", 0)) for i in self.levels_info]
-
-    def save(self, path) -> Path:
-        """Write ONE safetensors file: tensors ``levels.<i>.layers.<j>.{weight,bias}`` + JSON metadata."""
-        from safetensors.torch import save_file
-
-        path = Path(path)
-        if not path.parent.is_dir():
-            raise ModelFileError(f"{path}: folder {path.parent} does not exist")
-        tensors = {}
-        for i, m in enumerate(self.levels):
-            for k, v in m.state_dict().items():
-                tensors[f"levels.{i}.{k}"] = v.detach().to("cpu").contiguous()
-        header = {
-            "format": NESTED_FORMAT, "format_version": NESTED_FORMAT_VERSION, "package_version": __version__,
-            "architectures": [m.architecture for m in self.levels], "frame": self.frame.to_dict(),
-            "levels_info": self.levels_info, "band": self.band, "eps": self.eps, "stability": self.stability,
-            "metadata": self.metadata,
-        }
-        try:
-            text = json.dumps(header, allow_nan=False, default=json_default)
-        except ValueError as exc:
-            raise ModelFileError(f"{path}: metadata is not JSON-serialisable ({exc})") from None
-        with atomic_path(path) as tmp:
-            save_file(tensors, str(tmp), metadata={"format": NESTED_FORMAT, "neural_bake": text})
-        return path
-
-    @classmethod
-    def load(cls, path, *, device=None) -> "NestedSequence":
-        """Read a file written by :meth:`save`; ModelFileError (one line) for anything wrong with it."""
-        from safetensors import safe_open
-
-        path = Path(path)
-        if not path.is_file():
-            raise ModelFileError(f"{path}: no such nested-sequence file")
-        try:
-            with safe_open(str(path), framework="pt", device="cpu") as fh:
-                meta = fh.metadata() or {}
-                if meta.get("format") != NESTED_FORMAT:
-                    raise ModelFileError(f"{path}: not a nested-sequence file (format {meta.get('format')!r})")
-                header = json.loads(meta["neural_bake"])
-                if int(header.get("format_version", 0)) > NESTED_FORMAT_VERSION:
-                    raise ModelFileError(f"{path}: format version {header['format_version']} is newer than "
-                                         f"this neural_bake reads ({NESTED_FORMAT_VERSION})")
-                names = set(fh.keys())
-                levels = []
-                for i, arch in enumerate(header["architectures"]):
-                    try:
-                        m = Siren(**arch)
-                    except (TypeError, ValueError) as exc:
-                        raise ModelFileError(f"{path}: level {i} has an invalid architecture ({exc})") from None
-                    state = {}
-                    for k, ref in m.state_dict().items():
-                        key = f"levels.{i}.{k}"
-                        if key not in names:
-                            raise ModelFileError(f"{path}: tensor {key} is missing")
-                        t = fh.get_tensor(key)
-                        if tuple(t.shape) != tuple(ref.shape):
-                            raise ModelFileError(f"{path}: tensor {key} has shape {tuple(t.shape)}, "
-                                                 f"expected {tuple(ref.shape)}")
-                        if not t.is_floating_point() or not torch.isfinite(t).all():
-                            raise ModelFileError(f"{path}: tensor {key} is not finite floating point")
-                        state[k] = t
-                    m = m.to(state["layers.0.weight"].dtype)
-                    m.load_state_dict(state)
-                    levels.append(m.to(device or "cpu").eval())
-        except ModelFileError:
-            raise
-        except Exception as exc:  # corrupt, truncated, bad JSON
-            msg = " ".join(str(exc).split())[:200]
-            raise ModelFileError(f"{path}: corrupt or truncated nested-sequence file ({type(exc).__name__}: {msg})") from None
-        return cls(levels=levels, frame=Frame.from_dict(header["frame"]), levels_info=header["levels_info"],
-                   band=float(header["band"]), eps=float(header["eps"]), stability=header.get("stability", []),
-                   metadata=header.get("metadata", {}))
 
 
 # ----------------------------------------------------------------------------------------------- band & sup

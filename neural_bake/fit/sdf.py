@@ -51,7 +51,8 @@ from .training import train
 
 __all__ = ["SdfFitConfig", "SdfFit", "PRESETS", "fit_sdf", "load_sdf", "config_from", "sdf_loss_terms",
            "sdf_step_backward", "micro_batch_count", "mixed_gradient", "focused_squares", "first_order_distance",
-           "MicroBatchTuner", "FIRST_ORDER_MIN_SLOPE", "FOCUS_CAP", "TRAIN_CHUNK_ELEMENTS", "TUNE_EVERY"]
+           "MicroBatchTuner", "FIRST_ORDER_MIN_SLOPE", "FOCUS_CAP", "TRAIN_CHUNK_ELEMENTS", "TUNE_EVERY",
+           "sampled_distance_error", "DISTANCE_ERROR_SOURCE"]
 
 
 @dataclass
@@ -83,18 +84,25 @@ class SdfFit:
     """A time-budgeted run's account (:func:`neural_bake.fit.budget.fit_budget`): Adam steps made beside the
     steps the preset makes on this machine in Adam's part of the budget, why it stopped, the warning if any."""
 
+    distance_error: float | None = None
+    """Sampled distance error to the mesh (unit frame): max |f| at mesh surface samples
+    (:func:`sampled_distance_error`); saved as the file's δ, the band a texture fit uses. None: not measured."""
+
     def save(self, path) -> Path:
-        """Write the model file (safetensors + JSON metadata: kind="sdf", frame, config, history summary)."""
-        from ..nets.model_io import save_model
+        """Write the model file (safetensors + JSON metadata: kind="sdf", frame, δ (the sampled distance
+        error; ``delta_source`` says so), config, history summary)."""
+        from ..fields import save_model
 
         summary = self.history[-1] if self.history else {}
+        delta = {} if self.distance_error is None else {
+            "delta": self.distance_error, "delta_source": DISTANCE_ERROR_SOURCE}
         return save_model(
             self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
             training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
                       "restarts": self.restarts, "final": summary, "history": self.history[-200:],
                       "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None,
                       "budget": self.budget},
-            package_version=__version__,
+            package_version=__version__, **delta,
         )
 
     @classmethod
@@ -104,28 +112,47 @@ class SdfFit:
 
 
 def load_sdf(path, *, device=None) -> SdfFit:
-    """Read an SDF model file written by :meth:`SdfFit.save` into an :class:`SdfFit`."""
-    from ..nets.model_io import load_model
+    """Read an SDF model file written by :meth:`SdfFit.save` into an :class:`SdfFit` (through
+    :func:`neural_bake.fields.load_field`, which checks the header)."""
+    from ..fields import SdfField, load_field
 
-    model, meta = load_model(path, device=device)
-    if meta.get("kind") != "sdf":
-        raise ModelFileError(f"{path}: not an SDF model file (kind {meta.get('kind')!r})")
-    if model.in_dim != 3 or model.out_dim != 1:
-        raise ModelFileError(f"{path}: an SDF maps R^3 to R, this network maps R^{model.in_dim} to R^{model.out_dim}")
+    field = load_field(path, device=device)
+    if not isinstance(field, SdfField):
+        raise ModelFileError(f"{path}: not an SDF model file (a {type(field).__name__} file)")
+    if field.frame is None:
+        raise ModelFileError(f"{path}: SDF model file without a frame")
+    meta = field.metadata
     names = {f.name for f in fields(SdfFitConfig)}
-    cfg_dict = {k: v for k, v in meta.get("config", {}).items() if k in names}
+    cfg = meta.get("config") if isinstance(meta.get("config"), dict) else {}
+    cfg_dict = {k: v for k, v in cfg.items() if k in names}
     if "sigmas" in cfg_dict:
         cfg_dict["sigmas"] = tuple(cfg_dict["sigmas"])
-    training = meta.get("training", {})
+    training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
     try:
-        frame = Frame.from_dict(meta["frame"])
-    except (KeyError, TypeError, ValueError):
-        raise ModelFileError(f"{path}: SDF model file without a valid frame") from None
-    return SdfFit(model=model, frame=frame, history=list(training.get("history", [])),
-                  steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
-                  config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
-                  restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
-                  micro_batch_tuning=training.get("micro_batch_tuning"), budget=training.get("budget"))
+        return SdfFit(model=field.model, frame=field.frame, history=list(training.get("history", [])),
+                      steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
+                      config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
+                      restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
+                      micro_batch_tuning=training.get("micro_batch_tuning"), budget=training.get("budget"),
+                      distance_error=field.delta)
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: unreadable training record ({exc})") from None
+
+
+#: How an SDF fit's δ was obtained (stored as ``delta_source`` in its file).
+DISTANCE_ERROR_SOURCE = "sampled distance error: max |f| at mesh surface samples"
+
+
+@torch.no_grad()
+def sampled_distance_error(model: Siren, mesh: Mesh, n: int = 20_000, seed: int = 0) -> float:
+    """max |f| (unit frame) at ``n`` area-uniform surface samples of ``mesh`` (seeded): a sampled estimate
+    of how far the mesh strays from f's zero set in f's units, i.e. the band |f| ≤ δ that holds the mesh."""
+    from .sampling import sample_surface
+
+    p = next(model.parameters())
+    pts = torch.as_tensor(sample_surface(mesh, int(n), seed=seed).points, dtype=p.dtype, device=p.device)
+    values = torch.cat([model(pts[s:s + 65536])[:, 0] for s in range(0, pts.shape[0], 65536)])
+    return float(values.abs().max())
 
 
 def _jsonable(d):
@@ -259,7 +286,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     model.eval()
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
-                  micro_batch_tuning=tuner.history if tuner else None, budget=budget)
+                  micro_batch_tuning=tuner.history if tuner else None, budget=budget,
+                  distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 
 def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None) -> dict | None:

@@ -41,8 +41,11 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..constants import GRAD_EPS
-from ..errors import FitError, ImageError, MeshError, ModelFileError, NeuralBakeWarning
+from ..constants import FRAME_MISMATCH_TOL
+from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
+from ..fields import (NestedSequence, SdfField, TextureField, load_sdf_field, save_model, to_sdf_field,
+                      unit_normals)
+from ..geometry import frame_mismatch
 from ..io.colour import sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
@@ -145,6 +148,8 @@ class TextureFit:
     - ``frame``: the mesh's frame (unit <-> source); the model works in the unit frame.
     - ``delta``, ``lam``: the band half-width and λ used.
     - ``config``: the full :class:`TextureFitConfig`.
+    - ``fitted_against``: the SDF the band came from: ``{"name", "kind" ("sdf", "nested", "analytic"),
+      "delta"}``.
     - ``history``: one dict per logged step: step, seconds, lr, loss, colour (MSE), orth (mean Σ_c ⟨∇g_c,n⟩²;
       absent when λ = 0).
     - ``steps``, ``seconds``: steps done and wall time; ``stopped_reason``: "steps" or "time budget";
@@ -164,26 +169,35 @@ class TextureFit:
     stopped_reason: str = "steps"
     restarts: int = 0
     budget: dict | None = None
+    fitted_against: dict | None = None
 
     def metadata(self) -> dict:
         """The JSON metadata stored with the model file (with ``budget`` when the fit had a time budget)."""
-        meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps)
+        meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps, self.fitted_against)
         if self.budget is not None:
             meta["budget"] = self.budget
         return meta
 
-    def save(self, path) -> Path:
-        """Write the model file (safetensors + metadata kind="texture", frame, delta, lam, config)."""
-        from ..nets.model_io import save_model
+    def field(self) -> TextureField:
+        """The fitted colour network as a :class:`~neural_bake.fields.TextureField`."""
+        return TextureField.from_model(self.model, frame=self.frame, delta=self.delta, name="texture fit",
+                                       fitted_against=self.fitted_against, metadata=self.metadata())
 
+    def save(self, path) -> Path:
+        """Write the model file (safetensors + metadata kind="texture", frame, delta, lam, config, the SDF it
+        was fitted against)."""
         save_model(self.model, path, **self.metadata())
         return Path(path)
 
 
-def _metadata(frame: Frame, delta: float, lam: float, config: TextureFitConfig, steps: int) -> dict:
+def _metadata(frame: Frame, delta: float, lam: float, config: TextureFitConfig, steps: int,
+              fitted_against: dict | None = None) -> dict:
     cfg = asdict(config)
-    return {"kind": "texture", "frame": frame.to_dict(), "delta": float(delta), "lam": float(lam),
-            "config": cfg, "steps": int(steps)}
+    out = {"kind": "texture", "frame": frame.to_dict(), "delta": float(delta), "lam": float(lam),
+           "config": cfg, "steps": int(steps)}
+    if fitted_against is not None:
+        out["fitted_against"] = fitted_against
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -222,65 +236,44 @@ def _texture_rgb(mesh: Mesh, texture: np.ndarray | None) -> np.ndarray:
     return tex
 
 
-class _Sdf:
-    """A frozen SDF: a Siren (GEMM normals) or a callable returning (values, gradients)."""
-
-    def __init__(self, sdf_model, meta: dict | None = None):
-        self.meta = dict(meta or {})
-        self.model = sdf_model
-        if isinstance(sdf_model, torch.nn.Module):
-            if getattr(sdf_model, "out_dim", 1) != 1 or getattr(sdf_model, "in_dim", 3) != 3:
-                raise FitError(f"sdf model: expected a scalar field of 3-D points, got in={sdf_model.in_dim}, "
-                               f"out={sdf_model.out_dim}")
-            p = next(sdf_model.parameters(), None)
-            self.device = p.device if p is not None else torch.device("cpu")
-            self.dtype = p.dtype if p is not None else torch.float32
-        elif callable(sdf_model):
-            self.device, self.dtype = None, None
-        else:
-            raise FitError(f"sdf model: expected a Siren, a model file path or a callable, got "
-                           f"{type(sdf_model).__name__}")
-
-    @torch.no_grad()
-    def __call__(self, points: torch.Tensor, chunk: int = 65536) -> tuple[torch.Tensor, torch.Tensor]:
-        """(N, 3) points -> ((N,) values, (N, 3) gradients) in the points' dtype and device."""
-        outs_v, outs_g = [], []
-        for i in range(0, points.shape[0], chunk):
-            x = points[i:i + chunk]
-            if self.device is not None:
-                v, g = _gemm_gradient(self.model, x.to(self.device, self.dtype))
-            else:
-                v, g = self.model(x)
-            outs_v.append(v.reshape(-1).to(points.device, points.dtype))
-            outs_g.append(g.reshape(-1, 3).to(points.device, points.dtype))
-        if not outs_v:
-            return points.new_zeros(0), points.new_zeros(0, 3)
-        return torch.cat(outs_v), torch.cat(outs_g)
-
-
-def _load_sdf(sdf_model) -> _Sdf:
+def _as_sdf_field(sdf_model) -> SdfField:
+    """The frozen SDF as an :class:`SdfField`: a field file (an SDF, or a nested sequence's f with its widest
+    band δ), a field, a scalar :class:`Siren` or a callable ``points -> (values, gradients)``."""
     if isinstance(sdf_model, (str, Path)):
-        from ..nets.model_io import load_model
+        return load_sdf_field(sdf_model)
+    if isinstance(sdf_model, (SdfField, NestedSequence)):
+        return to_sdf_field(sdf_model)
+    if isinstance(sdf_model, torch.nn.Module):
+        if getattr(sdf_model, "out_dim", 1) != 1 or getattr(sdf_model, "in_dim", 3) != 3:
+            raise FitError(f"sdf model: expected a scalar field of 3-D points, got in={sdf_model.in_dim}, "
+                           f"out={sdf_model.out_dim}")
+        return SdfField.from_model(sdf_model, name="sdf model")
+    if callable(sdf_model):
+        return SdfField.from_value_and_gradient(sdf_model, name="sdf callable")
+    raise FitError(f"sdf model: expected a Siren, a field, a model file path or a callable, got "
+                   f"{type(sdf_model).__name__}")
 
-        model, meta = load_model(sdf_model)
-        kind = meta.get("kind")
-        if kind not in (None, "sdf"):
-            raise ModelFileError(f"{sdf_model}: expected an SDF model file (kind 'sdf'), got kind {kind!r}")
-        return _Sdf(model, meta)
-    return _Sdf(sdf_model)
+
+@torch.no_grad()
+def _sdf_eval(sdf: SdfField, points: torch.Tensor, chunk: int = 65536) -> tuple[torch.Tensor, torch.Tensor]:
+    """(N, 3) points -> ((N,) values, (N, 3) gradients) in the points' dtype and device (a network is
+    evaluated in its own dtype and device)."""
+    p = next(sdf.model.parameters(), None) if sdf.model is not None else None
+    outs_v, outs_g = [], []
+    for i in range(0, points.shape[0], chunk):
+        x = points[i:i + chunk]
+        v, g = sdf.value_and_gradient(x.to(p.device, p.dtype) if p is not None else x)
+        outs_v.append(v.reshape(-1).to(points.device, points.dtype))
+        outs_g.append(g.reshape(-1, 3).to(points.device, points.dtype))
+    if not outs_v:
+        return points.new_zeros(0), points.new_zeros(0, 3)
+    return torch.cat(outs_v), torch.cat(outs_g)
 
 
 def _gemm_gradient(model, points, *, differentiable=False):
     from ..nets.gemm import gemm_gradient
 
     return gemm_gradient(model, points, differentiable=differentiable)
-
-
-def _unit_normals(grads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Normalised gradients (N, 3) and the validity mask (N,) (|∇f| ≥ GRAD_EPS); invalid rows are zero."""
-    from ..nets.gemm import normalized_gradient
-
-    return normalized_gradient(grads, GRAD_EPS)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -308,18 +301,18 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     }
 
 
-def _band_pool(points, normals, sdf: _Sdf, delta: float, n_uniform: int, gen: torch.Generator):
+def _band_pool(points, normals, sdf: SdfField, delta: float, n_uniform: int, gen: torch.Generator):
     """Band points (surface ± U[−δ, δ]·normal, and uniform points with |f| ≤ δ) with their unit ∇f."""
     t = (torch.rand(points.shape[0], 1, generator=gen, dtype=points.dtype) * 2 - 1) * delta
     offset = points + t * normals
     uni = torch.rand(n_uniform, 3, generator=gen, dtype=points.dtype) * 2 - 1
-    fu, _ = sdf(uni)
+    fu, _ = _sdf_eval(sdf, uni)
     uni = uni[fu.abs() <= delta]
-    _, g_off = sdf(offset)
-    n_off, v_off = _unit_normals(g_off)
+    _, g_off = _sdf_eval(sdf, offset)
+    n_off, v_off = unit_normals(g_off)
     if uni.shape[0]:
-        _, g_uni = sdf(uni)
-        n_uni, v_uni = _unit_normals(g_uni)
+        _, g_uni = _sdf_eval(sdf, uni)
+        n_uni, v_uni = unit_normals(g_uni)
     else:
         n_uni, v_uni = uni.new_zeros(0, 3), torch.zeros(0, dtype=torch.bool)
     return offset[v_off], n_off[v_off], uni[v_uni], n_uni[v_uni]
@@ -417,32 +410,31 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
 
 
-def _resolve_delta(config: TextureFitConfig, sdf: _Sdf) -> float:
+def _resolve_delta(config: TextureFitConfig, sdf: SdfField) -> float:
+    """The config's δ, else the SDF's (a nested sequence's widest band, a fitted SDF's sampled distance
+    error), else DEFAULT_DELTA."""
     if config.delta is not None:
         return float(config.delta)
-    d = sdf.meta.get("delta")
-    if d is not None:
-        try:
-            d = float(d)
-        except (TypeError, ValueError):
-            d = None
-        if d is not None and math.isfinite(d) and d > 0:
-            return d
+    d = sdf.delta
+    if d is not None and math.isfinite(d) and d > 0:
+        return float(d)
     return DEFAULT_DELTA
 
 
-def _check_frames(mesh: Mesh, sdf: _Sdf, name: str) -> None:
-    fr = sdf.meta.get("frame")
-    if not fr:
+def _check_frames(mesh: Mesh, sdf: SdfField) -> None:
+    if sdf.frame is None:
         return
-    try:
-        f = Frame.from_dict(fr)
-    except (KeyError, TypeError, ValueError):
-        raise ModelFileError(f"{name}: model file has an unreadable 'frame' entry") from None
-    if not (np.allclose(f.center, mesh.frame.center, rtol=1e-5, atol=1e-6)
-            and math.isclose(f.scale, mesh.frame.scale, rel_tol=1e-5)):
-        raise FitError(f"{name}: the SDF was fitted in another frame than {mesh.name} "
-                       f"(scale {f.scale:g} vs {mesh.frame.scale:g}); fit the SDF on this mesh")
+    f = sdf.frame
+    if frame_mismatch(f, mesh.frame) > FRAME_MISMATCH_TOL:
+        raise FitError(f"{sdf.name}: the SDF was fitted in another frame than {mesh.name} "
+                       f"(scale {f.scale:g} vs {mesh.frame.scale:g}, centre {list(f.center)} vs "
+                       f"{list(mesh.frame.center)}); fit the SDF on this mesh")
+
+
+def _fitted_against(sdf: SdfField, delta: float) -> dict:
+    """What a texture fit records about its SDF (stored with the texture file)."""
+    return {"name": sdf.name, "kind": sdf.metadata.get("kind", "analytic" if sdf.model is None else "sdf"),
+            "delta": float(delta)}
 
 
 def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *,
@@ -451,8 +443,10 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     """Fit a gradient-orthogonal colour SIREN to ``mesh``'s texture in the δ-band of ``sdf_model``.
 
     - ``mesh``: a :class:`Mesh` (unit frame) with ``uv`` and ``texture`` (else :class:`MeshError`).
-    - ``sdf_model``: the frozen fine SDF f, unit frame: a scalar :class:`Siren`, a model file path (kind
-      "sdf"; its "delta" is the default δ and its "frame" must be the mesh's), or a callable
+    - ``sdf_model``: the frozen fine SDF f, unit frame: a field file path (``fit sdf``'s: its δ, the sampled
+      distance error, is the default band; ``fit nested``'s: normals from its fine level, the default band
+      is its coarsest level's δ; the file's frame must be the mesh's), an :class:`SdfField` or
+      :class:`NestedSequence`, a scalar :class:`Siren`, or a callable
       ``points (N, 3) -> (values (N,), grads (N, 3))`` (analytic SDFs, tests).
     - ``config`` / ``**overrides``: a :class:`TextureFitConfig`, fields overridden by keyword;
       ``preset="quick" | "default" | "high"`` (or the aliases fast, medium, fine) applies :data:`PRESETS`
@@ -472,9 +466,8 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     preset = overrides.get("preset")
     config = _resolve_config(config, overrides)
     rgb = _texture_rgb(mesh, texture)
-    sdf_name = str(sdf_model) if isinstance(sdf_model, (str, Path)) else "sdf model"
-    sdf = _load_sdf(sdf_model)
-    _check_frames(mesh, sdf, sdf_name)
+    sdf = _as_sdf_field(sdf_model)
+    _check_frames(mesh, sdf)
     delta = _resolve_delta(config, sdf)
     device, dtype = torch.device(config.device), getattr(torch, config.dtype)
 
@@ -535,7 +528,8 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
                         minutes=config.minutes, step_cap=int(config.steps), stopped_reason=result.stopped_reason)
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
-                      stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget)
+                      stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget,
+                      fitted_against=_fitted_against(sdf, delta))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -619,7 +613,7 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     Entries that cannot be computed (no valid ∇f, no view hitting the mesh) are None, never NaN.
     """
     rgb = _texture_rgb(mesh, texture)
-    sdf = _load_sdf(sdf_model)
+    sdf = _as_sdf_field(sdf_model)
     if delta is None:
         delta = _resolve_delta(TextureFitConfig(), sdf)
     s = texture_targets(mesh, n, seed=seed, texture=rgb)
@@ -627,8 +621,8 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     mse = float(np.mean((g0 - s["colors"]) ** 2))
 
     p = s["points"].astype(np.float64)
-    _, grads = sdf(torch.as_tensor(p))
-    normals, valid = _unit_normals(grads)
+    _, grads = _sdf_eval(sdf, torch.as_tensor(p))
+    normals, valid = unit_normals(grads)
     normals, valid = normals.numpy(), valid.numpy()
     changes, at_delta = [], None
     for t in (0.25 * delta, 0.5 * delta, 0.75 * delta, delta):
@@ -648,8 +642,8 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
         uv = np.einsum("mk,mkj->mj", v["bary"], mesh.uv[v["face_index"]])
         truth = sample_texture(rgb, uv, mesh.uv_policy).astype(np.float64)
         per_view.append(float(np.mean((_eval(texture_model, v["points"]) - truth) ** 2)))
-        _, gv = sdf(torch.as_tensor(v["points"]))
-        nv, _ = _unit_normals(gv)
+        _, gv = _sdf_eval(sdf, torch.as_tensor(v["points"]))
+        nv, _ = unit_normals(gv)
         nv = nv.numpy()
         band = [np.mean((_eval(texture_model, v["points"] + sg * delta * nv) - truth) ** 2) for sg in (1.0, -1.0)]
         per_view_band.append(float(np.mean(band)))

@@ -15,7 +15,7 @@ from ..io.colour import linear_to_srgb
 from ..constants import INTERIOR_ERODE_PX
 from .meshes import ViewError
 
-__all__ = ["image_metrics", "difference_image", "silhouette_iou", "DIFF_SCALE", "REGIONS"]
+__all__ = ["image_metrics", "difference_image", "silhouette_iou", "detail_correlation", "DIFF_SCALE", "REGIONS"]
 
 #: "union": pixels either render covers (silhouette differences count); "interior": pixels both cover, less a
 #: border of INTERIOR_ERODE_PX (shading only: the coarse mesh's outline does not count).
@@ -81,3 +81,18 @@ def difference_image(a: np.ndarray, b: np.ndarray, scale: float = DIFF_SCALE) ->
     d = np.abs(_displayed(a) - _displayed(b)).mean(axis=2) / float(scale)
     d = np.clip(d, 0.0, 1.0)
     return np.stack([np.clip(2 * d, 0, 1), np.clip(2 * d - 1, 0, 1), np.clip(4 * d - 3, 0, 1)], axis=2).astype(np.float32)
+
+
+def detail_correlation(a: np.ndarray, b: np.ndarray, mask: np.ndarray, sigma: float = 4.0) -> float | None:
+    """Correlation of the fine detail of two linear-RGB renders (H, W, 3) over ``mask`` (H, W): each sRGB grey
+    image minus its Gaussian blur of ``sigma`` pixels (what a normal map adds; smooth shading cancels), so
+    renderers with different shading models still agree where the bumps are. None for fewer than 16 pixels."""
+    from scipy.ndimage import gaussian_filter
+
+    _check_pair(a, b)
+    mask = np.asarray(mask, dtype=bool)
+    if mask.sum() < 16:
+        return None
+    da, db = (_displayed(x).mean(axis=2) for x in (a, b))
+    ha, hb = (x - gaussian_filter(x, float(sigma)) for x in (da, db))
+    return float(np.corrcoef(ha[mask], hb[mask])[0, 1])

@@ -12,7 +12,8 @@ from ..render.camera import Camera
 from .meshes import ViewError, ViewMesh
 from .raycast import MeshRender, render_mesh
 
-__all__ = ["view_camera", "turntable_cameras", "render_turntable", "to_srgb8", "write_gif", "VIEW_DIRECTION"]
+__all__ = ["view_camera", "turntable_cameras", "render_turntable", "to_srgb8", "write_gif", "write_turntable",
+           "VIEW_DIRECTION"]
 
 #: Direction from the target towards the eye of the first turntable view: in front, a little to the right
 #: and above, so the top and one side show too.
@@ -59,3 +60,20 @@ def write_gif(path, frames: list[np.ndarray], *, seconds_per_frame: float = 0.12
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, np.stack(frames), extension=".gif", duration=int(round(seconds_per_frame * 1000)), loop=0)
     return path
+
+
+def write_turntable(mesh: ViewMesh, out_dir, *, views: int = 8, size: int = 320) -> Path:
+    """Render ``views`` turntable frames of ``mesh`` (``size``² pixels, :func:`view_camera`) into ``out_dir``
+    as ``frame_000.png`` … and ``turntable.gif``; return the GIF's path. The folder is created if needed
+    (its parent must exist)."""
+    from ..io.images import write_image
+
+    out = Path(out_dir)
+    if not out.parent.is_dir():
+        raise ViewError(f"{out}: folder {out.parent} does not exist")
+    frames = render_turntable(mesh, view_camera(mesh, width=size, height=size), views)
+    out.mkdir(exist_ok=True)
+    pixels = [to_srgb8(f.rgb) for f in frames]
+    for k, img in enumerate(pixels):
+        write_image(out / f"frame_{k:03d}.png", img.astype(np.float32) / 255, colour="data")
+    return write_gif(out / "turntable.gif", pixels)

@@ -9,7 +9,7 @@ import trimesh
 
 from neural_bake.bake.baker import Baker, bake_texels, bake_vertices, sample_keys
 from neural_bake.bake.export import export_glb, read_glb
-from neural_bake.bake.fields import ColorField, SdfField
+from neural_bake.fields import ColorField, SdfField
 from neural_bake.bake.maps import colors_to_normals, decode_tangent_space
 from neural_bake.errors import NeuralBakeError
 from neural_bake.io.images import read_image

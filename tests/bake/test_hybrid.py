@@ -6,7 +6,7 @@ import trimesh
 
 from neural_bake.bake.baker import Baker
 from neural_bake.bake.baseline import baseline_bake
-from neural_bake.bake.fields import SdfField
+from neural_bake.fields import SdfField
 from neural_bake.bake.hybrid import HybridFallback, unfaithful
 from neural_bake.errors import NeuralBakeError
 from neural_bake.mesh.unwrap import unwrap

@@ -9,7 +9,7 @@ import trimesh
 
 from neural_bake.bake.baker import Baker
 from neural_bake.bake.baseline import baseline_bake
-from neural_bake.bake.fields import ColorField, SdfField
+from neural_bake.fields import ColorField, SdfField
 from neural_bake.bake.report import angular_error, bake_report, error_stats, psnr, seam_discontinuity
 from neural_bake.errors import NeuralBakeError
 from neural_bake.io.images import read_image

@@ -51,3 +51,11 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     assert row["networks_kb"] == pytest.approx((3 * 64 + 64 + 64 * 64 + 64 + 64 + 1) * 4 / 1024)
     assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)
     json.dumps(res)
+
+
+def test_gltf_source_size_counts_its_buffers(tmp_path):
+    from neural_bake.bench.fidelity import _source_bytes
+
+    trimesh.creation.box().export(tmp_path / "box.gltf")  # trimesh writes the buffer beside it
+    bins = list(tmp_path.glob("*.bin"))
+    assert bins and _source_bytes(tmp_path / "box.gltf") == sum(p.stat().st_size for p in tmp_path.iterdir())

@@ -89,19 +89,19 @@ def test_save_load_round_trip(seq, tmp_path):
 
 
 def test_load_errors(seq, tmp_path, fine):
-    with pytest.raises(ModelFileError, match="no such nested-sequence file"):
+    with pytest.raises(ModelFileError, match=r"none\.nested: no such model file"):
         NestedSequence.load(tmp_path / "none.nested")
     bad = tmp_path / "bad.nested"
     bad.write_bytes(b"\x00" * 40)
-    with pytest.raises(ModelFileError, match="corrupt or truncated"):
+    with pytest.raises(ModelFileError, match=r"bad\.nested: not a readable model file"):
         NestedSequence.load(bad)
     sdf = SdfFit(model=fine, frame=Frame()).save(tmp_path / "f.sdf")
-    with pytest.raises(ModelFileError, match="not a nested-sequence file"):
+    with pytest.raises(ModelFileError, match=r"f\.sdf: not a nested-sequence file \(a SdfField\)"):
         NestedSequence.load(sdf)
     good = seq.save(tmp_path / "good.nested")
     data = good.read_bytes()
     (tmp_path / "cut.nested").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ModelFileError, match="corrupt or truncated"):
+    with pytest.raises(ModelFileError, match=r"cut\.nested: (not a readable|corrupt or truncated) model file"):
         NestedSequence.load(tmp_path / "cut.nested")
 
 

@@ -60,10 +60,10 @@ def test_save_load_round_trip(sphere_fit, tmp_path):
 
 
 def test_load_refuses_non_sdf_model(tmp_path):
-    from neural_bake.nets.model_io import save_model
+    from neural_bake.fields import save_model
     from neural_bake.nets.siren import Siren
 
-    save_model(Siren(8, 0), tmp_path / "tex.model", kind="texture")
+    save_model(Siren(8, 0, out_dim=3), tmp_path / "tex.model", kind="texture")
     with pytest.raises(ModelFileError, match="not an SDF model file"):
         load_sdf(tmp_path / "tex.model")
 

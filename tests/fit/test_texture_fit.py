@@ -25,7 +25,8 @@ from neural_bake.fit.texture import (
     texture_targets,
 )
 from neural_bake.io.colour import linear_to_srgb
-from neural_bake.nets.model_io import load_model, save_model
+from neural_bake.fields import save_model
+from neural_bake.nets.model_io import load_model
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame, Mesh
 
@@ -398,7 +399,7 @@ def test_bad_config_is_a_fit_error(sphere, override, message):
 
 
 def test_wrong_sdf_argument_and_empty_band_are_fit_errors(sphere):
-    with pytest.raises(FitError, match="expected a Siren, a model file path or a callable"):
+    with pytest.raises(FitError, match="expected a Siren, a field, a model file path or a callable"):
         fit_texture(sphere, 3.5, **TINY)
 
     def far(x):  # an SDF whose zero set is nowhere near the mesh and whose gradient vanishes

@@ -11,7 +11,8 @@ from safetensors.torch import save_file
 
 from neural_bake import __version__
 from neural_bake.errors import ModelFileError
-from neural_bake.nets.model_io import MODEL_FORMAT, load_model, read_model_metadata, save_model
+from neural_bake.fields import save_model
+from neural_bake.nets.model_io import MODEL_FORMAT, load_model, read_model_metadata
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
 
@@ -185,11 +186,11 @@ def test_bad_headers(tmp_path, change, message):
 @pytest.mark.parametrize(
     "key,value,message",
     [
-        ("width", -8, r"width = -8 is not a valid size"),
-        ("depth", 1.5, r"depth = 1.5 is not a valid size"),
-        ("in_dim", True, r"in_dim = True is not a valid size"),
-        ("omega_0", -30.0, r"omega_0 = -30.0 is not a positive number"),
-        ("hidden_omega", "30", r"hidden_omega = '30' is not a positive number"),
+        ("width", -8, r"width = -8 is not a size in \[1, 4096\]"),
+        ("depth", 1.5, r"depth = 1.5 is not a size in \[0, 32\]"),
+        ("in_dim", True, r"in_dim = True is not a size in \[1, 8\]"),
+        ("omega_0", -30.0, r"omega_0 = -30.0 is not a finite positive number"),
+        ("hidden_omega", "30", r"hidden_omega = '30' is not a finite positive number"),
     ],
 )
 def test_bad_architecture_values(tmp_path, key, value, message):

@@ -444,7 +444,7 @@ def test_bench_range_cli_on_a_small_model(tmp_path, capsys):
     import json
 
     from neural_bake.cli.main import main
-    from neural_bake.nets.model_io import save_model
+    from neural_bake.fields import save_model
 
     path = tmp_path / "small.sdf"
     save_model(_siren(16, 1, 30.0), path)

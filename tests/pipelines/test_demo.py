@@ -13,7 +13,7 @@ def test_demo_shrunken_end_to_end(tmp_path):
     out = tmp_path / "demo"
     lines = []
     cfg = DemoConfig(sample="sphere", sdf_preset="64x1", sdf_minutes=0.1, texture_minutes=0.05, size=64,
-                     coarse="decimate:300", progress=False)
+                     coarse="decimate:300", progress=False, report_views=1)
     summary = run_demo(out, cfg, log=lines.append)
     names = set(summary["outputs"])
     assert {"sdf.safetensors", "texture.safetensors", "asset.glb", "normal.png", "albedo.png", "report.json",
@@ -31,6 +31,8 @@ def test_demo_shrunken_end_to_end(tmp_path):
     assert report["truth"] == "analytic (sphere sample)"
     assert report["bake"]["delta"] > 0  # the texture model's band
     assert any(line.startswith("[4/4]") for line in lines)
+    # the demo ends with the path of its HTML report
+    assert lines[-1].endswith(str(out / "report" / "index.html")) and (out / "report" / "index.html").is_file()
 
 
 def test_demo_unknown_sample_is_one_line_error(tmp_path, capsys):

@@ -3,9 +3,8 @@
 import pytest
 import torch
 
-from neural_bake.bake.fields import ColorField, SdfField, load_field
+from neural_bake.fields import ColorField, SdfField, TextureField, load_field, load_sdf_field, save_model
 from neural_bake.errors import ModelFileError
-from neural_bake.nets.model_io import save_model
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
 
@@ -77,11 +76,12 @@ def test_load_field_kinds_and_errors(tmp_path):
     frame = Frame((1.0, 2.0, 3.0), 0.5)
     sdf_path = save_model(Siren(8, 0), tmp_path / "a.sdf", kind="sdf", frame=frame.to_dict(), delta=0.02)
     tex_path = save_model(Siren(8, 0, out_dim=3), tmp_path / "a.tex", kind="texture", frame=frame.to_dict())
-    f = load_field(sdf_path, "sdf")
+    f = load_field(sdf_path)
     assert isinstance(f, SdfField) and f.delta == 0.02 and f.frame == frame and f.name == "a.sdf"
-    g = load_field(tex_path, "texture", argument="--texture-model")
-    assert isinstance(g, ColorField) and g.frame == frame
-    with pytest.raises(ModelFileError, match=r"--sdf .*a\.tex: model of kind 'texture', expected 'sdf'"):
-        load_field(tex_path, "sdf")
-    with pytest.raises(ModelFileError, match=r"--sdf .*missing\.sdf: no such model file"):
-        load_field(tmp_path / "missing.sdf", "sdf")
+    assert f.metadata["kind"] == "sdf" and f.in_dim == 3
+    g = load_field(tex_path)
+    assert isinstance(g, TextureField) and g.frame == frame and g.delta is None
+    with pytest.raises(ModelFileError, match=r"a\.tex: a TextureField file, expected an SDF model file"):
+        load_sdf_field(tex_path)
+    with pytest.raises(ModelFileError, match=r"missing\.sdf: no such model file"):
+        load_field(tmp_path / "missing.sdf")

@@ -1,0 +1,174 @@
+"""`neural-bake render MODEL -o OUT.png`: a sphere-traced preview of a fitted SDF or nested sequence (thin verb).
+
+Parses the options into a :class:`~neural_bake.render.scene.Scene` (a scene file first, options on top),
+renders with :func:`neural_bake.render.render` and writes OUT, the extra channels beside it and, with
+--stats, the evaluation counters as JSON. A space-time model (networks of x, y, z, t) with OUT ending in
+.gif or .mp4 renders --frames frames into OUT's ``<stem>_frames/`` folder and the animation into OUT.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+__all__ = ["command"]
+
+
+def _vec3(text: str | None, option: str):
+    from neural_bake.render.scene import SceneError
+
+    if text is None:
+        return None
+    try:
+        v = tuple(float(c) for c in text.split(","))
+    except ValueError:
+        raise SceneError(f"{option}: expected X,Y,Z numbers, got {text!r}") from None
+    if len(v) != 3:
+        raise SceneError(f"{option}: expected X,Y,Z (3 numbers), got {text!r}")
+    return v
+
+
+def _size(text: str | None):
+    from neural_bake.render.scene import SceneError
+
+    if text is None:
+        return None
+    try:
+        parts = [int(p) for p in text.lower().split("x")]
+    except ValueError:
+        raise SceneError(f"--size: expected N or WxH pixels, got {text!r}") from None
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2 or min(parts) < 1:
+        raise SceneError(f"--size: expected N or WxH pixels ≥ 1, got {text!r}")
+    return parts[0], parts[1]
+
+
+@click.command()
+@click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+              help="Colour image (PNG, EXR…); a .gif or .mp4 for a space-time model.")
+@click.option("--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML scene file (camera, lights, material, effects, channels, trace settings).")
+@click.option("--texture", "texture_path", type=click.Path(dir_okay=False), default=None,
+              help="Texture field file (neural texture mapping; adds the texture effect).")
+@click.option("--size", default=None, help="Image size: N (square) or WxH pixels [default 256].")
+@click.option("--camera", "camera_pos", default=None, help="Eye position X,Y,Z (source frame).")
+@click.option("--look-at", "look_at", default=None, help="Target X,Y,Z (source frame) [default: the object's centre].")
+@click.option("--fov", type=float, default=None, help="Vertical field of view, degrees [default 40].")
+@click.option("--effects", default=None,
+              help="Comma-separated: shading, normal_mapping, texture, shadows, ambient_occlusion, hole_map "
+                   "(or none) [default shading].")
+@click.option("--channels", default=None,
+              help="Comma-separated: color, depth, normal, hit, iterations, holes, lod [default color]; the "
+                   "others are written beside OUT as OUT-stem.<channel>.<ext>.")
+@click.option("--channel-format", type=click.Choice(["png", "exr"]), default="png", show_default=True,
+              help="File format of the extra channels (exr keeps raw values).")
+@click.option("--mode", type=click.Choice(["fixed", "threshold"]), default=None,
+              help="Sphere tracing: fixed iterations per level (the paper's) or a distance threshold with a cap.")
+@click.option("--iterations", default=None, help="Iterations per level, coarse to fine, e.g. 30,30 (0 skips a level).")
+@click.option("--guaranteed", is_flag=True, default=None, help="Cast primary rays with range analysis (slower, exact).")
+@click.option("--no-skip", is_flag=True, default=False, help="Turn off empty-space skipping.")
+@click.option("--frames", type=int, default=24, show_default=True, help="Frames of a space-time model's animation.")
+@click.option("--time-range", default=None, help="T0,T1 of a space-time model [default: the model's].")
+@click.option("--fps", type=float, default=12.0, show_default=True, help="Animation frame rate.")
+@click.option("--stats", "stats_path", type=click.Path(dir_okay=False), default=None,
+              help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
+def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov, effects, channels, channel_format,
+            mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path):
+    """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
+    from dataclasses import replace
+
+    from neural_bake.io.atomic import atomic_write_text
+    from neural_bake.io.jsonio import dumps, finite
+    from neural_bake.render import (Camera, Scene, SpaceTimeAsset, default_camera, load_asset, load_scene, render,
+                                    render_sequence, write_render)
+    from neural_bake.render.scene import EFFECTS, SceneError, parse_list
+
+    scene = load_scene(scene_path) if scene_path else Scene()
+    obj = scene.objects[0] if scene.objects else None
+    tex = texture_path or (obj.texture if obj else None)
+    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None)
+    if len(scene.objects) > 1:
+        raise SceneError(f"{scene_path}: the render verb draws MODEL as the scene's one object; the scene has "
+                         f"{len(scene.objects)} (render several objects from Python with render([...], scene))")
+    changes = {}
+    if effects is not None:
+        changes["effects"] = parse_list(effects, "--effects", EFFECTS)
+    elif texture_path and "texture" not in scene.effects:
+        changes["effects"] = tuple(scene.effects) + ("texture",)
+    if channels is not None:
+        changes["channels"] = channels
+    trace_changes = {}
+    if mode is not None:
+        trace_changes["mode"] = mode
+    if iterations is not None:
+        try:
+            trace_changes["iterations"] = tuple(int(i) for i in iterations.split(","))
+        except ValueError:
+            raise SceneError(f"--iterations: expected whole numbers per level, e.g. 30,30; got {iterations!r}") from None
+    if trace_changes:
+        changes["trace"] = replace(scene.trace, **trace_changes)
+    if guaranteed:
+        changes["guaranteed"] = True
+    if no_skip:
+        changes["skip"] = False
+    scene = scene.with_(**changes) if changes else scene
+
+    first = asset.at(asset.time_range[0]) if isinstance(asset, SpaceTimeAsset) else asset
+    wh = _size(size)
+    pos, target = _vec3(camera_pos, "--camera"), _vec3(look_at, "--look-at")
+    if scene.camera is not None or pos is not None or target is not None:
+        from neural_bake.render.renderer import object_bounds
+
+        base = scene.camera or default_camera([first], [obj.transform] if obj else None)
+        if scene.camera is None:
+            lo, hi = object_bounds(first, obj.transform if obj else None)
+            base = Camera(base.position, tuple((lo + hi) / 2), base.up, base.fov_deg, base.width, base.height)
+        w, h = wh or (base.width, base.height)
+        scene = scene.with_(camera=Camera(pos or base.position, target or base.look_at, base.up,
+                                          base.fov_deg if fov is None else fov, w, h))
+    render_kw = {"size": wh, "fov_deg": fov}
+    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+
+    out_path = Path(out)
+    if isinstance(asset, SpaceTimeAsset):
+        if out_path.suffix.lower() not in (".gif", ".mp4"):
+            raise SceneError(f"-o {out}: a space-time model renders an animation; give a .gif or .mp4 path")
+        tr = _time_range(time_range)
+
+        def progress(i, n, seconds):
+            click.echo(f"frame {i}/{n} ({seconds:.2f} s)", err=True)
+
+        res = render_sequence(asset, scene, out_path.with_name(f"{out_path.stem}_frames"), frames=frames,
+                              time_range=tr, animation=out_path, fps=fps, progress=progress, **render_kw)
+        click.echo(f"wrote {len(res.frames)} frames to {out_path.stem}_frames/ and {out_path}")
+        stats = res.stats
+    else:
+        if out_path.suffix.lower() in (".gif", ".mp4"):
+            raise SceneError(f"-o {out}: an animation needs a space-time model (networks of x, y, z, t)")
+        result = render(asset, scene, cache_dir=Path(cache) / "neural_bake", **render_kw)
+        paths = write_render(result, out_path, channel_format=channel_format)
+        s = result.stats
+        click.echo(f"wrote {', '.join(str(p) for p in paths)} ({s['pixels']['hit']} of {s['pixels']['total']} "
+                   f"pixels hit, {s['seconds']['total']:.2f} s)")
+        stats = s
+    if stats_path:
+        atomic_write_text(stats_path, dumps(finite(stats)))
+        click.echo(f"wrote {stats_path}")
+
+
+def _time_range(text):
+    from neural_bake.render.scene import SceneError
+
+    if text is None:
+        return None
+    try:
+        t0, t1 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise SceneError(f"--time-range: expected T0,T1, got {text!r}") from None
+    if not t0 <= t1:
+        raise SceneError(f"--time-range: T0 must not exceed T1, got {text!r}")
+    return t0, t1

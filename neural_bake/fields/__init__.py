@@ -1,0 +1,28 @@
+"""What a fitted asset is: SDF field, nested sequence, texture field; one load/save, headers validated.
+
+Everything above (fit, bake, render, the CLI) reaches model files only through this layer.
+"""
+
+from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_field, register_kind, save_field,
+                    save_model, to_sdf_field)
+from .nested import NESTED_FORMAT, NestedSequence
+from .sdf import SdfField, unit_normals
+from .texture import ColorField, TextureField
+
+__all__ = [
+    "SdfField",
+    "TextureField",
+    "ColorField",
+    "NestedSequence",
+    "load_field",
+    "save_field",
+    "save_model",
+    "load_sdf_field",
+    "to_sdf_field",
+    "register_kind",
+    "FieldKind",
+    "KINDS",
+    "BARE_NETWORK_HINT",
+    "NESTED_FORMAT",
+    "unit_normals",
+]

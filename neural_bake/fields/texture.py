@@ -1,0 +1,55 @@
+"""A texture field g: unit-frame points (N, 3) -> linear RGB (N, 3) or RGBA (N, 4)."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+
+from ..errors import ModelFileError
+from ..types import Frame
+
+__all__ = ["TextureField", "ColorField"]
+
+
+class TextureField:
+    """A colour field g, fitted to be constant along the normal lines of an SDF in its band |f| ≤ δ.
+
+    - ``fn``: callable on (N, 3) tensors (a Siren with 3 or 4 outputs, or analytic).
+    - ``frame``: the unit frame the field lives in (None = the mesh's).
+    - ``name``: what messages and reports call it.
+    - ``delta``: half-width of the band |f| ≤ δ the colours were fitted to be constant across (or None).
+    - ``fitted_against``: what SDF it was fitted against: ``{"name", "kind" ("sdf" or "nested"),
+      "delta"}`` (None when unknown).
+    - ``metadata``: provenance, the file's JSON metadata (λ, training config…).
+    - ``model``: the Siren of a fitted field, None for an analytic one.
+    """
+
+    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None,
+                 name: str = "analytic", delta: float | None = None, fitted_against: dict | None = None,
+                 metadata: dict | None = None):
+        self.fn, self.frame, self.name, self.delta = fn, frame, name, delta
+        self.fitted_against = fitted_against
+        self.metadata = dict(metadata or {})
+        self.model = fn if isinstance(fn, torch.nn.Module) else None
+
+    @classmethod
+    def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren", delta: float | None = None,
+                   fitted_against: dict | None = None, metadata: dict | None = None) -> "TextureField":
+        """A Siren with 3 (RGB) or 4 (RGBA) outputs."""
+        if getattr(model, "out_dim", 3) not in (3, 4):
+            raise ModelFileError(f"{name}: a texture model must have 3 or 4 outputs, this one has {model.out_dim}")
+        return cls(model, frame=frame, name=name, delta=delta, fitted_against=fitted_against, metadata=metadata)
+
+    def color(self, points: torch.Tensor) -> torch.Tensor:
+        """Linear RGB(A) (N, C) at ``points`` (N, 3); non-finite outputs become 0."""
+        with torch.no_grad():
+            out = self.fn(points)
+        return torch.nan_to_num(out.reshape(points.shape[0], -1), nan=0.0, posinf=0.0, neginf=0.0)
+
+    def __repr__(self) -> str:
+        return f"TextureField({self.name!r}, delta={self.delta})"
+
+
+#: The name of earlier releases.
+ColorField = TextureField

@@ -1,0 +1,99 @@
+"""Model files to render assets: an SDF field or a nested sequence (+ an optional texture field), static or
+space-time (networks of 4 inputs (x, y, z, t) render frame by frame)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import ModelFileError
+from ..nets.siren import Siren
+from ..types import Frame
+from .asset import (RenderAsset, RenderError, SpaceTimeAsset, as_render_asset, level_names, siren_level,
+                    siren_texture)
+
+__all__ = ["load_asset", "read_field"]
+
+
+def read_field(path, *, argument: str = "MODEL", device=None):
+    """The field a file holds (the field layer's ``load_field``); ModelFileError naming ``argument``."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"{argument} {path}: no such model file")
+    try:
+        from ..fields import load_field
+    except ImportError:  # the field layer is not there: single-network files through nets.model_io
+        return _read_network_file(path, device)
+    return load_field(path, device=device)
+
+
+class _NetworkFile:
+    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``."""
+
+    def __init__(self, model, frame, delta, kind, name):
+        self.model, self.frame, self.delta, self.kind, self.name = model, frame, delta, kind, name
+
+
+def _read_network_file(path: Path, device):
+    from ..nets.model_io import load_model
+
+    model, meta = load_model(path, device=device)
+    frame = Frame.from_dict(meta["frame"]) if meta.get("frame") else None
+    return _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
+
+
+def _is_texture(field) -> bool:
+    model = getattr(field, "model", None)
+    kind = getattr(field, "kind", None)
+    return kind == "texture" or (isinstance(model, Siren) and int(model.out_dim) in (3, 4)
+                                 and not hasattr(field, "levels"))
+
+
+def _networks(field) -> list[Siren]:
+    if hasattr(field, "levels"):
+        return list(field.levels)
+    model = getattr(field, "model", None)
+    if not isinstance(model, Siren):
+        raise RenderError(f"{getattr(field, 'name', 'model')}: not a network-backed SDF field")
+    return [model]
+
+
+def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset | SpaceTimeAsset:
+    """A RenderAsset (or a SpaceTimeAsset for 4-input networks) from a model file, with the texture file
+    ``texture`` and δ overrides ``deltas`` (coarse to fine; the file's otherwise).
+
+    Raises ModelFileError for unreadable files, RenderError for a texture given as MODEL or a texture file
+    that is an SDF.
+    """
+    field = read_field(path, device=device)
+    if _is_texture(field):
+        raise RenderError(f"MODEL {path}: a texture field; give an SDF or nested sequence (and the texture with "
+                          "--texture)")
+    tex = None
+    if texture is not None:
+        tex = read_field(texture, argument="texture", device=device)
+        if not _is_texture(tex):
+            raise RenderError(f"texture {texture}: not a texture field (3 or 4 outputs)")
+    nets = _networks(field)
+    frame = getattr(field, "frame", None)
+    ds = list(deltas) if deltas is not None else list(getattr(field, "deltas", None) or [0.0] * len(nets))
+    if len(ds) != len(nets):
+        raise RenderError(f"deltas: {len(ds)} values for the {len(nets)} levels of {path}")
+    in_dims = {int(m.in_dim) for m in nets}
+    if in_dims == {3}:
+        return as_render_asset(nets, deltas=ds, texture=tex.model if tex is not None else None, frame=frame)
+    if in_dims != {4}:
+        raise RenderError(f"MODEL {path}: networks take {sorted(in_dims)} inputs; expected 3 (x, y, z) or 4 "
+                          "(x, y, z, t)")
+    names = level_names(nets)
+    tex_model = tex.model if tex is not None else None
+    time_range = tuple(getattr(field, "time_range", None) or (0.0, 1.0))
+
+    def at(t: float) -> RenderAsset:
+        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=t)
+                  for i, (m, d, n) in enumerate(zip(nets, ds, names))]
+        tx = None
+        if tex_model is not None:
+            tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None)
+        return RenderAsset(levels, frame or Frame(), tx)
+
+    return SpaceTimeAsset(at, time_range)

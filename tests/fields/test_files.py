@@ -1,0 +1,150 @@
+"""One loader and one writer: every field type round-trips, old files load, bad headers are one-line errors."""
+
+import json
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from neural_bake.cli.main import main
+from neural_bake.errors import ModelFileError
+from neural_bake.fields import (KINDS, NestedSequence, SdfField, TextureField, load_field, load_sdf_field,
+                                register_kind, save_field, save_model, to_sdf_field)
+from neural_bake.fields.nested import NESTED_FORMAT
+from neural_bake.nets.model_io import MODEL_FORMAT
+from neural_bake.nets.siren import Siren
+from neural_bake.types import Frame
+
+FRAME = Frame((0.5, -1.0, 2.0), 0.25)
+
+
+def _net(w=8, d=1, out=1, seed=0, in_dim=3):
+    return Siren(w, d, in_dim=in_dim, out_dim=out, generator=torch.Generator().manual_seed(seed))
+
+
+def _sequence():
+    levels = [_net(8, 0, seed=1), _net(8, 1, seed=2), _net(16, 1, seed=3)]
+    info = [{"width": m.width, "depth": m.depth, "delta": d, "delta_source": s, "delta_estimated": d,
+             "delta_certified": None} for m, d, s in zip(levels, (0.05, 0.02, 0.001), ("estimated", "certified", "eps"))]
+    return NestedSequence(levels=levels, frame=FRAME, levels_info=info, band=0.1, eps=0.001)
+
+
+def _same(a, b):
+    x = torch.rand(64, 3, generator=torch.Generator().manual_seed(5)) * 2 - 1
+    with torch.no_grad():
+        return torch.equal(a(x), b(x))
+
+
+def test_sdf_and_texture_fields_round_trip(tmp_path):
+    f = SdfField.from_model(_net(), frame=FRAME, delta=0.01, metadata={"delta_source": "given", "note": [1, 2]})
+    back = load_field(save_field(f, tmp_path / "f.sdf"))
+    assert isinstance(back, SdfField) and back.frame == FRAME and back.delta == 0.01 and back.name == "f.sdf"
+    assert back.metadata["note"] == [1, 2] and back.metadata["kind"] == "sdf" and _same(back.model, f.model)
+    against = {"name": "f.sdf", "kind": "nested", "delta": 0.05}
+    g = TextureField.from_model(_net(out=3), frame=FRAME, delta=0.05, fitted_against=against)
+    back = load_field(save_field(g, tmp_path / "g.tex"))
+    assert isinstance(back, TextureField) and back.fitted_against == against and back.delta == 0.05
+    assert _same(back.model, g.model)
+
+
+def test_nested_sequence_round_trip_and_views(tmp_path):
+    seq = _sequence()
+    back = load_field(save_field(seq, tmp_path / "s.nested"))
+    assert isinstance(back, NestedSequence) and back.frame == FRAME and back.deltas == [0.05, 0.02, 0.001]
+    assert back.name == "s.nested" and back.in_dim == 3
+    assert all(_same(a, b) for a, b in zip(seq.levels, back.levels))
+    lv = back.level(1)
+    assert isinstance(lv, SdfField) and lv.model is back.levels[1] and lv.delta == 0.02 and lv.frame == FRAME
+    assert back.finest.model is back.levels[-1] and back.finest.delta == 0.001
+    band = to_sdf_field(back)  # what bake and fit texture use: f's normals, the widest band
+    assert band.model is back.levels[-1] and band.delta == 0.05
+    assert load_sdf_field(tmp_path / "s.nested", band_level=1).delta == 0.02
+    with pytest.raises(ModelFileError, match=r"s\.nested: no level 3 \(the sequence has levels 0\.\.2\)"):
+        back.level(3)
+    assert NestedSequence.load(tmp_path / "s.nested").deltas == back.deltas
+
+
+def test_files_of_the_first_release_load(tmp_path):
+    # a nested-sequence file as the first release wrote it: no "kind" in its header
+    seq = _sequence()
+    header = {k: v for k, v in seq.header().items() if k != "kind"}
+    tensors = {f"levels.{i}.{k}": v.contiguous() for i, m in enumerate(seq.levels) for k, v in m.state_dict().items()}
+    save_file(tensors, str(tmp_path / "old.nested"), metadata={"format": NESTED_FORMAT, "neural_bake": json.dumps(header)})
+    old = load_field(tmp_path / "old.nested")
+    assert isinstance(old, NestedSequence) and old.deltas == seq.deltas
+    # a model file as SdfFit.save / TextureFit.save wrote them
+    sdf = load_field(save_model(_net(), tmp_path / "old.sdf", kind="sdf", frame=FRAME.to_dict(), config={"steps": 3}))
+    tex = load_field(save_model(_net(out=3), tmp_path / "old.tex", kind="texture", frame=FRAME.to_dict(), delta=0.03))
+    assert isinstance(sdf, SdfField) and sdf.delta is None and isinstance(tex, TextureField) and tex.delta == 0.03
+
+
+def test_bare_network_says_how_to_save_a_fit(tmp_path):
+    path = save_model(_net(), tmp_path / "bare.safetensors")
+    with pytest.raises(ModelFileError, match=r"bare\.safetensors: a bare network without kind or frame; save a "
+                                             r"fitted SDF with SdfFit\.save\(path\)"):
+        load_field(path)
+    # the way out the message gives: the network with its frame
+    f = load_field(save_field(SdfField.from_model(_net(), frame=FRAME), tmp_path / "framed.sdf"))
+    assert f.frame == FRAME
+
+
+def test_unknown_kind_and_foreign_files_are_refused(tmp_path):
+    with pytest.raises(ModelFileError, match=r"x\.sdf: unknown kind 'sdf4d' \(this neural_bake reads nested, sdf, "
+                                             r"texture\)"):
+        load_field(save_model(_net(in_dim=4), tmp_path / "x.sdf", kind="sdf4d", frame=FRAME.to_dict()))
+    save_file({"a": torch.zeros(2)}, str(tmp_path / "plain.safetensors"))
+    with pytest.raises(ModelFileError, match=r"plain\.safetensors: a safetensors file but not a neural_bake field"):
+        load_field(tmp_path / "plain.safetensors")
+    with pytest.raises(ModelFileError, match=r"nothing\.sdf: no such model file"):
+        load_field(tmp_path / "nothing.sdf")
+
+
+def test_a_space_time_kind_slots_in_without_changing_callers(tmp_path):
+    from neural_bake.fields.files import _read_network
+
+    class SpaceTimeField(SdfField):
+        pass
+
+    def read(path, header, *, device=None, dtype=None):
+        return SpaceTimeField.from_model(_read_network(path, header, device, dtype), name=path.name)
+
+    register_kind("sdf4d", MODEL_FORMAT, read, SpaceTimeField)
+    try:
+        f = load_field(save_model(_net(in_dim=4), tmp_path / "t.sdf4d", kind="sdf4d", frame=FRAME.to_dict()))
+        assert isinstance(f, SpaceTimeField) and f.in_dim == 4
+        v, g = f.value_and_gradient(torch.rand(10, 4))
+        assert v.shape == (10,) and g.shape == (10, 4)
+    finally:
+        KINDS.pop("sdf4d")
+
+
+def test_save_field_errors(tmp_path):
+    with pytest.raises(ModelFileError, match=r"a\.sdf: analytic is an analytic field; only fitted networks"):
+        save_field(SdfField(lambda p: p[:, 0]), tmp_path / "a.sdf")
+    with pytest.raises(ModelFileError, match=r"b\.sdf: siren has no frame; give the frame"):
+        save_field(SdfField.from_model(_net()), tmp_path / "b.sdf")
+    with pytest.raises(ModelFileError, match=r"c\.sdf: save_field expects an SdfField, TextureField or NestedSequence"):
+        save_field(_net(), tmp_path / "c.sdf")
+    with pytest.raises(ModelFileError, match=r"folder .*nope does not exist"):
+        save_field(_sequence(), tmp_path / "nope" / "s.nested")
+    with pytest.raises(ModelFileError, match=r"d\.sdf: metadata is not JSON-serialisable"):
+        save_field(SdfField.from_model(_net(), frame=FRAME, metadata={"x": float("nan")}), tmp_path / "d.sdf")
+    assert not list(tmp_path.iterdir())  # nothing half-written
+
+
+def test_kind_of_the_other_type_is_named(tmp_path):
+    tex = save_field(TextureField.from_model(_net(out=3), frame=FRAME), tmp_path / "t.tex")
+    with pytest.raises(ModelFileError, match=r"t\.tex: a TextureField file, expected an SDF model file"):
+        load_sdf_field(tex)
+    with pytest.raises(ModelFileError, match=r"a TextureField, expected an SDF"):
+        to_sdf_field(load_field(tex))
+
+
+def test_bake_refuses_a_bare_network_with_the_hint(tmp_path, capsys):
+    from neural_bake.samples.generate import sample_path
+
+    path = save_model(_net(), tmp_path / "bare.safetensors")
+    code = main(["bake", str(sample_path("sphere")), "--sdf", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "SdfFit.save(path)" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,124 @@
+"""Dynamic previews: an analytic space-time SDF (a sphere morphing into a torus) → numbered PNGs + GIF/MP4."""
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.cli.main import main
+from neural_bake.io.images import read_image
+from neural_bake.fields import save_model
+from neural_bake.nets.siren import Siren
+from neural_bake.render.asset import RenderAsset, RenderError, SpaceTimeAsset, analytic_level
+from neural_bake.render.camera import Camera
+from neural_bake.render.renderer import render
+from neural_bake.render.scene import Scene
+from neural_bake.render.sequence import frame_times, render_sequence
+from neural_bake.types import Frame
+
+from render_cases import exact_sphere_hits
+
+CAM = Camera(position=(0.0, 0.0, 2.5), width=32, height=32)
+
+
+def _sphere(p):
+    return p.norm(dim=1) - 0.5
+
+
+def _torus(p):  # around the view axis z: seen from +z, a ring with a hole
+    q = torch.stack([p[:, :2].norm(dim=1) - 0.5, p[:, 2]], 1)
+    return q.norm(dim=1) - 0.2
+
+
+def morph() -> SpaceTimeAsset:
+    """f(x, t) = (1 − t) sphere + t torus: 1-Lipschitz at every t (a convex mix of distance functions)."""
+    return SpaceTimeAsset(lambda t: RenderAsset([analytic_level(lambda p: (1 - t) * _sphere(p) + t * _torus(p),
+                                                                name="morph")]), (0.0, 1.0))
+
+
+def test_frames_and_gif_of_a_sphere_morphing_into_a_torus(tmp_path):
+    seen = []
+    res = render_sequence(morph(), Scene(camera=CAM, skip=False, effects=()), tmp_path / "frames", frames=4,
+                          animation=tmp_path / "morph.gif", fps=8, progress=lambda i, n, s: seen.append((i, n)))
+    assert [p.name for p in res.frames] == [f"frame_{i:04d}.png" for i in range(4)]
+    assert res.times == [0.0, 1 / 3, 2 / 3, 1.0] and seen == [(i, 4) for i in range(1, 5)]
+    first = read_image(res.frames[0])
+    last = read_image(res.frames[-1])
+    sphere_hit, _ = exact_sphere_hits(CAM, 0.5)
+    assert np.array_equal(first.min(axis=-1) < 0.99, sphere_hit)  # flat albedo on a white background
+    centre = last[14:18, 14:18].min(axis=-1)  # the torus's hole shows the background
+    assert (centre > 0.99).all() and (first[14:18, 14:18].min(axis=-1) < 0.99).all()
+    gif = iio.imread(tmp_path / "morph.gif", index=None)
+    assert gif.shape[0] == 4 and gif.shape[1:3] == (32, 32)
+    assert res.stats["evaluations"]["totals"]["trace"] > 0 and len(res.stats["frames"]) == 4
+
+
+def test_mp4_animation(tmp_path):
+    res = render_sequence(morph(), Scene(camera=CAM, skip=False), tmp_path / "f", frames=3,
+                          animation=tmp_path / "m.mp4")
+    frames = iio.imread(tmp_path / "m.mp4", index=None, plugin="FFMPEG")
+    assert frames.shape[0] == 3 and res.animation.stat().st_size > 0
+
+
+def test_a_failed_sequence_leaves_the_old_frames(tmp_path):
+    out = tmp_path / "frames"
+    render_sequence(morph(), Scene(camera=CAM, skip=False), out, frames=2)
+    before = sorted(p.name for p in out.iterdir())
+
+    def broken(t):
+        if t > 0.5:
+            raise RenderError("broken frame")
+        return morph().at(t)
+
+    with pytest.raises(RenderError, match="broken frame"):
+        render_sequence(SpaceTimeAsset(broken, (0.0, 1.0)), Scene(camera=CAM, skip=False), out, frames=3)
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["frames"]  # no temporary folder left
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(frames=0), "frames"),
+    (dict(animation="a.avi"), "unknown animation format"),
+    (dict(fps=0), "fps"),
+])
+def test_bad_sequence_settings(tmp_path, kwargs, match):
+    if "animation" in kwargs:
+        kwargs["animation"] = tmp_path / kwargs["animation"]
+    with pytest.raises(RenderError, match=match):
+        render_sequence(morph(), Scene(camera=CAM), tmp_path / "f", **kwargs)
+    with pytest.raises(RenderError, match="space-time asset"):
+        render_sequence(morph().at(0.0), Scene(camera=CAM), tmp_path / "f")
+    with pytest.raises(RenderError, match="time_range"):
+        SpaceTimeAsset(lambda t: None, (1.0, 0.0))
+    assert frame_times(1, (0.2, 0.9)) == [0.2]
+
+
+def test_cli_renders_a_space_time_network(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    net = Siren(16, 1, in_dim=4, omega_0=5.0, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():  # f(x, t) ≈ |x| − (0.3 + 0.3 t) is not needed: any 4-input network animates
+        net.layers[-1].bias.fill_(-0.05)
+    path = save_model(net, tmp_path / "st.sdf", kind="sdf", frame=Frame().to_dict())
+    code = main(["render", str(path), "-o", str(tmp_path / "a.gif"), "--frames", "3", "--size", "16",
+                 "--time-range", "0,0.5", "--stats", str(tmp_path / "a.json")])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert sorted(p.name for p in (tmp_path / "a_frames").iterdir()) == [f"frame_{i:04d}.png" for i in range(3)]
+    assert iio.imread(tmp_path / "a.gif", index=None).shape[0] == 3
+    assert "frame 3/3" in captured.err
+    code = main(["render", str(path), "-o", str(tmp_path / "a.png")])
+    assert code == 2 and "space-time" in capsys.readouterr().err
+
+
+def test_space_time_levels_fix_time():
+    net = Siren(8, 0, in_dim=4, generator=torch.Generator().manual_seed(0))
+    from neural_bake.render.asset import siren_level
+
+    x = torch.rand(5, 3)
+    lv = siren_level(net, time=0.25)
+    want = net(torch.cat([x, torch.full((5, 1), 0.25)], 1)).detach()[:, 0]
+    torch.testing.assert_close(lv.value(x), want)
+    v, g = lv.value_and_gradient(x)
+    torch.testing.assert_close(v, want) and g.shape == (5, 3)
+    r = render(RenderAsset([lv]), Scene(camera=Camera(width=4, height=4), channels=("color",)))
+    assert np.isfinite(r["color"]).all()

@@ -1,0 +1,118 @@
+"""`neural-bake render`: end to end on a small fitted sphere SDF; outputs, stats, scene files, errors."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.cli.main import main
+from neural_bake.io.images import read_image
+from neural_bake.fields import save_model
+from neural_bake.nets.siren import Siren
+from neural_bake.types import Frame
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory, fit_sphere_siren):
+    """A sphere SDF (radius 0.7 in the unit frame; frame scale 0.5: radius 1.4 in source units) and a
+    random texture network."""
+    d = tmp_path_factory.mktemp("render_cli")
+    frame = Frame((0.0, 0.0, 0.0), 0.5).to_dict()
+    sdf = save_model(fit_sphere_siren(r=0.7, width=32, steps=300), d / "s.sdf", kind="sdf", frame=frame)
+    tex = save_model(Siren(16, 1, out_dim=3, generator=torch.Generator().manual_seed(0)), d / "t.tex",
+                     kind="texture", frame=frame)
+    return {"sdf": str(sdf), "tex": str(tex), "dir": d}
+
+
+@pytest.fixture(autouse=True)
+def _cache_in_tmp(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
+
+def run(args, capsys):
+    code = main(["render", *args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_render_writes_the_image_channels_and_stats(models, tmp_path, capsys):
+    out = tmp_path / "shot.png"
+    code, stdout, err = run([models["sdf"], "-o", str(out), "--size", "48x40", "--camera", "0,0,6",
+                             "--look-at", "0,0,0", "--fov", "35", "--channels", "color,depth,normal,hit,iterations",
+                             "--stats", str(tmp_path / "stats.json")], capsys)
+    assert code == 0, err
+    for name in ("shot.png", "shot.depth.png", "shot.normal.png", "shot.hit.png", "shot.iterations.png"):
+        assert (tmp_path / name).is_file(), name
+    img = read_image(out)
+    assert img.shape == (40, 48, 3)
+    hit = read_image(tmp_path / "shot.hit.png", colour="data")[..., 0] > 0.5
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert stats["pixels"]["hit"] == int(hit.sum()) > 100
+    ev = stats["evaluations"]["points"]
+    assert set(ev) == {"f (32,1)"} and ev["f (32,1)"]["normals"] == int(hit.sum())
+    assert set(stats["evaluations"]["totals"]) == {"trace", "normals"}
+    # the sphere of radius 1.4 (source units) seen from 6 units away spans 2·asin(1.4/6) ≈ 27° of the 35° fov
+    cols = np.nonzero(hit.any(axis=0))[0]
+    assert abs((cols[-1] - cols[0] + 1) - 40 * 2 * np.degrees(np.arcsin(1.4 / 6)) / 35) <= 2.5
+    assert img[~hit].min() > 0.99  # white background
+
+
+def test_texture_adds_only_texture_evaluations(models, tmp_path, capsys):
+    args = [models["sdf"], "--size", "32", "--stats"]
+    code, _, err = run([*args, str(tmp_path / "a.json"), "-o", str(tmp_path / "a.png")], capsys)
+    assert code == 0, err
+    code, _, err = run([*args, str(tmp_path / "b.json"), "-o", str(tmp_path / "b.png"), "--texture", models["tex"]],
+                       capsys)
+    assert code == 0, err
+    a = json.loads((tmp_path / "a.json").read_text())["evaluations"]["points"]
+    b = json.loads((tmp_path / "b.json").read_text())["evaluations"]["points"]
+    tex_name = next(k for k in b if k.startswith("texture"))
+    assert b[tex_name] == {"texture": json.loads((tmp_path / "b.json").read_text())["pixels"]["hit"]}
+    assert {k: v for k, v in b.items() if k != tex_name} == a
+
+
+def test_scene_file_and_exr_channels(models, tmp_path, capsys):
+    scene = tmp_path / "scene.toml"
+    scene.write_text('effects = ["shading", "shadows"]\nchannels = ["color", "depth"]\n'
+                     '[camera]\nposition = [0, 1, 6]\nwidth = 24\nheight = 24\n[trace]\nmode = "fixed"\n'
+                     'iterations = [40]\n')
+    out = tmp_path / "s.png"
+    code, _, err = run([models["sdf"], "-o", str(out), "--scene", str(scene), "--channel-format", "exr",
+                        "--stats", str(tmp_path / "s.json")], capsys)
+    assert code == 0, err
+    depth = read_image(tmp_path / "s.depth.exr")
+    hit = depth[..., 0] > 0
+    assert hit.any() and depth.shape[:2] == (24, 24)
+    # depth is the distance from the eye: at least |eye| − radius
+    assert depth[hit].min() > np.hypot(1, 6) - 1.4 - 0.05
+    stats = json.loads((tmp_path / "s.json").read_text())
+    assert stats["mode"] == "fixed" and stats["evaluations"]["totals"]["shadows"] > 0
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--effects", "sparkle"], "unknown"),
+    (["--channels", "alpha"], "unknown channel 'alpha'"),
+    (["--size", "0"], "--size"),
+    (["--camera", "1,2"], "--camera: expected X,Y,Z"),
+    (["--iterations", "a,b"], "--iterations"),
+    (["--effects", "texture"], "no texture field"),
+    (["--iterations", "10,10"], "2 values for 1 levels"),
+])
+def test_bad_options_exit_2_with_one_line(models, tmp_path, capsys, extra, match):
+    code, _, err = run([models["sdf"], "-o", str(tmp_path / "x.png"), "--size", "8", *extra], capsys)
+    assert code == 2 and match in err and err.count("\n") == 1
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_bad_inputs_exit_2(models, tmp_path, capsys):
+    code, _, err = run([str(tmp_path / "none.sdf"), "-o", str(tmp_path / "x.png")], capsys)
+    assert code == 2 and "no such model file" in err
+    code, _, err = run([models["tex"], "-o", str(tmp_path / "x.png")], capsys)
+    assert code == 2 and "texture field" in err
+    code, _, err = run([models["sdf"], "-o", str(tmp_path / "x.gif")], capsys)
+    assert code == 2 and "space-time" in err
+    code, _, err = run([models["sdf"], "-o", str(tmp_path / "missing" / "x.png"), "--size", "8"], capsys)
+    assert code == 2 and "does not exist" in err
+    code, _, err = run([models["sdf"], "-o", str(tmp_path / "x.png"), "--scene", str(tmp_path / "no.toml")], capsys)
+    assert code == 2 and "no such scene file" in err
