@@ -7,8 +7,10 @@ fit sdf -> fit nested -> fit texture -> coarse mesh -> bake, in the asset's fold
     bake/                                                      asset.glb, maps, report.json (pipelines.bake_asset)
     stages.json                                                per stage: key, seconds, metrics, output digests
 
-A stage's key is the SHA-256 of its name, its resolved settings (budgets included; display and checkpoint
-paths excluded) and the digests of its inputs (the loaded mesh's arrays, the upstream stages' output files).
+The nested sequence (when ``nested.levels`` names levels) is the asset that the texture fit, a marched coarse
+mesh and the bake use; without it, the fine SDF. A stage's key is the SHA-256 of its name, its resolved
+settings (budgets included; display and checkpoint paths excluded) and the digests of its inputs (the loaded
+mesh's arrays, the upstream stages' output files).
 A stage whose key and output digests match ``stages.json`` is skipped, so an interrupted batch resumes
 where it stopped and changing only a bake setting re-bakes without refitting. Fits checkpoint beside their
 output under a name holding the key, so even a fit cut short resumes from its last checkpoint.
@@ -75,7 +77,8 @@ class CoarseStageConfig:
     """Settings of the coarse-mesh stage; one line per field."""
 
     spec: str = "decimate:2000"
-    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION (of the fine SDF) or keep."""
+    """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION (of the fine SDF), level:I:RESOLUTION (of
+    level I of the nested sequence) or keep."""
 
 
 def _stage_classes():
@@ -367,7 +370,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
 
         ckpt = folder / f".texture-{key[:16]}.ckpt"
         _remove_stale(folder, ".texture-*.ckpt", keep=ckpt)
-        fit = fit_texture(mesh, str(sdf_path), dataclasses.replace(tex_cfg, progress=False, checkpoint=str(ckpt),
+        fit = fit_texture(mesh, str(field_path), dataclasses.replace(tex_cfg, progress=False, checkpoint=str(ckpt),
                                                                    resume=True))
         fit.save(out)
         ckpt.unlink(missing_ok=True)
@@ -375,21 +378,27 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         return {"steps": fit.steps, "fit_seconds": round(fit.seconds, 3), "colour_mse": last.get("colour"),
                 "delta": fit.delta}
 
-    stage("texture", ["mesh", "sdf"], stage_key_config(tex_cfg), run_texture if mesh.texture is not None else None)
+    # the nested sequence, when there is one, is the asset the texture fit and the bake use (its δ is the band)
+    field_key = "nested" if digests["nested"] else "sdf"
+    field_path = folder / STAGE_FILES[field_key]
+    stage("texture", ["mesh", field_key], stage_key_config(tex_cfg),
+          run_texture if mesh.texture is not None else None)
     tex_path = folder / STAGE_FILES["texture"] if digests["texture"] else None
 
     coarse_spec = cfg["coarse"].spec
+    if coarse_spec.startswith("level") and field_key != "nested":
+        raise NeuralBakeError(f"coarse.spec {coarse_spec!r}: a level of the nested sequence needs nested.levels")
 
     def run_coarse(out: Path, key: str) -> dict:
         from neural_bake.bake.baker import coarse_mesh
-        from neural_bake.bake.fields import load_field
+        from neural_bake.fields import load_field
 
-        sdf_field = load_field(sdf_path, "sdf") if coarse_spec.startswith("march") else None
-        coarse_m, info = coarse_mesh(mesh, coarse_spec, sdf_field)
+        coarse_m, info = coarse_mesh(mesh, coarse_spec, load_field(field_path) if marched else None)
         save_coarse(coarse_m, info, out)
         return {"faces": info["faces"], "vertices": info["vertices"]}
 
-    coarse_inputs = ["mesh", "sdf"] if coarse_spec.startswith("march") else ["mesh"]
+    marched = coarse_spec.startswith(("march", "level"))
+    coarse_inputs = ["mesh", field_key] if marched else ["mesh"]
     stage("coarse", coarse_inputs, stage_key_config(cfg["coarse"]), run_coarse)
 
     bake_cfg = dataclasses.replace(cfg["bake"], coarse=coarse_spec, texture=texture)
@@ -398,12 +407,12 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         from .bake_asset import bake_asset
 
         coarse = load_coarse(folder / STAGE_FILES["coarse"])
-        report = bake_asset(mesh_path, str(sdf_path), out.parent, bake_cfg,
+        report = bake_asset(mesh_path, str(field_path), out.parent, bake_cfg,
                             texture_model=str(tex_path) if tex_path else None, coarse_mesh=coarse,
                             log=lambda m: log("  " + m) if task.get("verbose") else None)
         return _bake_metrics(report)
 
-    stage("bake", ["mesh", "sdf", "texture", "coarse"], stage_key_config(bake_cfg), run_bake)
+    stage("bake", ["mesh", field_key, "texture", "coarse"], stage_key_config(bake_cfg), run_bake)
     save_record()
 
 
