@@ -70,13 +70,6 @@ def command(manifest, config_path, print_config, out, preset, stages, workers, t
         return
     if manifest is None or out is None:
         raise click.UsageError("give MANIFEST and -o OUT (or --print-config)")
-    try:
-        summary = run_batch(manifest, out, cfg, log=click.echo)
-    except Exception as exc:
-        code = getattr(exc, "exit_code", None)
-        if code is None or code == 2:
-            raise
-        click.echo(f"neural-bake: error: {exc}", err=True)
-        raise click.exceptions.Exit(code) from None
+    summary = run_batch(manifest, out, cfg, log=click.echo)
     if summary["failed"]:
         raise click.exceptions.Exit(1)

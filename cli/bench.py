@@ -15,6 +15,7 @@ BENCHES = {
     "texture": ("neural_bake.cli.bench_texture", "command"),
     "bake": ("neural_bake.cli.bench_bake", "command"),
     "coarse": ("neural_bake.cli.bench_coarse", "command"),
+    "render": ("neural_bake.cli.bench_render", "command"),
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
     "view": ("neural_bake.cli.bench_view", "command"),
     "batch": ("neural_bake.cli.bench_batch", "command"),
@@ -27,7 +28,18 @@ def group():
 
 
 def bench_options(fn):
-    """The options every bench verb takes: --quick and --json PATH."""
+    """The options every bench verb takes: --quick and --json PATH (checked and locked before the run)."""
+    import functools
+
+    inner = fn
+
+    @functools.wraps(inner)
+    def fn(*args, **kwargs):
+        from .options import lock_outputs
+
+        lock_outputs(kwargs.get("json_path"))
+        return inner(*args, **kwargs)
+
     fn = click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
                       help="Also write the figures as JSON to this file.")(fn)
     fn = click.option("--quick", is_flag=True, help="A shrunken run (under two minutes) for smoke checks.")(fn)

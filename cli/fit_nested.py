@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 
 import click
 
@@ -26,14 +25,14 @@ __all__ = ["command"]
 @click.option("--progress/--no-progress", default=True, help="Show progress bars on stderr.")
 def command(model, output, levels, steps, minutes, seed, band, eps, certify, max_boxes, progress):
     """Distil coarser SDFs from the fine SDF MODEL; write the sequence [h1, …, f] with δ to OUTPUT."""
-    from neural_bake.errors import FitError
     from neural_bake.fit.nested import fit_nested, parse_levels
     from neural_bake.fit.sdf import load_sdf
 
-    out_dir = os.path.dirname(os.path.abspath(output))
-    if not os.path.isdir(out_dir):
-        raise FitError(f"{output}: folder {out_dir} does not exist")
+    from .options import lock_outputs, refuse_nonpositive
+
+    refuse_nonpositive(steps=steps, minutes=minutes, band=band, max_boxes=max_boxes)
     lv = parse_levels(levels)
+    lock_outputs(output)  # checks its folder; one writer per file
     fine = load_sdf(model)
     seq = fit_nested(fine, lv, steps=steps, minutes=minutes, seed=seed, band=band, eps=eps, certify=certify,
                      certify_max_boxes=max_boxes, progress=progress)

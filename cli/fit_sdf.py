@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 
 import click
 
@@ -67,15 +66,15 @@ def command(mesh, output, preset, steps, minutes, seed, lr, lr_min_factor, batch
             zero_fraction, focus_tau, w_surface, w_normal, w_eikonal, w_sdf, resume, gemm_dtype, compile_,
             micro_batches, polish_evals, polish_share, metrics, progress):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics)."""
-    from neural_bake.errors import FitError
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.io.mesh_io import load_mesh
 
-    out_dir = os.path.dirname(os.path.abspath(output))
-    if not os.path.isdir(out_dir):
-        raise FitError(f"{output}: folder {out_dir} does not exist")
+    from .options import lock_outputs, refuse_nonpositive
+
+    refuse_nonpositive(steps=steps, minutes=minutes, lr=lr, batch=batch)
     if resume and checkpoint is None:
         checkpoint = output + ".ckpt"
+    lock_outputs(output, checkpoint)  # checks their folders; one writer per file
     m = load_mesh(mesh)
     given = {"steps": steps, "minutes": minutes, "seed": seed, "lr": lr, "lr_min_factor": lr_min_factor,
              "batch": batch, "checkpoint": checkpoint, "hard_fraction": hard_fraction,

@@ -1,20 +1,24 @@
 """Entry point of the `neural-bake` command.
 
 Verbs are loaded lazily (``name -> module:attribute``) so ``neural-bake --help`` stays fast and each verb
-imports only the library parts it needs. Every user mistake surfaces as one line on stderr,
-``neural-bake: error: <file>: <problem>``, and exit code 2 — never a Python traceback.
+imports only the library parts it needs. Every user mistake and every OS failure surfaces as one line on
+stderr, ``neural-bake: error: <file>: <problem>`` — never a Python traceback — with exit code 2 for user input
+and 1 for the environment (see :mod:`neural_bake.errors`). SIGTERM is handled like SIGINT: the run cleans up
+(staging removed, locks released, outputs as they were), prints one line and exits 143 (130 for SIGINT).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import signal
 import sys
 import warnings
 
 import click
 
 from neural_bake import __version__
-from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
+from neural_bake.errors import NeuralBakeError, NeuralBakeWarning, os_error
 
 __all__ = ["main", "LazyGroup"]
 
@@ -80,12 +84,36 @@ def _format_warning(message, category, filename, lineno, line=None):
     return f"neural-bake: warning: {message}\n"
 
 
+class Terminated(BaseException):
+    """Raised in the main thread by SIGTERM, so ``finally`` blocks and context managers clean up."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """SIGTERM raises :class:`Terminated` for the body (only in the main thread; elsewhere unchanged)."""
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 1 internal failure, 2 user error)."""
+    """Run the CLI; returns the exit code (0 ok, 1 environment or failed work, 2 user input, 130 SIGINT,
+    143 SIGTERM)."""
     warnings.formatwarning = _format_warning
     warnings.simplefilter("always", NeuralBakeWarning)
     try:
-        code = cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
+        with _sigterm_raises():
+            code = cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("neural-bake: aborted", err=True)
         return 130
@@ -96,10 +124,17 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except NeuralBakeError as exc:
         click.echo(f"neural-bake: error: {exc}", err=True)
-        return 2
+        return exc.exit_code
+    except OSError as exc:  # a read or write the machine refused: one line naming the path
+        err = os_error(exc)
+        click.echo(f"neural-bake: error: {err}", err=True)
+        return err.exit_code
     except KeyboardInterrupt:
         click.echo("neural-bake: interrupted", err=True)
         return 130
+    except Terminated:
+        click.echo("neural-bake: terminated", err=True)
+        return 143
     return code if isinstance(code, int) else 0  # a verb's click.exceptions.Exit(code), else 0
 
 

@@ -15,10 +15,19 @@ import click
 @click.option("--texture-size", type=int, default=None, metavar="TEXELS",
               help="Texture width in texels (default 512; lat-long textures are half as high).")
 def command(out_dir: str, names: tuple[str, ...], resolution: int | None, texture_size: int | None):
-    """Write small UV-textured sample meshes whose SDF, normals and colours are known analytically."""
-    from neural_bake.samples import generate
+    """Write small UV-textured sample meshes whose SDF, normals and colours are known analytically.
+
+    OUT is committed as a unit: it holds this run's files only, replacing an earlier run's set."""
+    from pathlib import Path
+
+    from neural_bake.io.outdir import OutputFolder
+    from neural_bake.samples.generate import check_generate_args, generate
 
     chosen = [n.strip() for item in names for n in item.split(",") if n.strip()] or None
-    written = generate(out_dir, chosen, resolution=resolution, texture_size=texture_size)
+    check_generate_args(chosen, resolution, texture_size)  # every option checked before any write
+    out = Path(out_dir)
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    with OutputFolder(out) as stage:
+        written = generate(stage, chosen, resolution=resolution, texture_size=texture_size)
     for name, path in written.items():
-        click.echo(f"{name}: {path}")
+        click.echo(f"{name}: {out / path.name}")

@@ -18,6 +18,10 @@ DEFAULT_OMEGA_0 = 30.0
 #: UV policies for coordinates outside [0, 1].
 UV_POLICIES = ("wrap", "clamp")
 
+#: A vertex coordinate larger than this in magnitude (source frame) is refused on load: squared distances
+#: between such points overflow float64 (k-d trees, normals, the unit frame's scale).
+MAX_COORDINATE = 1e100
+
 # --- preview renderer (neural_bake.render)
 #: Sphere tracing's threshold mode stops a level's iterations where |traced value| is at most this (unit frame).
 TRACE_EPSILON = 1e-4

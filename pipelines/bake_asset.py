@@ -2,15 +2,15 @@
 
 The job behind `neural-bake bake` and the demo: load, coarsen (decimate / march / keep), unwrap, bake the
 neural normals (and colours) per texel and per vertex, run the classical mesh-to-mesh baseline on the same
-texels, measure errors, and write everything. Files are first written into a staging folder inside the
-output folder, then each is moved into place (an atomic rename each) with ``report.json`` last: a failed run
-leaves the output folder as it was (and removes it if it created it).
+texels, measure errors, and write everything. The output folder is committed as a unit
+(:class:`neural_bake.io.outdir.OutputFolder`): files are written into a staging folder beside it, which
+replaces the old folder in one exchange at the end; a failed or killed run leaves the output folder as it
+was, and a second run into the same folder fails at once naming the first.
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
+import contextlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,6 +72,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                coarse_mesh=None, log: Callable[[str], None] = print) -> dict:
     """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
 
+    ``out`` is a path (committed as a unit when the bake succeeds) or an entered
+    :class:`~neural_bake.io.outdir.OutputFolder` whose set the bake is part of (the caller commits it).
+
     Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
     and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
     ``coarse_mesh``: a ``(Mesh, info)`` pair made earlier (by the batch's coarse stage, from ``config.coarse``)
@@ -84,12 +87,13 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.bake.baker import coarse_mesh as make_coarse_mesh
     from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.report import bake_report
-    from neural_bake.errors import NeuralBakeError
+    from neural_bake.errors import MeshError, NeuralBakeError
     from neural_bake.io.asset import read_asset, shading_mesh
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.images import write_image
     from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.io.outdir import OutputFolder
 
     cfg = config or BakeAssetConfig()
     coarse, size, texture, normal_space, directx = cfg.coarse, cfg.size, cfg.texture, cfg.normal_space, cfg.directx
@@ -120,45 +124,50 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         raise NeuralBakeError(f"--hybrid-angle {hybrid_angle}: must be in (0, 180] degrees")
     if truth not in ("auto", "mesh") and not truth.startswith("sample:"):
         raise NeuralBakeError(f"--truth {truth!r}: expected auto, mesh or sample:NAME")
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise NeuralBakeError(f"-o {out}: exists and is not a folder")
-    if not out_dir.parent.is_dir():
-        raise NeuralBakeError(f"-o {out}: folder {out_dir.parent} does not exist")
+    if truth.startswith("sample:"):
+        from neural_bake.samples.shapes import get_sample
 
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    sdf_file = _load_field(sdf_path, "--sdf", "sdf")
-    sdf = _sdf_for(sdf_file, coarse)
-    tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
-    if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
-        delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
-        log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
-    fine = load_mesh(mesh, texture)
-    asset = read_asset(mesh, fine)
-    # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
-    reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
-    keep = parse_coarse(coarse)[0] == "keep"
-    timings["load"] = time.perf_counter() - t0
-    from neural_bake.bake.agreement import check_sdf_describes_mesh
+        try:  # an unknown name is refused before any work
+            get_sample(truth.split(":", 1)[1])
+        except NeuralBakeError as exc:
+            raise NeuralBakeError(f"--truth {truth}: {exc}") from None
+    nested = isinstance(out, OutputFolder)
+    folder = out if nested else OutputFolder(out)
+    out_dir = folder.out
+    with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        sdf_file = _load_field(sdf_path, "--sdf", "sdf")
+        sdf = _sdf_for(sdf_file, coarse)
+        tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
+        if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
+            delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
+            log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
+        fine = load_mesh(mesh, texture)
+        if truth.startswith("sample:"):
+            _sample_truth(mesh, fine, truth)  # a mesh that is not the sample is refused before the bake
+        asset = read_asset(mesh, fine)
+        # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
+        reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+        keep = parse_coarse(coarse)[0] == "keep"
+        timings["load"] = time.perf_counter() - t0
+        from neural_bake.bake.agreement import check_sdf_describes_mesh
 
-    sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
-    if not sdf_check["passed"]:
-        log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
-            f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
-    coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
-                             else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
-    timings["coarse"] = coarse_info["seconds"]
-    log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+        sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
+        if not sdf_check["passed"]:
+            log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
+                f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
+        coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
+                                 else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
+        timings["coarse"] = coarse_info["seconds"]
+        log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+        if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:
+            _check_uv_area(mesh, coarse_m.uv, size)
 
-    created = not out_dir.exists()
-    out_dir.mkdir(exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".bake-", dir=out_dir))
-    ok = False
-    try:
         written: list[str] = []
-        report: dict = {"mesh": str(mesh), "sdf": str(sdf_path), "texture_model": tex_path, "coarse": coarse_info,
-                        "maps": maps, "sdf_check": sdf_check}
+        report: dict = {"mesh": str(mesh), "sdf": folder.shown(sdf_path),
+                        "texture_model": tex_path and folder.shown(tex_path), "coarse": coarse_info, "maps": maps,
+                        "sdf_check": sdf_check}
         texel_maps = [m for m in maps if m in ("normal", "albedo")]
         if texel_maps:
             t0 = time.perf_counter()
@@ -174,6 +183,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                                         keep_baseline=baseline and baker.cache)
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
                              hybrid=hybrid)
+            if res.stats["texels_covered"] == 0:
+                raise MeshError(f"{mesh}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
             if hybrid is not None:
                 log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
                     f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
@@ -257,13 +268,6 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         report["seconds_total"] = timings["total"]
         report["files"] = written + ["report.json"]
         atomic_write_text(stage / "report.json", dumps(report))
-        for name in written + ["report.json"]:  # each move is an atomic rename; the report comes last
-            (stage / name).replace(out_dir / name)
-        ok = True
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-        if created and not ok:
-            shutil.rmtree(out_dir, ignore_errors=True)
     summary = report.get("vs_truth_deg") or {}
     if summary.get("median") is not None:
         line = f"normal error vs truth: median {summary['median']:.2f}°, p95 {summary['p95']:.2f}°"
@@ -278,6 +282,20 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
 
     return report
+
+
+def _check_uv_area(path, uv, size: int) -> None:
+    """MeshError if a mesh's own UV layout ((F, 3, 2) per-corner UVs) covers less than one texel of the map."""
+    import numpy as np
+
+    from neural_bake.errors import MeshError
+
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
+    if not area * size * size >= 1.0:
+        raise MeshError(f"{path}: its UV layout covers {area:.3g} of the UV square, less than one texel of the "
+                        f"{size}x{size} map; bake with --coarse decimate or march, which unwrap a new layout")
 
 
 def _load_field(path, option: str, want: str):

@@ -43,6 +43,25 @@ class DemoConfig:
 
 def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], None] = print) -> dict:
     """Run the demo into ``out_dir`` (created if missing); return the summary it also writes as demo.json."""
+    from neural_bake.io.outdir import OutputFolder
+    from neural_bake.samples.generate import sample_path
+
+    cfg = config or DemoConfig()
+    out = Path(out_dir)
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    mesh_path = sample_path(cfg.sample)  # an unknown sample is refused before any work
+    folder = OutputFolder(out)  # models, bake and summary are committed together
+    with folder as stage:
+        summary = _demo(stage, folder, mesh_path, cfg, log)
+    log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
+        f"figures in {out / 'report.json'} and {out / 'demo.json'}")
+    if "report" in summary:
+        log(f"check the bake by eye: {summary['report']}")
+    return summary
+
+
+def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[str], None]) -> dict:
+    """The demo's steps, writing into the staging folder ``stage`` of ``folder`` (committed by the caller)."""
     from neural_bake.fit.metrics import sdf_metrics
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.fit.texture import fit_texture, texture_metrics
@@ -50,21 +69,16 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
     from neural_bake.pipelines.bake_asset import BakeAssetConfig, bake_asset
-    from neural_bake.samples.generate import sample_path
     from neural_bake.samples.shapes import get_sample, unit_frame_normals
 
-    cfg = config or DemoConfig()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
-    mesh_path = sample_path(cfg.sample)
     mesh = load_mesh(mesh_path)
     log(f"[1/4] sample {cfg.sample}: {mesh_path.name}, {mesh.n_faces} faces, texture "
         f"{'x'.join(map(str, mesh.texture.shape[:2])) if mesh.texture is not None else 'none'}")
 
     log(f"[2/4] fitting the SDF ({cfg.sdf_preset}, {cfg.sdf_minutes:g} min budget)")
     sdf = fit_sdf(mesh, preset=cfg.sdf_preset, minutes=cfg.sdf_minutes, seed=cfg.seed, progress=cfg.progress)
-    sdf_path = out / "sdf.safetensors"
+    sdf_path = stage / "sdf.safetensors"
     sdf.save(sdf_path)
     sample = get_sample(cfg.sample)
     sdf_q = sdf_metrics(sdf.model, mesh, n=50_000, resolution=128,
@@ -78,13 +92,13 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
     log(f"[3/4] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget, λ > 0)")
     tex = fit_texture(mesh, sdf_path, preset=cfg.texture_preset, minutes=cfg.texture_minutes, seed=cfg.seed,
                       progress=cfg.progress)
-    tex_path = out / "texture.safetensors"
+    tex_path = stage / "texture.safetensors"
     tex.save(tex_path)
     tex_q = texture_metrics(tex.model, mesh, sdf_path, delta=tex.delta, n=50_000)
     log(f"      {tex.steps} steps in {tex.seconds:.0f} s: surface PSNR {tex_q['surface_psnr']:.1f} dB")
 
     log(f"[4/4] baking onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
-    report = bake_asset(str(mesh_path), str(sdf_path), out, BakeAssetConfig(coarse=cfg.coarse, size=cfg.size),
+    report = bake_asset(str(mesh_path), str(sdf_path), folder, BakeAssetConfig(coarse=cfg.coarse, size=cfg.size),
                         texture_model=str(tex_path), log=lambda m: log("      " + m))
     summary = {
         "config": asdict(cfg),
@@ -94,15 +108,12 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
         "bake": {k: report.get(k) for k in ("vs_truth_deg", "vs_gradient_deg", "coarse_vs_truth_deg", "baseline",
                                             "albedo_psnr", "coverage", "seconds_total") if k in report},
         "seconds_total": time.perf_counter() - t_all,
-        "outputs": sorted({p.name for p in out.iterdir() if not p.name.startswith(".")} | {"demo.json"}),
+        "outputs": sorted({p.name for p in stage.iterdir() if not p.name.startswith(".")} | {"demo.json"}),
     }
-    atomic_write_text(out / "demo.json", dumps(summary))
-    log(f"done in {summary['seconds_total']:.0f} s: open {out / 'asset.glb'} in any glTF viewer; "
-        f"figures in {out / 'report.json'} and {out / 'demo.json'}")
-    if cfg.report_views > 0:
+    atomic_write_text(stage / "demo.json", dumps(summary))
+    if cfg.report_views > 0:  # the HTML report is part of the set: written before the commit
         from neural_bake.view.report import ReportConfig, write_asset_report
 
-        index = write_asset_report(out, ReportConfig(views=cfg.report_views), log=lambda m: None)
-        summary["report"] = str(index)
-        log(f"check the bake by eye: {index}")
+        index = write_asset_report(stage, ReportConfig(views=cfg.report_views), log=lambda m: None)
+        summary["report"] = folder.shown(index)
     return summary

@@ -39,6 +39,7 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
     Returns the report's index.html, or (headless) the GIF. A GLB outside a bake folder gets a folder of its
     own beside it, ``STEM-view/``, holding a copy of it and the report.
     """
+    from neural_bake.io.outdir import record_in_set
     from neural_bake.view.meshes import load_view_mesh
     from neural_bake.view.report import ReportConfig, write_asset_report
     from neural_bake.view.turntable import write_turntable
@@ -48,6 +49,8 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
         target = Path(out) if out else ((folder / "turntable") if folder else glb.parent / f"{glb.stem}-turntable")
         mesh = load_view_mesh(glb)
         gif = write_turntable(mesh, target, views=views, size=size)
+        if folder is not None and target.absolute().parent == folder.absolute():
+            record_in_set(folder, target.name)  # part of the bake's set from now on (issue 21's outputs)
         log(f"wrote {views} frames and {gif}")
         return gif
     if folder is None:
@@ -55,6 +58,7 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
         folder.mkdir(exist_ok=True)
         shutil.copy2(glb, folder / "asset.glb")
     index = write_asset_report(folder, ReportConfig(views=views, size=size), log=log)
+    record_in_set(folder, index.relative_to(folder).parts[0])  # the report belongs to the bake's set
     if open_browser:
         opened = webbrowser.open(index.resolve().as_uri())
         if not opened:

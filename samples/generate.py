@@ -19,7 +19,7 @@ from neural_bake.io.atomic import atomic_write_text
 
 from .shapes import SAMPLES, SampleMesh, get_sample
 
-__all__ = ["generate", "sample_path", "write_sample", "obj_text", "DATA_DIR"]
+__all__ = ["generate", "check_generate_args", "sample_path", "write_sample", "obj_text", "DATA_DIR"]
 
 #: Where the bundled sample files live (package data).
 DATA_DIR = Path(__file__).parent / "data"
@@ -81,17 +81,22 @@ def generate(
 
     Raises :class:`NeuralBakeError` for an unknown name or an output path that is not a folder.
     """
-    names = list(SAMPLES) if names is None else list(names)
-    samples = [get_sample(n) for n in names]
+    samples = check_generate_args(names, resolution, texture_size)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise NeuralBakeError(f"{out}: not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return {s.name: write_sample(s.mesh(resolution, texture_size), out, s.name) for s in samples}
+
+
+def check_generate_args(names: Iterable[str] | None, resolution: int | None, texture_size: int | None) -> list:
+    """The samples ``names`` (default: all) stands for; NeuralBakeError for an unknown name or a bad size."""
+    samples = [get_sample(n) for n in (list(SAMPLES) if names is None else list(names))]
     if resolution is not None and int(resolution) < 32:
         raise NeuralBakeError(f"resolution must be an approximate face count >= 32, got {resolution}")
     if texture_size is not None and int(texture_size) < 8:
         raise NeuralBakeError(f"texture size must be at least 8 texels, got {texture_size}")
-    out.mkdir(parents=True, exist_ok=True)
-    return {s.name: write_sample(s.mesh(resolution, texture_size), out, s.name) for s in samples}
+    return samples
 
 
 def main() -> None:  # pragma: no cover - `python -m neural_bake.samples.generate` refreshes the bundled files

@@ -49,7 +49,7 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
                              "--coarse", "decimate:200", "--size", "64", "--maps", "normal,albedo,vertex",
                              "--bits", "16", "--exr", "-o", str(out)], capsys)
     assert code == 0, err
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb", "vertex.ply",
                             "report.json", "error_normal.png", "error_baseline.png", "miss.png", "hybrid.png"])
     rep = json.loads((out / "report.json").read_text())
@@ -99,10 +99,12 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--sdf", "missing.sdf"], "--sdf missing.sdf: no such model file"),
         (["--coarse", "decimate:abc"], "--coarse 'decimate:abc': decimate needs a number"),
         (["--coarse", "melt:3"], "--coarse 'melt:3': unknown kind 'melt'"),
+        (["--coarse", "decimate:nan"], "--coarse 'decimate:nan': decimate needs a finite number"),
+        (["--coarse", "march:inf"], "--coarse 'march:inf': march needs a finite number"),
         (["--maps", "normal,height"], "--maps 'normal,height': unknown map 'height'"),
         (["--maps", "albedo"], "--maps albedo needs --texture-model"),
         (["--size", "0"], "--size 0: must be between 1 and 16384"),
-        (["--truth", "sample:cube"], "unknown sample 'cube'"),
+        (["--truth", "sample:cube"], "--truth sample:cube: unknown sample 'cube'"),
         (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
         (["--delta", "-1"], "--delta -1.0: must be a positive distance"),
         (["--report-samples", "0"], "report_samples 0: must be a positive integer"),

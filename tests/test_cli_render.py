@@ -116,3 +116,25 @@ def test_bad_inputs_exit_2(models, tmp_path, capsys):
     assert code == 2 and "does not exist" in err
     code, _, err = run([models["sdf"], "-o", str(tmp_path / "x.png"), "--scene", str(tmp_path / "no.toml")], capsys)
     assert code == 2 and "no such scene file" in err
+
+
+def test_nested_sequence_file_renders_with_normal_mapping(tmp_path, capsys, fit_sphere_siren):
+    from neural_bake.fields import NestedSequence
+
+    levels = [fit_sphere_siren(r=0.7, width=8, steps=150), fit_sphere_siren(r=0.7, width=32, steps=300)]
+    path = tmp_path / "s.nested"
+    NestedSequence(levels=levels, frame=Frame(), levels_info=[{"delta": 0.06}, {"delta": 0.001}]).save(path)
+    stats = tmp_path / "n.json"
+    code, _, err = run([str(path), "-o", str(tmp_path / "n.png"), "--size", "24", "--mode", "fixed",
+                        "--iterations", "40,0", "--effects", "shading,normal_mapping", "--stats", str(stats)], capsys)
+    assert code == 0, err
+    s = json.loads(stats.read_text())
+    pts = s["evaluations"]["points"]
+    assert set(pts) == {"h1 (8,1)", "f (32,1)"}
+    assert pts["f (32,1)"] == {"normal_mapping": s["pixels"]["hit"]} and s["pixels"]["hit"] > 0
+    assert set(pts["h1 (8,1)"]) == {"trace"}
+    # δ overrides from a scene file: a δ per level
+    scene = tmp_path / "d.toml"
+    scene.write_text(f'[[objects]]\nmodel = "{path}"\ndeltas = [0.0, 0.0]\n')
+    code, _, err = run([str(path), "-o", str(tmp_path / "d.png"), "--size", "16", "--scene", str(scene)], capsys)
+    assert code == 0, err

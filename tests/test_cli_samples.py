@@ -18,7 +18,7 @@ def test_writes_the_named_samples(tmp_path, capsys):
     assert code == 0
     printed = capsys.readouterr().out
     assert f"sphere: {out / 'sphere.obj'}" in printed and "torus:" in printed and "bumpy" not in printed
-    assert sorted(p.name for p in out.iterdir()) == sorted(
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(
         f"{n}.{e}" for n in ("sphere", "torus") for e in ("obj", "mtl", "png"))
     mesh = nb.load_mesh(out / "torus.obj")
     assert 300 <= mesh.n_faces <= 500 and mesh.texture.shape == (32, 64, 3) and mesh.watertight

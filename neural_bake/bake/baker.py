@@ -10,6 +10,7 @@ of them (:class:`TexelSample`), on which :func:`neural_bake.bake.report.bake_rep
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -565,6 +566,8 @@ def parse_coarse(spec: str) -> tuple[str, float | int | tuple[int, int] | None]:
         value = float(arg)
     except ValueError:
         raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs a number ({usage})") from None
+    if not math.isfinite(value):
+        raise NeuralBakeError(f"--coarse {spec!r}: {kind} needs a finite number ({usage})")
     if kind == "decimate" and 0 < value < 1:
         return kind, value
     if value != int(value) or (kind == "decimate" and value < 4) or (kind == "march" and not 4 <= value <= 1024):

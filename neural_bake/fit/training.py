@@ -140,8 +140,8 @@ def _snapshot(model, opt) -> dict:
 
 
 def _validate(cfg: LoopConfig) -> None:
-    if int(cfg.steps) != cfg.steps or cfg.steps < 0:
-        raise FitError(f"{cfg.desc}: steps must be a non-negative integer, got {cfg.steps!r}")
+    if not math.isfinite(cfg.steps) or int(cfg.steps) != cfg.steps or cfg.steps < 1:
+        raise FitError(f"{cfg.desc}: steps must be a positive integer, got {cfg.steps!r}")
     if cfg.minutes is not None and not (math.isfinite(cfg.minutes) and cfg.minutes > 0):
         raise FitError(f"{cfg.desc}: minutes must be positive, got {cfg.minutes!r}")
     if not (math.isfinite(cfg.lr) and cfg.lr > 0):

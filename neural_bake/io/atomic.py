@@ -3,15 +3,22 @@
 The content is written to a temporary file in the destination's folder, flushed and fsynced, then renamed
 over the destination (``os.replace``, atomic on POSIX and Windows). If anything fails before the rename,
 the temporary file is removed and the destination — an earlier good file, if any — is untouched.
+The temporary file is named ``.<name>.<pid>.<random>.tmp<suffix>``: a run killed before its rename leaves it,
+and the next run that locks the output (:mod:`neural_bake.io.outdir`) removes it once its pid is gone.
+An OSError (or a safetensors I/O error) names the destination, never the temporary file.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Iterator
+
+from .faults import fault_point
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
 
@@ -32,7 +39,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     folder = dest.parent if str(dest.parent) else Path(".")
     if suffix is None:
         suffix = "".join(dest.suffixes[-1:])
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=f".tmp{suffix}", dir=folder)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}.", suffix=f".tmp{suffix}", dir=folder)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(dest)) from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -43,11 +53,24 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             os.fsync(fh.fileno())
         # mkstemp makes the file private (0600): give it the replaced file's mode, else the umask default
         os.chmod(tmp, _target_mode(dest))
+        fault_point("file-temp")
         os.replace(tmp, dest)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        fault_point("file-renamed")
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename in (None, tmp_name, tmp):
+            raise OSError(exc.errno, exc.strerror, str(dest)) from exc
+        if type(exc).__name__ == "SafetensorError":  # safetensors reports I/O failures as its own error type
+            raise _safetensors_os_error(exc, dest) from exc
         raise
+
+
+def _safetensors_os_error(exc: BaseException, dest: Path) -> OSError:
+    """The OSError behind a safetensors I/O error (its message ends ``(os error N)``), naming ``dest``."""
+    found = re.search(r"os error (\d+)|code: (\d+)", str(exc))
+    code = int(found.group(1) or found.group(2)) if found else errno.EIO
+    return OSError(code, os.strerror(code), str(dest))
 
 
 def _target_mode(dest: Path) -> int:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import DEGENERATE_AREA, MERGE_DISTANCE, UV_POLICIES
+from ..constants import DEGENERATE_AREA, MAX_COORDINATE, MERGE_DISTANCE, UV_POLICIES
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Frame, Mesh
 from .atomic import atomic_path, atomic_write_bytes, atomic_write_text
@@ -374,6 +374,11 @@ def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes
     remap = np.full(len(vertices), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     vertices, faces = vertices[used], remap[faces]
+    magnitude = np.abs(vertices).max(axis=1)
+    if not magnitude.max() <= MAX_COORDINATE:
+        i = int(used[np.argmax(magnitude)])
+        raise MeshError(f"{name}: vertex {i} has a coordinate of magnitude {magnitude.max():.3g}, beyond "
+                        f"{MAX_COORDINATE:g} (distances would overflow); rescale the mesh")
     unit = Frame.fit(vertices)
     kept, new_index = _weld(vertices, MERGE_DISTANCE / unit.scale)
     vertices, faces = vertices[kept], new_index[faces]

@@ -1,5 +1,5 @@
 """Model files to render assets: an SDF field or a nested sequence (+ an optional texture field), static or
-space-time (networks of 4 inputs (x, y, z, t) render frame by frame)."""
+space-time (networks of 4 inputs (x, y, z, t) render frame by frame), read through the field layer."""
 
 from __future__ import annotations
 
@@ -15,37 +15,20 @@ __all__ = ["load_asset", "read_field"]
 
 
 def read_field(path, *, argument: str = "MODEL", device=None):
-    """The field a file holds (the field layer's ``load_field``); ModelFileError naming ``argument``."""
+    """The field a file holds (:func:`neural_bake.fields.load_field`); ModelFileError naming ``argument``
+    for a missing file."""
+    from ..fields import load_field
+
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"{argument} {path}: no such model file")
-    try:
-        from ..fields import load_field
-    except ImportError:  # the field layer is not there: single-network files through nets.model_io
-        return _read_network_file(path, device)
     return load_field(path, device=device)
 
 
-class _NetworkFile:
-    """A one-network file read without the field layer: ``model``, ``frame``, ``delta``, ``kind``."""
-
-    def __init__(self, model, frame, delta, kind, name):
-        self.model, self.frame, self.delta, self.kind, self.name = model, frame, delta, kind, name
-
-
-def _read_network_file(path: Path, device):
-    from ..nets.model_io import load_model
-
-    model, meta = load_model(path, device=device)
-    frame = Frame.from_dict(meta["frame"]) if meta.get("frame") else None
-    return _NetworkFile(model, frame, meta.get("delta"), meta.get("kind"), path.name)
-
-
 def _is_texture(field) -> bool:
-    model = getattr(field, "model", None)
-    kind = getattr(field, "kind", None)
-    return kind == "texture" or (isinstance(model, Siren) and int(model.out_dim) in (3, 4)
-                                 and not hasattr(field, "levels"))
+    from ..fields import TextureField
+
+    return isinstance(field, TextureField)
 
 
 def _networks(field) -> list[Siren]:

@@ -324,6 +324,9 @@ def _skip_interval(ob: _Object, grid_info):
     grid, built, build_s = grid_info
     if grid is None:
         return None, None, {"used": False}
+    if bool(grid.occupied.all()):  # nothing proven empty: sampling the rays would only cost time
+        return None, None, {"used": False, "built_now": built, "build_seconds": round(build_s, 6) if built else 0.0,
+                            "occupied_fraction": 1.0, "boxes": grid.boxes, "rays_skipped_entirely": 0}
     start, end = grid.ray_interval(ob.o, ob.d)
     return start, end, {"used": True, "built_now": built, "build_seconds": round(build_s, 6) if built else 0.0,
                         "occupied_fraction": round(grid.fraction(), 6), "boxes": grid.boxes,

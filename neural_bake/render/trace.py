@@ -161,37 +161,50 @@ def _march(fn: _Traced, o, d, t, t_lo, t_hi, alive, inside, last_v, iters, n_ite
     """Steps of one traced function for the rays flagged ``alive`` (in place on t, alive, inside, last_v,
     iters). A ray leaves this level when it converged (threshold: |v| ≤ eps; fixed: step under the still
     step), started inside (clamped at its start), left [t_lo, t_hi] (missed: alive False) or went
-    non-finite (missed)."""
-    done = ~alive
+    non-finite (missed).
+
+    With ``compact`` the live rays' state is kept in packed arrays that shrink whenever rays leave, so every
+    step touches (and evaluates) the live rays only; without it every ray of the chunk is evaluated at every
+    step while any ray is live (masked updates: the cost a batch tracer without compaction pays)."""
     still = eps if mode == "threshold" else TRACE_STILL_STEP
-    for _ in range(n_iter):
-        live = alive & ~done
-        if not bool(live.any()):
-            break
-        idx = live.nonzero().squeeze(1) if compact else torch.arange(t.shape[0], device=t.device)
-        p = o[idx] + t[idx, None] * d[idx]
-        v = fn(idx, p)
-        if not compact:
-            keep = live[idx]
-            idx, v = idx[keep], v[keep]
-        iters[idx] += 1
-        finite = torch.isfinite(v)
-        alive[idx[~finite]] = False
-        idx, v = idx[finite], v[finite]
-        last_v[idx] = v
+    idx = alive.nonzero().squeeze(1)
+    if idx.numel() == 0 or n_iter == 0:
+        return
+    o_a, d_a, t_a, lo_a, hi_a = o[idx], d[idx], t[idx], t_lo[idx], t_hi[idx]
+    v = None
+    all_idx = torch.arange(t.shape[0], device=t.device) if not compact else None
+    for k in range(n_iter):
+        p = torch.addcmul(o_a, t_a[:, None], d_a)
+        if compact:
+            v = fn(idx, p)
+        else:  # evaluate the whole chunk, keep the live rays' values
+            full = torch.addcmul(o, t[:, None], d)
+            full[idx] = p
+            v = fn(all_idx, full)[idx]
+        bad = ~torch.isfinite(v)
         conv = v.abs() <= still
-        done[idx[conv]] = True
-        idx, v = idx[~conv], v[~conv]
-        t_new = t[idx] + v
-        behind = t_new < t_lo[idx]
-        t_new = torch.where(behind, t_lo[idx], t_new)
-        t[idx] = t_new
-        stuck = idx[behind]  # the start is inside this level's band (or inside f)
-        done[stuck] = True
-        if is_last:
-            inside[stuck] = True
-        out = t_new > t_hi[idx]
-        alive[idx[out]] = False
+        t_new = t_a + v
+        behind = t_new < lo_a
+        t_a = torch.where(behind | conv | bad, torch.where(behind, lo_a, t_a), t_new)
+        out = t_a > hi_a
+        leave = bad | conv | behind | out
+        if not compact:
+            t[idx] = t_a
+        if bool(leave.any()) or k == n_iter - 1:
+            gone = leave if k < n_iter - 1 else torch.ones_like(leave)
+            g_idx = idx[gone]
+            t[g_idx] = t_a[gone]
+            last_v[g_idx] = v[gone]
+            iters[g_idx] += k + 1  # every ray of this level was live from its first step
+            missed = g_idx[(bad | out)[gone]]
+            alive[missed] = False
+            if is_last:
+                inside[g_idx[(behind & ~bad)[gone]]] = True
+            keep = ~gone
+            if k < n_iter - 1:
+                idx, o_a, d_a, t_a, lo_a, hi_a = idx[keep], o_a[keep], d_a[keep], t_a[keep], lo_a[keep], hi_a[keep]
+                if idx.numel() == 0:
+                    return
 
 
 def trace_rays(

@@ -221,6 +221,11 @@ def test_cli_fit_sdf_errors(tmp_path, capsys):
     m.export(src)
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "nodir" / "x.sdf")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    for bad in (["--steps", "0"], ["--minutes", "nan"], ["--lr", "-1"]):  # refused before any work
+        assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), *bad]) == 2
+        err = capsys.readouterr().err
+        assert err == f"neural-bake: error: {bad[0]} {float(bad[1]) if bad[0] != '--steps' else 0}: must be a positive number\n"
+    assert not (tmp_path / "x.sdf").exists()
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--preset", "1x1"]) == 2
     capsys.readouterr()
     assert main(["fit", "sdf", str(src), "-o", str(tmp_path / "x.sdf"), "--hard-fraction", "2"]) == 2

@@ -170,7 +170,7 @@ def test_keep_best_restores_best_weights():
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"steps": -1}, "steps must be"), ({"lr": 0.0}, "learning rate must be positive"),
+    ({"steps": -1}, "steps must be"), ({"steps": 0}, "steps must be a positive integer"), ({"lr": 0.0}, "learning rate must be positive"),
     ({"minutes": -2.0}, "minutes must be positive"), ({"lr_schedule": "step"}, "lr_schedule"),
     ({"resume": True}, "resume needs a checkpoint"), ({"log_every": 0}, "log_every must be"),
     ({"lr_min_factor": 0.0}, r"lr_min_factor must be in \(0, 1\]"), ({"lr_min_factor": 1.5}, "lr_min_factor"),

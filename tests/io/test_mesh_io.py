@@ -372,6 +372,7 @@ def test_unknown_format(tmp_path):
         (TRI + "vt 0 0\nf 1/1 2/1 3/2\n", r"m\.obj:5: texture coordinate index 2 out of range \(file has 1 texture"),
         ("v 0 0 0\nv 0 0 nan\nv 0 1 0\nf 1 2 3\n", r"m\.obj:2: vertex 2 has a non-finite coordinate \(0\.0, 0\.0, nan\)"),
         ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"m\.obj:1: vertex 1 has a non-finite coordinate"),
+        ("v 0 0 0\nv 1e300 0 0\nv 0 1e300 0\nf 1 2 3\n", r"m\.obj: vertex 1 has a coordinate of magnitude 1e\+300"),
         ("v 0 zero 0\n", r"m\.obj:1: cannot parse vertex 'v 0 zero 0'"),
         ("v 0 0\n", r"m\.obj:1: cannot parse vertex"),
         (TRI + "f 1 2 x\n", r"m\.obj:4: cannot parse face 'f 1 2 x'"),
@@ -469,6 +470,7 @@ def test_unreadable_texture_is_image_error(tmp_path):
         (np.eye(3), [[0, 1, 2]], {"uv": np.full((1, 3, 2), np.nan)}, r"face 0 has a non-finite texture coordinate"),
         (np.eye(3), [[0, 1, 2]], {"uv": np.zeros((3, 2)), "texture": np.zeros((2, 2, 5))}, r"texture must be a \(H, W, C\)"),
         (np.array([[0, 0, 0], [1, np.nan, 0], [0, 1, 0]]), [[0, 1, 2]], {}, r"vertex 1 has a non-finite coordinate"),
+        (np.eye(3) * 1e300, [[0, 1, 2]], {}, r"vertex 0 has a coordinate of magnitude 1e\+300, beyond 1e\+100"),
         (np.eye(3), [[0, 1, 2]], {"uv_policy": "mirror"}, r"uv_policy must be one of \('wrap', 'clamp'\), got 'mirror'"),
     ],
 )

@@ -205,6 +205,8 @@ def test_bad_input_errors():
         gemm_gradient(model, torch.zeros(3))
     with pytest.raises(NeuralBakeError, match="points must be a torch tensor, got ndarray"):
         gemm_gradient(model, torch.zeros(2, 3).numpy())
+    with pytest.raises(NeuralBakeError, match="points has 2 non-finite values"):
+        gemm_gradient(model, torch.tensor([[0.0, float("nan"), 0.0], [float("inf"), 0.0, 0.0]]))
     with pytest.raises(NeuralBakeError, match="points must be a floating tensor, got torch.int64"):
         gemm_gradient(model, torch.zeros(2, 3, dtype=torch.int64))
     with pytest.raises(NeuralBakeError, match="mode must be one of reverse, forward; got 'backward'"):

@@ -7,7 +7,6 @@ import torch
 
 from neural_bake.cli.main import main
 from neural_bake.io.images import read_image
-from neural_bake.fields import save_model
 from neural_bake.nets.siren import Siren
 from neural_bake.render.asset import RenderAsset, RenderError, SpaceTimeAsset, analytic_level
 from neural_bake.render.camera import Camera
@@ -95,10 +94,11 @@ def test_bad_sequence_settings(tmp_path, kwargs, match):
 
 def test_cli_renders_a_space_time_network(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    net = Siren(16, 1, in_dim=4, omega_0=5.0, generator=torch.Generator().manual_seed(0))
-    with torch.no_grad():  # f(x, t) ≈ |x| − (0.3 + 0.3 t) is not needed: any 4-input network animates
-        net.layers[-1].bias.fill_(-0.05)
-    path = save_model(net, tmp_path / "st.sdf", kind="sdf", frame=Frame().to_dict())
+    from neural_bake.fields import NestedSequence
+
+    nets = [Siren(w, 1, in_dim=4, omega_0=5.0, generator=torch.Generator().manual_seed(w)) for w in (8, 16)]
+    path = tmp_path / "st.nested"  # a space-time nested sequence: any 4-input networks animate
+    NestedSequence(levels=nets, frame=Frame(), levels_info=[{"delta": 0.05}, {"delta": 0.001}]).save(path)
     code = main(["render", str(path), "-o", str(tmp_path / "a.gif"), "--frames", "3", "--size", "16",
                  "--time-range", "0,0.5", "--stats", str(tmp_path / "a.json")])
     captured = capsys.readouterr()
