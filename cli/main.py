@@ -58,6 +58,7 @@ COMMANDS = {
     "inspect": ("neural_bake.cli.inspect", "command"),
     "fit": ("neural_bake.cli.fit", "group"),
     "bake": ("neural_bake.cli.bake", "command"),
+    "bake-frames": ("neural_bake.cli.bake_frames", "command"),
     "batch": ("neural_bake.cli.batch", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),

@@ -1,8 +1,10 @@
 """The README's first command: the main job end to end on a bundled sample.
 
-samples -> fit a SIREN SDF -> fit a gradient-orthogonal texture MLP -> coarsen (decimate) -> unwrap ->
-bake the neural normals and colours per texel -> GLB + maps + report, with the classical mesh-to-mesh bake
-measured on the same texels. Only library calls; the CLI verb `neural-bake demo` is a thin wrapper.
+samples -> fit a SIREN SDF -> distil a nested sequence (a coarse level, δ per level) -> fit a
+gradient-orthogonal texture MLP in the sequence's widest band -> coarse mesh -> unwrap -> bake the fine
+level's normals and the colours per texel -> GLB + maps + report, with the classical mesh-to-mesh bake
+measured on the same texels: the nested path of the README. Only library calls; the CLI verb
+`neural-bake demo` is a thin wrapper.
 """
 
 from __future__ import annotations
@@ -25,12 +27,19 @@ class DemoConfig:
     """SDF network preset (W x D)."""
     sdf_minutes: float = 2.5
     """Time budget of the SDF fit, minutes."""
+    nested_levels: str = "32x1"
+    """Coarse levels of the nested sequence, WIDTHxDEPTH coarse to fine, comma-separated."""
+    nested_minutes: float = 0.5
+    """Time budget of each coarse level's distillation, minutes."""
+    nested_boxes: int = 2000
+    """Box budget of the range-analysis certification of each level's δ (0: estimated δ only)."""
     texture_preset: str = "fast"
     """Texture network preset."""
     texture_minutes: float = 1.0
     """Time budget of the texture fit, minutes."""
     coarse: str = "decimate:2000"
-    """Coarse mesh spec (decimate:FACES, march:RESOLUTION, keep)."""
+    """Coarse mesh spec (decimate:FACES, level:I:RESOLUTION (the nested sequence's level I marched),
+    march:RESOLUTION, keep); BENCHMARKS.md says why decimation is the default."""
     size: int = 1024
     """Map side in texels."""
     seed: int = 0
@@ -63,6 +72,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
 def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[str], None]) -> dict:
     """The demo's steps, writing into the staging folder ``stage`` of ``folder`` (committed by the caller)."""
     from neural_bake.fit.metrics import sdf_metrics
+    from neural_bake.fit.nested import fit_nested
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.fit.texture import fit_texture, texture_metrics
     from neural_bake.io.atomic import atomic_write_text
@@ -73,10 +83,10 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
 
     t_all = time.perf_counter()
     mesh = load_mesh(mesh_path)
-    log(f"[1/4] sample {cfg.sample}: {mesh_path.name}, {mesh.n_faces} faces, texture "
+    log(f"[1/5] sample {cfg.sample}: {mesh_path.name}, {mesh.n_faces} faces, texture "
         f"{'x'.join(map(str, mesh.texture.shape[:2])) if mesh.texture is not None else 'none'}")
 
-    log(f"[2/4] fitting the SDF ({cfg.sdf_preset}, {cfg.sdf_minutes:g} min budget)")
+    log(f"[2/5] fitting the SDF ({cfg.sdf_preset}, {cfg.sdf_minutes:g} min budget)")
     sdf = fit_sdf(mesh, preset=cfg.sdf_preset, minutes=cfg.sdf_minutes, seed=cfg.seed, progress=cfg.progress)
     sdf_path = stage / "sdf.safetensors"
     sdf.save(sdf_path)
@@ -89,20 +99,35 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
         f"(the mesh's own faces: {sdf_q['mesh_normal_truth_median_deg']:.2f}°), "
         f"{sdf_q['normal_median_deg']:.2f}° against the faces")
 
-    log(f"[3/4] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget, λ > 0)")
-    tex = fit_texture(mesh, sdf_path, preset=cfg.texture_preset, minutes=cfg.texture_minutes, seed=cfg.seed,
+    log(f"[3/5] distilling the nested sequence ({cfg.nested_levels}, {cfg.nested_minutes:g} min per level)")
+    seq = fit_nested(sdf, cfg.nested_levels, mesh=mesh, minutes=cfg.nested_minutes, steps=1_000_000, seed=cfg.seed,
+                     certify=cfg.nested_boxes > 0, certify_max_boxes=max(cfg.nested_boxes, 1),
+                     stability_samples=(1_000, 10_000), progress=cfg.progress)
+    nested_path = stage / "nested.safetensors"
+    seq.save(nested_path)
+    for i, info in enumerate(seq.levels_info):
+        log(f"      level {i} ({info['width']}x{info['depth']}): δ = {info['delta']:.4f} ({info['delta_source']})")
+
+    log(f"[4/5] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget, λ > 0, band δ of "
+        f"level 0)")
+    tex = fit_texture(mesh, seq, preset=cfg.texture_preset, minutes=cfg.texture_minutes, seed=cfg.seed,
                       progress=cfg.progress)
     tex_path = stage / "texture.safetensors"
     tex.save(tex_path)
-    tex_q = texture_metrics(tex.model, mesh, sdf_path, delta=tex.delta, n=50_000)
+    tex_q = texture_metrics(tex.model, mesh, seq, delta=tex.delta, n=50_000)
     log(f"      {tex.steps} steps in {tex.seconds:.0f} s: surface PSNR {tex_q['surface_psnr']:.1f} dB")
 
-    log(f"[4/4] baking onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
-    report = bake_asset(str(mesh_path), str(sdf_path), folder, BakeAssetConfig(coarse=cfg.coarse, size=cfg.size),
+    log(f"[5/5] baking the nested sequence onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
+    # force: the sequence was fitted on this very mesh; a short budget's rough fit is baked and reported, with
+    # the mesh check's figures in the report, rather than refused
+    report = bake_asset(str(mesh_path), str(nested_path), folder,
+                        BakeAssetConfig(coarse=cfg.coarse, size=cfg.size, force=True),
                         texture_model=str(tex_path), log=lambda m: log("      " + m))
     summary = {
         "config": asdict(cfg),
-        "sdf": {"steps": sdf.steps, "seconds": sdf.seconds, **sdf_q},
+        "sdf": {"steps": sdf.steps, "seconds": sdf.seconds, "distance_error": sdf.distance_error, **sdf_q},
+        "nested": {"levels": [f"{i['width']}x{i['depth']}" for i in seq.levels_info], "deltas": seq.deltas,
+                   "delta_sources": [i.get("delta_source") for i in seq.levels_info], "steps": seq.iterations},
         "texture": {"steps": tex.steps, "seconds": tex.seconds, "delta": tex.delta,
                     **{k: v for k, v in tex_q.items() if isinstance(v, (int, float, str))}},
         "bake": {k: report.get(k) for k in ("vs_truth_deg", "vs_gradient_deg", "coarse_vs_truth_deg", "baseline",

@@ -5,8 +5,9 @@ Two containers exist, both safetensors with a JSON header (no pickle; loading ne
 ``neural_bake.model`` (one network, :mod:`neural_bake.nets.model_io`; ``metadata.kind`` says what it is) and
 ``neural_bake.nested`` (a nested sequence, :mod:`neural_bake.fields.nested`). A reader is registered per
 ``kind`` (:func:`register_kind`): ``"sdf"`` → :class:`SdfField`, ``"texture"`` → :class:`TextureField`,
-``"nested"`` → :class:`NestedSequence`; a space-time field registers its own kind (with ``in_dim`` 4 in its
-architecture) and callers of :func:`load_field` do not change. Every header value is checked before anything
+``"nested"`` → :class:`NestedSequence`. A space-time SDF (``in_dim`` 4: x, y, z, t) loads as an ``"sdf"``
+with ``SdfField.in_dim == 4``; a field of another nature registers its own kind and callers of
+:func:`load_field` do not change. Every header value is checked before anything
 is allocated: one-line :class:`ModelFileError` naming the file and the field.
 """
 
@@ -88,13 +89,15 @@ def load_field(path: str | os.PathLike, *, device=None, dtype=None):
 
 
 def to_sdf_field(field, *, band_level: int = 0) -> SdfField:
-    """An :class:`SdfField` to bake or fit a texture with: an SdfField itself, or a nested sequence's fine f
-    with the band δ of ``band_level`` (:meth:`NestedSequence.band_field`)."""
+    """A static :class:`SdfField` to bake or fit a texture with: an SdfField itself, or a nested sequence's
+    fine f with the band δ of ``band_level`` (:meth:`NestedSequence.band_field`)."""
+    name = getattr(field, "name", type(field).__name__)
+    if isinstance(field, (SdfField, NestedSequence)) and field.in_dim != 3:
+        raise ModelFileError(f"{name}: a space-time SDF ({field.in_dim} inputs); a static one (x, y, z) is needed")
     if isinstance(field, NestedSequence):
         return field.band_field(band_level)
     if isinstance(field, SdfField):
         return field
-    name = getattr(field, "name", type(field).__name__)
     raise ModelFileError(f"{name}: a {type(field).__name__}, expected an SDF (kind 'sdf' or a nested sequence)")
 
 
@@ -142,6 +145,10 @@ def save_field(field, path: str | os.PathLike) -> Path:
         data = encode_file(nested_tensors(field), field.header(), NESTED_FORMAT, path)
         _check_folder(path)
         return atomic_write_bytes(path, data)
+    from .spacetime import SpaceTimeField
+
+    if isinstance(field, SpaceTimeField):
+        return field.save(path)
     if not isinstance(field, (SdfField, TextureField)):
         raise ModelFileError(f"{path}: save_field expects an SdfField, TextureField or NestedSequence, got "
                              f"{type(field).__name__}")
@@ -173,9 +180,9 @@ def _read_network(path: Path, header: dict, device, dtype):
 
 def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
     arch, meta = header["architecture"], header["metadata"]
-    if arch["in_dim"] != 3 or arch["out_dim"] != 1:
-        raise ModelFileError(f"{path}: an SDF maps R^3 to R, this network maps R^{arch['in_dim']} to "
-                             f"R^{arch['out_dim']}")
+    if arch["in_dim"] not in (3, 4) or arch["out_dim"] != 1:  # (x, y, z), or (x, y, z, t): space-time
+        raise ModelFileError(f"{path}: an SDF maps R^3 (or R^4 with time) to R, this network maps "
+                             f"R^{arch['in_dim']} to R^{arch['out_dim']}")
     frame = check_frame(meta.get("frame"), path)
     delta = check_delta(meta.get("delta"), path)
     model = _read_network(path, header, device, dtype)

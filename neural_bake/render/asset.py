@@ -196,16 +196,19 @@ def analytic_level(
             (g,) = torch.autograd.grad(v.sum(), q)
         return v.detach(), g.detach()
 
-    bound = None
-    if lipschitz is not None:
-        lip = float(lipschitz)
-
-        def bound(centers, axes):
-            c = value(centers)
-            r = lip * axes.norm(dim=-1).sum(dim=-1)
-            return c - r, c + r
-
+    bound = None if lipschitz is None else _lipschitz_bound(value, float(lipschitz))
     return TraceLevel(name, value, value_and_gradient, delta, bound, None)
+
+
+def _lipschitz_bound(value: Values, lip: float) -> Bound:
+    """``f(c) ± L Σ_k |v_k|`` over boxes: guaranteed for an L-Lipschitz f."""
+
+    def bound(centers, axes):
+        c = value(centers)
+        r = lip * axes.norm(dim=-1).sum(dim=-1)
+        return c - r, c + r
+
+    return bound
 
 
 def siren_texture(model: Siren, *, name: str | None = None, time: float | None = None) -> TextureSource:

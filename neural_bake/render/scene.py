@@ -182,7 +182,7 @@ class Scene:
     """Cast primary rays with range analysis (Procedure 2) on f instead of sphere tracing."""
     skip: bool = True
     """Empty-space skipping by the coarsest level's range-analysis octree (where it has a range bound)."""
-    skip_depth: int = 4
+    skip_depth: int = 5
     """Octree depth of the skipping grid."""
     far: float | None = None
     """Far plane: distance from the eye (source units) beyond which nothing is hit; None: no far plane."""

@@ -8,7 +8,8 @@ The folder is built in a staging folder and swapped in whole: a reader sees the 
 
 Renders of one view (same camera, lights, material; :mod:`neural_bake.view.raycast`):
 source mesh with its own normals and texture, coarse mesh with the baked maps, coarse mesh without maps,
-and the neural preview when a ``neural`` renderer is given. Differences are measured against the source.
+and the neural preview of the fitted fields (:mod:`neural_bake.render`, the model files the bake's
+report.json names). Differences are measured against the source, and between the bake and the preview.
 """
 
 from __future__ import annotations
@@ -172,12 +173,13 @@ def _fmt(v, nd=2) -> str:
 
 
 def write_asset_report(folder, config: ReportConfig | None = None, *,
-                       neural: Callable[[Camera], MeshRender] | None = None, neural_note: str = "",
+                       neural: Callable[[Camera], MeshRender] | str | None = "auto", neural_note: str = "",
                        log: Callable[[str], None] = print) -> Path:
     """Write ``folder/report/index.html`` for the bake in ``folder``; return the path of index.html.
 
-    - ``neural``: a renderer of the fitted fields for a camera (the neural preview); None leaves its slot
-      with ``neural_note`` saying why.
+    - ``neural``: a renderer camera → :class:`MeshRender` of the fitted fields (the neural preview);
+      "auto": the SDF and texture models report.json names (:func:`neural_renderer_from_report`), when
+      found; None: no preview. Without one the slot says why (``neural_note``, or what "auto" found).
     Raises :class:`ViewError` for a folder without ``asset.glb``.
     """
     from ..io.atomic import atomic_write_text
@@ -194,6 +196,13 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
         raise ViewError(f"{folder}: no asset.glb (not a bake output folder)")
     report_path = folder / "report.json"
     report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+    if isinstance(neural, str):
+        if neural != "auto":
+            raise ViewError(f"neural preview {neural!r}: expected a renderer, 'auto' or None")
+        from .neural import neural_renderer_from_report
+
+        neural, found_note = neural_renderer_from_report(folder, report)
+        neural_note = neural_note or found_note
     stage = Path(tempfile.mkdtemp(prefix=".report-", dir=folder))
     try:
         (stage / "views").mkdir()
@@ -217,7 +226,14 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
             r_baked = render_mesh(baked, cam)
             r_bare = render_mesh(bare, cam)
             r_src = render_mesh(source, cam) if source is not None else None
-            r_neu = neural(cam) if neural is not None else None
+            r_neu = None
+            if neural is not None:
+                try:
+                    r_neu = neural(cam)
+                except Exception as exc:  # noqa: BLE001 - a preview that cannot draw leaves its slot, not the report
+                    if k > 0:
+                        raise
+                    neural, neural_note = None, f"the preview renderer failed: {' '.join(str(exc).split())}"
             panels = []
             for name, r in (("source", r_src), ("baked", r_baked), ("bare", r_bare), ("neural", r_neu)):
                 if r is not None:

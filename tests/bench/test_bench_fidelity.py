@@ -48,6 +48,7 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     assert row["classical_median_deg"] < 2.0 < row["coarse_median_deg"]
     # a field of a second's training is poor: the hybrid takes the classical normal where it is off
     assert row["hybrid_pct"] > 0 and row["map_median_deg"] <= row["neural_median_deg"]
+    assert row["map_max_deg"] >= row["map_p95_deg"] and row["classical_max_deg"] >= row["classical_p95_deg"]
     assert row["networks_kb"] == pytest.approx((3 * 64 + 64 + 64 * 64 + 64 + 64 + 1) * 4 / 1024)
     assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)
     json.dumps(res)

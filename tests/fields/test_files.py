@@ -90,7 +90,7 @@ def test_bare_network_says_how_to_save_a_fit(tmp_path):
 
 def test_unknown_kind_and_foreign_files_are_refused(tmp_path):
     with pytest.raises(ModelFileError, match=r"x\.sdf: unknown kind 'sdf4d' \(this neural_bake reads nested, sdf, "
-                                             r"texture\)"):
+                                             r"spacetime_sdf, texture\)"):
         load_field(save_model(_net(in_dim=4), tmp_path / "x.sdf", kind="sdf4d", frame=FRAME.to_dict()))
     save_file({"a": torch.zeros(2)}, str(tmp_path / "plain.safetensors"))
     with pytest.raises(ModelFileError, match=r"plain\.safetensors: a safetensors file but not a neural_bake field"):
@@ -116,6 +116,16 @@ def test_a_space_time_kind_slots_in_without_changing_callers(tmp_path):
         assert v.shape == (10,) and g.shape == (10, 4)
     finally:
         KINDS.pop("sdf4d")
+
+
+def test_space_time_sdf_carries_its_input_dimension(tmp_path):
+    f = load_field(save_model(_net(in_dim=4), tmp_path / "st.sdf", kind="sdf", frame=FRAME.to_dict()))
+    assert f.in_dim == 4 and f.value_and_gradient(torch.rand(5, 4))[1].shape == (5, 4)
+    with pytest.raises(ModelFileError, match=r"st\.sdf: a space-time SDF \(4 inputs\); a static one"):
+        load_sdf_field(tmp_path / "st.sdf")  # what bake and fit texture read
+    with pytest.raises(ModelFileError, match=r"five\.sdf: an SDF maps R\^3 \(or R\^4 with time\) to R, this network "
+                                             r"maps R\^5 to R\^1"):
+        load_field(save_model(_net(in_dim=5), tmp_path / "five.sdf", kind="sdf", frame=FRAME.to_dict()))
 
 
 def test_save_field_errors(tmp_path):

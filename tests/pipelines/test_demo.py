@@ -13,11 +13,12 @@ def test_demo_shrunken_end_to_end(tmp_path):
     out = tmp_path / "demo"
     lines = []
     cfg = DemoConfig(sample="sphere", sdf_preset="64x1", sdf_minutes=0.1, texture_minutes=0.05, size=64,
-                     coarse="decimate:300", progress=False, report_views=1)
+                     coarse="decimate:300", nested_levels="16x0", nested_minutes=0.05, nested_boxes=200,
+                     progress=False, report_views=1)
     summary = run_demo(out, cfg, log=lines.append)
     names = set(summary["outputs"])
-    assert {"sdf.safetensors", "texture.safetensors", "asset.glb", "normal.png", "albedo.png", "report.json",
-            "demo.json"} <= names
+    assert {"sdf.safetensors", "nested.safetensors", "texture.safetensors", "asset.glb", "normal.png", "albedo.png",
+            "report.json", "demo.json"} <= names
     on_disk = json.loads((out / "demo.json").read_text())
     assert on_disk["config"]["sample"] == "sphere"
     # whatever the (short) training reached, the baked map holds the network's own gradient
@@ -30,9 +31,17 @@ def test_demo_shrunken_end_to_end(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["truth"] == "analytic (sphere sample)"
     assert report["bake"]["delta"] > 0  # the texture model's band
-    assert any(line.startswith("[4/4]") for line in lines)
+    assert any(line.startswith("[5/5] baking the nested sequence") for line in lines)
+    # the nested path: the texture's band and the bake's miss band are the sequence's widest δ
+    seq = on_disk["nested"]
+    assert seq["levels"] == ["16x0", "64x1"] and len(seq["deltas"]) == 2 and seq["deltas"][0] >= seq["deltas"][1]
+    assert on_disk["texture"]["delta"] == pytest.approx(seq["deltas"][0])
+    assert report["sdf"].endswith("nested.safetensors") and report["sdf_check"]["median_abs_f"] >= 0
+    assert on_disk["sdf"]["distance_error"] > 0
     # the demo ends with the path of its HTML report
     assert lines[-1].endswith(str(out / "report" / "index.html")) and (out / "report" / "index.html").is_file()
+    view = json.loads((out / "report" / "view.json").read_text())
+    assert view["neural"] and {"baked_vs_source", "neural_vs_source", "baked_vs_neural"} <= set(view["metrics"])
 
 
 def test_demo_unknown_sample_is_one_line_error(tmp_path, capsys):

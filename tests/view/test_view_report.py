@@ -52,7 +52,27 @@ def test_report_renders_compares_and_stays_offline(bake_folder):
     for name in ("source_0.png", "baked_1.png", "bare_0.png", "diff_baked_vs_source_0.png"):
         assert (index.parent / "views" / name).is_file()
     assert (index.parent / "heat_model_0.png").is_file() and (index.parent / "timings.png").is_file()
-    assert "No neural preview" in page and "1.50" in page  # the slot says why; report.json's figures shown
+    # the slot says why (report.json names no SDF model); report.json's figures are shown
+    assert "No neural preview: report.json names no SDF model" in page and "1.50" in page
+
+
+def test_report_with_the_neural_preview_compares_all_three(bake_folder):
+    from neural_bake.view.analytic import analytic_render_asset
+    from neural_bake.view.neural import neural_renderer
+
+    folder, bake = bake_folder
+    preview = neural_renderer(analytic_render_asset(bake))
+    index = write_asset_report(folder, ReportConfig(views=1, size=64), neural=preview, log=lambda m: None)
+    view = json.loads((index.parent / "view.json").read_text())
+    m = view["metrics"]
+    assert view["neural"] and (index.parent / "views" / "neural_0.png").is_file()
+    assert (index.parent / "views" / "diff_baked_vs_neural_0.png").is_file()
+    # the bake holds the fields the preview draws: baked and preview agree better than either with the mesh
+    assert m["baked_vs_neural"]["interior"]["psnr_db"] > 40
+    assert m["baked_vs_neural"]["interior"]["psnr_db"] > m["neural_vs_source"]["interior"]["psnr_db"]
+    assert "No neural preview" not in index.read_text()
+    with pytest.raises(ViewError, match="expected a renderer"):
+        write_asset_report(folder, neural="yes please")
 
 
 def test_report_replaces_the_old_one_whole_and_a_failure_keeps_it(bake_folder, monkeypatch):
@@ -131,3 +151,15 @@ def test_view_verb_writes_the_report_or_headless_frames(bake_folder, tmp_path, c
         assert err.startswith("neural-bake: error:") and msg in err and err.count("\n") == 1
     assert main(["view", str(folder), "--headless", "--views", "0"]) == 2
     assert "whole number" in capsys.readouterr().err
+
+
+def test_a_preview_that_cannot_draw_leaves_its_slot_with_the_reason(bake_folder):
+    folder, _ = bake_folder
+
+    def broken(camera):
+        raise RuntimeError("no surface\nat all")
+
+    index = write_asset_report(folder, ReportConfig(views=2, size=32), neural=broken, log=lambda m: None)
+    view = json.loads((index.parent / "view.json").read_text())
+    assert not view["neural"] and view["neural_note"] == "the preview renderer failed: no surface at all"
+    assert "neural_vs_source" not in view["metrics"]
