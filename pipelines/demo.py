@@ -103,7 +103,7 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     seq = fit_nested(sdf, cfg.nested_levels, mesh=mesh, minutes=cfg.nested_minutes, steps=1_000_000, seed=cfg.seed,
                      certify=cfg.nested_boxes > 0, certify_max_boxes=max(cfg.nested_boxes, 1),
                      stability_samples=(1_000, 10_000), progress=cfg.progress)
-    nested_path = out / "nested.safetensors"
+    nested_path = stage / "nested.safetensors"
     seq.save(nested_path)
     for i, info in enumerate(seq.levels_info):
         log(f"      level {i} ({info['width']}x{info['depth']}): δ = {info['delta']:.4f} ({info['delta_source']})")
@@ -117,16 +117,11 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     tex_q = texture_metrics(tex.model, mesh, seq, delta=tex.delta, n=50_000)
     log(f"      {tex.steps} steps in {tex.seconds:.0f} s: surface PSNR {tex_q['surface_psnr']:.1f} dB")
 
-<<<<<<< HEAD
     log(f"[5/5] baking the nested sequence onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
     # force: the sequence was fitted on this very mesh; a short budget's rough fit is baked and reported, with
     # the mesh check's figures in the report, rather than refused
-    report = bake_asset(str(mesh_path), str(nested_path), out,
+    report = bake_asset(str(mesh_path), str(nested_path), folder,
                         BakeAssetConfig(coarse=cfg.coarse, size=cfg.size, force=True),
-=======
-    log(f"[4/4] baking onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
-    report = bake_asset(str(mesh_path), str(sdf_path), folder, BakeAssetConfig(coarse=cfg.coarse, size=cfg.size),
->>>>>>> main
                         texture_model=str(tex_path), log=lambda m: log("      " + m))
     summary = {
         "config": asdict(cfg),
