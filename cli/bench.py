@@ -19,6 +19,7 @@ BENCHES = {
     "dynamic": ("neural_bake.cli.bench_dynamic", "command"),
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
     "view": ("neural_bake.cli.bench_view", "command"),
+    "batch": ("neural_bake.cli.bench_batch", "command"),
 }
 
 
