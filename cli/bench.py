@@ -16,8 +16,10 @@ BENCHES = {
     "bake": ("neural_bake.cli.bench_bake", "command"),
     "coarse": ("neural_bake.cli.bench_coarse", "command"),
     "render": ("neural_bake.cli.bench_render", "command"),
+    "dynamic": ("neural_bake.cli.bench_dynamic", "command"),
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
     "view": ("neural_bake.cli.bench_view", "command"),
+    "batch": ("neural_bake.cli.bench_batch", "command"),
 }
 
 

@@ -89,7 +89,7 @@ def command(mesh, sdf_path, output, preset, texture_path, uv_policy, lam, delta,
 
     from .options import lock_outputs, refuse_nonpositive
 
-    refuse_nonpositive(steps=steps, minutes=minutes, lr=lr, batch=batch, width=width, lam=None)
+    refuse_nonpositive(steps=steps, minutes=minutes, lr=lr, batch=batch, width=width)
     lock_outputs(output, checkpoint)  # checks their folders; one writer per file
     m = load_mesh(mesh, texture_path, uv_policy=uv_policy)
     overrides = {k: v for k, v in dict(lam=lam, delta=delta, minutes=minutes, steps=steps, width=width,

@@ -62,6 +62,8 @@ COMMANDS = {
     "inspect": ("neural_bake.cli.inspect", "command"),
     "fit": ("neural_bake.cli.fit", "group"),
     "bake": ("neural_bake.cli.bake", "command"),
+    "bake-frames": ("neural_bake.cli.bake_frames", "command"),
+    "batch": ("neural_bake.cli.batch", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),
     "render": ("neural_bake.cli.render", "command"),
@@ -116,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.simplefilter("always", NeuralBakeWarning)
     try:
         with _sigterm_raises():
-            cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
+            code = cli.main(args=argv, prog_name="neural-bake", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("neural-bake: aborted", err=True)
         return 130
@@ -138,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     except Terminated:
         click.echo("neural-bake: terminated", err=True)
         return 143
-    return 0
+    return code if isinstance(code, int) else 0  # a verb's click.exceptions.Exit(code), else 0
 
 
 def cli_message(exc: NeuralBakeError) -> str:

@@ -1,4 +1,5 @@
-"""`neural-bake samples --out DIR`: write the generated sample meshes (OBJ + MTL + PNG) with analytic truth."""
+"""`neural-bake samples --out DIR`: write the generated sample meshes (OBJ + MTL + PNG) with analytic truth, and
+the animated samples as folders of numbered OBJ frames with ``frames.json``."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import click
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder to write <name>.obj/.mtl/.png into (created if missing).")
 @click.option("--names", multiple=True, metavar="NAME[,NAME...]",
-              help="Samples to write (repeat or comma-separate); default all: sphere, bumpy_sphere, torus, jack.")
+              help="Samples to write (repeat or comma-separate); default all: sphere, bumpy_sphere, torus, jack, and the "
+                   "animations travelling_bumps, twisting_torus, splitting_sphere (numbered OBJ frames).")
 @click.option("--resolution", type=int, default=None, metavar="FACES",
               help="Approximate face count of every mesh (default: each sample's own, ~8k-16k).")
 @click.option("--texture-size", type=int, default=None, metavar="TEXELS",
@@ -21,7 +23,7 @@ def command(out_dir: str, names: tuple[str, ...], resolution: int | None, textur
     from pathlib import Path
 
     from neural_bake.io.outdir import OutputFolder
-    from neural_bake.samples.generate import check_generate_args, generate
+    from neural_bake.samples.generate import FRAMES_FILE, check_generate_args, generate
 
     chosen = [n.strip() for item in names for n in item.split(",") if n.strip()] or None
     check_generate_args(chosen, resolution, texture_size)  # every option checked before any write
@@ -30,4 +32,5 @@ def command(out_dir: str, names: tuple[str, ...], resolution: int | None, textur
     with OutputFolder(out) as stage:
         written = generate(stage, chosen, resolution=resolution, texture_size=texture_size)
     for name, path in written.items():
-        click.echo(f"{name}: {out / path.name}")
+        shown = out / path.name
+        click.echo(f"{name}: {shown}" + (f"/ (frames and {FRAMES_FILE})" if path.is_dir() else ""))

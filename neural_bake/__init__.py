@@ -23,6 +23,7 @@ _EXPORTS = {
     "ImageError": ".errors",
     "ModelFileError": ".errors",
     "FitError": ".errors",
+    "TimeRangeError": ".errors",
     "NeuralBakeWarning": ".errors",
     # io
     "atomic_path": ".io.atomic",
@@ -49,6 +50,7 @@ _EXPORTS = {
     "TextureField": ".fields",
     "ColorField": ".fields",
     "NestedSequence": ".fields",
+    "SpaceTimeField": ".fields",
     "load_field": ".fields",
     "save_field": ".fields",
     "save_model": ".fields",
@@ -67,6 +69,11 @@ _EXPORTS = {
     "sdf_metrics": ".fit.metrics",
     "TextureFitConfig": ".fit.texture",
     "fit_texture": ".fit.texture",
+    "SpaceTimeFitConfig": ".fit.spacetime",
+    "SpaceTimeFit": ".fit.spacetime",
+    "fit_morph": ".fit.spacetime",
+    "fit_sequence": ".fit.spacetime",
+    "nest_spacetime": ".fit.spacetime",
     "texture_metrics": ".fit.texture",
     # mesh
     "decimate": ".mesh.decimate",

@@ -12,6 +12,10 @@ DEGENERATE_AREA = 1e-12
 #: |∇f| below this is a zero gradient: the normal is invalid (masked), never NaN.
 GRAD_EPS = 1e-8
 
+#: A time this close to a space-time field's fitted range [t0, t1] (relative to its length; absolute for a
+#: single time) is clamped onto it; farther out is refused (no extrapolation).
+TIME_RANGE_TOL = 1e-9
+
 #: Default ω0 of a SIREN's first layer (Sitzmann et al.).
 DEFAULT_OMEGA_0 = 30.0
 

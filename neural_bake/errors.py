@@ -27,6 +27,7 @@ __all__ = [
     "ImageError",
     "ModelFileError",
     "FitError",
+    "TimeRangeError",
     "NeuralBakeWarning",
     "OutputError",
     "WriteError",
@@ -69,6 +70,10 @@ class ModelFileError(NeuralBakeError):
 
 class FitError(NeuralBakeError):
     """Training that cannot go on (divergence that a smaller learning rate did not cure, no samples)."""
+
+
+class TimeRangeError(NeuralBakeError):
+    """A time outside the range a space-time field was fitted over (no extrapolation)."""
 
 
 class OutputError(NeuralBakeError):

@@ -69,7 +69,7 @@ class BakeAssetConfig:
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
-               log: Callable[[str], None] = print) -> dict:
+               coarse_mesh=None, log: Callable[[str], None] = print) -> dict:
     """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
 
     ``out`` is a path (committed as a unit when the bake succeeds) or an entered
@@ -77,11 +77,14 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
 
     Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
     and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
+    ``coarse_mesh``: a ``(Mesh, info)`` pair made earlier (by the batch's coarse stage, from ``config.coarse``)
+    to bake onto instead of making it here.
     Raises NeuralBakeError (one line) for bad input, before anything is written.
     """
     import numpy as np
 
-    from neural_bake.bake.baker import Baker, bake_vertices, coarse_mesh, parse_coarse
+    from neural_bake.bake.baker import Baker, bake_vertices, parse_coarse
+    from neural_bake.bake.baker import coarse_mesh as make_coarse_mesh
     from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import MeshError, NeuralBakeError
@@ -154,7 +157,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         if not sdf_check["passed"]:
             log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
                 f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
-        coarse_m, coarse_info = coarse_mesh(reference if keep else fine, coarse, sdf_file)
+        coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
+                                 else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
         timings["coarse"] = coarse_info["seconds"]
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
         if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:

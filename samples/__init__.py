@@ -8,8 +8,10 @@ See :mod:`neural_bake.samples.shapes` for the shapes and their analytic function
 :mod:`neural_bake.samples.generate` for the files.
 """
 
-from .generate import DATA_DIR, generate, sample_path
+from .animated import ANIMATED, SplittingSphere, TravellingBumps, TwistingTorus, get_animation
+from .generate import DATA_DIR, FRAMES_FILE, generate, sample_path, write_animation
 from .shapes import SAMPLES, BumpySphere, Jack, SampleMesh, Sphere, Torus, get_sample, unit_frame_normals
 
 __all__ = ["SAMPLES", "SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "get_sample", "generate",
-           "sample_path", "DATA_DIR", "unit_frame_normals"]
+           "sample_path", "DATA_DIR", "unit_frame_normals", "ANIMATED", "TravellingBumps", "TwistingTorus",
+           "SplittingSphere", "get_animation", "write_animation", "FRAMES_FILE"]

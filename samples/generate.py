@@ -1,13 +1,16 @@
 """Write the samples as OBJ + MTL + PNG (8-bit sRGB) and find the bundled copies.
 
-``generate(out_dir)`` writes ``<name>.obj``, ``<name>.mtl`` and ``<name>.png`` for each sample, every file
-atomically (texture and MTL first, the OBJ last, so an OBJ never names a missing file). Coordinates are the
+``generate(out_dir)`` writes ``<name>.obj``, ``<name>.mtl`` and ``<name>.png`` for each static sample, every
+file atomically (texture and MTL first, the OBJ last, so an OBJ never names a missing file), and for each
+animation (:mod:`neural_bake.samples.animated`) a folder ``<name>/`` of numbered geometry-only frames
+``<name>_0000.obj``, … with ``frames.json`` (the frame files and their times, written last). Coordinates are the
 sample's own frame (the analytic functions' frame), written with 6 decimals to keep the files small.
 The package ships the default-resolution files in ``samples/data/``; :func:`sample_path` finds them.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Iterable
@@ -17,9 +20,13 @@ import numpy as np
 from neural_bake.errors import NeuralBakeError
 from neural_bake.io.atomic import atomic_write_text
 
+from .animated import ANIMATED
 from .shapes import SAMPLES, SampleMesh, get_sample
 
-__all__ = ["generate", "check_generate_args", "sample_path", "write_sample", "obj_text", "DATA_DIR"]
+__all__ = ["generate", "check_generate_args", "sample_path", "write_sample", "write_animation", "obj_text", "DATA_DIR", "FRAMES_FILE"]
+
+#: The index file of an animation's folder: ``{"name", "sdf_kind", "times": [...], "frames": [...]}``.
+FRAMES_FILE = "frames.json"
 
 #: Where the bundled sample files live (package data).
 DATA_DIR = Path(__file__).parent / "data"
@@ -67,6 +74,26 @@ def write_sample(m: SampleMesh, out_dir: str | os.PathLike, name: str) -> Path:
     return obj
 
 
+def write_animation(anim, out_dir: str | os.PathLike, *, times=None, resolution: int | None = None) -> Path:
+    """Write animation ``anim``'s frames at ``times`` (default ``anim.times``) into ``out_dir/<name>/`` as
+    ``<name>_0000.obj``, … (geometry only) and :data:`FRAMES_FILE` (written last); return the folder."""
+    times = [float(t) for t in (anim.times if times is None else times)]
+    folder = Path(out_dir) / anim.name
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for k, t in enumerate(times):
+        m = anim.mesh(t, resolution)
+        name = f"{anim.name}_{k:04d}.obj"
+        text = [f"# neural_bake animated sample {anim.name}, t = {t:g}\n"]
+        text.append("".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in np.asarray(m.vertices).tolist()))
+        text.append("".join(f"f {a} {b} {c}\n" for a, b, c in (np.asarray(m.faces) + 1).tolist()))
+        atomic_write_text(folder / name, "".join(text).replace("-0.000000", "0.000000"))
+        files.append(name)
+    index = {"name": anim.name, "sdf_kind": anim.sdf_kind, "times": times, "frames": files}
+    atomic_write_text(folder / FRAMES_FILE, json.dumps(index, indent=1) + "\n")
+    return folder
+
+
 def generate(
     out_dir: str | os.PathLike,
     names: Iterable[str] | None = None,
@@ -74,10 +101,12 @@ def generate(
     resolution: int | None = None,
     texture_size: int | None = None,
 ) -> dict[str, Path]:
-    """Generate samples ``names`` (default: all) into ``out_dir`` (created if missing); return name -> OBJ.
+    """Generate samples ``names`` (default: all, static and animated) into ``out_dir`` (created if missing);
+    return name -> OBJ (static samples) or name -> folder of frames (animations, :func:`write_animation`).
 
     - ``resolution``: approximate face count of every mesh (default: each sample's own, ~8k–24k).
-    - ``texture_size``: texture width in texels (default 512; lat-long textures are half as high).
+    - ``texture_size``: texture width in texels (default 512; lat-long textures are half as high; animated
+      frames have no texture).
 
     Raises :class:`NeuralBakeError` for an unknown name or an output path that is not a folder.
     """
@@ -86,12 +115,23 @@ def generate(
     if out.exists() and not out.is_dir():
         raise NeuralBakeError(f"{out}: not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    return {s.name: write_sample(s.mesh(resolution, texture_size), out, s.name) for s in samples}
+    written = {}
+    for s in samples:
+        if s.name in ANIMATED:
+            written[s.name] = write_animation(s, out, resolution=resolution)
+        else:
+            written[s.name] = write_sample(s.mesh(resolution, texture_size), out, s.name)
+    return written
 
 
 def check_generate_args(names: Iterable[str] | None, resolution: int | None, texture_size: int | None) -> list:
-    """The samples ``names`` (default: all) stands for; NeuralBakeError for an unknown name or a bad size."""
-    samples = [get_sample(n) for n in (list(SAMPLES) if names is None else list(names))]
+    """The samples and animations ``names`` (default: all) stands for; NeuralBakeError for an unknown name or a
+    bad size."""
+    names = [*SAMPLES, *ANIMATED] if names is None else list(names)
+    unknown = [n for n in names if n not in SAMPLES and n not in ANIMATED]
+    if unknown:
+        raise NeuralBakeError(f"unknown sample {unknown[0]!r} (known: {', '.join([*SAMPLES, *ANIMATED])})")
+    samples = [ANIMATED[n] if n in ANIMATED else get_sample(n) for n in names]
     if resolution is not None and int(resolution) < 32:
         raise NeuralBakeError(f"resolution must be an approximate face count >= 32, got {resolution}")
     if texture_size is not None and int(texture_size) < 8:
@@ -100,7 +140,7 @@ def check_generate_args(names: Iterable[str] | None, resolution: int | None, tex
 
 
 def main() -> None:  # pragma: no cover - `python -m neural_bake.samples.generate` refreshes the bundled files
-    for name, path in generate(DATA_DIR).items():
+    for name, path in generate(DATA_DIR, list(SAMPLES)).items():
         print(f"{name}: {path} ({path.stat().st_size / 1e6:.2f} MB)")
 
 

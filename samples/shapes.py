@@ -182,7 +182,7 @@ class Sphere:
 
 @dataclass(frozen=True)
 class BumpySphere:
-    """A sphere displaced radially by smooth bumps: r(d) = R + a·h(d), h(d) = sin(k dx) sin(k dy) sin(k dz).
+    """A sphere displaced radially by smooth bumps: r(d) = R + a·h(d), h(d) = Π_j sin(k d_j + φ_j) (φ = 0 by default).
 
     h is a smooth function of the unit direction d (no pole singularities); a·k·|∇h| < R keeps the surface
     star-shaped, smooth and without overhangs. The implicit function is F(p) = |p| - r(p/|p|), with
@@ -200,14 +200,17 @@ class BumpySphere:
     """Bump amplitude a."""
     frequency: float = 10.0
     """Angular frequency k of the bumps."""
+    phase: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Phases φ of the three factors, h(d) = Π_j sin(k d_j + φ_j): a changing phase moves the bumps over the
+    sphere (the ``travelling_bumps`` animation)."""
     faces: int = 16384
     texture_size: int = 512
     sdf_kind: str = "first-order"
 
     def _h(self, d):
         k = self.frequency
-        s = np.sin(k * d)
-        c = np.cos(k * d)
+        s = np.sin(k * d + np.asarray(self.phase))
+        c = np.cos(k * d + np.asarray(self.phase))
         h = s[:, 0] * s[:, 1] * s[:, 2]
         grad = k * np.stack([c[:, 0] * s[:, 1] * s[:, 2], s[:, 0] * c[:, 1] * s[:, 2], s[:, 0] * s[:, 1] * c[:, 2]], 1)
         return h, grad

@@ -7,6 +7,7 @@ from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_fi
                     save_model, to_sdf_field)
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, unit_normals
+from .spacetime import SPACETIME_KIND, SpaceTimeField, time_mapping, time_to_tau
 from .texture import ColorField, TextureField
 
 __all__ = [
@@ -25,4 +26,8 @@ __all__ = [
     "BARE_NETWORK_HINT",
     "NESTED_FORMAT",
     "unit_normals",
+    "SpaceTimeField",
+    "SPACETIME_KIND",
+    "time_mapping",
+    "time_to_tau",
 ]

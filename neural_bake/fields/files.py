@@ -145,6 +145,10 @@ def save_field(field, path: str | os.PathLike) -> Path:
         data = encode_file(nested_tensors(field), field.header(), NESTED_FORMAT, path)
         _check_folder(path)
         return atomic_write_bytes(path, data)
+    from .spacetime import SpaceTimeField
+
+    if isinstance(field, SpaceTimeField):
+        return field.save(path)
     if not isinstance(field, (SdfField, TextureField)):
         raise ModelFileError(f"{path}: save_field expects an SdfField, TextureField or NestedSequence, got "
                              f"{type(field).__name__}")

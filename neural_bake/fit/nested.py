@@ -23,7 +23,12 @@ The sup-norm is
   box bound: a guaranteed upper bound of |h − g| on the band. A :class:`NeuralBakeWarning` is issued when
   it exceeds the estimate by more than ``warn_ratio``.
 
+Space-time fields (``in_dim`` 4: x and the time input τ ∈ [-1, 1]) nest the same way over [-1, 1]⁴: the
+samples and the boxes cover space × time, so one δ per level holds at every t
+(:func:`neural_bake.fit.spacetime.nest_spacetime`).
+
 The sequence itself (the asset, its file) is :class:`neural_bake.fields.NestedSequence`, re-exported here.
+
 Both δ are stored per level (``delta_estimated``, ``delta_certified``); :attr:`NestedSequence.deltas` (what
 a renderer uses) takes a level's certified sup-norm only where its certification met the target, else the
 estimate: affine bounds over boxes of a ω0 = 30 network are loose until the boxes are tiny, and a
@@ -79,18 +84,20 @@ def _eval(model, x: torch.Tensor, chunk: int = 65536) -> torch.Tensor:
 
 @torch.no_grad()
 def band_samples(models, n: int, band: float, *, seed: int = 0, max_tries: int = 200) -> torch.Tensor:
-    """``n`` points uniform in [-1, 1]³ restricted to ``{x : min_m |m(x)| < band}`` (rejection sampling).
+    """``n`` points uniform in [-1, 1]^d restricted to ``{x : min_m |m(x)| < band}`` (rejection sampling).
 
-    ``models``: one network or a list (union of their bands). Returns (n, 3) in the first model's dtype;
-    fewer than ``n`` rows only if ``max_tries`` batches found too few (a network with no zero set nearby).
+    ``models``: one network or a list (union of their bands), d = their ``in_dim`` (3; 4 for space-time
+    fields, whose time input spans [-1, 1] too). Returns (n, d) in the first model's dtype; fewer than ``n``
+    rows only if ``max_tries`` batches found too few (a network with no zero set nearby).
     """
     models = models if isinstance(models, (list, tuple)) else [models]
     p = next(models[0].parameters())
+    dim = int(getattr(models[0], "in_dim", 3))
     gen = torch.Generator().manual_seed(int(seed))
     got, total = [], 0
     batch = max(4 * n, 65536)
     for _ in range(max_tries):
-        x = (torch.rand(batch, 3, generator=gen, dtype=torch.float64) * 2 - 1).to(p.dtype)
+        x = (torch.rand(batch, dim, generator=gen, dtype=torch.float64) * 2 - 1).to(p.dtype)
         keep = torch.zeros(batch, dtype=torch.bool)
         for m in models:
             keep |= (_eval(m, x).abs() < band).cpu()
@@ -98,7 +105,7 @@ def band_samples(models, n: int, band: float, *, seed: int = 0, max_tries: int =
         total += int(keep.sum())
         if total >= n:
             break
-    out = torch.cat(got)[:n] if got else torch.zeros(0, 3, dtype=p.dtype)
+    out = torch.cat(got)[:n] if got else torch.zeros(0, dim, dtype=p.dtype)
     return out.to(p.device)
 
 
@@ -110,7 +117,8 @@ def estimate_sup_norm(h, g, *, band: float = 0.1, n: int = 100_000, seed: int = 
     """
     x = band_samples([h, g], n, band, seed=seed)
     if x.shape[0] == 0:
-        raise FitError(f"sup-norm estimate: no point of [-1, 1]^3 lies within {band} of either zero level set")
+        raise FitError(f"sup-norm estimate: no point of [-1, 1]^{x.shape[1]} lies within {band} of either zero "
+                       f"level set")
     return float((_eval(h, x).double() - _eval(g, x).double()).abs().max())
 
 
@@ -124,12 +132,14 @@ def _box_ranges(models, center, axes, method):
 def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, rel_tol: float = 0.25,
                      max_boxes: int = 20_000, min_half: float = 1.0 / 256, initial: int = 8,
                      method: str = "affine-fixed", batch: int = 2048) -> dict:
-    """A guaranteed upper bound of |h − g| on the band ``{|h| < band or |g| < band}`` ∩ [-1, 1]³.
+    """A guaranteed upper bound of |h − g| on the band ``{|h| < band or |g| < band}`` ∩ [-1, 1]^d.
 
-    Boxes (axis-aligned cubes) start as an ``initial``³ grid of [-1, 1]³; a box is dropped when the
+    d is the networks' ``in_dim`` (3; 4 for space-time fields: boxes of space × time, so the bound holds at
+    every t of the range). Boxes (axis-aligned cubes) start as an ``initial``^d grid of [-1, 1]^d; a box is
+    dropped when the
     guaranteed ranges of h and g over it both miss [-band, band]; otherwise its bound is
     ``max(|lo|, |hi|)`` of :func:`~neural_bake.nets.range_analysis.difference_bound`. The box with the largest
-    bound is split into 8 while that bound exceeds ``max(estimate × (1 + rel_tol), CERTIFY_MIN_TARGET)``, the box
+    bound is split into 2^d while that bound exceeds ``max(estimate × (1 + rel_tol), CERTIFY_MIN_TARGET)``, the box
     is larger than ``min_half`` and fewer than ``max_boxes`` boxes have been bounded.
 
     Returns ``{"sup_certified", "boxes_bounded", "boxes_final", "complete"}`` where ``complete`` says every
@@ -140,10 +150,11 @@ def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, 
     p = next(h.parameters())
     dtype, device = p.dtype, p.device
     target = max((estimate or 0.0) * (1.0 + rel_tol), CERTIFY_MIN_TARGET)
+    dim = int(h.in_dim)
     k = int(initial)
     axis = (torch.arange(k, dtype=dtype) * 2 + 1) / k - 1
-    cx, cy, cz = torch.meshgrid(axis, axis, axis, indexing="ij")
-    centers = torch.stack([cx.reshape(-1), cy.reshape(-1), cz.reshape(-1)], 1).to(device)
+    grids = torch.meshgrid(*([axis] * dim), indexing="ij")
+    centers = torch.stack([c.reshape(-1) for c in grids], 1).to(device)
     halves = torch.full((centers.shape[0],), 1.0 / k, dtype=dtype, device=device)
     heap: list[tuple[float, int, tuple, float]] = []  # (-bound, id, center, half)
     counter, bounded = 0, 0
@@ -152,7 +163,7 @@ def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, 
         nonlocal counter, bounded
         for s in range(0, c.shape[0], batch):
             cc, hh = c[s:s + batch], hf[s:s + batch]
-            axes = torch.diag_embed(hh[:, None].expand(-1, 3))
+            axes = torch.diag_embed(hh[:, None].expand(-1, dim))
             with torch.no_grad():
                 in_band = torch.zeros(cc.shape[0], dtype=torch.bool, device=device)
                 for lo, hi in _box_ranges([h, g], cc, axes, method):
@@ -169,18 +180,18 @@ def certify_sup_norm(h, g, *, band: float = 0.1, estimate: float | None = None, 
                 heapq.heappush(heap, (-float(b[i]), counter, tuple(cc[i].tolist()), float(hh[i])))
 
     bound_boxes(centers, halves)
-    unit = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=dtype,
-                        device=device)
+    unit = torch.cartesian_prod(*([torch.tensor([-1.0, 1.0], dtype=dtype)] * dim)).reshape(-1, dim).to(device)
+    children = unit.shape[0]
     while heap:
         split = []  # the worst boxes that still miss the target, up to 32 per batch of range analysis
         while (heap and len(split) < 32 and -heap[0][0] > target and heap[0][3] > min_half
-               and bounded + 8 * (len(split) + 1) <= max_boxes):
+               and bounded + children * (len(split) + 1) <= max_boxes):
             split.append(heapq.heappop(heap))
         if not split:
             break
         cs = torch.tensor([e[2] for e in split], dtype=dtype, device=device)
         qs = torch.tensor([e[3] / 2 for e in split], dtype=dtype, device=device)
-        bound_boxes((cs[:, None, :] + unit[None] * qs[:, None, None]).reshape(-1, 3), qs.repeat_interleave(8))
+        bound_boxes((cs[:, None, :] + unit[None] * qs[:, None, None]).reshape(-1, dim), qs.repeat_interleave(children))
     worst = -heap[0][0] if heap else 0.0
     complete = worst <= target
     return {"sup_certified": float(worst), "boxes_bounded": int(bounded), "boxes_final": len(heap),
@@ -195,7 +206,8 @@ def _distill(student: Siren, teacher, *, steps, minutes, lr, seed, band, batch, 
     n_band = int(pool * 0.8)
     xb = band_samples(teacher, n_band, 2 * band, seed=seed * 31 + 1)
     gen = torch.Generator().manual_seed(seed * 31 + 2)
-    xu = (torch.rand(pool - xb.shape[0], 3, generator=gen, dtype=torch.float64) * 2 - 1).to(device, dtype)
+    dim = int(student.in_dim)
+    xu = (torch.rand(pool - xb.shape[0], dim, generator=gen, dtype=torch.float64) * 2 - 1).to(device, dtype)
     parts = [xb.to(device, dtype), xu]
     if surface_points is not None and len(surface_points):
         parts.append(torch.as_tensor(surface_points, dtype=dtype, device=device))
@@ -205,7 +217,7 @@ def _distill(student: Siren, teacher, *, steps, minutes, lr, seed, band, batch, 
     # (its own band) are seen too; the sup is taken over {|teacher| < band or |student| < band}
     gv = torch.Generator().manual_seed(seed * 31 + 4)
     xv = torch.cat([band_samples(teacher, eval_n, band, seed=seed * 31 + 3).to(device, dtype),
-                    (torch.rand(eval_n, 3, generator=gv, dtype=torch.float64) * 2 - 1).to(device, dtype)])
+                    (torch.rand(eval_n, dim, generator=gv, dtype=torch.float64) * 2 - 1).to(device, dtype)])
     yv = _eval(teacher, xv).to(dtype)
 
     def step_fn(step, g):
@@ -289,9 +301,11 @@ def fit_nested(
         fine_model = fine_model.model
     if not isinstance(fine_model, Siren):
         raise FitError(f"fit_nested: fine_model must be a Siren or an SdfFit, got {type(fine_model).__name__}")
-    if fine_model.in_dim != 3 or fine_model.out_dim != 1:
-        raise FitError(f"fit_nested: the fine model must map R^3 to R (got R^{fine_model.in_dim} -> "
-                       f"R^{fine_model.out_dim})")
+    if fine_model.in_dim not in (3, 4) or fine_model.out_dim != 1:
+        raise FitError(f"fit_nested: the fine model must map R^3 (or space-time R^4) to R (got "
+                       f"R^{fine_model.in_dim} -> R^{fine_model.out_dim})")
+    if mesh is not None and fine_model.in_dim != 3:
+        raise FitError("fit_nested: mesh is for a static fine model; a space-time model takes no mesh")
     levels = parse_levels(levels) if isinstance(levels, str) else [tuple(lv) for lv in levels]
     for lv in levels:
         if len(lv) != 2 or int(lv[0]) != lv[0] or int(lv[1]) != lv[1] or lv[0] < 1 or lv[1] < 0:
@@ -312,8 +326,8 @@ def fit_nested(
     fine_model.eval()
     p = next(fine_model.parameters())
     if band_samples(fine_model, 64, band, seed=int(seed), max_tries=16).shape[0] == 0:
-        raise FitError(f"fit_nested: the fine model has no point of [-1, 1]^3 within {band} of its zero level set "
-                       f"(is it an SDF of a surface in the unit frame?)")
+        raise FitError(f"fit_nested: the fine model has no point of [-1, 1]^{fine_model.in_dim} within {band} of "
+                       f"its zero level set (is it an SDF of a surface in the unit frame?)")
     surface = None
     if mesh is not None:
         from .sampling import sample_surface
@@ -326,7 +340,8 @@ def fit_nested(
     for i in range(len(levels) - 1, -1, -1):
         w, d = levels[i]
         gen = torch.Generator().manual_seed(int(seed) * 101 + i)
-        student = Siren(int(w), int(d), omega_0=omega_0 or fine_model.omega_0, generator=gen).to(p.device, p.dtype)
+        student = Siren(int(w), int(d), in_dim=fine_model.in_dim, omega_0=omega_0 or fine_model.omega_0,
+                        generator=gen).to(p.device, p.dtype)
         info, _ = _distill(student, teacher, steps=int(steps), minutes=minutes, lr=lr, seed=int(seed) * 101 + i,
                            band=band, batch=int(batch), pool=int(pool), eval_n=int(eval_samples),
                            eval_every=int(eval_every), progress=progress, desc=f"nested level {w}x{d}",

@@ -292,7 +292,12 @@ def train(
     if cfg.progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=cfg.steps, initial=step, desc=cfg.desc, leave=False, dynamic_ncols=True)
+        if cfg.minutes is not None:  # a time budget: the bar is seconds against it (the step cap is a safety net)
+            bar = tqdm(total=round(60.0 * cfg.minutes, 1), initial=round(min(spent, 60.0 * cfg.minutes), 1),
+                       desc=cfg.desc, leave=False, dynamic_ncols=True, unit="s",
+                       bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s of the budget{postfix}")
+        else:
+            bar = tqdm(total=cfg.steps, initial=step, desc=cfg.desc, leave=False, dynamic_ncols=True)
 
     snapshot = _snapshot(model, opt)
     snapshot_step = step
@@ -342,7 +347,7 @@ def train(
                               f"{snapshot_step} and halved the learning rate to {base_lr:.3g}",
                               NeuralBakeWarning, stacklevel=2)
                 step = snapshot_step
-                if bar is not None:
+                if bar is not None and cfg.minutes is None:
                     bar.n = step
                     bar.refresh()
                 continue
@@ -359,10 +364,11 @@ def train(
                 if on_log is not None:
                     on_log(entry)
                 if bar is not None:
-                    bar.set_postfix({k: f"{v:.3g}" for k, v in entry.items() if k not in ("step", "seconds")},
-                                    refresh=False)
-            if bar is not None:
-                bar.update(1)
+                    post = {"step": step} if cfg.minutes is not None else {}
+                    post.update({k: f"{v:.3g}" for k, v in entry.items() if k not in ("step", "seconds")})
+                    bar.set_postfix(post, refresh=False)
+            if bar is not None:  # one step, or the seconds since the last one (tqdm throttles the redraws)
+                bar.update(1 if cfg.minutes is None else max(0.0, round(min(spent, bar.total) - bar.n, 3)))
             if evaluate is not None and cfg.eval_every and step % cfg.eval_every == 0:
                 run_eval(step)
             if cfg.checkpoint and step % cfg.checkpoint_every == 0:

@@ -73,14 +73,14 @@ def _safetensors_os_error(exc: BaseException, dest: Path) -> OSError:
     return OSError(code, os.strerror(code), str(dest))
 
 
-def _target_mode(dest: Path) -> int:
-    """Permission bits for the written file: those of the file it replaces, else 0o666 minus the umask."""
+def _target_mode(dest: Path, default: int = 0o666) -> int:
+    """Permission bits for what replaces ``dest``: those of ``dest``, else ``default`` minus the umask."""
     try:
         return dest.stat().st_mode & 0o7777
     except OSError:
         umask = os.umask(0)
         os.umask(umask)
-        return 0o666 & ~umask
+        return default & ~umask
 
 
 def _allow_empty(dest: Path) -> bool:

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import OutputBusyError, OutputError, WriteError, os_error
-from .atomic import atomic_write_text
+from .atomic import _target_mode, atomic_write_text
 from .faults import fault_point
 
 __all__ = ["OutputFolder", "OutputLock", "locked_outputs", "record_in_set", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
@@ -84,16 +84,6 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:  # exists, owned by someone else
         return True
     return True
-
-
-def _folder_mode(out: Path) -> int:
-    """Permission bits for the new set's folder: those of the folder it replaces, else 0o777 minus the umask."""
-    try:
-        return out.stat().st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o777 & ~umask
 
 
 def _fsync_dir(path: Path) -> None:
@@ -274,7 +264,7 @@ class OutputFolder:
             self._check_foreign()
             try:
                 self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
-                os.chmod(self.stage, _folder_mode(out))  # mkdtemp's 0700 would become the output's mode
+                os.chmod(self.stage, _target_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
             except OSError as exc:
                 raise os_error(exc, out) from None
         except BaseException:

@@ -69,10 +69,15 @@ def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset |
                           "(x, y, z, t)")
     names = level_names(nets)
     tex_model = tex.model if tex is not None else None
-    time_range = tuple(getattr(field, "time_range", None) or (0.0, 1.0))
+    from ..fields.spacetime import time_mapping
+
+    # the file's time range and t ↦ the networks' time input (TimeRangeError outside the range)
+    time_range, time_input = (time_mapping(field) or (None, None))
+    time_range = tuple(time_range or getattr(field, "time_range", None) or (0.0, 1.0))
+    time_input = time_input or getattr(field, "time_input", None) or float
 
     def at(t: float) -> RenderAsset:
-        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=t)
+        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t))
                   for i, (m, d, n) in enumerate(zip(nets, ds, names))]
         tx = None
         if tex_model is not None:

@@ -90,7 +90,7 @@ def test_bare_network_says_how_to_save_a_fit(tmp_path):
 
 def test_unknown_kind_and_foreign_files_are_refused(tmp_path):
     with pytest.raises(ModelFileError, match=r"x\.sdf: unknown kind 'sdf4d' \(this neural_bake reads nested, sdf, "
-                                             r"texture\)"):
+                                             r"spacetime_sdf, texture\)"):
         load_field(save_model(_net(in_dim=4), tmp_path / "x.sdf", kind="sdf4d", frame=FRAME.to_dict()))
     save_file({"a": torch.zeros(2)}, str(tmp_path / "plain.safetensors"))
     with pytest.raises(ModelFileError, match=r"plain\.safetensors: a safetensors file but not a neural_bake field"):

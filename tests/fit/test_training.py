@@ -213,3 +213,19 @@ def test_detached_loss_without_backward_is_refused():
 
     with pytest.raises(FitError, match="without a graph and back-propagated nothing"):
         train(model, forgot, LoopConfig(steps=3, progress=False))
+
+
+def test_time_budgeted_progress_bar_shows_seconds_against_the_budget(capsys):
+    """Not steps out of the (unreachable) step cap: seconds out of the budget, the step count beside them."""
+    torch.manual_seed(0)
+    model = torch.nn.Linear(3, 1)
+
+    def step_fn(step, gen):
+        x = torch.rand(64, 3, generator=gen)
+        return {"loss": (model(x) ** 2).mean()}
+
+    res = train(model, step_fn, LoopConfig(steps=100_000, minutes=0.02, progress=True, log_every=1, desc="budget"))
+    err = capsys.readouterr().err
+    assert res.stopped_reason == "time budget"
+    assert "/1 s of the budget" in err and "step=" in err
+    assert "100000" not in err

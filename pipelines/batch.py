@@ -1,0 +1,437 @@
+"""Batch runs: many assets through the stages of :mod:`.stages`, on a local process pool or a Ray cluster.
+
+``run_batch(manifest, out, config)`` reads the manifest (:mod:`.manifest`), merges for each asset the preset,
+the batch's stage options and the asset's own overrides, checks them all before any work (a bad option fails
+that asset alone), runs the assets and writes OUT/batch.json: every asset with its status, the time of each
+stage, its headline metrics and, for a failure, the one-line reason. The summary is rewritten after each
+asset, so a batch that dies keeps the record of what it finished; a re-run skips every unchanged stage.
+
+Execution. ``executor="local"`` (default): each asset runs in its own fresh process (spawned), at most
+``workers`` at a time, each limited to ``threads`` torch threads with workers × threads ≤ the cores this
+process may use. A worker that dies (killed, out of memory) fails its asset only; the others go on.
+Ctrl-C stops the workers, records the unfinished assets as interrupted and re-raises KeyboardInterrupt.
+``executor="ray"``: one Ray task per asset (``ray.init(address)``; a local instance when no address), one CPU
+per torch thread and one GPU per task when the device is CUDA; OUT must be on storage every node shares.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from neural_bake.errors import NeuralBakeError
+
+from .manifest import STAGE_NAMES, AssetSpec, read_manifest
+
+__all__ = ["BatchConfig", "PRESETS", "run_batch", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
+           "OutputNotWritable", "summary_lines",
+           "batch_config", "resolved_config"]
+
+#: The summary of a batch, in OUT.
+SUMMARY_NAME = "batch.json"
+SUMMARY_FORMAT = "neural_bake.batch.v1"
+EXECUTORS = ("local", "ray")
+
+#: Stage options of the batch presets; the names are the fits' own (:mod:`neural_bake.fit.presets`).
+#: quick: about a minute per asset on a 2-core CPU (smoke runs: the quick fits at shorter budgets);
+#: default: the fits' default presets; high: the largest networks and longest budgets.
+PRESETS: dict[str, dict[str, dict]] = {
+    "quick": {
+        "sdf": {"preset": "quick", "minutes": 0.4},
+        "nested": {"levels": "32x1", "steps": 300, "certify": False},
+        "texture": {"preset": "quick", "minutes": 0.2},
+        "coarse": {"spec": "decimate:1000"},
+        "bake": {"size": 512},
+    },
+    "default": {
+        "sdf": {"preset": "default"},
+        "nested": {"levels": "64x1", "steps": 2000},
+        "texture": {"preset": "default"},
+        "coarse": {"spec": "decimate:2000"},
+        "bake": {"size": 2048},
+    },
+    "high": {
+        "sdf": {"preset": "high"},
+        "nested": {"levels": "64x1,256x1", "steps": 4000},
+        "texture": {"preset": "high"},
+        "coarse": {"spec": "decimate:5000"},
+        "bake": {"size": 4096, "supersample": 2},
+    },
+}
+
+
+@dataclass
+class BatchConfig:
+    """Settings of :func:`run_batch`; one line per field."""
+
+    preset: str = "default"
+    """Stage settings preset: quick (about a minute per asset), default or high (:data:`PRESETS`)."""
+    stages: dict[str, dict] = field(default_factory=dict)
+    """Stage options over the preset's, ``{stage: {field: value}}`` (a manifest row's override these)."""
+    workers: int = 0
+    """Assets run at once (0: the usable cores // 2, at least 1)."""
+    threads: int = 0
+    """Torch threads per worker (0: usable cores // workers, at least 1)."""
+    executor: str = "local"
+    """"local" (a process pool on this machine) or "ray"."""
+    address: str | None = None
+    """Ray cluster address (executor "ray"; None: start a local Ray instance)."""
+    seed: int | None = None
+    """Seed of every fit (None: each stage's own default)."""
+    device: str | None = None
+    """Torch device of the fits ("cpu", "cuda", …; None: each stage's default, the CPU)."""
+    quiet: bool = False
+    """Print only the summary (no per-stage lines)."""
+    verbose: bool = False
+    """Also print the bake's own lines."""
+
+
+class OutputNotWritable(NeuralBakeError):
+    """The output folder cannot be created or written (permissions, read-only file system): exit code 1."""
+
+    exit_code = 1
+
+
+def batch_config(table: dict | None = None, *, where: str = "config", **overrides) -> BatchConfig:
+    """A BatchConfig from a settings table (a TOML file's: batch fields at the top, one table per stage) with
+    ``overrides`` (the command line's) applied last; NeuralBakeError naming ``where`` and the key otherwise."""
+    table = dict(table or {})
+    names = {f.name for f in dataclasses.fields(BatchConfig)} - {"stages"}
+    stages: dict[str, dict] = {}
+    values = {}
+    for k, v in table.items():
+        if k in STAGE_NAMES:
+            if not isinstance(v, dict):
+                raise NeuralBakeError(f"{where}: [{k}] must be a table of {k} settings")
+            stages[k] = dict(v)
+        elif k in names:
+            values[k] = None if v == "none" else v
+        else:
+            raise NeuralBakeError(f"{where}: unknown key {k!r} (batch settings: {', '.join(sorted(names))}; "
+                                  f"stage tables: {', '.join(STAGE_NAMES)})")
+    for stage, opts in (overrides.pop("stages", None) or {}).items():
+        stages.setdefault(stage, {}).update(opts)
+    return BatchConfig(**{**values, **overrides, "stages": stages})
+
+
+def resolved_config(cfg: BatchConfig) -> tuple[dict, dict]:
+    """(table, comments) of ``cfg`` with every stage's settings resolved (preset, config, command line), as
+    ``--print-config`` writes it: a TOML file that gives the same run."""
+    from neural_bake.configs import field_docs
+
+    from .stages import _stage_classes, resolve_stages, stage_key_config
+
+    if cfg.preset not in PRESETS:
+        raise NeuralBakeError(f"preset {cfg.preset!r}: unknown (choose from {', '.join(PRESETS)})")
+    resolved = resolve_stages(_batch_options(cfg))
+    table = {k: v for k, v in asdict(cfg).items() if k != "stages"}
+    comments = {k: field_docs(BatchConfig).get(k, "") for k in table}
+    classes = _stage_classes()
+    for stage in STAGE_NAMES:
+        table[stage] = {k: v for k, v in stage_key_config(resolved[stage]).items()
+                        if not (stage == "bake" and k in ("coarse", "texture"))}  # coarse.spec; per asset
+        comments[stage] = {k: field_docs(classes[stage]).get(k, "").split(". ")[0] for k in table[stage]}
+    return table, comments
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def plan_workers(workers: int, threads: int, n_assets: int, cores: int | None = None) -> tuple[int, int]:
+    """(workers, threads per worker): workers ≤ assets; 0 means auto; threads = cores // workers when auto."""
+    cores = cores or usable_cores()
+    if workers < 0 or threads < 0:
+        raise NeuralBakeError(f"workers {workers} / threads {threads}: must be >= 0 (0: auto)")
+    w = workers or max(1, cores // 2)
+    w = max(1, min(w, n_assets))
+    t = threads or max(1, cores // w)
+    return w, t
+
+
+def _merge(*layers: dict) -> dict:
+    out: dict[str, dict] = {}
+    for layer in layers:
+        for stage, opts in (layer or {}).items():
+            out.setdefault(stage, {}).update(opts)
+    return out
+
+
+def _batch_options(cfg: BatchConfig) -> dict[str, dict]:
+    """The stage options of every asset before its manifest row's: preset, seed and device, ``cfg.stages``."""
+    common: dict[str, dict] = {}
+    if cfg.seed is not None:
+        common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
+    if cfg.device is not None:
+        common = _merge(common, {"sdf": {"device": cfg.device}, "texture": {"device": cfg.device}})
+    return _merge(copy.deepcopy(PRESETS[cfg.preset]), common, cfg.stages)
+
+
+def _tasks(assets: list[AssetSpec], out: Path, cfg: BatchConfig, threads: int) -> tuple[list[dict], list[dict]]:
+    """(tasks to run, records of assets refused before running: bad options or output paths)."""
+    from neural_bake.io.paths import inside
+
+    from .stages import resolve_stages
+
+    batch_options = _batch_options(cfg)
+    tasks, refused = [], []
+    for a in assets:
+        options = _merge(batch_options, a.options)
+        try:
+            if not Path(a.mesh).is_file():
+                raise NeuralBakeError(f"{a.mesh}: no such mesh file" if not Path(a.mesh).exists()
+                                      else f"{a.mesh}: not a file")
+            folder = inside(out, a.name, what="name")
+            resolve_stages(options)
+        except NeuralBakeError as exc:
+            refused.append({"name": a.name, "mesh": a.mesh, "status": "failed", "reason": f"{a.where}: {exc}",
+                            "stages": {s: {"status": "not run", "seconds": 0.0} for s in STAGE_NAMES},
+                            "metrics": {}, "seconds": 0.0})
+            continue
+        tasks.append({"name": a.name, "mesh": a.mesh, "texture": a.texture, "folder": str(folder.resolve()),
+                      "options": options, "threads": threads, "quiet": cfg.quiet, "verbose": cfg.verbose,
+                      "where": a.where})
+    return tasks, refused
+
+
+def _check_out(out: Path) -> None:
+    """OUT is (or can be made) a folder this process can write; one line otherwise."""
+    if out.exists() and not out.is_dir():
+        raise NeuralBakeError(f"-o {out}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".batch-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputNotWritable(f"{out}: cannot write the output folder ({exc.strerror or exc})") from None
+
+
+def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable[[str], None] = print,
+              on_event: Callable[..., None] | None = None) -> dict:
+    """Run every asset of ``manifest`` into folder ``out``; return the summary also written to OUT/batch.json.
+
+    ``on_event(kind, name, **info)`` is called in this process: ``("start", name, pid=…)`` when a worker
+    starts an asset (pid: the local worker's process id, None under Ray) and ``("end", name, record=…)``.
+    Raises NeuralBakeError (nothing run) for a manifest that cannot run (:mod:`.manifest`), a bad preset,
+    executor or worker count, and an output folder that cannot be written; returns normally when assets
+    failed (see the summary's ``failed`` count).
+    """
+    cfg = config or BatchConfig()
+    if cfg.preset not in PRESETS:
+        raise NeuralBakeError(f"preset {cfg.preset!r}: unknown (choose from {', '.join(PRESETS)})")
+    if cfg.executor not in EXECUTORS:
+        raise NeuralBakeError(f"executor {cfg.executor!r}: unknown (choose from {', '.join(EXECUTORS)})")
+    bad = sorted(set(cfg.stages) - set(STAGE_NAMES))
+    if bad:
+        raise NeuralBakeError(f"stage {bad[0]!r}: unknown (stages: {', '.join(STAGE_NAMES)})")
+    assets = read_manifest(manifest)
+    out = Path(out)
+    _check_out(out)
+    workers, threads = plan_workers(cfg.workers, cfg.threads, len(assets))
+    tasks, refused = _tasks(assets, out, cfg, threads)
+    t0 = time.perf_counter()
+    summary = {"format": SUMMARY_FORMAT, "manifest": os.fspath(manifest), "out": str(out.resolve()),
+               "config": asdict(cfg), "executor": cfg.executor, "workers": workers, "threads": threads,
+               "assets": {a.name: None for a in assets}}
+    for r in refused:
+        summary["assets"][r["name"]] = r
+        log(f"[{r['name']}] failed: {r['reason']}")
+
+    def record(rec: dict) -> None:
+        summary["assets"][rec["name"]] = rec
+        _write_summary(out, summary, time.perf_counter() - t0)
+        if on_event:
+            on_event("end", rec["name"], record=rec)
+
+    log(f"batch: {len(assets)} assets ({len(refused)} refused), preset {cfg.preset}, {cfg.executor} executor, "
+        f"{workers} worker(s) x {threads} thread(s)")
+    try:
+        if cfg.executor == "local":
+            _run_local(tasks, workers, record, on_event)
+        else:
+            _run_ray(tasks, cfg, workers, threads, record, on_event)
+    except KeyboardInterrupt:
+        for name, rec in summary["assets"].items():
+            if rec is None:
+                summary["assets"][name] = _not_finished(name, "interrupted")
+        _write_summary(out, summary, time.perf_counter() - t0)
+        raise
+    summary = _write_summary(out, summary, time.perf_counter() - t0)
+    for line in summary_lines(summary):
+        log(line)
+    return summary
+
+
+def _not_finished(name: str, status: str) -> dict:
+    return {"name": name, "status": status, "reason": f"{status} before the asset finished (a re-run resumes it)",
+            "stages": {}, "metrics": {}, "seconds": 0.0}
+
+
+def _write_summary(out: Path, summary: dict, seconds: float) -> dict:
+    from neural_bake.io.atomic import atomic_write_text
+    from neural_bake.io.jsonio import dumps
+
+    recs = [r for r in summary["assets"].values() if r is not None]
+    summary["seconds"] = seconds
+    summary["ok"] = sum(r["status"] == "ok" for r in recs)
+    summary["failed"] = sum(r["status"] == "failed" for r in recs)
+    summary["pending"] = len(summary["assets"]) - summary["ok"] - summary["failed"]
+    atomic_write_text(out / SUMMARY_NAME, dumps(summary))
+    return summary
+
+
+def summary_lines(summary: dict) -> list[str]:
+    """The terminal table: one line per asset (status, seconds per stage, headline metric or reason)."""
+    lines = [f"{'asset':<24} {'status':<11} " + " ".join(f"{s:>8}" for s in STAGE_NAMES) + "  result"]
+    for name, r in summary["assets"].items():
+        r = r or _not_finished(name, "pending")
+        cells = []
+        for s in STAGE_NAMES:
+            st = r["stages"].get(s, {})
+            status = st.get("status", "-")
+            cells.append(f"{st.get('seconds', 0):>7.1f}s" if status == "done" else f"{status:>8}"[:8])
+        if r["status"] == "ok":
+            m = r["metrics"].get("bake", {})
+            tail = []
+            for key, label in (("normal_deg_vs_truth", "normal err"), ("normal_deg_vs_gradient", "vs grad f")):
+                if key in m:
+                    tail.append(f"{label} median {m[key]['median']:.2f}°")
+                    break
+            if m.get("color_psnr_db") is not None:
+                tail.append(f"albedo {m['color_psnr_db']:.1f} dB")
+            result = ", ".join(tail)
+        else:
+            result = r.get("reason") or ""
+        lines.append(f"{name[:24]:<24} {r['status']:<11} " + " ".join(cells) + f"  {result}")
+    lines.append(f"batch: {summary['ok']} ok, {summary['failed']} failed"
+                 + (f", {summary['pending']} not finished" if summary.get("pending") else "")
+                 + f" in {summary['seconds']:.0f} s; summary in {Path(summary['out']) / SUMMARY_NAME}")
+    return lines
+
+
+# ----------------------------------------------------------------------------------------------------------
+# executors
+
+
+def _worker_main(task: dict, conn) -> None:
+    """Entry of a local worker process: run the asset, send its record back."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops us
+    from .stages import run_asset
+
+    conn.send(run_asset(task))
+    conn.close()
+
+
+def _run_local(tasks: list[dict], workers: int, record: Callable[[dict], None], on_event) -> None:
+    import multiprocessing as mp
+    from multiprocessing.connection import wait
+
+    ctx = mp.get_context("spawn")
+    queue = list(tasks)
+    running: dict = {}  # sentinel -> (process, reader, task)
+    try:
+        while queue or running:
+            while queue and len(running) < workers:
+                task = queue.pop(0)
+                reader, writer = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_worker_main, args=(task, writer), name=f"neural-bake {task['name']}",
+                                   daemon=True)
+                proc.start()
+                writer.close()
+                running[proc.sentinel] = (proc, reader, task)
+                if on_event:
+                    on_event("start", task["name"], pid=proc.pid)
+            ready = wait(list(running) + [r for _, r, _ in running.values()])
+            for key in list(running):
+                proc, reader, task = running[key]
+                if key not in ready and reader not in ready:
+                    continue
+                rec = None
+                try:
+                    if reader.poll():
+                        rec = reader.recv()
+                except (EOFError, OSError):
+                    rec = None
+                if rec is None and proc.is_alive():
+                    continue  # the pipe closed first; the exit comes next
+                proc.join()
+                reader.close()
+                del running[key]
+                record(rec if rec is not None else _died(task, proc.exitcode))
+    finally:
+        for proc, reader, _ in running.values():
+            proc.terminate()
+        for proc, reader, _ in running.values():
+            proc.join(10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+            reader.close()
+
+
+def _died(task: dict, exitcode: int | None) -> dict:
+    import signal
+
+    if exitcode is not None and exitcode < 0:
+        try:
+            how = f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            how = f"killed by signal {-exitcode}"
+    else:
+        how = f"exit code {exitcode}"
+    return {"name": task["name"], "mesh": task["mesh"], "status": "failed",
+            "reason": f"worker process died ({how}); stages finished before are kept, a re-run resumes",
+            "stages": {}, "metrics": {}, "seconds": 0.0}
+
+
+def _run_ray(tasks: list[dict], cfg: BatchConfig, workers: int, threads: int, record, on_event) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise NeuralBakeError("executor ray: Ray is not installed (pip install -e '.[ray]')") from None
+    from .stages import run_asset
+
+    started_here = not ray.is_initialized()
+    if started_here:
+        kwargs = {"include_dashboard": False, "log_to_driver": not cfg.quiet}
+        if cfg.address:
+            ray.init(address=cfg.address, **kwargs)
+        else:
+            ray.init(num_cpus=workers * threads, **kwargs)
+    gpus = 1 if (cfg.device or "").startswith("cuda") else 0
+    remote = ray.remote(num_cpus=threads, num_gpus=gpus, max_retries=0)(run_asset)
+    pending = {}
+    try:
+        for task in tasks:
+            pending[remote.remote(task)] = task
+            if on_event:
+                on_event("start", task["name"], pid=None)
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                task = pending.pop(ref)
+                try:
+                    rec = ray.get(ref)
+                except ray.exceptions.RayError as exc:
+                    rec = {"name": task["name"], "mesh": task["mesh"], "status": "failed",
+                           "reason": f"ray task failed ({type(exc).__name__}: "
+                                     f"{' '.join(str(exc).split())[:200]})",
+                           "stages": {}, "metrics": {}, "seconds": 0.0}
+                record(rec)
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
