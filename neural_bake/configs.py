@@ -23,7 +23,7 @@ def field_docs(cls) -> dict[str, str]:
             tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
         except (OSError, TypeError, SyntaxError):
             continue
-        body = tree.body[0].body
+        body = tree.body[0].body  # type: ignore[attr-defined]  # a class definition's body
         for a, b in zip(body, body[1:]):
             if (isinstance(a, ast.AnnAssign) and isinstance(a.target, ast.Name) and isinstance(b, ast.Expr)
                     and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)):
