@@ -269,7 +269,28 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
     summary = _write_summary(out, summary, time.perf_counter() - t0)
     for line in summary_lines(summary):
         log(line)
+    _write_index(out, summary, log)
     return summary
+
+
+#: The batch's HTML index (a row per asset: thumbnail, status, headline metrics, failure), in OUT.
+INDEX_NAME = "index.html"
+
+
+def _write_index(out: Path, summary: dict, log: Callable[[str], None]) -> None:
+    """OUT/index.html over every asset's bake folder; a page that cannot be written costs one line, not the batch."""
+    from neural_bake.errors import NeuralBakeError
+    from neural_bake.view.index import write_batch_index
+
+    names = list(summary["assets"])
+    reasons = [(r or {}).get("reason") if (r or {}).get("status") != "ok" else None
+               for r in summary["assets"].values()]
+    try:
+        page = write_batch_index([out / n / "bake" for n in names], out / INDEX_NAME, names=names, reasons=reasons)
+    except (NeuralBakeError, OSError) as exc:
+        log(f"batch: no index page ({exc})")
+        return
+    log(f"batch: index {page}")
 
 
 def _not_finished(name: str, status: str) -> dict:

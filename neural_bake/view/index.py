@@ -85,8 +85,11 @@ def _cell(v, nd=2) -> str:
     return html.escape(str(v))
 
 
-def write_batch_index(folders, out_html, *, thumb_size: int = 128) -> Path:
+def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, reasons=None) -> Path:
     """Write ``out_html`` (its folder must exist) indexing the bake output ``folders``; return its path.
+
+    ``names`` (one per folder) name the rows instead of the folders' own names; ``reasons`` (one per folder,
+    None where none) are failures known to the caller (a batch's one-line reasons): such a row is failed.
 
     One row per folder, in the order given: thumbnail (the report's first view, else a fresh render of the
     GLB), status, normal error against the truth (median, p95, and the classical bake's median), colour
@@ -103,9 +106,16 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128) -> Path:
         raise ViewError("batch index: no output folders given")
     thumbs = out_html.parent / "thumbs"
     thumbs.mkdir(exist_ok=True)
+    for given, what in ((names, "names"), (reasons, "reasons")):
+        if given is not None and len(given) != len(folders):
+            raise ViewError(f"batch index: {len(given)} {what} for {len(folders)} folders")
     rows, summaries = [], []
     for k, folder in enumerate(folders):
         s = asset_summary(folder)
+        if names is not None:
+            s["name"] = str(names[k])
+        if reasons is not None and reasons[k]:
+            s.update(status="failed", reason=str(reasons[k]))
         summaries.append(s)
         thumb = ""
         if s["status"] == "ok" and _thumbnail(folder, thumbs / f"{k:04d}.png", thumb_size):

@@ -64,6 +64,13 @@ def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples, ti
     assert read_image(out / "ball" / "bake" / "normal.png").shape[:2] == (32, 32)
     table = "\n".join(lines)
     assert "gone" in table and "no such mesh file" in table and "batch: 2 ok, 2 failed" in table
+    # the index page: a row per asset in manifest order, thumbnails of the baked ones, the failures' reasons
+    rows = json.loads((out / "index.json").read_text())
+    assert [(r["name"], r["status"]) for r in rows] == [("ball", "ok"), ("ring", "ok"), ("gone", "failed"),
+                                                        ("typo", "failed")]
+    assert rows[2]["reason"] == on_disk["assets"]["gone"]["reason"]
+    page = (out / "index.html").read_text()
+    assert "2 of 4 assets baked" in page and len(list((out / "thumbs").glob("*.png"))) == 2
 
     # the same batch again: every stage of the finished assets is skipped
     sdf_bytes = (out / "ball" / "sdf.safetensors").read_bytes()

@@ -129,6 +129,13 @@ def test_batch_index_over_two_bakes_and_failures(bake_folder, tmp_path, make_ana
         write_batch_index([], out)
     with pytest.raises(ViewError, match="does not exist"):
         write_batch_index([folder], tmp_path / "no" / "index.html")
+    with pytest.raises(ViewError, match="1 names for 2 folders"):
+        write_batch_index([folder, second], out, names=["a"])
+    # a caller's reason and name win over what the folder says
+    write_batch_index([folder, second], out, names=["first", "second"], reasons=[None, "sdf: diverged"])
+    named = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["name"], r["status"], r["reason"]) for r in named] == [("first", "ok", None),
+                                                                       ("second", "failed", "sdf: diverged")]
 
 
 def test_view_verb_writes_the_report_or_headless_frames(bake_folder, tmp_path, capsys):
