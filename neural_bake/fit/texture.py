@@ -170,6 +170,10 @@ class TextureFit:
         meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps, self.fitted_against)
         if self.budget is not None:
             meta["budget"] = self.budget
+        # the loss curve (last 200 logged rows, finite ones: JSON has no NaN) for reports' accuracy-vs-time plots
+        rows = [h for h in self.history[-200:]
+                if all(math.isfinite(v) for v in h.values() if isinstance(v, float))]
+        meta["training"] = {"steps": int(self.steps), "seconds": round(float(self.seconds), 3), "history": rows}
         return meta
 
     def field(self) -> TextureField:

@@ -242,6 +242,9 @@ def test_same_seed_same_run_and_save_load_roundtrip(sphere, fits, tmp_path):
     assert meta["kind"] == "texture" and meta["delta"] == 0.03 and meta["lam"] == 0.1
     assert Frame.from_dict(meta["frame"]) == sphere.frame
     assert meta["config"]["width"] == 32 and meta["steps"] == TINY["steps"]
+    # the loss curve travels with the model, for the report's accuracy-against-time plot
+    assert meta["training"]["steps"] == TINY["steps"] and meta["training"]["history"] == fits[0.1].history[-200:]
+    assert meta["training"]["history"] and all("loss" in h and "seconds" in h for h in meta["training"]["history"])
     with torch.no_grad():
         assert torch.equal(model(x), fits[0.1].model(x))
 
