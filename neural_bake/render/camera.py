@@ -18,6 +18,7 @@ import torch
 from ..constants import CAMERA_PARALLEL_EPS
 from ..errors import NeuralBakeError
 from ..types import Frame
+from .checks import finite_numbers
 
 __all__ = ["Camera", "CameraError"]
 
@@ -27,13 +28,7 @@ class CameraError(NeuralBakeError):
 
 
 def _vec3(name: str, value) -> tuple[float, float, float]:
-    try:
-        v = tuple(float(c) for c in value)
-    except (TypeError, ValueError):
-        raise CameraError(f"camera {name}: expected 3 numbers, got {value!r}") from None
-    if len(v) != 3 or not all(math.isfinite(c) for c in v):
-        raise CameraError(f"camera {name}: expected 3 finite numbers, got {value!r}")
-    return v  # type: ignore[return-value]
+    return finite_numbers(f"camera {name}", value, 3, CameraError)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)

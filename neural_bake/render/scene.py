@@ -45,6 +45,7 @@ import numpy as np
 from ..constants import SHADOW_BIAS
 from ..errors import NeuralBakeError
 from .camera import Camera
+from .checks import finite_numbers
 from .shading import DirectionalLight, Material, PointLight
 from .trace import TraceSettings
 
@@ -66,13 +67,7 @@ class SceneError(NeuralBakeError):
 
 
 def _floats(where: str, value, n: int) -> tuple[float, ...]:
-    try:
-        v = tuple(float(c) for c in value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{where}: expected {n} numbers, got {value!r}") from None
-    if len(v) != n or not all(math.isfinite(c) for c in v):
-        raise SceneError(f"{where}: expected {n} finite numbers, got {value!r}")
-    return v
+    return finite_numbers(where, value, n, SceneError)
 
 
 @dataclass(frozen=True)

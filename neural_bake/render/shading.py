@@ -16,6 +16,7 @@ import torch
 
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
+from .checks import finite_numbers
 
 __all__ = [
     "DirectionalLight", "PointLight", "Material", "ShadingError", "default_lights", "light_samples",
@@ -28,13 +29,7 @@ class ShadingError(NeuralBakeError):
 
 
 def _finite_tuple(name: str, value, n: int) -> tuple[float, ...]:
-    try:
-        v = tuple(float(c) for c in value)
-    except (TypeError, ValueError):
-        raise ShadingError(f"{name}: expected {n} numbers, got {value!r}") from None
-    if len(v) != n or not all(math.isfinite(c) for c in v):
-        raise ShadingError(f"{name}: expected {n} finite numbers, got {value!r}")
-    return v
+    return finite_numbers(name, value, n, ShadingError)
 
 
 def _non_negative(name: str, value) -> float:
