@@ -13,15 +13,6 @@ from neural_bake.samples import (ANIMATED, FRAMES_FILE, BumpySphere, SplittingSp
                                  TwistingTorus, generate, get_animation, write_animation)
 
 
-def _fd_gradient(f, p, h=1e-6):
-    g = np.zeros_like(p)
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = h
-        g[:, k] = (f(p + e) - f(p - e)) / (2 * h)
-    return g
-
-
 def _on_surface(anim, t, n=400, seed=0):
     """Points of the smooth surface at t: frame vertices moved by Newton steps along the exact normal."""
     m = anim.mesh(t, 2000)
@@ -34,11 +25,11 @@ def _on_surface(anim, t, n=400, seed=0):
 
 @pytest.mark.parametrize("name", list(ANIMATED))
 @pytest.mark.parametrize("t", [0.0, 0.4, 1.0])
-def test_normal_is_the_normalised_gradient_of_the_sdf_at_every_t(name, t):
+def test_normal_is_the_normalised_gradient_of_the_sdf_at_every_t(name, t, fd_gradient):
     anim = ANIMATED[name]
     p = _on_surface(anim, t)
     assert np.abs(anim.sdf(p, t)).max() < 1e-9
-    g = _fd_gradient(lambda q: anim.sdf(q, t), p)
+    g = fd_gradient(lambda q: anim.sdf(q, t), p)
     g /= np.linalg.norm(g, axis=1, keepdims=True)
     cos = (g * anim.normal(p, t)).sum(1)
     if name == "splitting_sphere" and 0 < t < 1:  # the crease where the balls meet is a kink of the sdf

@@ -17,15 +17,6 @@ from neural_bake.samples.generate import obj_text
 LATLONG_AND_TORUS = ["sphere", "bumpy_sphere", "torus"]
 
 
-def _fd_gradient(f, p, h=1e-6):
-    g = np.zeros_like(p)
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = h
-        g[:, k] = (f(p + e) - f(p - e)) / (2 * h)
-    return g
-
-
 def _surface_points(sample, n=500, seed=0, resolution=4000):
     m = sample.mesh(resolution, 64)
     mesh = mesh_from_arrays(m.vertices, m.faces, m.uv, m.texture, normalise=False)
@@ -40,13 +31,13 @@ def _surface_points(sample, n=500, seed=0, resolution=4000):
 
 
 @pytest.mark.parametrize("name", list(SAMPLES))
-def test_normal_is_the_normalised_sdf_gradient_on_the_surface(name):
+def test_normal_is_the_normalised_sdf_gradient_on_the_surface(name, fd_gradient):
     s = SAMPLES[name]
     p = _surface_points(s, resolution=2000)
     assert np.abs(s.sdf(p)).max() < 1e-9
     n = s.normal(p)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
-    g = _fd_gradient(s.sdf, p)
+    g = fd_gradient(s.sdf, p)
     g /= np.linalg.norm(g, axis=1, keepdims=True)
     cos = (g * n).sum(1)
     if name == "jack":  # exact except on the creases where a spike meets the ball (the sdf has a kink)
@@ -55,14 +46,14 @@ def test_normal_is_the_normalised_sdf_gradient_on_the_surface(name):
         assert cos.min() > 1 - 1e-6
 
 
-def test_bumpy_normal_matches_the_gradient_of_the_implicit_function():
+def test_bumpy_normal_matches_the_gradient_of_the_implicit_function(fd_gradient):
     s = BumpySphere()
     rng = np.random.default_rng(0)
     d = rng.normal(size=(400, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     p = d * s.surface_radius(d)[:, None]
     assert np.abs(s.implicit(p)).max() < 1e-12
-    g = _fd_gradient(s.implicit, p)
+    g = fd_gradient(s.implicit, p)
     np.testing.assert_allclose(s.normal(p), g / np.linalg.norm(g, axis=1, keepdims=True), atol=1e-6)
     # the normal is the same all along the ray through a surface point (defined at the radial projection)
     np.testing.assert_allclose(s.normal(p * 1.1), s.normal(p), atol=1e-12)
