@@ -18,11 +18,27 @@ from .bench import bench_options, report
 @click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")
 @click.option("--texture/--no-texture", default=None, help="Fit and bake textures of textured assets (default: "
               "yes, not with --quick).")
-def command(quick, json_path, meshes, presets, faces, size, minutes, texture) -> None:
+@click.option("--sampling", default=None, metavar="LIST",
+              help="Comma-separated SDF sampling variants to compare in one run: uniform, curvature, error, "
+                   "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
+@click.option("--steps", default=None, metavar="LIST",
+              help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")
+def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
     without their caps); times; texture PSNR; storage. Meshes not present are skipped, saying so."""
-    from neural_bake.bench.fidelity import run
+    from neural_bake.bench.fidelity import SAMPLINGS, run
 
+    variants = None if sampling is None else [v.strip() for v in sampling.split(",") if v.strip()]
+    bad = [v for v in variants or [] if v not in SAMPLINGS]
+    if bad or variants == []:
+        raise click.BadParameter(f"choose among {', '.join(SAMPLINGS)}, got {sampling!r}", param_hint="--sampling")
+    try:
+        counts = None if steps is None else [int(n) for n in steps.split(",") if n.strip()]
+    except ValueError:
+        counts = []
+    if counts is not None and (not counts or min(counts) < 1):
+        raise click.BadParameter(f"expected positive integers separated by commas, got {steps!r}",
+                                 param_hint="--steps")
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
-               minutes=minutes, texture=texture, log=click.echo), json_path)
+               minutes=minutes, texture=texture, sampling=variants, steps=counts, log=click.echo), json_path)

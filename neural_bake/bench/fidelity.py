@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import NeuralBakeError
 from .common import load_note, machine_info
 
-__all__ = ["run", "MESHES", "data_folder", "open_caps"]
+__all__ = ["run", "MESHES", "SAMPLINGS", "data_folder", "open_caps"]
 
 #: The real meshes, relative to the data folder, with their bake settings: game assets bake onto themselves.
 MESHES: dict[str, dict] = {
@@ -33,6 +34,16 @@ MESHES: dict[str, dict] = {
     "tea_set": {"path": "polyhaven/tea_set_01/tea_set_01_1k.gltf", "coarse": "keep"},
     "spot": {"path": "spot/spot_triangulated.obj", "texture": "spot/spot_texture.png"},
     "bunny": {"path": "bunny/bunny_closed.obj"},
+}
+
+#: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
+#: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings.
+SAMPLINGS: dict[str, dict] = {
+    "preset": {},
+    "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0},
+    "curvature": {"curvature_sampling": 0.5, "error_sampling": 0.0},
+    "error": {"curvature_sampling": 0.0, "error_sampling": 0.25},
+    "curvature+error": {"curvature_sampling": 0.5, "error_sampling": 0.25},
 }
 
 #: Issue 27's targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error.
@@ -127,6 +138,25 @@ def _stats(rep: dict, key: str, what=("median", "p95")) -> tuple:
     return tuple(d.get(w) for w in what)
 
 
+def _adam_seconds_per_step(fit) -> float | None:
+    """Seconds per Adam step of a fit (its polish excluded)."""
+    if not fit.steps:
+        return None
+    return (fit.seconds - float((fit.polish or {}).get("seconds") or 0.0)) / fit.steps
+
+
+def _with_ratios(rows: list[dict]) -> None:
+    """Adds to each row its ratios against the "uniform" row of the same mesh, preset and step count
+    (measured in the same run): map median and p95, Hausdorff, seconds per Adam step."""
+    base = {(r["mesh"], r["preset"], r["step_cap"]): r for r in rows if r["sampling"] == "uniform"}
+    for r in rows:
+        b = base.get((r["mesh"], r["preset"], r["step_cap"]))
+        for key, out in (("map_median_deg", "median_ratio"), ("map_p95_deg", "p95_ratio"),
+                         ("hausdorff", "hausdorff_ratio"), ("s_per_step", "step_cost_ratio")):
+            ok = b is not None and r.get(key) is not None and b.get(key)
+            r[out] = r[key] / b[key] if ok else None
+
+
 def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -> dict:
     med, p95 = _stats(rep, "vs_truth_deg")
     n_med, n_p95 = _stats(rep, "neural_vs_truth_deg")
@@ -136,7 +166,10 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
     target = TARGETS.get((name, f"{fit.config.width}x{fit.config.depth}"))
     row = {
         "mesh": name, "preset": preset, "net": f"{fit.config.width}x{fit.config.depth}",
-        "steps": fit.steps, "expected_steps": (fit.budget or {}).get("expected_steps"), "fit_s": fit_s,
+        "sampling": None, "step_cap": None, "steps": fit.steps, "s_per_step": _adam_seconds_per_step(fit),
+        "sampling_share": (None if not fit.sampling_seconds or not fit.seconds
+                           else fit.sampling_seconds / (_adam_seconds_per_step(fit) * fit.steps)),
+        "expected_steps": (fit.budget or {}).get("expected_steps"), "fit_s": fit_s,
         "hausdorff": metrics["hausdorff"], "chamfer_l1": metrics["chamfer_l1"],
         "hausdorff_without_caps": None if caps is None else caps["hausdorff_without_caps"],
         "cap_max": None if caps is None else caps["cap_max"],
@@ -157,7 +190,8 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
 
 def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[str] | None = None,
         faces: int | None = None, size: int | None = None, minutes: float | None = None, texture: bool | None = None,
-        data: str | os.PathLike | None = None, log=None) -> dict:
+        data: str | os.PathLike | None = None, sampling: list[str] | None = None, steps: list[int] | None = None,
+        log=None) -> dict:
     """Run the fidelity benchmark; returns ``{"name", "machine", "quick", "rows", "notes"}``.
 
     - ``meshes``: names of :data:`MESHES` or mesh file paths (default: every mesh the data folder holds;
@@ -167,6 +201,10 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     - ``minutes``: override every preset's time budget (default: the preset's; quick 0.3).
     - ``texture``: also fit a texture (same preset name) for textured assets (default: not with quick).
     - ``data``: the data folder (default :func:`data_folder`).
+    - ``sampling``: names of :data:`SAMPLINGS` to fit and bake side by side (default: the preset's own);
+      rows get ratios against "uniform" of the same mesh, preset and step count (add it to have them).
+    - ``steps``: step counts to fit each case for, without a time budget (equal steps compare sampling
+      methods fairly on a loaded machine; the per-step cost ratio says what a step costs more).
     """
     from ..fit.metrics import sdf_metrics
     from ..fit.sdf import fit_sdf
@@ -196,16 +234,28 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             jobs.append((m, p, {**spec, "texture": None if "texture" not in spec else str(folder / spec["texture"])}))
         else:
             jobs.append((Path(m).stem, Path(m), {}))
+    sampling = list(sampling or ["preset"])
+    unknown = [v for v in sampling if v not in SAMPLINGS]
+    if unknown:
+        raise NeuralBakeError(f"fidelity: sampling must be among {', '.join(SAMPLINGS)}, got {', '.join(unknown)}")
+    caps_of_steps = [None] if not steps else [int(n) for n in steps]
+    if any(n is not None and n < 1 for n in caps_of_steps):
+        raise NeuralBakeError(f"fidelity: steps must be positive integers, got {steps!r}")
     rows = []
     for name, path, spec in jobs:
         mesh = load_mesh(path, spec.get("texture"))
         source_mb = _source_bytes(path) / 2**20
         coarse = spec.get("coarse", f"decimate:{faces}")
-        for preset in presets:
-            say(f"{name} {preset}: fitting the SDF")
+        cases = [(p, n, v) for p in presets for n in caps_of_steps for v in sampling]
+        for preset, step_cap, variant in cases:
+            label = f"{name} {preset}" + ("" if step_cap is None else f" {step_cap} steps") + (
+                "" if variant == "preset" else f" {variant}")
+            say(f"{label}: fitting the SDF")
             t0 = time.perf_counter()
             over = {} if minutes is None else {"minutes": minutes}
-            fit = fit_sdf(mesh, preset=preset, progress=False, **over)
+            if step_cap is not None:
+                over = {"minutes": None, "steps": step_cap}
+            fit = fit_sdf(mesh, preset=preset, progress=False, **over, **SAMPLINGS[variant])
             fit_s = time.perf_counter() - t0
             n, res = (20_000, 96) if quick else (50_000, 128)
             metrics = sdf_metrics(fit.model, mesh, n=n, resolution=res)
@@ -219,13 +269,13 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                 if texture and mesh.texture is not None and mesh.uv is not None:
                     from ..fit.texture import fit_texture
 
-                    say(f"{name} {preset}: fitting the texture")
+                    say(f"{label}: fitting the texture")
                     tfit = fit_texture(mesh, str(sdf_path), preset=preset, **over)
                     tex_path = Path(tmp) / "g.tex"
                     tfit.save(tex_path)
                     tex = {"params": sum(p.numel() for p in tfit.model.parameters()), "seconds": tfit.seconds}
                     maps = "normal,albedo"
-                say(f"{name} {preset}: baking {size}² onto {coarse}")
+                say(f"{label}: baking {size}² onto {coarse}")
                 t0 = time.perf_counter()
                 rep = bake_asset(path, str(sdf_path), Path(tmp) / "out",
                                  BakeAssetConfig(coarse=coarse, size=size, maps=maps, texture=spec.get("texture"),
@@ -235,11 +285,14 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             if tex is not None:
                 tex["psnr"] = rep.get("color_psnr_db")
                 tex["classical_psnr"] = (rep.get("baseline") or {}).get("color_psnr_db")
-            rows.append(_row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex))
+            row = _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex)
+            row.update(sampling=variant, step_cap=step_cap)
+            rows.append(row)
             for w in rep.get("warnings", []):
-                notes.append(f"{name} {preset}: {w}")
+                notes.append(f"{label}: {w}")
             if fit.budget and fit.budget.get("warning"):
-                notes.append(f"{name} {preset}: {fit.budget['warning']}")
+                notes.append(f"{label}: {fit.budget['warning']}")
+    _with_ratios(rows)
     notes.append("bakes are forced past the SDF/mesh agreement check: a weak fit is measured, not refused "
                  "(the hybrid share says how much of its map is classical)")
     notes.append("errors: angle between the baked normal (as a renderer decodes the 8-bit map) and the source "

@@ -45,7 +45,7 @@ from .polish import CHUNK_ITERATIONS, lbfgs_polish
 from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
 from .sdf_loss import (FIRST_ORDER_MIN_SLOPE, FOCUS_CAP, first_order_distance, focused_squares, mixed_gradient,
                        sdf_loss_terms, sdf_step_backward)
-from .sdf_pools import _draw, _hard_indices, _Pools, _zero_set_samples
+from .sdf_pools import _draw, _error_cdf, _hard_indices, _Pools, _zero_set_samples
 from .sdf_tuning import TRAIN_CHUNK_ELEMENTS, TUNE_EVERY, MicroBatchTuner, _bf16_pays, micro_batch_count
 from .training import train
 
@@ -83,6 +83,9 @@ class SdfFit:
     budget: dict | None = None
     """A time-budgeted run's account (:func:`neural_bake.fit.budget.fit_budget`): Adam steps made beside the
     steps the preset makes on this machine in Adam's part of the budget, why it stopped, the warning if any."""
+    sampling_seconds: float | None = None
+    """Wall time of this run's Adam part spent building pools, re-ranking them and drawing batches (the
+    sampling's share of the step cost); None when not recorded (a loaded file)."""
 
     distance_error: float | None = None
     """Sampled distance error to the mesh (unit frame): max |f| at mesh surface samples
@@ -226,7 +229,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     def hard_set(step: int, data: dict) -> dict | None:
         # re-ranked every hard_every steps, at each pool refresh and at each checkpoint step, so that a run
         # resumed from a periodic checkpoint re-ranks exactly where the uninterrupted run did
-        if cfg.hard_fraction <= 0 and cfg.zero_fraction <= 0:
+        if cfg.hard_fraction <= 0 and cfg.zero_fraction <= 0 and cfg.error_sampling <= 0:
             return None
         at_checkpoint = bool(cfg.checkpoint) and step % cfg.checkpoint_every == 0
         if hard["idx"] is None or hard["pool"] is not data or step % cfg.hard_every == 0 or at_checkpoint:
@@ -235,6 +238,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
                 idx["surf"] = _hard_indices(model, data["surf_p"], cfg)
                 if cfg.batch_near and n_near:
                     idx["near"] = _hard_indices(model, data["vol_p"][:n_near], cfg, data["vol_d"][:n_near])
+            if cfg.error_sampling > 0:
+                idx["error"] = _error_cdf(model, data["surf_p"], data["surf_n"])
             if cfg.zero_fraction > 0 and cfg.batch_near and n_near:
                 idx["zero"] = _zero_set_samples(model, mesh, data["vol_p"][:n_near], cfg,
                                                 int(cfg.seed) * 1_000_003 + step)
@@ -245,9 +250,13 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     tuner = (MicroBatchTuner(micro) if cfg.micro_batches == 0 and cfg.minutes and device.type == "cpu"
              else None)
 
+    sampling = {"seconds": 0.0}  # wall time of pools, re-rankings and draws (the sampling's share of a step)
+
     def step_fn(step: int, g: torch.Generator) -> dict:
+        t_sample = time.perf_counter()
         data = pools.get(step)
         sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
+        sampling["seconds"] += time.perf_counter() - t_sample
         low = low_precision(step)
         k, timed = tuner.next(step, "bf16" if low else "float32") if tuner else (micro, False)
         t0 = time.perf_counter()
@@ -287,7 +296,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
                   micro_batch_tuning=tuner.history if tuner else None, budget=budget,
-                  distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
+                  sampling_seconds=sampling["seconds"], distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 
 def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None) -> dict | None:

@@ -82,6 +82,15 @@ class SdfFitConfig:
     mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
     the Hausdorff distance; this spends steps on them, trading a little Chamfer-L1 for a lower Hausdorff
     distance (docs/findings.md)."""
+    curvature_sampling: float = 0.0
+    """Part of the surface and near-surface pools drawn by the mesh's curvature (0: off, all uniform by
+    area): faces are drawn with :func:`~neural_bake.fit.sampling.curvature_face_weights` with a uniform share
+    of 1 − this, so creases and fine relief get more of each step's points (i3d's curvature-aware sampling)."""
+    error_sampling: float = 0.0
+    """Part of each step's surface batch drawn by the network's current normal error (0: off): every
+    ``hard_every`` steps the angle error 1 − cos(∇f, n) is measured at every surface pool point, and this
+    part of the batch is drawn with probability proportional to it (importance resampling); the rest stays
+    uniform over the pool, the floor that keeps every region trained."""
     hard_every: int = 100
     """Steps between re-ranking the surface and near pools (with ``hard_fraction`` > 0)."""
     zero_fraction: float = 0.0
@@ -234,6 +243,11 @@ def _check_config(cfg: SdfFitConfig) -> None:
                        f"{cfg.hard_fraction!r}, {cfg.hard_pool!r}")
     if not (0.0 <= cfg.zero_fraction <= 1.0 - cfg.hard_fraction):
         raise FitError(f"fit_sdf: zero_fraction must be in [0, 1 - hard_fraction], got {cfg.zero_fraction!r} "
+                       f"(hard_fraction {cfg.hard_fraction!r})")
+    if not (0.0 <= cfg.curvature_sampling <= 1.0):
+        raise FitError(f"fit_sdf: curvature_sampling must be in [0, 1], got {cfg.curvature_sampling!r}")
+    if not (0.0 <= cfg.error_sampling <= 1.0 - cfg.hard_fraction):
+        raise FitError(f"fit_sdf: error_sampling must be in [0, 1 - hard_fraction], got {cfg.error_sampling!r} "
                        f"(hard_fraction {cfg.hard_fraction!r})")
     if int(cfg.zero_candidates) != cfg.zero_candidates or cfg.zero_candidates < 1:
         raise FitError(f"fit_sdf: zero_candidates must be a positive integer, got {cfg.zero_candidates!r}")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..constants import MINED_ZERO_SET_TOL
+from ..constants import LOSS_GRAD_FLOOR, MINED_ZERO_SET_TOL
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..types import Mesh
@@ -22,6 +22,7 @@ class _Pools:
     def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype):
         self.mesh, self.cfg, self.device, self.dtype = mesh, cfg, device, dtype
         self.index = None
+        self.face_weights = None  # curvature sampling's per-face probabilities (computed once)
 
     def get(self, step: int):
         idx = step // self.cfg.refresh_every if self.cfg.refresh_every else 0
@@ -30,13 +31,17 @@ class _Pools:
         return self.data
 
     def _build(self, idx: int) -> None:
-        from .sampling import sample_near, sample_surface, sample_uniform
+        from .sampling import curvature_face_weights, sample_near, sample_surface, sample_uniform
 
         cfg, mesh = self.cfg, self.mesh
         seed = int(cfg.seed) * 10_007 + idx
         try:
-            surf = sample_surface(mesh, cfg.pool_surface, seed=seed)
-            near = sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1) if cfg.pool_near else None
+            if cfg.curvature_sampling > 0 and self.face_weights is None:
+                self.face_weights = curvature_face_weights(mesh, 1.0 - cfg.curvature_sampling)
+            w = self.face_weights
+            surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w)
+            near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w)
+                    if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
         except (ValueError, RuntimeError) as exc:
             raise FitError(f"{mesh.name}: cannot sample the mesh for fitting ({exc})") from None
@@ -64,6 +69,31 @@ def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target:
         err = model(points)[:, 0]
         err = (err if target is None else err - target).abs()
     return _top_part(err, cfg.hard_pool)
+
+
+def _error_cdf(model: Siren, points: torch.Tensor, normals: torch.Tensor, chunk: int = 65536):
+    """(n,) float64 cumulative sums of the network's normal error 1 − cos(∇f, n) at the surface pool's
+    ``points`` (n, 3) with normals ``normals`` (n, 3), for importance draws (``SdfFitConfig.error_sampling``);
+    None when the error is zero (or not finite) everywhere. Points where |∇f| vanishes count the error 1."""
+    from ..nets.gemm import gemm_gradient
+
+    parts = []
+    with torch.no_grad():
+        for s in range(0, points.shape[0], chunk):
+            _, g = gemm_gradient(model, points[s:s + chunk], "reverse")
+            norm = torch.linalg.vector_norm(g, dim=1)
+            cos = (g * normals[s:s + chunk]).sum(dim=1) / norm.clamp_min(LOSS_GRAD_FLOOR)
+            parts.append(torch.where(norm > LOSS_GRAD_FLOOR, 1.0 - cos, torch.ones_like(cos)))
+    err = torch.cat(parts).double() if parts else points.new_zeros(0, dtype=torch.float64)
+    err = torch.where(torch.isfinite(err), err.clamp_min(0.0), torch.zeros_like(err))
+    cdf = torch.cumsum(err, 0)
+    return cdf if cdf.numel() and float(cdf[-1]) > 0 else None
+
+
+def _importance_draw(cdf: torch.Tensor, n: int, gen: torch.Generator) -> torch.Tensor:
+    """(n,) int64 indices drawn with probability proportional to the increments of ``cdf`` (n_pool,)."""
+    u = torch.rand(n, generator=gen, dtype=torch.float64).to(cdf.device) * cdf[-1]
+    return torch.searchsorted(cdf, u, right=True).clamp_max(cdf.shape[0] - 1)
 
 
 def _top_part(err: torch.Tensor, part: float) -> torch.Tensor:
@@ -102,10 +132,14 @@ def _with_hard(idx: torch.Tensor, hard: torch.Tensor | None, fraction: float, ge
 
 def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None):
     """A step's batch; with ``hard`` ({"surf", "near"} index tensors) the tail of the surface and near
-    batches (``hard_fraction`` of each) comes from the hard sets."""
+    batches (``hard_fraction`` of each) comes from the hard sets; with ``hard["error"]`` (a normal-error
+    cdf, :func:`_error_cdf`) the head of the surface batch (``error_sampling`` of it) is drawn by it."""
     dev = pools["surf_p"].device
     hard = hard or {}
     si = torch.randint(0, pools["surf_p"].shape[0], (cfg.batch,), generator=gen).to(dev)
+    n_err = int(cfg.batch * cfg.error_sampling) if hard.get("error") is not None else 0
+    if n_err:  # the head of the surface batch: drawn by the network's current normal error
+        si[:n_err] = _importance_draw(hard["error"], n_err, gen).to(dev)
     si = _with_hard(si, hard.get("surf"), cfg.hard_fraction, gen)
     n_near, n_vol = pools["n_near"], pools["vol_p"].shape[0]
     parts = []

@@ -1,0 +1,225 @@
+"""Detail sampling of SDF fitting: curvature-aware surface sampling and error-driven resampling."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.errors import FitError
+from neural_bake.fit.sampling import curvature_face_weights, sample_near, sample_surface
+from neural_bake.fit.sdf import SdfFitConfig, fit_sdf
+from neural_bake.fit.sdf_pools import _draw, _error_cdf, _importance_draw
+from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.types import Mesh
+
+TINY = dict(width=32, depth=1, omega_0=15.0, lr=1e-3, batch=512, batch_near=512, batch_uniform=128, pool_surface=4000,
+            pool_near=4000, pool_uniform=1000, progress=False, log_every=20)
+
+
+def _mesh(tm: trimesh.Trimesh) -> Mesh:
+    return Mesh(np.asarray(tm.vertices, dtype=np.float64), np.asarray(tm.faces, dtype=np.int64))
+
+
+def _box(size=0.8, max_edge=0.1) -> Mesh:
+    """A cube subdivided into small triangles: its curvature lies on its 12 edges only."""
+    box = trimesh.creation.box(extents=(size, size, size))
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=max_edge)
+    return _mesh(trimesh.Trimesh(v, f, process=False))
+
+
+def _crease_faces(mesh: Mesh, half: float) -> np.ndarray:
+    """Faces with a vertex on one of the cube's edges (two coordinates at ±half)."""
+    on_edge = (np.isclose(np.abs(mesh.vertices), half).sum(axis=1) >= 2)
+    return on_edge[mesh.faces].any(axis=1)
+
+
+@pytest.mark.parametrize("u", [0.0, 0.3, 0.7])
+def test_curvature_weights_put_the_curved_share_on_a_cubes_creases(u):
+    mesh = _box()
+    crease = _crease_faces(mesh, 0.4)
+    area_share = mesh.face_areas[crease].sum() / mesh.face_areas.sum()
+    assert 0.05 < area_share < 0.4
+    w = curvature_face_weights(mesh, uniform_share=u)
+    assert w.sum() == pytest.approx(1.0) and (w >= 0).all()
+    # all curvature lies on the crease faces: they get the curved share plus their part of the uniform one
+    expected = u * area_share + (1.0 - u)
+    assert w[crease].sum() == pytest.approx(expected, abs=1e-9)
+    s = sample_surface(mesh, 40_000, seed=3, face_weights=w)
+    share = crease[s.face_index].mean()
+    assert share == pytest.approx(expected, abs=4 * np.sqrt(expected * (1 - expected) / 40_000) + 1e-9)
+    if u <= 0.3:  # the stated factor: at least twice the area share on the creases
+        assert share > 2.0 * area_share
+
+
+def test_sphere_curvature_sampling_is_uniform_by_area():
+    mesh = _mesh(trimesh.creation.icosphere(subdivisions=4, radius=0.9))
+    area_p = mesh.face_areas / mesh.face_areas.sum()
+    w = curvature_face_weights(mesh, uniform_share=0.0)
+    ratio = w / area_p
+    assert ratio.min() > 0.75 and ratio.max() < 1.3  # constant curvature: density within the mesh's irregularity
+    n = 200_000
+    s = sample_surface(mesh, n, seed=1, face_weights=w)
+    # the share of points in each octant is the octant's area share (1/8) within a statistical tolerance
+    octant = (s.points > 0) @ np.array([1, 2, 4])
+    counts = np.bincount(octant, minlength=8) / n
+    assert np.abs(counts - 0.125).max() < 4 * np.sqrt(0.125 * 0.875 / n) + 0.005
+
+
+def test_plane_and_uniform_share_one_give_area_weights():
+    mesh = _mesh(trimesh.creation.box(extents=(1.0, 1.0, 0.5)).subdivide())
+    area_p = mesh.face_areas / mesh.face_areas.sum()
+    np.testing.assert_allclose(curvature_face_weights(mesh, 1.0), area_p)
+    plane = Mesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    np.testing.assert_allclose(curvature_face_weights(plane, 0.0), [0.5, 0.5])
+
+
+def test_uv_seam_split_vertices_are_welded():
+    mesh = _box()
+    # split every vertex per face (as a UV layout of separate islands would): the creases must stay creases
+    split = Mesh(mesh.vertices[mesh.faces.reshape(-1)], np.arange(3 * mesh.n_faces).reshape(-1, 3))
+    np.testing.assert_allclose(curvature_face_weights(split, 0.2), curvature_face_weights(mesh, 0.2), atol=1e-12)
+
+
+def test_degenerate_and_zero_area_faces_get_no_weight_and_stay_finite():
+    box = _box(max_edge=0.2)
+    v = np.concatenate([box.vertices, [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]]])
+    k = box.n_vertices
+    extra = np.array([[0, 0, 1], [k, k + 1, k + 2], [k, k, k]])  # a repeated vertex, a collinear face, a point
+    mesh = Mesh(v, np.concatenate([box.faces, extra]))
+    w = curvature_face_weights(mesh, 0.3)
+    assert np.isfinite(w).all() and w.sum() == pytest.approx(1.0) and (w[-3:] == 0).all()
+    s = sample_surface(mesh, 5000, seed=0, face_weights=w)
+    assert (s.face_index < box.n_faces).all() and np.isfinite(s.points).all() and np.isfinite(s.normals).all()
+    near = sample_near(mesh, 2000, sigma=0.01, seed=0, face_weights=w)
+    assert np.isfinite(near.points).all() and np.isfinite(near.sdf).all()
+
+
+def test_curvature_sampling_is_seeded():
+    mesh = _box()
+    w = curvature_face_weights(mesh, 0.5)
+    a, b = (sample_surface(mesh, 3000, seed=7, face_weights=w) for _ in range(2))
+    np.testing.assert_array_equal(a.points, b.points)
+    c = sample_surface(mesh, 3000, seed=8, face_weights=w)
+    assert not np.array_equal(a.points, c.points)
+
+
+@pytest.mark.parametrize("kw, msg", [
+    ({"face_weights": np.ones(3)}, "face_weights must be"),
+    ({"face_weights": "neg"}, "face_weights must be"),
+    ({"face_weights": "nan"}, "face_weights must be"),
+])
+def test_bad_face_weights(kw, msg):
+    mesh = _box(max_edge=0.4)
+    if isinstance(kw["face_weights"], str):
+        w = np.ones(mesh.n_faces)
+        w[0] = -1.0 if kw["face_weights"] == "neg" else np.nan
+        kw = {"face_weights": w}
+    with pytest.raises(ValueError, match=msg):
+        sample_surface(mesh, 10, **kw)
+
+
+@pytest.mark.parametrize("u", [-0.1, 1.5, float("nan")])
+def test_bad_uniform_share(u):
+    with pytest.raises(ValueError, match="uniform_share must be in"):
+        curvature_face_weights(_box(max_edge=0.4), u)
+
+
+# ----------------------------------------------------------------------------------------------- error-driven
+
+
+def _sphere_points(n=6000, r=0.7, seed=0, dtype=torch.float32):
+    g = torch.Generator().manual_seed(seed)
+    p = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=torch.float64), dim=1)
+    return (p * r).to(dtype), p.to(dtype)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_error_resampling_moves_samples_to_an_injected_error(fit_sphere_siren, dtype):
+    net = fit_sphere_siren(r=0.7, steps=300).to(dtype)
+    p, n = _sphere_points(dtype=dtype)
+    wrong = p[:, 0] > 0.5  # inject an error: the normals of a cap (~14% of the sphere) are flipped
+    n = torch.where(wrong[:, None], -n, n)
+    cdf = _error_cdf(net, p, n)
+    assert cdf.dtype == torch.float64 and torch.isfinite(cdf).all() and (cdf.diff() >= 0).all()
+    idx = _importance_draw(cdf, 20_000, torch.Generator().manual_seed(0))
+    share = wrong[idx].double().mean().item()
+    assert wrong.double().mean().item() < 0.2 and share > 0.9  # the sampled share goes to the wrong cap
+    again = _importance_draw(cdf, 20_000, torch.Generator().manual_seed(0))
+    assert torch.equal(idx, again)
+
+
+def test_error_cdf_float32_matches_float64(fit_sphere_siren):
+    net = fit_sphere_siren(r=0.7, steps=300)
+    p, n = _sphere_points(n=3000, r=0.6, seed=2, dtype=torch.float64)  # off the zero set: real errors
+    c64 = _error_cdf(net.double(), p, n)
+    c32 = _error_cdf(net.float(), p.float(), n.float())
+    torch.testing.assert_close(c32, c64, rtol=2e-4, atol=1e-6)
+
+
+def test_error_cdf_is_none_without_error_and_finite_where_the_gradient_vanishes():
+    from neural_bake.nets.siren import Siren
+
+    net = Siren(16, 1, omega_0=10.0, generator=torch.Generator().manual_seed(0))
+    for w in net.parameters():  # a constant field: ∇f = 0 everywhere, so every point counts the error 1
+        torch.nn.init.zeros_(w)
+    p, n = _sphere_points(n=100)
+    cdf = _error_cdf(net, p, n)
+    torch.testing.assert_close(cdf, torch.arange(1, 101, dtype=torch.float64))
+    assert _error_cdf(net, p[:0], n[:0]) is None  # an empty pool: nothing to importance-sample
+
+
+def test_error_draw_takes_the_head_of_the_surface_batch():
+    cfg = SdfFitConfig(batch=400, batch_near=100, batch_uniform=20, hard_fraction=0.25, error_sampling=0.5)
+    pools = {"surf_p": torch.arange(3000.0).reshape(1000, 3), "surf_n": torch.zeros(1000, 3),
+             "vol_p": torch.arange(1500.0).reshape(500, 3), "vol_d": torch.zeros(500), "n_near": 400}
+    err = torch.zeros(1000, dtype=torch.float64)
+    err[[3, 500]] = 1.0  # only two pool points have an error
+    hard = {"surf": torch.tensor([7, 11]), "error": torch.cumsum(err, 0)}
+    sp, *_ = _draw(pools, cfg, torch.Generator().manual_seed(0), hard)
+    rows = (sp[:, 0] / 3).long()
+    assert set(rows[:200].tolist()) == {3, 500}  # the head: error-driven draws
+    assert len(set(rows[200:300].tolist())) > 50  # the floor: uniform over the pool
+    assert set(rows[300:].tolist()) <= {7, 11}  # the tail: hard examples
+
+
+def test_fit_with_detail_sampling_reproduces_and_stays_finite():
+    m = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    v, f = trimesh.remesh.subdivide_to_size(m.vertices, m.faces, max_edge=0.15)
+    mesh = mesh_from_arrays(v, f, normalise=False)
+    kw = dict(TINY, steps=40, curvature_sampling=0.5, error_sampling=0.25, hard_every=10)
+    a, b = fit_sdf(mesh, **kw), fit_sdf(mesh, **kw)
+    wa = torch.cat([p.detach().flatten() for p in a.model.parameters()])
+    wb = torch.cat([p.detach().flatten() for p in b.model.parameters()])
+    assert torch.isfinite(wa).all() and torch.equal(wa, wb)
+    assert a.sampling_seconds is not None and 0 < a.sampling_seconds < a.seconds
+    c = fit_sdf(mesh, **dict(kw, curvature_sampling=0.0, error_sampling=0.0))
+    assert not torch.equal(wa, torch.cat([p.detach().flatten() for p in c.model.parameters()]))
+
+
+@pytest.mark.parametrize("kw, msg", [
+    ({"curvature_sampling": -0.1}, "curvature_sampling must be in"),
+    ({"curvature_sampling": 1.1}, "curvature_sampling must be in"),
+    ({"error_sampling": 0.8, "hard_fraction": 0.25}, r"error_sampling must be in \[0, 1 - hard_fraction\]"),
+    ({"error_sampling": -0.5}, "error_sampling must be in"),
+])
+def test_bad_detail_sampling_settings(kw, msg):
+    m = trimesh.creation.icosphere(subdivisions=1, radius=0.8)
+    with pytest.raises(FitError, match=msg):
+        fit_sdf(mesh_from_arrays(m.vertices, m.faces, normalise=False), **kw)
+
+
+def test_curvature_pools_are_denser_on_creases():
+    from neural_bake.fit.sdf_pools import _Pools
+
+    mesh = _box()
+    crease = _crease_faces(mesh, 0.4)
+    cfg = replace(SdfFitConfig(), pool_surface=20_000, pool_near=2000, pool_uniform=100)
+    near_plane = {}
+    for c in (0.0, 0.6):
+        pools = _Pools(mesh, replace(cfg, curvature_sampling=c), torch.device("cpu"), torch.float32)
+        p = pools.get(0)["surf_p"].numpy()
+        # share of surface pool points within 0.05 of a crease (two coordinates near ±0.4)
+        near_plane[c] = (np.isclose(np.abs(p), 0.4, atol=0.05).sum(axis=1) >= 2).mean()
+    assert near_plane[0.6] > 2.0 * near_plane[0.0]
