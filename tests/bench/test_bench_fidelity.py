@@ -60,3 +60,36 @@ def test_gltf_source_size_counts_its_buffers(tmp_path):
     trimesh.creation.box().export(tmp_path / "box.gltf")  # trimesh writes the buffer beside it
     bins = list(tmp_path.glob("*.bin"))
     assert bins and _source_bytes(tmp_path / "box.gltf") == sum(p.stat().st_size for p in tmp_path.iterdir())
+
+
+def test_sampling_variants_at_equal_steps_get_ratios_against_uniform(tmp_path):
+    path = tmp_path / "block.obj"
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.2)
+    trimesh.Trimesh(v, f, process=False).export(path)
+    res = run(quick=True, meshes=[str(path)], steps=[3], sampling=["uniform", "curvature", "error"], size=32,
+              faces=100)
+    rows = res["rows"]
+    assert [(r["sampling"], r["step_cap"], r["steps"]) for r in rows] == [
+        ("uniform", 3, 3), ("curvature", 3, 3), ("error", 3, 3)]
+    base = rows[0]
+    assert base["median_ratio"] == 1.0 and base["step_cost_ratio"] == 1.0 and base["hausdorff_ratio"] == 1.0
+    for r in rows[1:]:
+        assert r["median_ratio"] == pytest.approx(r["map_median_deg"] / base["map_median_deg"])
+        assert r["step_cost_ratio"] == pytest.approx(r["s_per_step"] / base["s_per_step"])
+        assert 0 < r["sampling_share"] < 1
+    json.dumps(res)
+
+
+def test_bad_sampling_and_steps_are_refused(tmp_path):
+    from neural_bake.cli.main import main
+    from neural_bake.errors import NeuralBakeError
+
+    with pytest.raises(NeuralBakeError, match="sampling must be among"):
+        run(quick=True, meshes=["x.obj"], sampling=["curvy"])
+    with pytest.raises(NeuralBakeError, match="steps must be positive"):
+        run(quick=True, meshes=["x.obj"], steps=[0])
+    for args, hint in ((["--sampling", "uniform,curvy"], "--sampling"), (["--steps", "10,x"], "--steps")):
+        with pytest.raises(SystemExit) as exc:
+            main(["bench", "fidelity", "--quick", *args])
+        assert exc.value.code == 2
