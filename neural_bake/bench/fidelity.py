@@ -147,7 +147,9 @@ def _adam_seconds_per_step(fit) -> float | None:
 
 def _with_ratios(rows: list[dict]) -> None:
     """Adds to each row its ratios against the "uniform" row of the same mesh, preset and step count
-    (measured in the same run): map median and p95, Hausdorff, seconds per Adam step."""
+    (measured in the same run): map median and p95, Hausdorff, seconds per Adam step, and the sampling's
+    cost ratio: (the baseline's step + this row's extra sampling seconds per step) / the baseline's step,
+    which a loaded machine disturbs less than the ratio of whole steps (the step's own work is the same)."""
     base = {(r["mesh"], r["preset"], r["step_cap"]): r for r in rows if r["sampling"] == "uniform"}
     for r in rows:
         b = base.get((r["mesh"], r["preset"], r["step_cap"]))
@@ -155,6 +157,9 @@ def _with_ratios(rows: list[dict]) -> None:
                          ("hausdorff", "hausdorff_ratio"), ("s_per_step", "step_cost_ratio")):
             ok = b is not None and r.get(key) is not None and b.get(key)
             r[out] = r[key] / b[key] if ok else None
+        ok = b is not None and all(x.get(k) is not None for x in (r, b) for k in ("s_per_step", "sampling_share"))
+        r["sampling_cost_ratio"] = (1.0 + (r["s_per_step"] * r["sampling_share"] - b["s_per_step"] * b[
+            "sampling_share"]) / b["s_per_step"]) if ok and b["s_per_step"] else None
 
 
 def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -> dict:

@@ -74,10 +74,13 @@ def test_sampling_variants_at_equal_steps_get_ratios_against_uniform(tmp_path):
         ("uniform", 3, 3), ("curvature", 3, 3), ("error", 3, 3)]
     base = rows[0]
     assert base["median_ratio"] == 1.0 and base["step_cost_ratio"] == 1.0 and base["hausdorff_ratio"] == 1.0
+    assert base["sampling_cost_ratio"] == 1.0
     for r in rows[1:]:
         assert r["median_ratio"] == pytest.approx(r["map_median_deg"] / base["map_median_deg"])
         assert r["step_cost_ratio"] == pytest.approx(r["s_per_step"] / base["s_per_step"])
         assert 0 < r["sampling_share"] < 1
+        extra = r["s_per_step"] * r["sampling_share"] - base["s_per_step"] * base["sampling_share"]
+        assert r["sampling_cost_ratio"] == pytest.approx(1.0 + extra / base["s_per_step"])
     json.dumps(res)
 
 

@@ -214,12 +214,11 @@ def test_curvature_pools_are_denser_on_creases():
     from neural_bake.fit.sdf_pools import _Pools
 
     mesh = _box()
-    crease = _crease_faces(mesh, 0.4)
     cfg = replace(SdfFitConfig(), pool_surface=20_000, pool_near=2000, pool_uniform=100)
-    near_plane = {}
+    near_crease = {}
     for c in (0.0, 0.6):
         pools = _Pools(mesh, replace(cfg, curvature_sampling=c), torch.device("cpu"), torch.float32)
         p = pools.get(0)["surf_p"].numpy()
         # share of surface pool points within 0.05 of a crease (two coordinates near ±0.4)
-        near_plane[c] = (np.isclose(np.abs(p), 0.4, atol=0.05).sum(axis=1) >= 2).mean()
-    assert near_plane[0.6] > 2.0 * near_plane[0.0]
+        near_crease[c] = (np.isclose(np.abs(p), 0.4, atol=0.05).sum(axis=1) >= 2).mean()
+    assert near_crease[0.6] > 2.0 * near_crease[0.0]
