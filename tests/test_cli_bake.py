@@ -110,6 +110,8 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--report-samples", "0"], "report_samples 0: must be a positive integer"),
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
+        (["--tolerance", "0"], "--tolerance must be a number of degrees in (0, 90), got 0.0"),
+        (["--tolerance", "nan"], "--tolerance must be a number of degrees in (0, 90), got nan"),
     ],
 )
 def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
@@ -310,3 +312,21 @@ def test_coarse_keep_warns(files, tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     assert len(rep["warnings"]) == 1 and rep["warnings"][0].startswith("--coarse keep:")  # one line, not two
     assert [line for line in stdout.splitlines() if line.startswith("warning:")] == ["warning: " + rep["warnings"][0]]
+
+
+def test_adaptive_bake_reports_its_evaluated_share_and_error(files, tmp_path, capsys):
+    out_on, out_off = tmp_path / "on", tmp_path / "off"
+    common = [files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "128", "--no-baseline",
+              "--no-hybrid"]
+    code, stdout, err = run(common + ["--tolerance", "0.5", "-o", str(out_on)], capsys)
+    assert code == 0, err
+    on = json.loads((out_on / "report.json").read_text())["bake"]
+    assert on["adaptive"]["tolerance_deg"] == 0.5 and 0 < on["evaluated_fraction"] <= 1
+    control = on["error_control"]
+    assert control["samples"] > 0 and control["angle_deg"]["max"] <= 0.5
+    assert "adaptive evaluation:" in stdout and "% of the texel samples evaluated" in stdout
+    code, stdout, err = run(common + ["--adaptive", "off", "-o", str(out_off)], capsys)
+    assert code == 0, err
+    off = json.loads((out_off / "report.json").read_text())["bake"]
+    assert off["adaptive"] is None and off["evaluated_fraction"] == 1.0 and "error_control" not in off
+    assert "adaptive evaluation:" not in stdout
