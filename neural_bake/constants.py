@@ -91,8 +91,9 @@ HYBRID_ANGLE_DEG = 20.0
 
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
 #: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
-#: the normals at its edge midpoints and centre lie within this of what its corners predict.
-ADAPTIVE_TOLERANCE_DEG = 0.05
+#: the normals at its edge midpoints and centre lie within this of what its corners predict. Half the angle
+#: one step of an 8-bit normal map spans (about 0.45°): below what the map can show.
+ADAPTIVE_TOLERANCE_DEG = 0.25
 
 #: Coarse lattice step (sample-grid positions, a power of two) at which adaptive evaluation starts in each chart.
 ADAPTIVE_LATTICE = 16
@@ -128,6 +129,13 @@ ADAPTIVE_CHECK_SAMPLES = 4096
 #: precision "auto": bfloat16 hidden GEMMs are used only where a (4096, W) × (W, W) product with its conversions
 #: measured at least this many times faster than in float32 on the device (the rest of the work stays float32).
 BF16_MIN_SPEEDUP = 1.3
+
+#: precision "auto" in a bake also keeps float32 when bfloat16 normals measured a median angle above this (degrees)
+#: off float32 ones at a probe of the bake's own points: half the bake's budget against a full float32 evaluation.
+BF16_MAX_MEDIAN_DEG = 0.05
+
+#: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.
+PRECISION_PROBE_POINTS = 1024
 
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.

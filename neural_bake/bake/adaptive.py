@@ -220,7 +220,11 @@ def adaptive_evaluate(
             return
         ev = evaluate(idx)
         store.values[idx] = ev["values"]
-        store.normals[idx] = ev["normals"]
+        nrm = np.asarray(ev["normals"], dtype=np.float64)
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        # renormalised in float64: a float32 unit vector's dot with itself is 1 only to ~1e-7, the size of
+        # cos(tolerance) − 1 for tolerances of a few hundredths of a degree
+        store.normals[idx] = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > DIRECTION_EPS)
         store.valid[idx] = ev["valid"]
         col = ev.get("colors")
         if col is not None:

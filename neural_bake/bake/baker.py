@@ -230,9 +230,14 @@ def _evaluate(
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(n,) angles in degrees between rows of unit vectors ``a`` and ``b`` (n, 3)."""
-    cos = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
-    return np.degrees(np.arccos(cos))
+    """(n,) angles in degrees between the directions of rows ``a`` and ``b`` (n, 3), renormalised in float64
+    and measured as 2·atan2(|a − b|, |a + b|): exact near 0°, where arccos of a float32 dot product reads
+    a few hundredths of a degree for identical vectors."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), DIRECTION_EPS)
+    b = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), DIRECTION_EPS)
+    return np.degrees(2.0 * np.arctan2(np.linalg.norm(a - b, axis=1), np.linalg.norm(a + b, axis=1)))
 
 
 def _quantiles(x: np.ndarray) -> dict:
@@ -242,21 +247,27 @@ def _quantiles(x: np.ndarray) -> dict:
 
 
 class _ErrorControl:
-    """How a bake evaluates its fields per band (every sample, or adaptively) and what that costs in error.
+    """How a bake evaluates its fields per band (every sample, or adaptively; float32 or reduced precision)
+    and what that costs in error.
 
     ``evaluate(texels, points)`` returns :func:`_evaluate`'s dict for the band (plus ``evaluated``: (M,) bool,
     the samples the fields were evaluated at). ``check(points, ev)`` evaluates a seeded uniform choice of about
-    ``samples`` of the bake's samples fully where they were not (interpolated ones) and keeps their error;
+    ``samples`` of the bake's samples fully in float32 where they were not (interpolated ones, and every one
+    of a reduced-precision bake) and keeps their error;
     ``summary()`` is the bake stats' ``adaptive`` and ``error_control`` entries.
     """
 
-    def __init__(self, baker: "Baker", sdf, texture, adaptive, samples: int, seed: int):
+    def __init__(self, baker: "Baker", sdf, texture, adaptive, samples: int, seed: int, fast=None):
         self.baker, self.sdf, self.texture, self.adaptive = baker, sdf, texture, adaptive
+        self.fast_sdf, self.fast_tex = fast if fast is not None else (sdf, texture)
+        self.reduced = self.fast_sdf is not sdf or self.fast_tex is not texture
+        self.precision: dict = {}
         self.seed, self.seen = int(seed), 0
         expected = baker.size * baker.size * baker.supersample**2
         if baker.texels is not None:
             expected = baker.texels.n_samples
-        self.fraction = min(1.0, samples / max(1, expected)) if adaptive is not None else 0.0
+        self.checked = adaptive is not None or self.reduced
+        self.fraction = min(1.0, samples / max(1, expected)) if self.checked else 0.0
         self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0}
         self.cells: dict[str, int] = {}
         self.angles: list[np.ndarray] = []
@@ -268,7 +279,7 @@ class _ErrorControl:
     def evaluate(self, tx, points: np.ndarray) -> dict:
         b = self.baker
         if self.adaptive is None:
-            ev = _evaluate(points, b.mesh.frame, self.sdf, self.texture, b.chunk_size)
+            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
             ev["evaluated"] = np.ones(len(points), dtype=bool)
             self.counts["samples"] += len(points)
             self.counts["evaluated"] += len(points)
@@ -280,7 +291,7 @@ class _ErrorControl:
         times = {"time_sdf": 0.0, "time_texture": 0.0}
 
         def fields(idx):
-            e = _evaluate(points[idx], b.mesh.frame, self.sdf, self.texture, b.chunk_size)
+            e = _evaluate(points[idx], b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
             times["time_sdf"] += e["time_sdf"]
             times["time_texture"] += e["time_texture"]
             return e
@@ -310,8 +321,8 @@ class _ErrorControl:
         pick = np.flatnonzero(keys.astype(np.float64) < self.fraction * 2.0**64)
         if pick.size == 0:
             return
-        exact = ev["evaluated"][pick]
-        self.interp.append(~exact)
+        exact = ev["evaluated"][pick] & (not self.reduced)  # evaluated in float32: the reference itself
+        self.interp.append(~ev["evaluated"][pick])
         ang = np.zeros(pick.size)
         col = np.zeros(pick.size)
         val = np.zeros(pick.size)
@@ -339,7 +350,8 @@ class _ErrorControl:
             "evaluated_fraction": c["evaluated"] / max(1, c["samples"]),
             "cells_accepted": self.cells, "evaluation_calls": c["calls"]},
             "evaluated_fraction": c["evaluated"] / max(1, c["samples"])}
-        if self.adaptive is not None:
+        out["precision"] = self.precision
+        if self.checked:
             ang = np.concatenate(self.angles) if self.angles else np.zeros(0)
             col = np.concatenate(self.colors) if self.colors else np.zeros(0)
             val = np.concatenate(self.values) if self.values else np.zeros(0)
@@ -348,6 +360,7 @@ class _ErrorControl:
                 "reference": "full float32 evaluation of the same fields at the same samples",
                 "samples": int(ang.size), "interpolated": int(interp.sum()), "seed": self.seed,
                 "angle_deg": _quantiles(ang), "interpolated_angle_deg": _quantiles(ang[interp]),
+                "precision_angle_deg": _quantiles(ang[~interp]) if self.reduced else None,
                 "color_max": float(col.max()) if self.texture is not None and col.size else None,
                 "value_max": float(val.max()) if val.size else None,
             }
@@ -466,6 +479,15 @@ class Baker:
             self.texels = rasterize_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
             self.timings["rasterize"] = time.perf_counter() - t0
 
+    def _probe(self, field) -> torch.Tensor:
+        """Up to PRECISION_PROBE_POINTS points of the layout (the mesh's vertices and face centres), in
+        ``field``'s frame and dtype: where precision "auto" compares bfloat16 with float32."""
+        from ..constants import PRECISION_PROBE_POINTS
+
+        pts = np.concatenate([self.mesh.vertices, self.mesh.triangles.mean(axis=1)])
+        pts = pts[np.linspace(0, len(pts) - 1, min(len(pts), PRECISION_PROBE_POINTS)).astype(np.int64)]
+        return torch.as_tensor(_to_field_frame(pts, self.mesh.frame, field.frame), **_tensor_kwargs(field))
+
     def bands(self):
         """The texel samples in bands of texel rows: the cached :class:`TexelSet` as one band, or (streaming)
         one rasterised band after another (:func:`neural_bake.mesh.texels.iter_texels`). Their
@@ -490,6 +512,8 @@ class Baker:
         hybrid=None,
         adaptive: AdaptiveOptions | None = None,
         check_samples: int = ADAPTIVE_CHECK_SAMPLES,
+        precision: str = "fp32",
+        precision_measure=None,
     ) -> BakeResult:
         """Bake ∇f (and g) at every texel sample into the maps.
 
@@ -508,6 +532,12 @@ class Baker:
         evaluates every sample. An adaptive bake evaluates about ``check_samples`` samples (a seeded uniform
         choice) fully as well and states in ``stats["error_control"]`` the angle between its normals and
         those of the full evaluation there (0: no check).
+
+        ``precision``: "fp32", "bf16" or "auto": the networks' hidden GEMMs in bfloat16 where
+        :func:`~neural_bake.nets.precision.resolve_precision` says (``precision_measure`` is its injectable
+        speed check); ``stats["precision"]`` says what ran and why. A reduced-precision bake runs the same
+        sampled check against float32 (``stats["error_control"]["precision_angle_deg"]``: its evaluated
+        samples).
         """
         if delta is None:
             delta = sdf.delta
@@ -521,7 +551,16 @@ class Baker:
             raise NeuralBakeError(f"check_samples must be a non-negative integer, got {check_samples!r}")
         if adaptive is not None and not isinstance(adaptive, AdaptiveOptions):
             raise NeuralBakeError(f"adaptive must be AdaptiveOptions or None, got {type(adaptive).__name__}")
-        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed)
+        probe = self._probe(sdf) if precision == "auto" else None
+        fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
+            if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")
+        fast_tex, tex_prec, tex_why = (None, None, None) if texture is None else (
+            texture.with_precision(precision, measure=precision_measure,
+                                   probe=None if probe is None else self._probe(texture))
+            if hasattr(texture, "with_precision") else (texture, "fp32", "no precision choice"))
+        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex))
+        control.precision = {"asked": precision, "sdf": sdf_prec, "sdf_reason": sdf_why, "texture": tex_prec,
+                             "texture_reason": tex_why}
         keep = self.cache if keep_samples is None else bool(keep_samples)
         reservoir = None if keep or report_samples == 0 else _Reservoir(report_samples, seed)
         h, w = self.shape

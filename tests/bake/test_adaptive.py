@@ -19,7 +19,10 @@ from neural_bake.samples.shapes import get_sample
 
 
 def angle_deg(a, b):
-    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)))
+    """Angles (degrees) between the rows' directions, exact near 0° (the bake's own measure)."""
+    from neural_bake.bake.baker import _angles_deg
+
+    return _angles_deg(a, b)
 
 
 def analytic_fields(name, frame):
@@ -232,3 +235,75 @@ def test_bake_refuses_a_bad_adaptive_argument_and_check_count(torus_baker):
         baker.bake(sdf, adaptive=0.05)
     with pytest.raises(NeuralBakeError, match="check_samples"):
         baker.bake(sdf, adaptive=AdaptiveOptions(), check_samples=-1)
+
+
+def test_reduced_precision_bake_states_its_decision_and_error(torus_baker):
+    from neural_bake.nets.siren import Siren
+
+    baker, frame = torus_baker
+    field = SdfField.from_model(Siren(32, 1, generator=torch.Generator().manual_seed(0)))
+    slow = baker.bake(field, precision="auto", precision_measure=lambda w, d: 1.0)
+    assert slow.stats["precision"]["sdf"] == "fp32" and "measured 1.00×" in slow.stats["precision"]["sdf_reason"]
+    assert "error_control" not in slow.stats  # float32, every sample: nothing to check
+    low = baker.bake(field, precision="bf16")
+    assert low.stats["precision"]["sdf"] == "bf16"
+    control = low.stats["error_control"]
+    assert control["interpolated"] == 0 and control["samples"] > 0
+    measured = control["precision_angle_deg"]
+    err = angle_deg(low.normals, slow.normals)
+    assert 0 < measured["max"] <= err.max() and measured["median"] < 1.0
+    both = baker.bake(field, precision="bf16", adaptive=AdaptiveOptions(tolerance_deg=1.0))
+    assert both.stats["error_control"]["precision_angle_deg"]["median"] is not None
+    analytic = baker.bake(analytic_fields("torus", frame)[1], precision="auto")
+    assert analytic.stats["precision"]["sdf"] == "fp32"
+
+
+def counting(field, method):
+    """Wrap ``field.method`` to count the points it is called on; returns the list of call sizes."""
+    calls = []
+    inner = getattr(field, method)
+
+    def wrapped(points, *a, **k):
+        calls.append(len(points))
+        return inner(points, *a, **k)
+
+    setattr(field, method, wrapped)
+    return calls
+
+
+def test_one_evaluation_serves_every_output(sphere_baker, tmp_path):
+    """Normal map, albedo map, per-sample arrays and the report come from one evaluation of each field per
+    sample: the fields see exactly the evaluated samples plus the sampled check's interpolated ones."""
+    from neural_bake.bake.report import bake_report
+
+    baker, sdf, tex, _ = sphere_baker
+    _, sdf, tex = analytic_fields("sphere", baker.mesh.frame)
+    sdf_calls, tex_calls = counting(sdf, "value_and_normal"), counting(tex, "color")
+    res = baker.bake(sdf, tex, adaptive=AdaptiveOptions(tolerance_deg=0.2))
+    control = res.stats["error_control"]
+    evaluated = res.stats["adaptive"]["evaluated"]
+    assert sum(sdf_calls) == sum(tex_calls) == evaluated + control["interpolated"]
+    assert res.normal_map is not None and res.albedo is not None and res.colors.shape[0] == res.normals.shape[0]
+    before = (len(sdf_calls), len(tex_calls))
+    bake_report(res, baker, fine=None, out_dir=tmp_path)
+    assert (len(sdf_calls), len(tex_calls)) == before  # the report evaluates nothing
+    full_calls = []
+    sdf2 = analytic_fields("sphere", baker.mesh.frame)[1]
+    full_calls = counting(sdf2, "value_and_normal")
+    full = baker.bake(sdf2)
+    assert sum(full_calls) == full.stats["samples"]  # without adaptivity: each sample once
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_angle_measure_is_exact_near_zero(dtype, rng):
+    from neural_bake.bake.baker import _angles_deg
+
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    assert _angles_deg(a.astype(dtype), a.astype(dtype)).max() < 1e-5  # arccos of the dot would read ~0.02°
+    theta = rng.uniform(1e-4, 3.0, 200)
+    axis = np.cross(a, rng.normal(size=(200, 3)))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
+    tol = 1e-9 if dtype == np.float64 else 1e-3
+    np.testing.assert_allclose(_angles_deg(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)
