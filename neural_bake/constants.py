@@ -125,6 +125,10 @@ DIRECTION_EPS = 1e-12
 #: still normalises).
 UNDERFLOW_EPS = 1e-300
 
+#: How many triangle sets keep their open3d ray-casting scene (BVH) in memory, so that the stages that query
+#: one mesh (sampling, metrics, baseline bake, hybrid bake, report, viewer) build it once.
+RAYCAST_SCENE_CACHE = 4
+
 #: |du1 dv2 - du2 dv1| below this (twice the UV area) marks a face with degenerate UVs: it adds no tangent.
 UV_DET_EPS = 1e-14
 

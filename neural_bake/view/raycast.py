@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..geometry import raycasting_scene
 from ..io.colour import sample_texture
 from ..render.camera import Camera
 from ..render.shading import Material, default_lights, shade_blinn_phong
@@ -52,9 +53,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _cast(mesh: ViewMesh, origins: np.ndarray, dirs: np.ndarray):
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.positions.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh.positions, mesh.faces)
     rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
     ans = scene.cast_rays(o3d.core.Tensor(rays))
     t = ans["t_hit"].numpy().astype(np.float64)
