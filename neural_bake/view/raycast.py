@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..constants import UNDERFLOW_EPS
 from ..geometry import raycasting_scene
 from ..io.colour import sample_texture
 from ..render.camera import Camera
@@ -47,7 +48,7 @@ class MeshRender:
 
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, n, out=np.zeros_like(v), where=n > 1e-300)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > UNDERFLOW_EPS)
 
 
 def _cast(mesh: ViewMesh, origins: np.ndarray, dirs: np.ndarray):
