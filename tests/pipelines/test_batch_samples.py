@@ -16,8 +16,8 @@ def test_bundled_samples_at_the_quick_preset(tmp_path, capsys):
     # the quick preset's networks with its budgets turned into step counts (about what it makes here in its
     # 24 s and 12 s), so the figures do not depend on the machine's load
     code = main(["batch", str(manifest), "-o", str(tmp_path / "out"), "--preset", "quick", "--workers", "2",
-                 "--set", "sdf.steps=500", "--set", "sdf.minutes=30", "--set", "sdf.polish_evals=0", "--set", "sdf.compile=off",
-                 "--set", "texture.steps=300", "--set", "texture.minutes=30"])
+                 "--set", "sdf.steps=500", "--set", "sdf.minutes=30", "--set", "sdf.polish_evals=0",
+                 "--set", "sdf.compile=off", "--set", "texture.steps=300", "--set", "texture.minutes=30"])
     out = capsys.readouterr().out
     assert code == 0, out
     summary = json.loads((tmp_path / "out" / "batch.json").read_text())
