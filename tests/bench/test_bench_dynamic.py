@@ -53,6 +53,9 @@ def test_nesting_holds_at_every_sampled_t(result):
     (nest,) = result["tables"]["nesting over space-time"]
     assert nest["level"] == "16x1" and nest["delta"] >= nest["sup_estimated"] > 0
     assert nest["sup_certified"] >= nest["sup_estimated"] and nest["certify_boxes"] > 0 and nest["certify_s"] > 0
+    # the stored δ is the certified bound: the nesting is guaranteed, so every sampled t must hold
+    assert nest["delta_source"] == "certified" and nest["guaranteed"] is True and nest["holds_at_all_t"] is True
+    assert nest["delta"] >= nest["delta_estimated"] and nest["certified_over_estimated"] >= 1
     by_t = result["tables"]["nesting at each sampled t"]
     assert len(by_t) == nest["times_checked"] == 11 and [r["t"] for r in by_t][::10] == [0.0, 1.0]
     assert nest["holds_at_all_t"] == all(r["holds"] for r in by_t)
@@ -67,6 +70,7 @@ def test_render_and_bake_cost_and_storage(result):
                                                        rel_tol=0.05, abs_tol=1e-3)
     assert cost["target_render_s"] == 300 and cost["target_met"] in (True, False)
     assert cost["bake_frames"] == 3 and cost["bake_per_frame_s"] > 0 and cost["bake_vertices"] > 0
+    assert 0 <= cost["bake_colours_s"] < cost["bake_per_frame_s"]
     assert cost["model_kb"] > 0 and cost["ply_frames_mb"] > 0
     assert math.isclose(cost["storage_ratio"], cost["ply_frames_mb"] * 1024 / cost["model_kb"], rel_tol=0.05)
     assert any("target: 60 frames at 256x256" in n for n in result["notes"])  # a shrunken run says so
