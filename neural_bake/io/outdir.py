@@ -391,15 +391,16 @@ class OutputFolder:
             os.rmdir(old)
 
 
-def record_in_set(folder: str | os.PathLike, *names: str) -> None:
+def record_in_set(folder: str | os.PathLike, *names: str, locked: bool = False) -> None:
     """Add entries ``names`` (top-level names inside ``folder``) that a later step wrote into a committed
     folder to its set, so the next run into ``folder`` replaces them with the rest instead of refusing them as
-    foreign. A folder that is not a committed set is left as it is."""
+    foreign. A folder that is not a committed set is left as it is. ``locked``: the caller already holds the
+    folder's :class:`OutputLock` (taken here otherwise)."""
     folder = Path(folder)
     manifest = folder / MANIFEST
     if not manifest.is_file():
         return
-    with OutputLock(folder):
+    with contextlib.nullcontext() if locked else OutputLock(folder):
         try:
             data = json.loads(manifest.read_text(encoding="utf-8"))
             data["files"] = sorted(set(data["files"]) | set(names))
