@@ -89,6 +89,54 @@ HYBRID_SDF_TOL = 0.01
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
 
+# --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
+#: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
+#: the normals at its edge midpoints and centre lie within this of what its corners predict. Half the angle
+#: one step of an 8-bit normal map spans (about 0.45°): below what the map can show.
+ADAPTIVE_TOLERANCE_DEG = 0.25
+
+#: Coarse lattice step (sample-grid positions, a power of two) at which adaptive evaluation starts in each chart.
+ADAPTIVE_LATTICE = 16
+
+#: Adaptive evaluation: a cell whose colours (linear RGB(A)) differ from its corners' interpolation by more than
+#: this is refined (half an 8-bit step): the albedo map keeps the same refinement as the normal map.
+ADAPTIVE_COLOR_TOL = 0.5 / 255
+
+#: Adaptive evaluation: a cell whose f (unit frame) differs from its corners' interpolation by more than this is
+#: refined; f at texels only flags misses (|f| > δ), so this is a fraction of the narrowest bands.
+ADAPTIVE_VALUE_TOL = 5e-3
+
+#: Adaptive evaluation accepts a cell when its surplus (the midpoints' deviation from the corners' prediction) is
+#: at most this fraction of each tolerance: the margin for what an estimate from five points can miss.
+ADAPTIVE_SAFETY = 0.5
+
+#: Adaptive evaluation: a cell wider than this (sample-grid positions) is refined when a vertex of the coarse mesh
+#: lies inside it: around a vertex the piecewise-flat surface is a cone, where interpolation errs most.
+ADAPTIVE_VERTEX_SIDE = 4
+
+#: Adaptive evaluation: an edge of the coarse mesh whose faces' normals differ by more than this (degrees) is a
+#: feature like a vertex: cells wider than ``ADAPTIVE_VERTEX_SIDE`` it crosses are refined.
+ADAPTIVE_EDGE_DEG = 10.0
+
+#: A texel sample lies on the sample grid when its UV position is within this (sample-grid units) of a grid
+#: position; the others (border samples at a triangle's closest point) are evaluated, never interpolated.
+ADAPTIVE_GRID_SNAP = 1e-3
+
+#: Texel samples (about; a seeded uniform choice) at which an adaptive or reduced-precision bake evaluates the
+#: fields fully in float32 to measure its error against a full evaluation (the bake report's ``error_control``).
+ADAPTIVE_CHECK_SAMPLES = 4096
+
+#: precision "auto": bfloat16 hidden GEMMs are used only where a (4096, W) × (W, W) product with its conversions
+#: measured at least this many times faster than in float32 on the device (the rest of the work stays float32).
+BF16_MIN_SPEEDUP = 1.3
+
+#: precision "auto" in a bake also keeps float32 when bfloat16 normals measured a median angle above this (degrees)
+#: off float32 ones at a probe of the bake's own points: half the bake's budget against a full float32 evaluation.
+BF16_MAX_MEDIAN_DEG = 0.05
+
+#: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.
+PRECISION_PROBE_POINTS = 1024
+
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
@@ -124,6 +172,29 @@ DIRECTION_EPS = 1e-12
 #: A float64 length no larger than this counts as zero in a division (an underflow guard: any other length
 #: still normalises).
 UNDERFLOW_EPS = 1e-300
+
+#: A length or range (max − min) no larger than this is treated as this, so that dividing by it stays finite
+#: (a zero-size mesh, a flat depth range).
+MIN_SPAN = 1e-12
+
+#: The smallest positive value a float32 step takes before a logarithm or a division (float32's own
+#: smallest normal is ~1.2e-38; 1e-300 would round to zero).
+FLOAT32_FLOOR = 1e-30
+
+#: Radiance below this is black in an RGBE (Radiance .hdr) pixel: its shared exponent would underflow.
+RGBE_MIN = 1e-32
+
+#: Two copies of a mesh's faces are the same where their corners agree within this fraction of the mesh's
+#: extent (a file's own corners against the loaded, welded mesh).
+FACE_MATCH_REL_TOL = 1e-6
+
+#: Corner normals closer than this (per component) are one normal: the corners share a vertex; farther
+#: apart they are a hard edge and the vertex is split.
+CORNER_NORMAL_MATCH_TOL = 1e-6
+
+#: How many triangle sets keep their open3d ray-casting scene (BVH) in memory, so that the stages that query
+#: one mesh (sampling, metrics, baseline bake, hybrid bake, report, viewer) build it once.
+RAYCAST_SCENE_CACHE = 4
 
 #: |du1 dv2 - du2 dv1| below this (twice the UV area) marks a face with degenerate UVs: it adds no tangent.
 UV_DET_EPS = 1e-14

@@ -33,7 +33,7 @@ class DemoConfig:
     """Time budget of each coarse level's distillation, minutes."""
     nested_boxes: int = 2000
     """Box budget of the range-analysis certification of each level's δ (0: estimated δ only)."""
-    texture_preset: str = "fast"
+    texture_preset: str = "quick"
     """Texture network preset."""
     texture_minutes: float = 1.0
     """Time budget of the texture fit, minutes."""
