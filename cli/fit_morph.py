@@ -90,7 +90,7 @@ def check_output(output: str) -> None:
 @click.argument("b", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
-@click.option("--method", type=click.Choice(["lse", "interpolate"]), default="lse", show_default=True,
+@click.option("--method", type=click.Choice(["lse", "interpolate"]), default="interpolate", show_default=True,
               help="lse: level set equation df/dt + v|grad f| = 0 with v = d_A - d_B; interpolate: supervised "
                    "blend of the two distances plus the eikonal term.")
 @click.option("--align", type=click.Choice(["source", "unit"]), default="source", show_default=True,
