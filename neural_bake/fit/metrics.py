@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ..constants import DIRECTION_EPS, NEWTON_MIN_GRAD_SQ
-from ..errors import FitError
+from ..errors import FitError, TrainingDivergedError
 from ..geometry import angular_error, raycasting_scene
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
@@ -113,7 +113,7 @@ def zero_level_mesh(model, resolution: int = 128, *, bound: float = 1.0):
 
     vol = grid_values(model, resolution, bound=bound)
     if not np.isfinite(vol).all():
-        raise FitError("sdf_metrics: the network gives non-finite values on the grid")
+        raise TrainingDivergedError("sdf_metrics: the network gives non-finite values on the grid")
     if vol.min() >= 0 or vol.max() <= 0:
         raise FitError(f"sdf_metrics: the network's zero level set does not cross the grid "
                        f"(f in [{vol.min():.3g}, {vol.max():.3g}])")

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import OutputBusyError, OutputError, WriteError, os_error
-from .atomic import _target_mode, atomic_write_text
+from .atomic import atomic_write_text, replacement_mode
 from .faults import fault_point
 
 __all__ = ["OutputFolder", "OutputLock", "locked_outputs", "record_in_set", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
@@ -264,7 +264,7 @@ class OutputFolder:
             self._check_foreign()
             try:
                 self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
-                os.chmod(self.stage, _target_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
+                os.chmod(self.stage, replacement_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
             except OSError as exc:
                 raise os_error(exc, out) from None
         except BaseException:

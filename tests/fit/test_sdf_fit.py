@@ -89,9 +89,23 @@ def test_resume_equals_uninterrupted(tmp_path):
 
 
 def test_divergence_is_detected_and_reported():
+    from neural_bake.errors import TrainingDivergedError
+
     with pytest.warns(NeuralBakeWarning, match="halved the learning rate"), \
-            pytest.raises(FitError, match="diverged"):
+            pytest.raises(TrainingDivergedError, match="diverged") as info:
         fit_sdf(sphere(), steps=100, **dict(TINY, lr=1e4))
+    assert info.value.exit_code == 1  # failed work, not a bad command line
+
+
+def test_cli_fit_that_diverges_exits_1_with_one_line(tmp_path, capsys):
+    src = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src)
+    out = tmp_path / "ball.sdf"
+    code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "64x1", "--steps", "100", "--lr", "1e4",
+                 "--batch", "512", "--polish-evals", "0", "--compile", "off", "--no-progress", "--no-metrics"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and err[-1].startswith("neural-bake: error:") and "diverged" in err[-1]
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("radius, offset", [(5000.0, 1e6), (1e-4, 0.0), (1e-4, 3.0)])
