@@ -12,7 +12,10 @@ import click
 __all__ = ["command"]
 
 
-@click.command("bake-frames")
+@click.command("bake-frames", epilog="""\b
+Example:
+  neural-bake fit morph samples/sphere.obj samples/torus.obj -o morph.sdf
+  neural-bake bake-frames morph.sdf --t 0:1:10 -o frames/ --format glb""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--t", "times", required=True, help="Frame times: START:STOP:COUNT (e.g. 0:1:10) or a list 0,0.5,1.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),

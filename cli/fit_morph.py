@@ -85,7 +85,10 @@ def check_output(output: str) -> None:
         raise FitError(f"{output}: folder {out_dir} does not exist")
 
 
-@click.command()
+@click.command(epilog="""\b
+Example:
+  neural-bake fit morph samples/sphere.obj samples/torus.obj -o morph.sdf --minutes 2
+  neural-bake render morph.sdf -o morph.gif --frames 24""")
 @click.argument("a", type=click.Path(dir_okay=False))
 @click.argument("b", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),

@@ -12,7 +12,10 @@ from .fit_morph import check_output, network_options, pools, report_fit
 __all__ = ["command"]
 
 
-@click.command()
+@click.command(epilog="""\b
+Example:
+  neural-bake samples -o samples/ --names twisting_torus
+  neural-bake fit sequence samples/twisting_torus -o twist.sdf --minutes 3""")
 @click.argument("frames", nargs=-1, required=True, type=click.Path())
 @click.option("--times", default=None,
               help="Frame times: START:STOP:COUNT or a comma-separated list (default: the folder's frames.json, "

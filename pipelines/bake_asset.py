@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["BakeAssetConfig", "bake_asset", "MAPS"]
+__all__ = ["BakeAssetConfig", "bake_asset", "bake_config", "PRESETS", "MAPS"]
 
 MAPS = ("normal", "albedo", "vertex")
 
@@ -66,6 +66,39 @@ class BakeAssetConfig:
     """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
+
+
+#: Bake presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
+#: BENCHMARKS.md.
+PRESETS: dict[str, dict] = {
+    "quick": {"coarse": "decimate:1000", "size": 512},
+    "default": {"coarse": "decimate:2000", "size": 2048},
+    "high": {"coarse": "decimate:5000", "size": 4096, "supersample": 2},
+}
+
+
+def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
+    """A BakeAssetConfig from a preset name (:data:`PRESETS`) and field overrides; NeuralBakeError for an
+    unknown preset or field."""
+    from dataclasses import fields, replace
+
+    from neural_bake.errors import NeuralBakeError
+
+    cfg = BakeAssetConfig()
+    if preset is not None:
+        if preset not in PRESETS:
+            raise NeuralBakeError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        cfg = replace(cfg, **PRESETS[preset])
+    unknown = sorted(set(overrides) - {f.name for f in fields(BakeAssetConfig)})
+    if unknown:
+        raise NeuralBakeError(f"bake: unknown setting(s) {', '.join(unknown)}")
+    cfg = replace(cfg, **overrides)
+    for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
+                          ("bits", (8, 16))):
+        if getattr(cfg, name) not in allowed:
+            raise NeuralBakeError(f"{name} {getattr(cfg, name)!r}: must be one of {', '.join(map(str, allowed))}",
+                                  parameter=name)
+    return cfg
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,

@@ -26,6 +26,7 @@ from typing import Callable
 
 from neural_bake.errors import NeuralBakeError
 
+from .bake_asset import PRESETS as BAKE_PRESETS
 from .manifest import STAGE_NAMES, AssetSpec, read_manifest
 
 __all__ = ["BatchConfig", "PRESETS", "run_batch", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
@@ -43,24 +44,24 @@ EXECUTORS = ("local", "ray")
 PRESETS: dict[str, dict[str, dict]] = {
     "quick": {
         "sdf": {"preset": "quick", "minutes": 0.4},
-        "nested": {"levels": "32x1", "steps": 300, "certify": False},
+        "nested": {"preset": "quick"},
         "texture": {"preset": "quick", "minutes": 0.2},
-        "coarse": {"spec": "decimate:1000"},
-        "bake": {"size": 512},
+        "coarse": {"spec": BAKE_PRESETS["quick"]["coarse"]},
+        "bake": {"preset": "quick"},
     },
     "default": {
         "sdf": {"preset": "default"},
-        "nested": {"levels": "64x1", "steps": 2000},
+        "nested": {"preset": "default"},
         "texture": {"preset": "default"},
-        "coarse": {"spec": "decimate:2000"},
-        "bake": {"size": 2048},
+        "coarse": {"spec": BAKE_PRESETS["default"]["coarse"]},
+        "bake": {"preset": "default"},
     },
     "high": {
         "sdf": {"preset": "high"},
-        "nested": {"levels": "64x1,256x1", "steps": 4000},
+        "nested": {"preset": "high"},
         "texture": {"preset": "high"},
-        "coarse": {"spec": "decimate:5000"},
-        "bake": {"size": 4096, "supersample": 2},
+        "coarse": {"spec": BAKE_PRESETS["high"]["coarse"]},
+        "bake": {"preset": "high"},
     },
 }
 
@@ -172,7 +173,7 @@ def _batch_options(cfg: BatchConfig) -> dict[str, dict]:
     if cfg.seed is not None:
         common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
     if cfg.device is not None:
-        common = _merge(common, {"sdf": {"device": cfg.device}, "texture": {"device": cfg.device}})
+        common = _merge(common, {stage: {"device": cfg.device} for stage in ("sdf", "nested", "texture")})
     return _merge(copy.deepcopy(PRESETS[cfg.preset]), common, cfg.stages)
 
 

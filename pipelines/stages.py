@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-import types
 import typing
 import warnings
 from dataclasses import asdict, dataclass
@@ -32,6 +31,7 @@ from pathlib import Path
 from typing import Callable
 
 from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
+from neural_bake.fit.nested import NestedFitConfig
 
 from .manifest import STAGE_NAMES
 
@@ -50,26 +50,8 @@ STAGE_FILES = {"sdf": "sdf.safetensors", "nested": "nested.safetensors", "textur
 _NOT_IN_KEY = {"progress", "checkpoint", "checkpoint_every", "resume", "log_every"}
 
 
-@dataclass
-class NestedStageConfig:
-    """Settings of the nested stage (:func:`neural_bake.fit.nested.fit_nested`); one line per field."""
-
-    levels: str = "64x1"
-    """Coarse levels WIDTHxDEPTH, coarse to fine, comma-separated ("" or "none": no nested stage)."""
-    steps: int = 2000
-    """Distillation steps per level."""
-    minutes: float | None = None
-    """Wall-clock budget per level in minutes (None: none)."""
-    band: float = 0.1
-    """Δ: half-width (unit frame) of the band around the zero level sets where |h - f| is measured."""
-    eps: float = 1e-3
-    """ε of Prop. 1 added to the sup-norms."""
-    certify: bool = True
-    """Certify the sup-norms by range analysis."""
-    max_boxes: int = 20_000
-    """Box budget of the certification."""
-    seed: int = 0
-    """Seed of weights and samples."""
+#: The nested stage's settings are the nested fit's own.
+NestedStageConfig = NestedFitConfig
 
 
 @dataclass
@@ -92,44 +74,24 @@ def _stage_classes():
 
 
 def _coerce(value, hint, what: str):
-    """A manifest value (text from CSV or a text file, or a JSON value) as the field's type."""
-    if not isinstance(value, str):
-        return value
-    args = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
-    text = value.strip()
-    if type(None) in args and text.lower() in ("none", "null"):
-        return None
-    for t in (a for a in args if a is not type(None)):
-        try:
-            if t is bool:
-                low = text.lower()
-                if low in ("true", "yes", "on", "1"):
-                    return True
-                if low in ("false", "no", "off", "0"):
-                    return False
-                continue
-            if t is int:
-                return int(text)
-            if t is float:
-                return float(text)
-            if t is str:
-                return text
-            if typing.get_origin(t) is tuple:
-                return tuple(float(x) for x in text.replace(",", " ").split())
-        except ValueError:
-            continue
-    names = " or ".join(getattr(a, "__name__", str(a)) for a in args)
-    raise NeuralBakeError(f"{what}={value!r}: expected {names}")
+    """A manifest value as the field's type: text (CSV, a text file) converted, a JSON value as it is."""
+    from neural_bake.configs import convert
+
+    return convert(value, hint, what) if isinstance(value, str) else value
 
 
 def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
     """``{stage: config object}`` from ``{stage: {field: value}}`` (text values converted to the field types).
 
-    ``sdf`` and ``texture`` take a ``preset`` key (their library presets), applied before the other fields.
+    ``sdf``, ``nested``, ``texture`` and ``bake`` take a ``preset`` key (their presets), applied before the
+    other fields.
     Raises NeuralBakeError naming ``STAGE.FIELD`` (and ``where``) for an unknown field or a bad value.
     """
+    from neural_bake.fit.nested import nested_config
     from neural_bake.fit.sdf import config_from
     from neural_bake.fit.texture import _resolve_config
+
+    from .bake_asset import bake_config
 
     prefix = f"{where}: " if where else ""
     classes = _stage_classes()
@@ -140,8 +102,8 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
         given = dict(options.get(stage, {}))
         values = {}
         preset = given.pop("preset", None)
-        if preset is not None and stage not in ("sdf", "texture"):
-            raise NeuralBakeError(f"{prefix}{stage}.preset: only sdf and texture have presets")
+        if preset is not None and stage == "coarse":
+            raise NeuralBakeError(f"{prefix}{stage}.preset: the coarse stage has no presets (the bake's set it)")
         for k, v in given.items():
             if k not in hints or k == "coarse" and stage == "bake":
                 hint = " (the coarse mesh is set by coarse.spec)" if k == "coarse" else ""
@@ -152,6 +114,10 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
                 out[stage] = config_from(preset=preset, **values)
             elif stage == "texture":
                 out[stage] = _resolve_config(None, {**values, **({"preset": preset} if preset else {})})
+            elif stage == "nested":
+                out[stage] = nested_config(preset, **values)
+            elif stage == "bake":
+                out[stage] = bake_config(preset, **values)
             else:
                 out[stage] = cls(**values)
         except NeuralBakeError as exc:
@@ -355,7 +321,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         from neural_bake.fit.sdf import load_sdf
 
         n = nested_cfg
-        seq = fit_nested(load_sdf(sdf_path), parse_levels(n.levels), steps=n.steps, minutes=n.minutes, seed=n.seed,
+        seq = fit_nested(load_sdf(sdf_path, device=n.device), parse_levels(n.levels), steps=n.steps, minutes=n.minutes, seed=n.seed,
                          band=n.band, eps=n.eps, certify=n.certify, certify_max_boxes=n.max_boxes, progress=False,
                          stability_samples=())
         seq.save(out)
