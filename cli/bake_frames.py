@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import click
 
+from .options import say, verbosity_options
+
 __all__ = ["command"]
 
 
@@ -23,6 +25,7 @@ Example:
 @click.option("--resolution", type=int, default=96, show_default=True, help="Marching-cubes cells per axis.")
 @click.option("--format", "fmt", type=click.Choice(["ply", "glb"]), default="ply", show_default=True,
               help="Frame file format (positions and neural normals).")
+@verbosity_options
 def command(model, times, out, resolution, fmt):
     """Bake a space-time SDF (fit morph / fit sequence output, or its nested sequence) frame by frame."""
     from neural_bake.bake.frames import bake_frames
@@ -41,4 +44,4 @@ def command(model, times, out, resolution, fmt):
     res = bake_frames(lambda t: fix_last_input(nets[0], time_input(t)), lambda t: fix_last_input(nets[-1], time_input(t)),
                       field.frame, ts, out, resolution=resolution, fmt=fmt)
     total = sum(s["march_s"] + s["normals_s"] + s["write_s"] for s in res.stats)
-    click.echo(f"baked {len(res.files)} frames into {out} ({total / len(res.files):.2f} s per frame)")
+    say(f"baked {len(res.files)} frames into {out} ({total / len(res.files):.2f} s per frame)")

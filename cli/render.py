@@ -54,11 +54,14 @@ Examples:
   neural-bake render bumpy.nested -o bumpy.png --config scene.toml --effects shading,shadows --device cuda
   neural-bake render morph.sdf -o morph.gif --frames 24 --fps 12""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", "out", default=None, type=click.Path(dir_okay=False),
               help="Colour image (PNG, EXR…); a .gif or .mp4 for a space-time model.")
 @click.option("--config", "--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
               help="TOML scene file (camera, lights, material, effects, channels, trace settings); the options "
                    "given override it.")
+@click.option("--print-config", is_flag=True,
+              help="Print the resolved scene (the file's, the options on top, the camera that frames MODEL) as "
+                   "a scene file and exit.")
 @click.option("--device", default=None, help="Torch device of the networks and rays: cpu, cuda, cuda:1, … "
                                              "[default: cpu].")
 @click.option("--texture", "texture_path", type=click.Path(dir_okay=False), default=None,
@@ -86,7 +89,7 @@ Examples:
 @click.option("--stats", "stats_path", type=click.Path(dir_okay=False), default=None,
               help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
 @verbosity_options
-def command(model, out, scene_path, device, texture_path, size, camera_pos, look_at, fov, effects, channels,
+def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects, channels,
             channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
@@ -142,6 +145,18 @@ def command(model, out, scene_path, device, texture_path, size, camera_pos, look
                                           base.fov_deg if fov is None else fov, w, h))
     render_kw = {"size": wh, "fov_deg": fov, "device": device}
     cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if print_config:
+        from neural_bake.io.tomlio import toml_text
+        from neural_bake.render.renderer import scene_camera
+        from neural_bake.render.scene import scene_table
+
+        camera = scene_camera([first], scene, size=wh, fov_deg=fov, device=device,
+                              cache_dir=None if isinstance(asset, SpaceTimeAsset) else Path(cache) / "neural_bake",
+                              grids=[None] if isinstance(asset, SpaceTimeAsset) else None)
+        click.echo(toml_text(scene_table(scene.with_(camera=camera))), nl=False)
+        return
+    if out is None:
+        raise click.UsageError("missing -o/--output (needed unless --print-config)")
 
     out_path = Path(out)
     if isinstance(asset, SpaceTimeAsset):

@@ -257,6 +257,7 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
     log(f"batch: {len(assets)} assets ({len(refused)} refused), preset {cfg.preset}, {cfg.executor} executor, "
         f"{workers} worker(s) x {threads} thread(s)")
     try:
+        tasks = _skip_cached(tasks, record, log if not cfg.quiet else lambda m: None)
         if cfg.executor == "local":
             _run_local(tasks, workers, record, on_event)
         else:
@@ -272,6 +273,21 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
         log(line)
     _write_index(out, summary, log)
     return summary
+
+
+def _skip_cached(tasks: list[dict], record: Callable[[dict], None], log: Callable[[str], None]) -> list[dict]:
+    """Record the assets whose every stage is cached here, with no worker process; return the others."""
+    from .stages import cached_record
+
+    todo = []
+    for task in tasks:
+        rec = cached_record(task)
+        if rec is None:
+            todo.append(task)
+            continue
+        log(f"[{task['name']}] every stage unchanged, skipped")
+        record(rec)
+    return todo
 
 
 #: The batch's HTML index (a row per asset: thumbnail, status, headline metrics, failure), in OUT.

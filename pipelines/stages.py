@@ -35,7 +35,7 @@ from neural_bake.fit.nested import NestedFitConfig
 
 from .manifest import STAGE_NAMES
 
-__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "stage_key_config", "run_asset",
+__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "stage_key_config", "run_asset", "cached_record",
            "STAGE_FILES", "RECORD_NAME", "RECORD_FORMAT", "set_threads"]
 
 #: The per-asset record of done stages (JSON), in the asset's folder.
@@ -245,7 +245,38 @@ def _load_record(folder: Path) -> dict:
     return rec
 
 
-def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
+class _WouldRun(Exception):
+    """A stage of a :func:`cached_record` check is not cached."""
+
+
+def cached_record(task: dict) -> dict | None:
+    """The asset's record, made in this process without running anything, when ``stages.json`` shows every
+    stage done with its present key and unchanged outputs (an all-cached asset needs no worker); None when a
+    stage would run or the check cannot tell (the worker then runs the asset and reports any failure)."""
+    rec = _load_record(Path(task["folder"]))
+    if not {"sdf", "coarse", "bake"} <= set(rec.get("stages", {})):
+        return None
+    t_start = time.perf_counter()
+    result: dict = {"name": task["name"], "mesh": task["mesh"], "status": "ok", "reason": None, "stages": {},
+                    "metrics": {}, "warnings": []}
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", NeuralBakeWarning)
+            _run_stages(task, result, lambda msg: None, dry=True)
+    except KeyboardInterrupt:
+        raise
+    except BaseException:  # _WouldRun, or anything the worker is to report
+        return None
+    for w in caught:
+        if issubclass(w.category, NeuralBakeWarning) and str(w.message) not in result["warnings"]:
+            result["warnings"].append(str(w.message))
+    result["seconds"] = time.perf_counter() - t_start
+    return result
+
+
+def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool = False) -> None:
+    """Run (or skip) the stages of one asset into ``result``; ``dry``: raise _WouldRun instead of running a
+    stage, and write nothing."""
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.digest import arrays_digest, file_digest, json_digest
     from neural_bake.io.jsonio import dumps
@@ -261,7 +292,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
     result["metrics"]["faces"] = mesh.n_faces
     log(f"loaded {Path(mesh_path).name}: {mesh.n_faces} faces in {time.perf_counter() - t0:.1f} s")
     folder.mkdir(parents=True, exist_ok=True)
-    _remove_stale(folder)
+    if not dry:
+        _remove_stale(folder)
     record = _load_record(folder)
     stages = record.get("stages", {})
     record = {"format": RECORD_FORMAT, "name": task["name"], "mesh": mesh_path, "texture": texture, "stages": stages}
@@ -286,6 +318,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
             result["metrics"][name] = prev.get("metrics", {})
             log(f"{name}: unchanged, skipped")
             return
+        if dry:
+            raise _WouldRun(name)
         result["stages"][name] = {"status": "running", "seconds": 0.0}
         t = time.perf_counter()
         metrics = run(out, key)
@@ -379,7 +413,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         return _bake_metrics(report)
 
     stage("bake", ["mesh", field_key, "texture", "coarse"], stage_key_config(bake_cfg), run_bake)
-    save_record()
+    if not dry:
+        save_record()
 
 
 def _remove_stale(folder: Path, pattern: str = ".*.tmp*", keep: Path | None = None) -> None:
