@@ -37,10 +37,6 @@ class ConfigSpec:
     """First words of ``--preset``'s help."""
     default_preset: str | None = None
     """The preset used when none is given (for the help)."""
-    flags: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    """Option declarations of a field other than ``--field-name`` (e.g. an older spelling kept)."""
-    exclude: frozenset[str] = frozenset()
-    """Fields with no option (set by the verb from its own arguments)."""
     required: tuple[str, ...] = ()
     """Parameters the verb needs unless ``--print-config`` is given (e.g. ``mesh``, ``output``)."""
 
@@ -141,20 +137,17 @@ class ConfigCommand(click.Command):
                                                         "one); the options given override it."))
         params.append(click.Option(["--print-config"], is_flag=True,
                                    help="Print the resolved settings as a TOML settings file and exit."))
-        self._fields = [n for n in hints if n not in spec.exclude]
-        for name in self._fields:
-            hint = hints[name]
+        self._fields = list(hints)
+        for name, hint in hints.items():
             default = getattr(base, name)
             varies = any(getattr(c, name) != default for c in by_preset.values())
             shown = f"[default: {_show(default)}" + (", or the preset's]" if varies else "]")
-            decls = [flag_name(name), *spec.flags.get(name, ())]
-            help_text = f"{_options_named(field_help(cls, name), hints)} {shown}".strip()
+            help_text = f"{_options_named(field_help(cls, name), hints)} {shown}"
+            flag = flag_name(name)
             if hint is bool:
-                decls = [f"{d}/--no-{d[2:]}" if d.startswith("--") else d for d in decls]
-                params.append(click.Option([*decls, _PREFIX + name], default=None, help=help_text))
+                params.append(click.Option([f"{flag}/--no-{flag[2:]}", _PREFIX + name], default=None, help=help_text))
             else:
-                params.append(click.Option([*decls, _PREFIX + name], type=_FieldType(hint), default=None,
-                                           help=help_text))
+                params.append(click.Option([flag, _PREFIX + name], type=_FieldType(hint), default=None, help=help_text))
         self.params = [*self.params, *params]
 
     def get_params(self, ctx):
@@ -190,12 +183,6 @@ class ConfigCommand(click.Command):
                 raise NeuralBakeError(f"{config_path}: preset={file_preset!r}: expected one of "
                                       f"{', '.join(spec.presets)}")
             preset = preset or file_preset
-            unknown = set(values) - set(self.config_fields())
-            if unknown:
-                from neural_bake.errors import NeuralBakeError
-
-                raise NeuralBakeError(f"{config_path}: key {sorted(unknown)[0]!r} is set by the command's "
-                                      f"arguments, not a settings file")
         values.update(given)
         return spec.resolve(preset or spec.default_preset, values), params
 
@@ -206,9 +193,7 @@ class ConfigCommand(click.Command):
         print_config = ctx.params.get("print_config")
         config, params = self.resolve(ctx)
         if print_config:
-            table, comments = config_table(config)
-            table = {k: v for k, v in table.items() if k in self.config_fields()}
-            click.echo(toml_text(table, comments), nl=False)
+            click.echo(toml_text(*config_table(config)), nl=False)
             return None
         missing = [p for p in self.spec.required if params.get(p) is None]
         if missing:

@@ -66,6 +66,8 @@ class BakeAssetConfig:
     """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
+    device: str | None = None
+    """Torch device of the networks ("cpu", "cuda", …; None: the CPU); the texels follow them there."""
 
 
 #: Bake presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
@@ -170,9 +172,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        sdf_file = _load_field(sdf_path, "--sdf", "sdf")
+        sdf_file = _load_field(sdf_path, "--sdf", "sdf", cfg.device)
         sdf = _sdf_for(sdf_file, coarse)
-        tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
+        tex = _load_field(tex_path, "--texture-model", "texture", cfg.device) if tex_path else None
         if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
             delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
             log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
@@ -331,14 +333,15 @@ def _check_uv_area(path, uv, size: int) -> None:
                         f"{size}x{size} map; bake with --coarse decimate or march, which unwrap a new layout")
 
 
-def _load_field(path, option: str, want: str):
-    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field."""
+def _load_field(path, option: str, want: str, device=None):
+    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field, its
+    networks on ``device``."""
     from neural_bake.errors import ModelFileError
     from neural_bake.fields import NestedSequence, SdfField, TextureField, load_field
 
     if not Path(path).exists():
         raise ModelFileError(f"{option} {path}: no such model file")
-    field = load_field(path)
+    field = load_field(path, device=device)
     types, expected = ((SdfField, NestedSequence), "an SDF (kind 'sdf' or a nested sequence)") if want == "sdf" \
         else ((TextureField,), "a texture field (kind 'texture')")
     if not isinstance(field, types):

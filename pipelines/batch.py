@@ -173,7 +173,7 @@ def _batch_options(cfg: BatchConfig) -> dict[str, dict]:
     if cfg.seed is not None:
         common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
     if cfg.device is not None:
-        common = _merge(common, {stage: {"device": cfg.device} for stage in ("sdf", "nested", "texture")})
+        common = _merge(common, {stage: {"device": cfg.device} for stage in ("sdf", "nested", "texture", "bake")})
     return _merge(copy.deepcopy(PRESETS[cfg.preset]), common, cfg.stages)
 
 
