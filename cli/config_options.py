@@ -39,6 +39,9 @@ class ConfigSpec:
     """The preset used when none is given (for the help)."""
     required: tuple[str, ...] = ()
     """Parameters the verb needs unless ``--print-config`` is given (e.g. ``mesh``, ``output``)."""
+    pass_preset: bool = False
+    """Also pass the preset applied (or None) to the callback as ``preset`` (a fit whose time budget is
+    accounted against its preset's)."""
 
 
 def flag_name(name: str) -> str:
@@ -156,9 +159,9 @@ class ConfigCommand(click.Command):
 
     # -- running
 
-    def resolve(self, ctx) -> tuple[object, dict]:
-        """(config, the verb's own params) from the parsed ``ctx.params``: the preset, the file, then the options
-        given on the command line (an option left out keeps the file's or the preset's value)."""
+    def resolve(self, ctx) -> tuple[object, str | None, dict]:
+        """(config, preset applied, the verb's own params) from the parsed ``ctx.params``: the preset, the file,
+        then the options given on the command line (an option left out keeps the file's or the preset's value)."""
         from neural_bake.configs import read_config
         from neural_bake.io.tomlio import read_toml
 
@@ -184,14 +187,15 @@ class ConfigCommand(click.Command):
                                       f"{', '.join(spec.presets)}")
             preset = preset or file_preset
         values.update(given)
-        return spec.resolve(preset or spec.default_preset, values), params
+        preset = preset or spec.default_preset
+        return spec.resolve(preset, values), preset, params
 
     def invoke(self, ctx):
         from neural_bake.configs import config_table
         from neural_bake.io.tomlio import toml_text
 
         print_config = ctx.params.get("print_config")
-        config, params = self.resolve(ctx)
+        config, preset, params = self.resolve(ctx)
         if print_config:
             click.echo(toml_text(*config_table(config)), nl=False)
             return None
@@ -202,6 +206,8 @@ class ConfigCommand(click.Command):
             raise click.UsageError(f"missing {', '.join(names.get(m, m) for m in missing)} "
                                    f"(needed unless --print-config)", ctx)
         if self.callback is not None:
+            if self.spec.pass_preset:
+                params["preset"] = preset
             return ctx.invoke(self.callback, config=config, **params)
         return None
 

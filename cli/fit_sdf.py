@@ -28,7 +28,7 @@ SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="256x3",
                   presets=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
                   described=("quick", "default", "high", "256x2"),
                   preset_help="Network (W, D) and time budget (64x1, 128x2 and 256x3 are quick, default and high)",
-                  required=("mesh", "output"))
+                  required=("mesh", "output"), pass_preset=True)
 
 
 @click.command(cls=ConfigCommand, config=SPEC, epilog="""\b
@@ -41,12 +41,12 @@ Examples:
 @output_option("Model file to write (safetensors + JSON metadata, kind 'sdf').", required=False)
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
 @verbosity_options
-def command(mesh, output, config, metrics):
+def command(mesh, output, config, preset, metrics):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics).
 
     Every setting below is a field of the SDF fit's config: a --config file sets them first, the options
     given override it."""
-    from dataclasses import replace
+    from dataclasses import asdict, replace
 
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.io.mesh_io import load_mesh
@@ -59,7 +59,7 @@ def command(mesh, output, config, metrics):
     lock_outputs(output, config.checkpoint)  # checks their folders; one writer per file
     say(f"settings: {config}", 1)
     m = load_mesh(mesh)
-    fit = fit_sdf(m, config)
+    fit = fit_sdf(m, preset=preset, **asdict(config))  # the preset again: the budget is accounted against it
     last = fit.history[-1] if fit.history else {}
     b = fit.budget
     how = (fit.stopped_reason if b is None else b["stopped"]) + ("; loss compiled" if fit.config.compile == "on" else "")
