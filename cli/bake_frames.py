@@ -2,7 +2,9 @@
 
 At each t the coarse level (a space-time nested sequence's first level, or the single network) is marched and
 the fine level's neural normals at the same t are written per vertex: numbered PLY or GLB frames and
-frames.json. (`neural-bake bake` is built around a source mesh; a space-time model has none.)
+frames.json. ``--texture`` adds per-vertex colours from a texture model (``fit texture`` output) evaluated on
+the moving surface at each t (the field layer holds static texture fields; a space-time colour field g(x, t)
+goes through the library, :func:`neural_bake.bake.frames.bake_frames`). (`neural-bake bake` is built around a source mesh; a space-time model has none.)
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ Example:
 @click.option("--resolution", type=int, default=96, show_default=True, help="Marching-cubes cells per axis.")
 @click.option("--format", "fmt", type=click.Choice(["ply", "glb"]), default="ply", show_default=True,
               help="Frame file format (positions and neural normals).")
+@click.option("--texture", type=click.Path(dir_okay=False), default=None,
+              help="Texture model: per-vertex colours evaluated on the surface at each t.")
 @verbosity_options
-def command(model, times, out, resolution, fmt):
+def command(model, times, out, resolution, fmt, texture):
     """Bake a space-time SDF (fit morph / fit sequence output, or its nested sequence) frame by frame."""
     from neural_bake.bake.frames import bake_frames
     from neural_bake.errors import ModelFileError
@@ -41,7 +45,20 @@ def command(model, times, out, resolution, fmt):
         raise ModelFileError(f"MODEL {model}: not a space-time SDF (fit morph / fit sequence output)")
     _, time_input = mapping
     nets = [field.model] if isinstance(field, SpaceTimeField) else list(field.levels)
+    tex = None if texture is None else _texture(texture)
     res = bake_frames(lambda t: fix_last_input(nets[0], time_input(t)), lambda t: fix_last_input(nets[-1], time_input(t)),
-                      field.frame, ts, out, resolution=resolution, fmt=fmt)
-    total = sum(s["march_s"] + s["normals_s"] + s["write_s"] for s in res.stats)
+                      field.frame, ts, out, resolution=resolution, fmt=fmt, texture=tex)
+    total = sum(s["march_s"] + s["normals_s"] + s["colours_s"] + s["write_s"] for s in res.stats)
     say(f"baked {len(res.files)} frames into {out} ({total / len(res.files):.2f} s per frame)")
+
+
+
+def _texture(path):
+    """The static texture field of ``--texture`` (evaluated on the moving surface at each t)."""
+    from neural_bake.errors import ModelFileError
+    from neural_bake.fields import TextureField, load_field
+
+    tex = load_field(path)
+    if not isinstance(tex, TextureField):
+        raise ModelFileError(f"--texture {path}: not a texture model (a {type(tex).__name__})")
+    return tex

@@ -1,4 +1,4 @@
-"""`neural-bake bench dynamic`: space-time SDFs (morph methods at equal time, sequence, nesting, render/bake cost)."""
+"""`neural-bake bench dynamic`: space-time SDFs (morph methods at equal steps, sequence, nesting, render/bake cost)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,14 @@ __all__ = ["command"]
 
 @click.command("dynamic")
 @bench_options
-@click.option("--minutes", type=float, default=None, help="Fit budget per run (default 3; --quick 0.15).")
+@click.option("--steps", type=int, default=None, help="Steps of every space-time fit (default 2000; --quick 300).")
 @click.option("--frames", type=int, default=None, help="Rendered frames (default 60; --quick 6).")
 @click.option("--size", type=int, default=None, help="Square image size in pixels (default 256; --quick 64).")
-def command(quick: bool, json_path: str | None, minutes, frames, size):
-    """Morph methods at equal time, a sequence against every frame, nesting at each t, render/bake cost."""
+@click.option("--real", is_flag=True, help="Also morph Spot into the bunny from the data folder.")
+@click.option("--data", type=click.Path(file_okay=False), default=None,
+              help="The data folder for --real (default $NEURAL_BAKE_DATA, else shared/data).")
+def command(quick: bool, json_path: str | None, steps, frames, size, real, data):
+    """Morph methods at equal steps, a sequence against every frame, nesting at each t, render/bake cost."""
     from neural_bake.bench.dynamic import run
 
-    report(run(quick=quick, minutes=minutes, frames=frames, size=size), json_path)
+    report(run(quick=quick, steps=steps, frames=frames, size=size, real=real, data=data), json_path)

@@ -23,6 +23,7 @@ _EXPORTS = {
     "ImageError": ".errors",
     "ModelFileError": ".errors",
     "FitError": ".errors",
+    "TrainingDivergedError": ".errors",
     "TimeRangeError": ".errors",
     "NeuralBakeWarning": ".errors",
     # io

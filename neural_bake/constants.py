@@ -125,6 +125,29 @@ DIRECTION_EPS = 1e-12
 #: still normalises).
 UNDERFLOW_EPS = 1e-300
 
+#: A length or range (max − min) no larger than this is treated as this, so that dividing by it stays finite
+#: (a zero-size mesh, a flat depth range).
+MIN_SPAN = 1e-12
+
+#: The smallest positive value a float32 step takes before a logarithm or a division (float32's own
+#: smallest normal is ~1.2e-38; 1e-300 would round to zero).
+FLOAT32_FLOOR = 1e-30
+
+#: Radiance below this is black in an RGBE (Radiance .hdr) pixel: its shared exponent would underflow.
+RGBE_MIN = 1e-32
+
+#: Two copies of a mesh's faces are the same where their corners agree within this fraction of the mesh's
+#: extent (a file's own corners against the loaded, welded mesh).
+FACE_MATCH_REL_TOL = 1e-6
+
+#: Corner normals closer than this (per component) are one normal: the corners share a vertex; farther
+#: apart they are a hard edge and the vertex is split.
+CORNER_NORMAL_MATCH_TOL = 1e-6
+
+#: How many triangle sets keep their open3d ray-casting scene (BVH) in memory, so that the stages that query
+#: one mesh (sampling, metrics, baseline bake, hybrid bake, report, viewer) build it once.
+RAYCAST_SCENE_CACHE = 4
+
 #: |du1 dv2 - du2 dv1| below this (twice the UV area) marks a face with degenerate UVs: it adds no tangent.
 UV_DET_EPS = 1e-14
 

@@ -15,7 +15,8 @@ Exit codes (the CLI's contract):
 - **1, environment or failed work**: the command line is fine but the machine refused — permission denied,
   read-only file system, disk full or over quota, an I/O error, another run writing the same output
   (:class:`OutputBusyError`) — or the work itself failed. Every ``OSError`` becomes one such line
-  (:func:`os_error`), naming the user's path, never a staging path.
+  (:func:`os_error`), naming the user's path, never a staging path. A fit that diverged
+  (:class:`TrainingDivergedError`) is failed work too.
 - 130 interrupted (SIGINT), 143 terminated (SIGTERM): the run cleaned up and left the outputs as they were.
 """
 
@@ -27,6 +28,7 @@ __all__ = [
     "ImageError",
     "ModelFileError",
     "FitError",
+    "TrainingDivergedError",
     "TimeRangeError",
     "NeuralBakeWarning",
     "OutputError",
@@ -69,7 +71,15 @@ class ModelFileError(NeuralBakeError):
 
 
 class FitError(NeuralBakeError):
-    """Training that cannot go on (divergence that a smaller learning rate did not cure, no samples)."""
+    """Settings or data a fit cannot run with (a bad setting, a mesh with nothing to sample, a checkpoint of
+    another run): exit code 2."""
+
+
+class TrainingDivergedError(FitError):
+    """Training diverged and learning-rate halvings did not cure it, or the trained network gives non-finite
+    values: the work failed although the command line was fine, exit code 1."""
+
+    exit_code = 1
 
 
 class TimeRangeError(NeuralBakeError):

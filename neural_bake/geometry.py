@@ -1,10 +1,18 @@
-"""Small geometric measures that fitting, baking and rendering all use (numpy; no stage imports)."""
+"""Small geometric measures that loading, fitting, baking and rendering all use (numpy; no stage imports):
+angles, frame agreement, area-weighted vertex normals, the edge report, and one cached open3d ray-casting
+scene per triangle set."""
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+
 import numpy as np
 
-__all__ = ["angular_error", "frame_mismatch"]
+from .constants import RAYCAST_SCENE_CACHE, UNDERFLOW_EPS
+
+__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "raycasting_scene"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -18,3 +26,101 @@ def frame_mismatch(a, b) -> float:
     offset measured in ``b``'s unit frame and the relative scale difference |s_a / s_b − 1|."""
     offset = float(np.linalg.norm(np.subtract(a.center, b.center))) * float(b.scale)
     return max(offset, abs(float(a.scale) / float(b.scale) - 1.0))
+
+
+def area_weighted_normals(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    exclude: np.ndarray | None = None,
+    weld: bool = False,
+    fallback: tuple[float, float, float] | None = None,
+) -> np.ndarray:
+    """(V, 3) float64 unit vertex normals: the sum of the incident faces' cross products (area weighting),
+    normalised.
+
+    - ``exclude``: (F,) bool, faces that contribute nothing (degenerate faces).
+    - ``weld``: sum over every vertex at the same position, so the copies of a vertex split at a UV seam or
+      a hard edge get one normal.
+    - A vertex without a usable face gets ``fallback`` (for example +Z), or a zero row when it is None.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    t = v[f]
+    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 × area
+    if exclude is not None:
+        fn = np.where(np.asarray(exclude, dtype=bool)[:, None], 0.0, fn)
+    if weld and len(v):
+        _, pid = np.unique(v, axis=0, return_inverse=True)
+        pid = pid.reshape(-1)
+    else:
+        pid = np.arange(len(v))
+    acc = np.zeros((int(pid.max()) + 1 if len(pid) else 0, 3))
+    for k in range(3):
+        np.add.at(acc, pid[f[:, k]], fn)
+    n = acc[pid]
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
+    if fallback is not None:
+        out[norm[:, 0] <= UNDERFLOW_EPS] = fallback
+    return out
+
+
+def edge_report(faces: np.ndarray) -> dict:
+    """Edge statistics of a face list (F, 3) int: ``{"edges", "boundary_edges", "non_manifold_edges",
+    "inconsistent_edges", "watertight"}``.
+
+    Faces with a repeated corner have no area and no edges; they are left out. A boundary edge has one face,
+    a non-manifold edge more than two; an inconsistent edge is shared by two faces that traverse it in the
+    same direction (flipped winding). ``watertight``: there are edges, and every edge has exactly two faces
+    and consistent winding.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    faces = faces[distinct]
+    if len(faces) == 0:
+        return {"edges": 0, "boundary_edges": 0, "non_manifold_edges": 0, "inconsistent_edges": 0, "watertight": False}
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    und, inv, cnt = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    forward = (e[:, 0] < e[:, 1]).astype(np.int64)
+    n_forward = np.bincount(inv, weights=forward, minlength=len(und))
+    two = cnt == 2
+    inconsistent = int((two & (n_forward != 1)).sum())
+    return {
+        "edges": int(len(und)),
+        "boundary_edges": int((cnt == 1).sum()),
+        "non_manifold_edges": int((cnt > 2).sum()),
+        "inconsistent_edges": inconsistent,
+        "watertight": bool(two.all() and inconsistent == 0),
+    }
+
+
+_SCENES: OrderedDict[bytes, object] = OrderedDict()
+_SCENES_LOCK = threading.Lock()
+
+
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
+    """open3d ``RaycastingScene`` of the triangles ``vertices[faces]`` (float32 BVH), built once per triangle
+    set: scenes are cached by the content of both arrays (the last ``RAYCAST_SCENE_CACHE`` sets), so every
+    stage that queries the same mesh shares one BVH. Query it; do not add geometry to it."""
+    import open3d as o3d
+
+    v = np.ascontiguousarray(vertices, dtype=np.float32)
+    f = np.ascontiguousarray(faces, dtype=np.uint32).reshape(-1, 3)
+    h = hashlib.blake2b(str((v.shape, f.shape)).encode(), digest_size=16)
+    h.update(v.tobytes())
+    h.update(f.tobytes())
+    digest = h.digest()
+    with _SCENES_LOCK:
+        scene = _SCENES.get(digest)
+        if scene is not None:
+            _SCENES.move_to_end(digest)
+            return scene
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+    with _SCENES_LOCK:
+        _SCENES[digest] = scene
+        while len(_SCENES) > RAYCAST_SCENE_CACHE:
+            _SCENES.popitem(last=False)
+    return scene

@@ -6,6 +6,7 @@ and the turntable renderer.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import webbrowser
 from pathlib import Path
@@ -39,7 +40,7 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
     Returns the report's index.html, or (headless) the GIF. A GLB outside a bake folder gets a folder of its
     own beside it, ``STEM-view/``, holding a copy of it and the report.
     """
-    from neural_bake.io.outdir import record_in_set
+    from neural_bake.io.outdir import OutputLock, record_in_set
     from neural_bake.view.meshes import load_view_mesh
     from neural_bake.view.report import ReportConfig, write_asset_report
     from neural_bake.view.turntable import write_turntable
@@ -48,17 +49,21 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
     if headless:
         target = Path(out) if out else ((folder / "turntable") if folder else glb.parent / f"{glb.stem}-turntable")
         mesh = load_view_mesh(glb)
-        gif = write_turntable(mesh, target, views=views, size=size)
-        if folder is not None and target.absolute().parent == folder.absolute():
-            record_in_set(folder, target.name)  # part of the bake's set from now on (issue 21's outputs)
+        inside = folder is not None and target.absolute().parent == folder.absolute()
+        # writing into a bake folder: hold its lock, so a bake into it cannot swap the folder meanwhile
+        with OutputLock(folder) if inside else contextlib.nullcontext():
+            gif = write_turntable(mesh, target, views=views, size=size)
+            if inside:
+                record_in_set(folder, target.name, locked=True)  # part of the bake's set from now on
         log(f"wrote {views} frames and {gif}")
         return gif
     if folder is None:
         folder = glb.parent / f"{glb.stem}-view"
         folder.mkdir(exist_ok=True)
         shutil.copy2(glb, folder / "asset.glb")
-    index = write_asset_report(folder, ReportConfig(views=views, size=size), log=log)
-    record_in_set(folder, index.relative_to(folder).parts[0])  # the report belongs to the bake's set
+    with OutputLock(folder):  # one writer: a bake into the folder waits for the report, or the report fails
+        index = write_asset_report(folder, ReportConfig(views=views, size=size), log=log)
+        record_in_set(folder, index.relative_to(folder).parts[0], locked=True)  # the report joins the bake's set
     if open_browser:
         opened = webbrowser.open(index.resolve().as_uri())
         if not opened:

@@ -5,7 +5,8 @@ Each animation has a ``name``, default frame ``times``, ``mesh(t, resolution=Non
 time, in the animation's own frame (the coordinates written to its OBJ frames):
 
 - ``sdf(points, t)``: signed distance, negative inside (``sdf_kind`` says "exact outside" or "first-order");
-- ``normal(points, t)``: outward unit normal of the smooth surface at (or near) the points.
+- ``normal(points, t)``: outward unit normal of the smooth surface at (or near) the points;
+- ``splitting_sphere`` also has ``albedo(points, t)``: linear RGB carried with each ball (per-frame colours).
 
 Points are (N, 3) float arrays, ``t`` a float; results float64: (N,) for ``sdf``, (N, 3) for ``normal``.
 
@@ -23,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .shapes import BumpySphere, Torus, _faces_for, _points, _unit
+from .shapes import BumpySphere, Torus, _faces_for, _points, _smooth_colour, _unit
 
 __all__ = ["FrameMesh", "TravellingBumps", "TwistingTorus", "SplittingSphere", "ANIMATED", "get_animation"]
 
@@ -180,6 +181,12 @@ class SplittingSphere:
     def normal(self, points, t) -> np.ndarray:
         d, rel = self._parts(points, t)
         return _unit(rel[np.arange(len(d)), d.argmin(1)])
+
+    def albedo(self, points, t) -> np.ndarray:
+        """Linear RGB (N, 3) painted on each ball and carried with it: the colour of the direction from the
+        nearer ball's centre (a space-time colour field g(x, t) with analytic truth)."""
+        d, rel = self._parts(points, t)
+        return _smooth_colour(_unit(rel[np.arange(len(d)), d.argmin(1)]))
 
     def mesh(self, t, resolution: int | None = None) -> FrameMesh:
         from skimage.measure import marching_cubes

@@ -81,3 +81,26 @@ def test_bake_frames_verb(files, tmp_path, capsys):
     assert main(["bake-frames", str(model), "--t", "0,2", "-o", str(out)]) == 2
     assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
     assert main(["bake-frames", str(files["sphere"]).replace(".obj", ".png"), "--t", "0", "-o", str(out)]) == 2
+    capsys.readouterr()
+
+    # --texture: a texture model (identity frame: its unit points are source points) gives per-vertex colours
+    import torch
+    import trimesh
+
+    from neural_bake.fields import TextureField, save_field
+    from neural_bake.io.colour import linear_to_srgb
+    from neural_bake.nets.siren import Siren
+    from neural_bake.types import Frame
+
+    siren = Siren(8, 1, in_dim=3, out_dim=3, omega_0=3.0, generator=torch.Generator().manual_seed(1))
+    tex = save_field(TextureField.from_model(siren, frame=Frame(), name="tex"), tmp_path / "tex.nbm")
+    assert main(["bake-frames", str(model), "--t", "0,1", "-o", str(out), "--resolution", "24", "--texture",
+                 str(tex)]) == 0
+    for f in sorted(out.glob("*.ply")):
+        tm = trimesh.load(f, process=False)
+        with torch.no_grad():
+            lin = siren(torch.as_tensor(np.asarray(tm.vertices), dtype=torch.float32)).double().numpy()
+        want = np.round(linear_to_srgb(np.clip(lin, 0, 1)) * 255)
+        assert np.abs(np.asarray(tm.visual.vertex_colors)[:, :3] - want).max() <= 1
+    assert main(["bake-frames", str(model), "--t", "0", "-o", str(out), "--texture", str(model)]) == 2
+    assert "not a texture model" in capsys.readouterr().err

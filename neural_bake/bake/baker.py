@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..constants import DIRECTION_EPS, UNDERFLOW_EPS
+from ..constants import DIRECTION_EPS
 from ..errors import NeuralBakeError
 from ..fields import NestedSequence, SdfField, TextureField
+from ..geometry import area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
@@ -168,18 +169,7 @@ class BakeResult:
 def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
     """(V, 3) area-weighted unit vertex normals computed over vertices welded by position, so the copies of
     a vertex split at a UV seam get the same normal. A vertex without usable faces gets +Z."""
-    _, pid = np.unique(mesh.vertices, axis=0, return_inverse=True)
-    pid = pid.reshape(-1)
-    t = mesh.triangles
-    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    acc = np.zeros((int(pid.max()) + 1 if len(pid) else 0, 3))
-    for k in range(3):
-        np.add.at(acc, pid[mesh.faces[:, k]], fn)
-    n = acc[pid]
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
-    out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)
-    return out
+    return area_weighted_normals(mesh.vertices, mesh.faces, weld=True, fallback=(0.0, 0.0, 1.0))
 
 
 def _tensor_kwargs(f) -> dict:

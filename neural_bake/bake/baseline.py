@@ -14,6 +14,7 @@ import numpy as np
 
 from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
+from ..geometry import raycasting_scene as _shared_scene
 from ..types import Mesh
 
 __all__ = ["baseline_bake", "closest_surface", "raycasting_scene"]
@@ -23,15 +24,9 @@ DEFAULT_CAGE = 0.05
 
 
 def raycasting_scene(fine: Mesh):
-    """open3d ``RaycastingScene`` of ``fine`` (its unit frame): build it once to bake or query many texel sets."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(fine.vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(fine.faces, dtype=np.uint32)),
-    )
-    return scene
+    """open3d ``RaycastingScene`` of ``fine`` (its unit frame), shared with every stage that queries the same
+    triangles (:func:`neural_bake.geometry.raycasting_scene`)."""
+    return _shared_scene(fine.vertices, fine.faces)
 
 
 def _interp(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, values: np.ndarray) -> np.ndarray:

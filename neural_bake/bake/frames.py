@@ -1,6 +1,7 @@
 """Per-frame baking of a space-time SDF: at each time t, the coarse level marched into a mesh, and per-vertex
 neural normals ∇f(·, t) / |∇f(·, t)| of the fine level at the same t (GEMM normals), written as numbered PLY
-or GLB frames.
+or GLB frames; with a texture field, per-vertex colours g(·, t) at the same vertices (a static field evaluated
+on the moving surface, or a space-time one sliced at t).
 
 The frames go to a folder committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
 whole old set or the whole new set; a failed run leaves the old folder untouched).
@@ -12,12 +13,13 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Union
 
 import numpy as np
 import torch
 
 from ..errors import NeuralBakeError
+from ..fields.texture import TextureField
 from ..io.outdir import OutputFolder
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..nets.siren import Siren
@@ -28,11 +30,14 @@ __all__ = ["FrameBake", "bake_frames", "FRAME_FORMATS"]
 #: Formats of the baked frames.
 FRAME_FORMATS = ("ply", "glb")
 
+#: A texture for :func:`bake_frames`: one static field, or t ↦ the field at t.
+FrameTexture = Union[TextureField, Callable[[float], TextureField]]
+
 
 @dataclass
 class FrameBake:
     """What :func:`bake_frames` wrote: ``files`` in time order, ``times``, and per-frame ``stats``
-    (vertices, faces, seconds of marching and of normals, invalid normals)."""
+    (vertices, faces, seconds of marching, of normals and of colours, invalid normals)."""
 
     files: list[Path]
     times: list[float]
@@ -50,6 +55,7 @@ def bake_frames(
     fmt: str = "ply",
     pruned: bool | str = "auto",
     name: str = "frame",
+    texture: FrameTexture | None = None,
 ) -> FrameBake:
     """Bake frames of a space-time SDF at ``times`` into ``out_dir/<name>_0000.<fmt>`` … and ``frames.json``.
 
@@ -60,9 +66,13 @@ def bake_frames(
         frame: the common unit frame of the fields (outputs are in its source frame).
         times: the frame times.
         resolution: marching-cubes cells per axis of the coarse mesh.
-        fmt: "ply" (positions, neural normals) or "glb" (positions, neural normals).
+        fmt: "ply" (positions, neural normals, 8-bit sRGB vertex colours) or "glb" (positions, neural normals,
+            linear COLOR_0).
         pruned: marching-cubes octree pruning (:func:`~neural_bake.mesh.marching.march`).
         name: the files' stem.
+        texture: None (no colours), a :class:`~neural_bake.fields.texture.TextureField` evaluated at each
+            frame's vertices (a static colour field on the moving surface), or t ↦ the texture field at t (a
+            space-time field g(·, t)). Its ``frame`` (None: ``frame``) says which unit frame its points are in.
 
     Returns:
         A :class:`FrameBake`.
@@ -105,15 +115,31 @@ def bake_frames(
             if bad.any():  # no neural direction there: the coarse mesh's own normal
                 normals[bad] = mesh.vertex_normals[bad]
             t2 = time.perf_counter()
+            colours = None if texture is None else _colours(texture, t, mesh)
+            t3 = time.perf_counter()
             fname = f"{name}_{i:04d}.{fmt}"
             if fmt == "ply":
-                export_vertex_ply(tmp / fname, mesh, normals=normals)
+                export_vertex_ply(tmp / fname, mesh, normals=normals, vertex_colors=colours)
             else:
-                export_glb(tmp / fname, mesh, normals=normals)
+                export_glb(tmp / fname, mesh, normals=normals, vertex_colors=colours)
             files.append(out_dir / fname)
             stats.append({"t": t, "vertices": mesh.n_vertices, "faces": mesh.n_faces, "march_s": round(t1 - t0, 4),
-                          "normals_s": round(t2 - t1, 4), "write_s": round(time.perf_counter() - t2, 4),
+                          "normals_s": round(t2 - t1, 4), "colours_s": round(t3 - t2, 4),
+                          "write_s": round(time.perf_counter() - t3, 4),
                           "invalid_normals": int(bad.sum())})
         (tmp / "frames.json").write_text(json.dumps({"times": times, "frames": [f.name for f in files],
                                                      "stats": stats}, indent=1) + "\n")
     return FrameBake(files, times, stats)
+
+
+def _colours(texture: FrameTexture, t: float, mesh) -> np.ndarray:
+    """Linear colours (V, C) of the texture field at time ``t`` at the mesh's vertices (mesh unit frame)."""
+    from .baker import _evaluate
+
+    field = texture if isinstance(texture, TextureField) else texture(t)
+    if not isinstance(field, TextureField):
+        raise NeuralBakeError(f"texture: at t = {t:g} expected a TextureField, got {type(field).__name__}")
+    colours = _evaluate(mesh.vertices, mesh.frame, None, field, 65536)["colors"]
+    if colours.ndim != 2 or colours.shape[1] not in (3, 4):
+        raise NeuralBakeError(f"texture: {field.name} gives {colours.shape[1:]} values per point, expected 3 or 4")
+    return colours

@@ -205,7 +205,7 @@ def _analytic_normal(name: str, mesh):
 
 
 def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minutes: float | None = None,
-        step_networks=None, save_dir=None, compare_polish: bool | None = None) -> dict:
+        step_networks=None, save_dir=None, compare_polish: bool | None = None, clock=None) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
     Args:
@@ -217,6 +217,7 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
         step_networks: (W, D) list of the step timing (default (64, 1) and (256, 3)).
         save_dir: also save each fitted model as ``save_dir/MESH-PRESET.nbm`` (the folder is created).
         compare_polish: for presets with an L-BFGS polish, also fit without it (default: in full runs only).
+        clock: the clock the fits' budgets measure (default: the wall clock; tests pass a simulated one).
     """
     import warnings
 
@@ -246,7 +247,8 @@ def run(quick: bool = False, *, meshes=None, presets=None, seed: int = 0, minute
             for suffix, change in variants:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", NeuralBakeWarning)
-                    fit = fit_sdf(mesh, preset=preset, minutes=budget, seed=seed, progress=False, **extra, **change)
+                    fit = fit_sdf(mesh, preset=preset, minutes=budget, seed=seed, progress=False, clock=clock, **extra,
+                                  **change)
                 if save_dir is not None:
                     Path(save_dir).mkdir(parents=True, exist_ok=True)
                     fit.save(Path(save_dir) / f"{name}-{preset}{'-nopolish' if suffix else ''}.nbm")

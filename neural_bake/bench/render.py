@@ -121,7 +121,7 @@ def run(quick: bool = False, *, sizes=None, seed: int = 0, cache_dir=None, plot=
     Args:
         quick: the shrunken run (< 2 minutes). sizes: image sides (default 256, 512; quick 64, 128).
         seed: seed of the fits. cache_dir: where fitted networks are kept (default the user cache).
-        plot: PNG path of the MSE-against-time plot (default ``bench-render.png`` in the working folder).
+        plot: PNG path of the MSE-against-time plot (default: no plot).
         repeat: timed renders per configuration (best kept; default 2, quick 1).
         guaranteed_size: image side of the guaranteed-casting comparison (default 64; quick 32).
         threads: torch threads while timing (default 1: on a shared machine two threads spend more time
@@ -246,14 +246,14 @@ def _run(quick, sizes, seed, cache_dir, plot, repeat, guaranteed_size) -> dict:
                        "nm_speedup_met": bool(nm["speedup_vs_fine40"] >= TARGETS["nm_speedup_min"]),
                        "nm_mse_below_coarse": bool(nm["mse"] < coarse["mse"]),
                        "ms_30_30_mse": ms["mse"], "ms_30_30_met": bool(ms["mse"] <= TARGETS["ms_30_30_mse_max"])})
-    plot_path = Path(plot) if plot else Path("bench-render.png")
-    _plot(rows, plot_path)
+    if plot:
+        _plot(rows, Path(plot))
     notes += [
         f"δ: h1 {d1:.4g}, h2 {d2:.4g} (sampled sup-norms, Prop. 1); fixed iterations, skipping on (octree built "
         f"before timing), chunks of 65,536 rays",
         "mse: sRGB colour in [0, 1] against the converged fine render, all pixels; speedup: fine only at 40 "
         "iterations over the configuration, same run",
-        f"plot: {plot_path}", f"torch threads: {torch.get_num_threads()}", load_note(),
+        f"plot: {plot if plot else 'none (--plot PATH)'}", f"torch threads: {torch.get_num_threads()}", load_note(),
         f"total bench time {time.perf_counter() - t_start:.0f} s (fitting {fit_s:.0f} s)",
     ]
     return {"name": "render", "title": "Preview renderer: image MSE against time (Tables 6 and 8)",

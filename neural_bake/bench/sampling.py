@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry import raycasting_scene
 from ..io.mesh_io import load_mesh
 from ..types import Mesh
 from .common import machine_info
@@ -66,8 +67,7 @@ def _trimesh_sdf(mesh: Mesh, p: np.ndarray) -> np.ndarray:
 def _open3d_sdf(mesh: Mesh, p: np.ndarray) -> np.ndarray:
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh.vertices, mesh.faces)
     return scene.compute_signed_distance(o3d.core.Tensor(p.astype(np.float32))).numpy().astype(np.float64)
 
 

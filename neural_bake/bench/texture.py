@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..geometry import raycasting_scene
 from ..errors import NeuralBakeError
 from ..types import Mesh
 from .common import load_note, machine_info, timeit
@@ -75,9 +76,7 @@ def mesh_sdf(mesh: Mesh):
     """
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh.vertices, mesh.faces)
 
     def f(x: torch.Tensor):
         p = x.detach().cpu().numpy().astype(np.float32)

@@ -18,7 +18,7 @@ from typing import Callable
 
 import torch
 
-from ..constants import BUDGET_WARN_FRACTION
+from ..constants import BUDGET_WARN_FRACTION, MIN_SECONDS
 
 __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_budget", "stop_note", "cache_file"]
 
@@ -101,7 +101,7 @@ def _probe(size: int, repeat: int, clock: Callable[[], float]) -> float:
         t0 = clock()
         torch.mm(a, b)
         best = min(best, clock() - t0)
-    return 2.0 * size**3 / max(best, 1e-12) / 1e9
+    return 2.0 * size**3 / max(best, MIN_SECONDS) / 1e9
 
 
 def probe_gflops(size: int = 512, repeat: int = 30, *, clock: Callable[[], float] | None = None) -> float:

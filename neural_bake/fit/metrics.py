@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 from ..constants import DIRECTION_EPS, NEWTON_MIN_GRAD_SQ
-from ..errors import FitError
-from ..geometry import angular_error
+from ..errors import FitError, TrainingDivergedError
+from ..geometry import angular_error, raycasting_scene
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
 
@@ -41,9 +41,7 @@ def _closest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> tup
     """(N,) float64 distances from ``points`` (N, 3) to the triangles and (N, 3) the closest points."""
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
+    scene = raycasting_scene(vertices, faces)
     closest = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)))
     c = closest["points"].numpy().astype(np.float64)
     return np.linalg.norm(points.astype(np.float64) - c, axis=1), c
@@ -115,7 +113,7 @@ def zero_level_mesh(model, resolution: int = 128, *, bound: float = 1.0):
 
     vol = grid_values(model, resolution, bound=bound)
     if not np.isfinite(vol).all():
-        raise FitError("sdf_metrics: the network gives non-finite values on the grid")
+        raise TrainingDivergedError("sdf_metrics: the network gives non-finite values on the grid")
     if vol.min() >= 0 or vol.max() <= 0:
         raise FitError(f"sdf_metrics: the network's zero level set does not cross the grid "
                        f"(f in [{vol.min():.3g}, {vol.max():.3g}])")

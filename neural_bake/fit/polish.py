@@ -63,8 +63,8 @@ class _NonFinite(Exception):
 
 def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tensor]], torch.Tensor],
                  fit_batch: Sequence[torch.Tensor], check_batch: Sequence[torch.Tensor], *, evals: int,
-                 deadline: float | None = None, history_size: int = 50, progress: bool = False,
-                 desc: str = "polish") -> PolishResult:
+                 deadline: float | None = None, clock: Callable[[], float] = time.perf_counter,
+                 history_size: int = 50, progress: bool = False, desc: str = "polish") -> PolishResult:
     """Polish ``model``'s trainable parameters with L-BFGS on ``fit_batch``, in place.
 
     Args:
@@ -75,7 +75,8 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
         fit_batch: the fixed batch the polish minimises the loss on.
         check_batch: a held-out batch: the polish is kept only if its loss went down.
         evals: the number of ``loss_fn(fit_batch)`` calls to spend (≥ 1).
-        deadline: a ``time.perf_counter()`` value after which no new L-BFGS call starts (None: none).
+        deadline: a ``clock()`` value after which no new L-BFGS call starts (None: none).
+        clock: the seconds the deadline and the result's ``seconds`` are measured in.
         history_size: L-BFGS's number of curvature pairs.
         progress: show a progress bar over the evaluations.
 
@@ -87,7 +88,7 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise FitError(f"{desc}: the model has no trainable parameters")
-    t0 = time.perf_counter()
+    t0 = clock()
     saved = [p.detach().clone() for p in params]
 
     def value(batch) -> float:
@@ -96,7 +97,7 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
         return float(loss_fn(batch))
 
     check_before = value(check_batch)
-    per_eval = time.perf_counter() - t0  # the rate until the polish has measured its own
+    per_eval = clock() - t0  # the rate until the polish has measured its own
     count = 0
     bar = None
     if progress:
@@ -121,11 +122,11 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
     loss_before = math.nan
     diverged = False
     try:
-        t_run = time.perf_counter()
+        t_run = clock()
         while count < evals:
             budget = min(int(evals) - count, CHUNK_ITERATIONS * 5 // 4)
             if deadline is not None:
-                now = time.perf_counter()
+                now = clock()
                 if now >= deadline:
                     break
                 if count:
@@ -171,6 +172,6 @@ def lbfgs_polish(model: torch.nn.Module, loss_fn: Callable[[Sequence[torch.Tenso
                           "kept the weights from before the polish", NeuralBakeWarning, stacklevel=2)
     for p in params:
         p.grad = None
-    return PolishResult(evals=count, seconds=time.perf_counter() - t0, loss_before=loss_before,
+    return PolishResult(evals=count, seconds=clock() - t0, loss_before=loss_before,
                         loss_after=loss_after, check_before=check_before, check_after=check_after, kept=kept,
                         reason=reason)

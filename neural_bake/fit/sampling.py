@@ -45,6 +45,7 @@ import torch
 
 from ..constants import DEGENERATE_AREA, DIPOLE_MIN_DISTANCE, DIRECTION_EPS
 from ..errors import MeshError
+from ..geometry import area_weighted_normals, raycasting_scene
 from ..io.colour import sample_texture
 from ..types import Mesh
 
@@ -146,13 +147,7 @@ def _check_points(points) -> np.ndarray:
 def _vertex_normals(mesh: Mesh) -> np.ndarray:
     if mesh.vertex_normals is not None:
         return np.asarray(mesh.vertex_normals, dtype=np.float64)
-    t = mesh.triangles
-    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 × area: area weighting
-    vn = np.zeros_like(mesh.vertices, dtype=np.float64)
-    for k in range(3):
-        np.add.at(vn, mesh.faces[:, k], fn)
-    norm = np.linalg.norm(vn, axis=1, keepdims=True)
-    return np.divide(vn, norm, out=np.zeros_like(vn), where=norm > 0)
+    return area_weighted_normals(mesh.vertices, mesh.faces)
 
 
 # ----------------------------------------------------------------------------------------------- surface
@@ -261,17 +256,6 @@ def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sig
 # ----------------------------------------------------------------------------------------------- distance
 
 
-def _scene(mesh: Mesh, faces: np.ndarray):
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
-    )
-    return scene
-
-
 def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     """(N,) float64 distance from ``points`` (N, 3) to the closest point of the mesh's non-degenerate faces.
 
@@ -283,7 +267,7 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
         return np.zeros(0)
     import open3d as o3d
 
-    scene = _scene(mesh, mesh.faces[idx])
+    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
     closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))["points"].numpy()
     return np.linalg.norm(p - closest.astype(np.float64), axis=1)
 
@@ -316,7 +300,7 @@ def inside_mask(mesh: Mesh, points, *, method: str = "auto") -> np.ndarray:
         import open3d as o3d
 
         idx, _ = _valid_faces(mesh)
-        scene = _scene(mesh, mesh.faces[idx])
+        scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
         occ = scene.compute_occupancy(o3d.core.Tensor(p.astype(np.float32)), nsamples=RAY_SAMPLES)
         return occ.numpy().astype(bool)
     if method == "hybrid":
@@ -334,7 +318,7 @@ def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:
     import open3d as o3d
 
     idx, _ = _valid_faces(mesh)
-    scene = _scene(mesh, mesh.faces[idx])
+    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
     i = np.arange(k) + 0.5
     z = 1.0 - 2.0 * i / k
     phi = i * math.pi * (3.0 - math.sqrt(5.0)) + 0.3  # golden-angle spiral, turned off the axes

@@ -179,8 +179,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         config: the settings (default :class:`SdfFitConfig`).
         preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), or the shared names
             ``"quick"``, ``"default"``, ``"high"`` (64x1, 128x2, 256x3), applied before ``overrides``.
-        clock: the seconds Adam's time budget measures (default ``time.perf_counter``; tests simulate a
-            slow machine with their own).
+        clock: the seconds every budget decision of the run measures — Adam's budget, the share of bf16
+            steps, the polish's reserve and deadline (default ``time.perf_counter``;
+            tests simulate a slow or loaded machine with their own).
         **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
 
     Returns:
@@ -211,14 +212,15 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     compiled = should_compile(cfg.compile, device, long_run=long_run(cfg.steps, cfg.minutes))
     cfg = replace(cfg, compile="on" if compiled else "off")
     loss_terms = CompiledFn(sdf_loss_terms, enabled=compiled, desc=f"fit sdf {cfg.width}x{cfg.depth}")
-    t_start = time.perf_counter()
+    now = clock or time.perf_counter
+    t_start = now()
 
     def low_precision(step: int) -> bool:
         if not use_bf16:
             return False
         frac = step / max(cfg.steps, 1)
         if cfg.minutes:  # resumed runs restart this clock: the switch may come later than in one run
-            frac = max(frac, (time.perf_counter() - t_start) / (60.0 * cfg.minutes))
+            frac = max(frac, (now() - t_start) / (60.0 * cfg.minutes))
         return frac < cfg.bf16_fraction
 
     hard = {"pool": None, "idx": None}  # idx: {"surf", "near"} index tensors
@@ -250,7 +252,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
         low = low_precision(step)
         k, timed = tuner.next(step, "bf16" if low else "float32") if tuner else (micro, False)
-        t0 = time.perf_counter()
+        t0 = time.perf_counter()  # the tuner measures the machine's real speed, whatever the budget's clock
         # back-propagated here, part by part (the loop sees a detached loss and skips its own backward)
         terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low)
         if timed:
@@ -265,11 +267,10 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         if cfg.polish_share > 0:
             reserve = cfg.polish_share * 60.0 * cfg.minutes
         else:  # its cost, measured on a throw-away batch (+ its held-out checks), at most half the budget
-            per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype)
+            per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype, now)
             reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)
         loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
-    res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name},
-                **({} if clock is None else {"clock": clock}))
+    res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name}, clock=now)
     budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None)
     polish = None
     seconds = res.seconds
@@ -278,9 +279,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         fit_batch, check_batch = _polish_batches(pools.get(max(res.steps - 1, 0)), cfg)
         # what is left of the budget, but at least the time set aside (Adam's last step or the pools may
         # have run over its part)
-        deadline = time.perf_counter() + max(left, reserve) if cfg.minutes else None
+        deadline = now() + max(left, reserve) if cfg.minutes else None
         result = lbfgs_polish(model, polish_loss, fit_batch, check_batch, evals=int(cfg.polish_evals),
-                              deadline=deadline, progress=cfg.progress,
+                              deadline=deadline, clock=now, progress=cfg.progress,
                               desc=f"fit sdf {cfg.width}x{cfg.depth}: L-BFGS polish")
         polish, seconds = result.to_dict(), seconds + result.seconds
     model.eval()
@@ -362,8 +363,8 @@ def _polish_batches(data: dict, cfg: SdfFitConfig):
     return batches[0], batches[1]
 
 
-def _seconds_per_eval(polish_loss, cfg: SdfFitConfig, device, dtype) -> float:
-    """Measured wall time of one polish evaluation (the second of two, on random points; the
+def _seconds_per_eval(polish_loss, cfg: SdfFitConfig, device, dtype, clock=time.perf_counter) -> float:
+    """Measured time (by ``clock``) of one polish evaluation (the second of two, on random points; the
     gradients it leaves are cleared by the first training step)."""
     gen = torch.Generator().manual_seed(0)
     n_s = cfg.polish_points // 2
@@ -374,7 +375,7 @@ def _seconds_per_eval(polish_loss, cfg: SdfFitConfig, device, dtype) -> float:
     batch = tuple(t.to(device=device, dtype=dtype) for t in batch)
     times = []
     for _ in range(2):
-        t0 = time.perf_counter()
+        t0 = clock()
         float(polish_loss(batch))  # float(): waits for an asynchronous device
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return times[-1] * (1.0 + 1.0 / CHUNK_ITERATIONS)  # each L-BFGS call re-evaluates its starting point

@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from ..constants import UNIT_FRAME_EXTENT
-from ..errors import FitError, ModelFileError
+from ..errors import FitError, ModelFileError, NeuralBakeWarning
 from ..fields.spacetime import SPACETIME_KIND, SpaceTimeField, check_time_mapping, time_to_tau
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
@@ -57,7 +57,7 @@ from .training import LoopConfig, train
 
 __all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "reframe",
            "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND", "parse_times",
-           "nest_spacetime", "nesting_by_time"]
+           "nest_spacetime", "nesting_by_time", "choose_deltas", "DELTA_POLICIES"]
 
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -629,45 +629,98 @@ def spacetime_metrics(fit: SpaceTimeFit, mesh: Mesh, t: float, **kwargs) -> dict
 
 
 # ----------------------------------------------------------------------------------------------- nesting
-def nest_spacetime(fit: SpaceTimeFit, levels=((64, 1),), *, check_times: int = 11, **kwargs):
+#: How :func:`nest_spacetime` sets δ: from the certified bound (range analysis over space-time boxes, a
+#: guarantee at every t) or from the sampled estimate (not guaranteed).
+DELTA_POLICIES = ("certified", "estimated")
+
+
+def nest_spacetime(fit: SpaceTimeFit, levels=((64, 1),), *, check_times: int = 11, delta: str = "certified",
+                   **kwargs):
     """Coarse space-time levels distilled from ``fit``'s network, with one δ per level that holds for every t
     of the fitted range: :func:`~neural_bake.fit.nested.fit_nested` over [-1, 1]⁴ (space × the time input,
     which covers τ ∈ [−E, E] for E ≤ 1), sup-norms estimated over space-time samples and certified by range
-    analysis over space-time boxes (``certify``; ``certify_max_boxes`` bounds its cost).
+    analysis over space-time boxes (``certify``, default on; ``certify_max_boxes`` bounds its cost, recorded in
+    ``levels_info[i]["certify"]["seconds"]``).
 
-    The sampled sup of each level is then also taken at ``check_times`` evenly spaced fixed times
+    The sampled sup of each level is also taken at ``check_times`` evenly spaced fixed times
     (:func:`nesting_by_time`, ``n_estimate`` samples each) and the estimated δ rebuilt from the larger value.
+    Then δ is chosen by :func:`choose_deltas` with ``delta``: "certified" (default) makes δ_i − δ_{i+1} the
+    certified bound wherever the certification ran, so the nesting [|h_{i+1}(·, t)| ≤ δ_{i+1}] ⊂
+    [|h_i(·, t)| ≤ δ_i] is guaranteed at every t (a looser δ than the estimate: affine bounds over boxes are
+    pessimistic); "estimated" keeps the sampled estimate (tighter, not guaranteed).
 
     Returns a :class:`~neural_bake.fit.nested.NestedSequence` of 4-input networks whose ``metadata`` holds
     ``"spacetime": {"time_range", "time_extent", "kind", "method", "times"}``.
 
     Raises:
-        FitError: ``fit.time_extent`` above 1 (the nesting samples τ in [-1, 1] only), and fit_nested's errors.
+        FitError: ``fit.time_extent`` above 1 (the nesting samples τ in [-1, 1] only), an unknown ``delta``,
+            and fit_nested's errors.
     """
+    import warnings
+
     from .nested import fit_nested
 
     if fit.time_extent > 1.0:
         raise FitError(f"nest_spacetime: time_extent {fit.time_extent:g} > 1: the space-time band is sampled for "
                        f"τ in [-1, 1] only; fit with time_extent <= 1")
-    seq = fit_nested(fit.model, levels, frame=fit.frame, **kwargs)
+    if delta not in DELTA_POLICIES:
+        raise FitError(f"nest_spacetime: delta must be one of {', '.join(DELTA_POLICIES)}, got {delta!r}")
+    if delta == "certified":  # fit_nested's choice (certified only near the estimate) is replaced below
+        kwargs.setdefault("warn_ratio", math.inf)
+    with warnings.catch_warnings():
+        if delta == "certified":
+            warnings.filterwarnings("ignore", message=r".*above the band .* where \|h - g\| was measured")
+        seq = fit_nested(fit.model, levels, frame=fit.frame, **kwargs)
     seq.metadata["spacetime"] = {"time_range": list(fit.time_range), "time_extent": fit.time_extent,
                                  "kind": fit.kind, "method": fit.method, "times": list(fit.times)}
     # the space-time estimate samples [-1, 1]^4 uniformly: sharpen it at fixed times (the ends of the range
-    # included, where uniform samples are sparse) and rebuild the estimated δ from the larger sup
+    # included, where uniform samples are sparse)
     rows = nesting_by_time(seq, np.linspace(*fit.time_range, check_times), n=int(kwargs.get("n_estimate", 100_000)),
                            seed=int(kwargs.get("seed", 0)) + 991)
-    infos, eps = seq.levels_info, seq.eps
+    infos = seq.levels_info
     for r in rows:
         info = infos[r["level"]]
         info["sup_by_time"] = max(info.get("sup_by_time", 0.0), r["sup"])
-    d_est = d_used = eps
+    for info in infos[:-1]:
+        info["sup_estimated"] = max(info["sup_estimated"], info.get("sup_by_time", 0.0))
+    choose_deltas(seq, delta)
+    if delta == "certified":
+        for i, info in enumerate(infos[:-1]):
+            if not info["nesting_guaranteed"]:
+                why = ("certification was off" if info.get("sup_certified") is None else
+                       f"the finer level's δ {infos[i + 1]['delta']:.4g} is above the band Δ = {seq.band:g}")
+                warnings.warn(f"nest_spacetime: level {i}: δ is the sampled estimate, not guaranteed at every t "
+                              f"({why})", NeuralBakeWarning, stacklevel=2)
+    return seq
+
+
+def choose_deltas(seq, delta: str = "certified"):
+    """Set each level's ``delta``, ``delta_estimated``, ``delta_source`` and ``nesting_guaranteed`` from its
+    stored sup-norms (in place; returns ``seq``), fine to coarse: δ_k = ε, δ_i = δ_{i+1} + sup_i.
+
+    ``delta`` "certified": sup_i is the certified bound (``delta_source`` "certified",
+    ``nesting_guaranteed`` True) wherever the certification ran and δ_{i+1} ≤ Δ (the certificate covers the
+    band |·| < Δ only); elsewhere the sampled estimate (``delta_source`` "estimated", ``nesting_guaranteed``
+    False: fresh samples may exceed it). "estimated": the estimate everywhere.
+
+    Raises:
+        FitError: an unknown ``delta``.
+    """
+    if delta not in DELTA_POLICIES:
+        raise FitError(f"choose_deltas: delta must be one of {', '.join(DELTA_POLICIES)}, got {delta!r}")
+    infos = seq.levels_info
+    d_est = d_used = seq.eps
+    infos[-1]["nesting_guaranteed"] = True  # the fine level itself: nothing to nest
     for i in range(len(infos) - 2, -1, -1):
         info = infos[i]
-        info["sup_estimated"] = max(info["sup_estimated"], info.get("sup_by_time", 0.0))
         d_est += info["sup_estimated"]
         info["delta_estimated"] = d_est
-        d_used += info["sup_certified"] if info.get("delta_source") == "certified" else info["sup_estimated"]
+        cert = info.get("sup_certified")
+        certified = (delta == "certified" and cert is not None and math.isfinite(cert) and d_used <= seq.band)
+        d_used += cert if certified else info["sup_estimated"]
         info["delta"] = d_used
+        info["delta_source"] = "certified" if certified else "estimated"
+        info["nesting_guaranteed"] = bool(certified)
     return seq
 
 

@@ -43,7 +43,7 @@ from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
 from ..fields import (NestedSequence, SdfField, TextureField, load_sdf_field, save_model, to_sdf_field,
                       unit_normals)
-from ..geometry import frame_mismatch
+from ..geometry import frame_mismatch, raycasting_scene
 from ..io.colour import sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
@@ -560,9 +560,7 @@ def render_views(mesh: Mesh, n_views: int = 6, resolution: int = 128) -> list[di
     """
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh.vertices, mesh.faces)
     views = []
     k = np.arange(n_views) + 0.5
     z = 1 - 2 * k / n_views

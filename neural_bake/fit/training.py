@@ -42,7 +42,7 @@ from typing import Callable
 import torch
 
 from ..constants import BLOWUP_LOSS_FLOOR
-from ..errors import FitError, NeuralBakeWarning
+from ..errors import FitError, NeuralBakeWarning, TrainingDivergedError
 from ..io.atomic import atomic_path
 from ..nets.heap import keep_freed_memory
 
@@ -337,7 +337,7 @@ def train(
                 result.restarts += 1
                 if result.restarts > cfg.max_restarts:
                     model.load_state_dict(snapshot["model"])
-                    raise FitError(f"{cfg.desc}: training diverged at step {step} ({problem}) after "
+                    raise TrainingDivergedError(f"{cfg.desc}: training diverged at step {step} ({problem}) after "
                                    f"{cfg.max_restarts} learning-rate halvings (lr now {base_lr:.3g}); "
                                    f"try a smaller learning rate or check the input")
                 base_lr *= 0.5

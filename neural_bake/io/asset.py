@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import CORNER_NORMAL_MATCH_TOL, DIRECTION_EPS, FACE_MATCH_REL_TOL, MIN_SPAN
 from ..errors import MeshError
 from ..types import Mesh
 
@@ -89,14 +90,14 @@ def read_asset(path: str | os.PathLike, mesh: Mesh) -> Asset:
         if len(pos) != mesh.n_faces:
             raise MeshError(f"{path}: {len(pos)} faces in the file against {mesh.n_faces} loaded; not the same mesh")
         ours = mesh.frame.to_source(mesh.vertices[mesh.faces])
-        scale = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), 1e-30)
-        same = np.abs(ours - pos).max(axis=(1, 2)) <= 1e-6 * scale
-        flipped = np.abs(ours - pos[:, ::-1]).max(axis=(1, 2)) <= 1e-6 * scale
+        scale = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), MIN_SPAN)
+        same = np.abs(ours - pos).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
+        flipped = np.abs(ours - pos[:, ::-1]).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
         if not (same | flipped).all():
             raise MeshError(f"{path}: the file's faces do not match the loaded mesh's")
         normals = np.where(same[:, None, None], normals, normals[:, ::-1])
         norm = np.linalg.norm(normals, axis=2, keepdims=True)
-        asset.corner_normals = np.divide(normals, norm, out=np.zeros_like(normals), where=norm > 1e-12)
+        asset.corner_normals = np.divide(normals, norm, out=np.zeros_like(normals), where=norm > DIRECTION_EPS)
     images: dict[int, str] = {}
     for g in geoms:
         mat = getattr(g.visual, "material", None)
@@ -115,7 +116,7 @@ def read_asset(path: str | os.PathLike, mesh: Mesh) -> Asset:
     return asset
 
 
-def shading_mesh(mesh: Mesh, corner_normals: np.ndarray, *, atol: float = 1e-6) -> Mesh:
+def shading_mesh(mesh: Mesh, corner_normals: np.ndarray, *, atol: float = CORNER_NORMAL_MATCH_TOL) -> Mesh:
     """``mesh`` with its vertices split wherever ``corner_normals`` (F, 3, 3) differ (hard edges), and those
     normals as its vertex normals: (V', 3) float64 unit. UVs, texture, frame and faces' order are kept; the
     result is not watertight where it was split. Corners whose normals agree within ``atol`` share a vertex.

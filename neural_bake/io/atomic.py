@@ -20,7 +20,7 @@ from typing import Iterator
 
 from .faults import fault_point
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "replacement_mode"]
 
 
 @contextlib.contextmanager
@@ -52,7 +52,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         # mkstemp makes the file private (0600): give it the replaced file's mode, else the umask default
-        os.chmod(tmp, _target_mode(dest))
+        os.chmod(tmp, replacement_mode(dest))
         fault_point("file-temp")
         os.replace(tmp, dest)
         fault_point("file-renamed")
@@ -73,7 +73,7 @@ def _safetensors_os_error(exc: BaseException, dest: Path) -> OSError:
     return OSError(code, os.strerror(code), str(dest))
 
 
-def _target_mode(dest: Path, default: int = 0o666) -> int:
+def replacement_mode(dest: Path, default: int = 0o666) -> int:
     """Permission bits for what replaces ``dest``: those of ``dest``, else ``default`` minus the umask."""
     try:
         return dest.stat().st_mode & 0o7777

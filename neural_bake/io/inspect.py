@@ -9,7 +9,8 @@ import numpy as np
 
 from ..errors import NeuralBakeWarning
 from ..types import Mesh
-from .mesh_io import INWARD_FLIPPED, _edge_report, load_mesh
+from ..geometry import edge_report
+from .mesh_io import INWARD_FLIPPED, load_mesh
 
 __all__ = ["inspect_mesh", "format_report", "topology"]
 
@@ -28,7 +29,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> dict:
     from scipy.sparse.csgraph import connected_components
 
     faces = np.asarray(faces, dtype=np.int64)
-    edges = _edge_report(faces)
+    edges = edge_report(faces)
     rows = np.concatenate([faces[:, 0], faces[:, 1]])
     cols = np.concatenate([faces[:, 1], faces[:, 2]])
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
@@ -45,7 +46,7 @@ def topology(faces: np.ndarray, n_vertices: int) -> dict:
     ec = np.searchsorted(comp_ids, label[und[:, 0]])
     vc = np.searchsorted(comp_ids, label[np.unique(f)])
     euler = (np.bincount(vc, minlength=n_comp) - np.bincount(ec, minlength=n_comp) + np.bincount(fc, minlength=n_comp))
-    closed = edges["boundary"] == 0 and edges["non_manifold"] == 0 and edges["inconsistent"] == 0
+    closed = edges["watertight"]
     genus = None
     if closed and np.all(euler % 2 == 0) and np.all(euler <= 2):
         genus = int(((2 - euler) // 2).sum())
@@ -102,8 +103,8 @@ def inspect_mesh(mesh_or_path: Mesh | str | os.PathLike, texture: str | os.PathL
         "genus": topo["genus"],
         "euler_characteristic": topo["euler"],
         "components": topo["components"],
-        "boundary_edges": topo["edges"]["boundary"],
-        "non_manifold_edges": topo["edges"]["non_manifold"],
+        "boundary_edges": topo["edges"]["boundary_edges"],
+        "non_manifold_edges": topo["edges"]["non_manifold_edges"],
         "winding": winding,
         "bounding_box": {k: [float(f"{x:.12g}") for x in a] for k, a in (("min", lo), ("max", hi), ("size", hi - lo))},
         "frame": mesh.frame.to_dict(),

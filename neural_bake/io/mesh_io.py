@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..constants import DEGENERATE_AREA, MAX_COORDINATE, MERGE_DISTANCE, UV_POLICIES
+from ..geometry import area_weighted_normals, edge_report
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Frame, Mesh
 from .atomic import atomic_write_bytes, atomic_write_text
@@ -197,7 +198,7 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike, *, frame: str = "source") -> 
     vertices = mesh.frame.to_source(mesh.vertices) if frame == "source" else np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     uv = None if mesh.uv is None else np.asarray(mesh.uv, dtype=np.float64)
-    normals = mesh.vertex_normals if mesh.vertex_normals is not None else _vertex_normals(vertices, faces)
+    normals = mesh.vertex_normals if mesh.vertex_normals is not None else area_weighted_normals(vertices, faces)
     tex_name = f"{p.stem}_basecolor.png"
     if ext == ".obj":
         if mesh.texture is not None and uv is not None:
@@ -321,36 +322,6 @@ def _weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     return kept, new_index[rep]
 
 
-def _vertex_normals(vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3); zero rows where every incident face is degenerate."""
-    t = vertices[faces]
-    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 * area
-    if mask is not None:
-        fn = np.where(mask[:, None], 0.0, fn)
-    vn = np.zeros_like(vertices, dtype=np.float64)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
-    norm = np.linalg.norm(vn, axis=1, keepdims=True)
-    return np.divide(vn, norm, out=np.zeros_like(vn), where=norm > 0)
-
-
-def _edge_report(faces: np.ndarray) -> dict:
-    """Edge statistics of the faces with 3 distinct corners: boundary, non-manifold, inconsistent edges."""
-    ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    f = faces[ok]
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    base = int(faces.max()) + 1 if len(faces) else 1
-    undirected = np.sort(directed, axis=1)
-    _, counts = np.unique(undirected[:, 0] * base + undirected[:, 1], return_counts=True)
-    _, dcounts = np.unique(directed[:, 0] * base + directed[:, 1], return_counts=True)
-    return {
-        "edges": int(len(counts)),
-        "boundary": int((counts == 1).sum()),
-        "non_manifold": int((counts > 2).sum()),
-        "inconsistent": int((dcounts > 1).sum()),
-    }
-
-
 def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes) -> Mesh:
     """Shared validation + normalisation of triangle data (source frame) into a Mesh."""
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -392,11 +363,11 @@ def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes
         _warn(notes, f"{name}: {int(degenerate.sum())} degenerate faces (area < {DEGENERATE_AREA:g} in the unit frame); "
               "kept but excluded from sampling")
     # topology and winding
-    edges = _edge_report(faces)
-    watertight = edges["boundary"] == 0 and edges["non_manifold"] == 0 and edges["inconsistent"] == 0
+    edges = edge_report(faces)
+    watertight = edges["watertight"]
     if not watertight:
-        parts = [f"{edges[k]} {label}" for k, label in (("boundary", "boundary edges"), ("non_manifold", "non-manifold edges"),
-                 ("inconsistent", "edges with inconsistent winding")) if edges[k]]
+        parts = [f"{edges[k]} {label}" for k, label in (("boundary_edges", "boundary edges"), ("non_manifold_edges", "non-manifold edges"),
+                 ("inconsistent_edges", "edges with inconsistent winding")) if edges[k]]
         _warn(notes, f"{name}: mesh is not watertight ({', '.join(parts)}); inside/outside is ill-defined")
     else:
         c = Frame(unit.center, 1.0).to_unit(vertices)[faces]
@@ -420,7 +391,7 @@ def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes
         faces=np.ascontiguousarray(faces, dtype=np.int64),
         uv=None if uv is None else np.ascontiguousarray(uv, dtype=np.float64),
         texture=None if texture is None else np.ascontiguousarray(_rgb_texture(texture)),
-        vertex_normals=_vertex_normals(out_vertices, faces, degenerate),
+        vertex_normals=area_weighted_normals(out_vertices, faces, exclude=degenerate),
         frame=frame,
         degenerate=degenerate,
         uv_policy=uv_policy,

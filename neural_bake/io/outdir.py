@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import OutputBusyError, OutputError, WriteError, os_error
-from .atomic import _target_mode, atomic_write_text
+from .atomic import atomic_write_text, replacement_mode
 from .faults import fault_point
 
 __all__ = ["OutputFolder", "OutputLock", "locked_outputs", "record_in_set", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
@@ -264,7 +264,7 @@ class OutputFolder:
             self._check_foreign()
             try:
                 self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
-                os.chmod(self.stage, _target_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
+                os.chmod(self.stage, replacement_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
             except OSError as exc:
                 raise os_error(exc, out) from None
         except BaseException:
@@ -391,15 +391,16 @@ class OutputFolder:
             os.rmdir(old)
 
 
-def record_in_set(folder: str | os.PathLike, *names: str) -> None:
+def record_in_set(folder: str | os.PathLike, *names: str, locked: bool = False) -> None:
     """Add entries ``names`` (top-level names inside ``folder``) that a later step wrote into a committed
     folder to its set, so the next run into ``folder`` replaces them with the rest instead of refusing them as
-    foreign. A folder that is not a committed set is left as it is."""
+    foreign. A folder that is not a committed set is left as it is. ``locked``: the caller already holds the
+    folder's :class:`OutputLock` (taken here otherwise)."""
     folder = Path(folder)
     manifest = folder / MANIFEST
     if not manifest.is_file():
         return
-    with OutputLock(folder):
+    with contextlib.nullcontext() if locked else OutputLock(folder):
         try:
             data = json.loads(manifest.read_text(encoding="utf-8"))
             data["files"] = sorted(set(data["files"]) | set(names))

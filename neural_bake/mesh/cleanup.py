@@ -9,37 +9,10 @@ from scipy.sparse.csgraph import connected_components
 
 from ..constants import DEGENERATE_AREA
 from ..errors import NeuralBakeError
+from ..geometry import edge_report
 from ..types import Mesh
 
 __all__ = ["clean_mesh", "edge_report"]
-
-
-def edge_report(faces: np.ndarray) -> dict:
-    """Edge statistics of a face list (F, 3) int: ``{"edges", "boundary_edges", "non_manifold_edges",
-    "inconsistent_edges", "watertight"}``.
-
-    A boundary edge has one face, a non-manifold edge more than two; an inconsistent edge is shared by two
-    faces that traverse it in the same direction (flipped winding). ``watertight``: every edge has exactly
-    two faces and consistent winding.
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    if len(faces) == 0:
-        return {"edges": 0, "boundary_edges": 0, "non_manifold_edges": 0, "inconsistent_edges": 0, "watertight": False}
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    und, inv, cnt = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    forward = (e[:, 0] < e[:, 1]).astype(np.int64)
-    n_forward = np.bincount(inv, weights=forward, minlength=len(und))
-    two = cnt == 2
-    inconsistent = int((two & (n_forward != 1)).sum())
-    out = {
-        "edges": int(len(und)),
-        "boundary_edges": int((cnt == 1).sum()),
-        "non_manifold_edges": int((cnt > 2).sum()),
-        "inconsistent_edges": inconsistent,
-    }
-    out["watertight"] = bool(two.all() and inconsistent == 0)
-    return out
 
 
 def clean_mesh(

@@ -163,7 +163,7 @@ def decimate(
         source=mesh.source,
         warnings=list(mesh.warnings),
     )
-    from .cleanup import edge_report
+    from ..geometry import edge_report
     from .tangents import vertex_normals
 
     out.watertight = edge_report(out.faces)["watertight"]

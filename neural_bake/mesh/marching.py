@@ -397,7 +397,7 @@ def march(
 
     mesh.vertex_normals = vertex_normals(mesh)
     mesh.degenerate = mesh.face_areas < DEGENERATE_AREA
-    from .cleanup import edge_report
+    from ..geometry import edge_report
 
     mesh.watertight = edge_report(faces)["watertight"]
     stats["seconds"] = time.perf_counter() - t0

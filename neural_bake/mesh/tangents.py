@@ -6,6 +6,7 @@ import numpy as np
 
 from ..constants import TANGENT_EPS, UNDERFLOW_EPS, UV_DET_EPS, UV_MATCH_TOL
 from ..errors import MeshError
+from ..geometry import area_weighted_normals
 from ..types import Mesh
 
 __all__ = ["tangent_frames", "vertex_normals", "vertex_uv"]
@@ -17,14 +18,9 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
     ``mesh.vertex_normals`` when set, otherwise area-weighted face normals. A vertex whose faces are all
     degenerate (or that no face uses) gets +Z instead of a zero/NaN normal.
     """
-    if mesh.vertex_normals is not None:
-        n = np.asarray(mesh.vertex_normals, dtype=np.float64)
-    else:
-        t = mesh.triangles
-        fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 * area: area weighting
-        n = np.zeros((mesh.n_vertices, 3))
-        for k in range(3):
-            np.add.at(n, mesh.faces[:, k], fn)
+    if mesh.vertex_normals is None:
+        return area_weighted_normals(mesh.vertices, mesh.faces, fallback=(0.0, 0.0, 1.0))
+    n = np.asarray(mesh.vertex_normals, dtype=np.float64)
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
     out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)

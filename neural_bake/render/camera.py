@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..constants import CAMERA_PARALLEL_EPS
+from ..constants import CAMERA_PARALLEL_EPS, MIN_SPAN
 from ..errors import NeuralBakeError
 from ..types import Frame
 from .checks import finite_numbers
@@ -166,7 +166,7 @@ class Camera:
         if np.any(hi_a < lo_a):
             raise CameraError(f"camera framing: box lower corner {lo} above its upper corner {hi}")
         center = (lo_a + hi_a) / 2
-        radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2, 1e-12) * float(margin)
+        radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2, MIN_SPAN) * float(margin)
         d = np.asarray(_vec3("framing direction", direction))
         if np.linalg.norm(d) <= 0:
             raise CameraError("camera framing direction: the zero vector has no direction")

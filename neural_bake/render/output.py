@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import MIN_SPAN
 from ..io.images import write_image
 from .asset import RenderError
 
@@ -30,7 +31,7 @@ def channel_image(name: str, array: np.ndarray, hit: np.ndarray, fmt: str) -> np
         if fmt == "exr" or not hit.any():
             return d
         lo, hi = float(d[hit].min()), float(d[hit].max())
-        return np.where(hit, 1.0 - 0.8 * (d - lo) / max(hi - lo, 1e-12), 0.0).astype(np.float32)
+        return np.where(hit, 1.0 - 0.8 * (d - lo) / max(hi - lo, MIN_SPAN), 0.0).astype(np.float32)
     if name == "normal":
         return (a if fmt == "exr" else np.where(hit[..., None], (a + 1) / 2, 0.0)).astype(np.float32)
     if name == "iterations":

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..constants import UNIT_FRAME_EXTENT
+from ..constants import GRAD_EPS, UNIT_FRAME_EXTENT
 from .asset import RenderAsset, RenderError
 from .camera import Camera
 from .guaranteed import cast_guaranteed
@@ -221,7 +221,7 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
             else:
                 _, g = counter.value_and_gradient(levels[last], "normals", p_u)
             norm = g.norm(dim=1, keepdim=True)
-            ok = torch.isfinite(norm) & (norm > 1e-8)
+            ok = torch.isfinite(norm) & (norm > GRAD_EPS)
             n_u = torch.where(ok, g / torch.where(ok, norm, torch.ones_like(norm)), torch.zeros_like(g))
             normals_w[pix] = ob.normal_to_scene(n_u)
             seconds["normals"] = seconds.get("normals", 0.0) + time.perf_counter() - tic

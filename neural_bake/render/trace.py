@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..constants import TRACE_BOUND, TRACE_EPSILON, TRACE_HIT_TOLERANCE, TRACE_STILL_STEP
+from ..constants import FLOAT32_FLOOR, TRACE_BOUND, TRACE_EPSILON, TRACE_HIT_TOLERANCE, TRACE_STILL_STEP
 from .asset import RenderError, TraceLevel
 from .stats import EvalCounter
 
@@ -281,7 +281,7 @@ def continuous_lod(footprint: torch.Tensor, lod: tuple[float, float], n_levels: 
     """L̃ (N,) in [0, K − 1] from pixel footprints (N,): K − 1 at or under ``lod[0]``, 0 at or over
     ``lod[1]``, linear in log footprint between."""
     fine, coarse = (math.log(v) for v in lod)
-    x = (math.log(lod[1]) - torch.log(footprint.clamp_min(1e-30))) / (coarse - fine)
+    x = (math.log(lod[1]) - torch.log(footprint.clamp_min(FLOAT32_FLOOR))) / (coarse - fine)
     return (x.clamp(0, 1) * (n_levels - 1)).to(footprint.dtype)
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import RGBE_MIN
 from ..io.atomic import atomic_path
 from .meshes import ViewError
 
@@ -61,10 +62,10 @@ def _rgbe(rgb: np.ndarray) -> np.ndarray:
     rgb = np.clip(np.asarray(rgb, dtype=np.float64), 0, None)
     m = rgb.max(axis=-1)
     mant, expo = np.frexp(m)
-    scale = np.divide(mant * 256.0, m, out=np.zeros_like(m), where=m > 1e-32)
+    scale = np.divide(mant * 256.0, m, out=np.zeros_like(m), where=m > RGBE_MIN)
     out = np.zeros(rgb.shape[:-1] + (4,), dtype=np.uint8)
     out[..., :3] = np.clip(np.floor(rgb * scale[..., None]), 0, 255).astype(np.uint8)
-    out[..., 3] = np.where(m > 1e-32, expo + 128, 0).astype(np.uint8)
+    out[..., 3] = np.where(m > RGBE_MIN, expo + 128, 0).astype(np.uint8)
     return out
 
 

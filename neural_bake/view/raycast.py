@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..constants import UNDERFLOW_EPS
+from ..geometry import raycasting_scene
 from ..io.colour import sample_texture
 from ..render.camera import Camera
 from ..render.shading import Material, default_lights, shade_blinn_phong
@@ -46,15 +48,13 @@ class MeshRender:
 
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, n, out=np.zeros_like(v), where=n > 1e-300)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > UNDERFLOW_EPS)
 
 
 def _cast(mesh: ViewMesh, origins: np.ndarray, dirs: np.ndarray):
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.positions.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh.positions, mesh.faces)
     rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
     ans = scene.cast_rays(o3d.core.Tensor(rays))
     t = ans["t_hit"].numpy().astype(np.float64)

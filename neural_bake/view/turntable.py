@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import MIN_SPAN
 from ..io.atomic import atomic_path
 from ..io.colour import linear_to_srgb
 from ..render.camera import Camera
@@ -27,7 +28,7 @@ def view_camera(mesh: ViewMesh, *, width: int = 256, height: int = 256, fov_deg:
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2
     radius = float(np.linalg.norm(mesh.positions - centre, axis=1).max())
-    half = np.full(3, max(radius, 1e-12) / np.sqrt(3.0))  # a box whose bounding sphere is that sphere
+    half = np.full(3, max(radius, MIN_SPAN) / np.sqrt(3.0))  # a box whose bounding sphere is that sphere
     return Camera.framing(centre - half, centre + half, direction=VIEW_DIRECTION, fov_deg=fov_deg, width=width,
                           height=height, margin=1.05)
 

@@ -78,3 +78,54 @@ def _shifted(model):
     with torch.no_grad():
         model.layers[-1].bias.add_(10.0)
     return model
+
+
+def _albedo_field(anim, fit, t):
+    """The animation's analytic colour g(·, t) as a texture field in the fit's unit frame."""
+    from neural_bake.fields.texture import TextureField
+
+    def fn(p):
+        return torch.as_tensor(anim.albedo(fit.frame.to_source(p.double().cpu().numpy()), t))
+
+    return TextureField(fn, frame=fit.frame, name=f"albedo t={t:g}")
+
+
+def test_frames_carry_the_colours_of_a_space_time_texture_at_each_t(splitting, tmp_path):
+    from neural_bake.io.colour import linear_to_srgb
+
+    anim, fit = splitting
+    out = tmp_path / "colours"
+    res = bake_frames(fit.at, fit.at, fit.frame, [0.0, 1.0], out, resolution=32, pruned=False,
+                      texture=lambda t: _albedo_field(anim, fit, t))
+    assert all(s["colours_s"] >= 0 for s in res.stats)
+    for t, f in zip(res.times, res.files):
+        tm = trimesh.load(f, process=False)
+        v = np.asarray(tm.vertices, dtype=np.float64)
+        want = np.round(linear_to_srgb(anim.albedo(v, t)) * 255)
+        got = np.asarray(tm.visual.vertex_colors)[:, :3].astype(np.float64)
+        assert got.shape == want.shape and np.abs(got - want).max() <= 1  # 8-bit sRGB of g(vertex, t)
+    # the colour moves with each ball: a static field of position would not give the same colours at t = 1
+    v1 = np.asarray(trimesh.load(res.files[1], process=False).vertices, dtype=np.float64)
+    assert np.abs(anim.albedo(v1, 1.0) - anim.albedo(v1, 0.0)).max() > 0.2
+
+    glb = bake_frames(fit.at, fit.at, fit.frame, [0.5], tmp_path / "glb", resolution=24, fmt="glb", pruned=False,
+                      texture=_albedo_field(anim, fit, 0.5))  # one static field: evaluated on the moving surface
+    _, arrays, _ = read_glb(glb.files[0])
+    # linear COLOR_0 at the source-frame positions
+    np.testing.assert_allclose(arrays["COLOR_0"][:, :3], anim.albedo(arrays["POSITION"].astype(np.float64), 0.5),
+                               atol=1e-5)
+
+
+def test_texture_errors_leave_the_old_frames(splitting, tmp_path):
+    anim, fit = splitting
+    out = tmp_path / "frames"
+    bake_frames(fit.at, fit.at, fit.frame, [0.0], out, resolution=16, pruned=False)
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(NeuralBakeError, match="texture: at t = 0 expected a TextureField, got str"):
+        bake_frames(fit.at, fit.at, fit.frame, [0.0], out, resolution=16, texture=lambda t: "red")
+    from neural_bake.fields.texture import TextureField
+
+    two = TextureField(lambda p: p[:, :2], name="two")
+    with pytest.raises(NeuralBakeError, match=r"texture: two gives \(2,\) values per point, expected 3 or 4"):
+        bake_frames(fit.at, fit.at, fit.frame, [0.0], out, resolution=16, texture=two)
+    assert sorted(p.name for p in out.iterdir()) == before

@@ -52,3 +52,16 @@ def test_bench_render_cli_writes_json(cache, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     data = json.loads(out.read_text())
     assert data["name"] == "render" and data["quick"] is True
+
+
+def test_bench_render_writes_no_file_into_the_working_folder(cache, tmp_path, monkeypatch, capsys):
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    out = tmp_path / "r.json"
+    code = main(["bench", "render", "--quick", "--size", "8", "--cache", str(cache), "--json", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert list(work.iterdir()) == []
+    assert (tmp_path / "r.png").stat().st_size > 1000  # the plot goes beside the JSON
+    res = run(quick=True, sizes=(8,), cache_dir=cache, guaranteed_size=8)
+    assert list(work.iterdir()) == [] and any(n.startswith("plot: none") for n in res["notes"])

@@ -223,25 +223,83 @@ def test_errors():
 
 
 # ------------------------------------------------------------------------------------------ nesting
-def test_space_time_nesting_holds_at_every_sampled_t(sphere_to_torus):
-    from neural_bake.fit.spacetime import nest_spacetime, nesting_by_time
+@pytest.fixture(scope="module")
+def nested_morph(sphere_to_torus):
+    from neural_bake.fit.spacetime import nest_spacetime
 
-    seq = nest_spacetime(sphere_to_torus, [(16, 1)], steps=200, pool=20_000, eval_samples=4000,
-                         n_estimate=10_000, stability_samples=(), certify=True, certify_max_boxes=600,
-                         progress=False, check_times=6)
+    return nest_spacetime(sphere_to_torus, [(16, 1)], steps=200, pool=20_000, eval_samples=4000, n_estimate=10_000,
+                          stability_samples=(), certify_max_boxes=3000, progress=False, check_times=6)
+
+
+def _near_zero_set(model, n, seed, steps=3):
+    """(n, 4) space-time points pushed onto model = 0 along space by Newton steps (τ fixed)."""
+    from neural_bake.nets.gemm import gemm_gradient
+
+    x = torch.rand(n, 4, generator=torch.Generator().manual_seed(seed)) * 2 - 1
+    for _ in range(steps):
+        with torch.no_grad():
+            v, g = gemm_gradient(model, x)
+        gx = g[:, :3]
+        x[:, :3] -= (v[:, None] if v.dim() == 1 else v) * gx / gx.pow(2).sum(1, keepdim=True).clamp_min(1e-12)
+        x[:, :3] = x[:, :3].clamp(-1, 1)
+    return x
+
+
+def test_space_time_nesting_is_certified_at_every_t(sphere_to_torus, nested_morph):
+    from neural_bake.fit.spacetime import nesting_by_time
+
+    seq = nested_morph
     assert [m.in_dim for m in seq.levels] == [4, 4]
     assert seq.metadata["spacetime"]["time_range"] == [0.0, 1.0]
     info = seq.levels_info[0]
-    # the certified bound is an upper bound of the sampled one (space-time boxes of [-1, 1]^4)
-    assert info["sup_certified"] >= info["sup_estimated"] > 0 and info["certify"]["boxes_bounded"] > 0
-    assert info["sup_by_time"] > 0 and info["sup_estimated"] >= info["sup_by_time"]
-    # other samples at other times: Prop. 1 needs sup(t) <= δ_0 − δ_1 at every t. The δ used here is a sampled
-    # estimate (the tiny certification budget does not reach the target), so fresh samples may exceed it by
-    # sampling noise; the space-time δ must hold to within that at every t
-    rows = nesting_by_time(seq, np.linspace(0, 1, 7) + 0.05 * (np.arange(7) % 2) * (np.arange(7) < 6), n=10_000,
-                           seed=5)
-    assert info["delta_source"] == "estimated"
-    assert len(rows) == 7 and all(r["sup"] <= 1.1 * r["allowed"] for r in rows), rows
+    assert info["delta_source"] == "certified" and info["nesting_guaranteed"] is True
+    assert info["certify"]["boxes_bounded"] > 0 and info["certify"]["seconds"] > 0
+    # the certified bound is an upper bound of every sampled one (space-time boxes of [-1, 1]^4)
+    assert info["sup_certified"] >= info["sup_estimated"] >= info["sup_by_time"] > 0
+    d0, d1 = seq.deltas
+    assert d1 == seq.eps and d0 == pytest.approx(d1 + info["sup_certified"], rel=1e-12)
+    assert info["delta_estimated"] == pytest.approx(d1 + info["sup_estimated"], rel=1e-12)
+    h, f = seq.levels
+    band = seq.band
+    # dense random space-time samples (uniform, and on f's zero set at random times): the nesting inequality
+    # |h − f| ≤ δ_0 − δ_1 on the band, and Prop. 1's inclusion [|f| ≤ δ_1] ⊂ [|h| ≤ δ_0], with no slack
+    x = torch.cat([torch.rand(300_000, 4, generator=torch.Generator().manual_seed(7)) * 2 - 1,
+                   _near_zero_set(f, 100_000, seed=8)])
+    with torch.no_grad():
+        hv, fv = h(x)[:, 0], f(x)[:, 0]
+    in_band = (hv.abs() < band) | (fv.abs() < band)
+    assert int(in_band.sum()) > 50_000
+    assert float((hv - fv)[in_band].abs().max()) <= d0 - d1
+    on_f = fv.abs() <= d1
+    assert int(on_f.sum()) > 10_000 and float(hv[on_f].abs().max()) <= d0
+    # the same through the time mapping, at fixed times (the ends included) off the nesting's check times
+    ts = [0.0, 1.0, *np.random.default_rng(3).uniform(0, 1, 9).tolist()]
+    rows = nesting_by_time(seq, ts, n=10_000, seed=5)
+    assert len(rows) == len(ts) and all(r["holds"] and r["sup"] <= r["allowed"] for r in rows), rows
+    for t in ts:
+        xs = torch.rand(20_000, 3, generator=torch.Generator().manual_seed(int(t * 1e6))) * 2 - 1
+        with torch.no_grad():
+            a, b = seq.levels[0](sphere_to_torus.inputs(xs, t)), sphere_to_torus.at(t)(xs)
+        near = (a.abs() < band) | (b.abs() < band)
+        assert float((a - b)[near].abs().max()) <= d0 - d1
+
+
+def test_estimated_delta_is_kept_as_a_labelled_fallback(nested_morph):
+    import copy
+
+    from neural_bake.fit.spacetime import choose_deltas
+
+    seq = choose_deltas(copy.deepcopy(nested_morph), "estimated")
+    info = seq.levels_info[0]
+    assert info["delta_source"] == "estimated" and info["nesting_guaranteed"] is False
+    assert seq.deltas[0] == pytest.approx(seq.eps + info["sup_estimated"], rel=1e-12)
+    assert seq.deltas[0] < nested_morph.deltas[0]  # the estimate is tighter than the certified bound
+    # no certificate (certification off, or too costly): the certified policy falls back to the estimate
+    info["sup_certified"] = None
+    choose_deltas(seq, "certified")
+    assert info["delta_source"] == "estimated" and info["nesting_guaranteed"] is False
+    with pytest.raises(FitError, match="choose_deltas: delta must be one of certified, estimated, got 'exact'"):
+        choose_deltas(seq, "exact")
 
 
 # ------------------------------------------------------------------------------------------ files

@@ -29,7 +29,8 @@ def test_topology_sphere_torus_and_two_components():
     s = trimesh.creation.icosphere(subdivisions=1)
     assert topology(s.faces, len(s.vertices)) == {
         "components": 1, "euler": [2], "genus": 0,
-        "edges": {"edges": 120, "boundary": 0, "non_manifold": 0, "inconsistent": 0}}
+        "edges": {"edges": 120, "boundary_edges": 0, "non_manifold_edges": 0, "inconsistent_edges": 0,
+                  "watertight": True}}
     v, f = torus()
     t = topology(f, len(v))
     assert t["genus"] == 1 and t["euler"] == [0]

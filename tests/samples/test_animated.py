@@ -96,6 +96,23 @@ def test_splitting_sphere_changes_topology_and_vertex_count():
     np.testing.assert_allclose(anim.sdf(np.array([[3.0, 0, 0]]), 1.0), 3.0 - centres[0, 0] - r)
 
 
+def test_splitting_sphere_colours_travel_with_each_ball():
+    anim = SplittingSphere()
+    d = np.random.default_rng(0).normal(size=(500, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[d[:, 0] > 0.2]  # the +x ball's outer half: nearer its own centre at every t
+    ref = anim.albedo(d * anim.r0, 0.0)  # t = 0: one sphere at the origin
+    assert ref.min() >= 0.1 and ref.max() <= 0.8
+    for t in (0.5, 1.0):
+        centres, r = anim.centres_radius(t)
+        # the same direction from the moving centre has the same colour, at any distance from it
+        np.testing.assert_allclose(anim.albedo(centres[0] + d * r, t), ref, atol=1e-12)
+        np.testing.assert_allclose(anim.albedo(centres[0] + d * 1.2 * r, t), ref, atol=1e-12)
+        # the mirrored ball carries the mirrored pattern: x flipped
+        np.testing.assert_allclose(anim.albedo(centres[1] + d * [-1, 1, 1] * r, t),
+                                   anim.albedo(d * [-1, 1, 1] * anim.r0, 0.0), atol=1e-12)
+
+
 def test_write_animation_numbered_frames_and_index(tmp_path):
     anim = SplittingSphere()
     folder = write_animation(anim, tmp_path, times=[0.0, 0.5, 1.0], resolution=800)

@@ -160,6 +160,21 @@ def test_view_verb_writes_the_report_or_headless_frames(bake_folder, tmp_path, c
     assert "whole number" in capsys.readouterr().err
 
 
+def test_view_holds_the_bake_folders_lock_while_it_writes(bake_folder, capsys):
+    from neural_bake.io.outdir import OutputLock
+
+    folder, _ = bake_folder
+    before = sorted(p.name for p in folder.iterdir())
+    with OutputLock(folder):  # a bake into the folder is under way
+        assert main(["view", str(folder), "--no-open", "--views", "1", "--size", "32"]) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "is writing it" in err and str(folder.name) in err
+        assert main(["view", str(folder), "--headless", "--views", "1", "--size", "24"]) == 1
+        assert "is writing it" in capsys.readouterr().err
+    assert sorted(p.name for p in folder.iterdir()) == before  # nothing written, nothing left behind
+    assert main(["view", str(folder), "--headless", "--views", "1", "--size", "24"]) == 0  # free again
+
+
 def test_a_preview_that_cannot_draw_leaves_its_slot_with_the_reason(bake_folder):
     folder, _ = bake_folder
 

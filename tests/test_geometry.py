@@ -1,0 +1,93 @@
+"""Shared mesh geometry: vertex normals, the edge report and the cached ray-casting scene (neural_bake.geometry)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_bake import geometry
+from neural_bake.constants import RAYCAST_SCENE_CACHE
+from neural_bake.geometry import area_weighted_normals, edge_report, raycasting_scene
+
+TETRA_V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+TETRA_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_sphere_normals_are_its_positions(dtype):
+    s = trimesh.creation.icosphere(subdivisions=3)
+    n = area_weighted_normals(s.vertices.astype(dtype), s.faces)
+    assert n.dtype == np.float64
+    cos = np.einsum("ij,ij->i", n, s.vertices / np.linalg.norm(s.vertices, axis=1, keepdims=True))
+    assert cos.min() > np.cos(np.radians(1.0))  # the facets of a 642-vertex icosphere: 0.7° at most
+
+
+def test_normals_match_a_slow_per_vertex_sum():
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(30, 3))
+    f = rng.integers(0, 30, size=(60, 3))
+    fast = area_weighted_normals(v, f)
+    for i in range(30):
+        acc = np.zeros(3)
+        for tri in f:
+            if i in tri:
+                acc += np.cross(v[tri[1]] - v[tri[0]], v[tri[2]] - v[tri[0]]) * list(tri).count(i)
+        norm = np.linalg.norm(acc)
+        expect = acc / norm if norm > 0 else np.zeros(3)
+        np.testing.assert_allclose(fast[i], expect, atol=1e-12)
+
+
+def test_weld_gives_split_copies_one_normal_and_exclude_and_fallback():
+    # a tetrahedron whose vertex 0 is split into two copies (as at a UV seam), plus an unused vertex
+    v = np.vstack([TETRA_V, TETRA_V[:1], [[5.0, 5, 5]]])
+    f = TETRA_F.copy()
+    f[2] = [4, 3, 2]  # the third face uses the copy of vertex 0
+    split = area_weighted_normals(v, f)
+    welded = area_weighted_normals(v, f, weld=True, fallback=(0.0, 0.0, 1.0))
+    assert np.degrees(np.arccos(np.clip(split[0] @ split[4], -1, 1))) > 30
+    np.testing.assert_allclose(welded[0], welded[4], atol=1e-12)
+    np.testing.assert_allclose(welded[0], -np.ones(3) / np.sqrt(3), atol=1e-12)
+    assert (split[5] == 0).all() and (welded[5] == (0, 0, 1)).all()
+    only = area_weighted_normals(TETRA_V, TETRA_F, exclude=np.array([True, True, True, False]))
+    np.testing.assert_allclose(only[0], 0.0)  # vertex 0 lies only on excluded faces
+    np.testing.assert_allclose(only[1], np.ones(3) / np.sqrt(3), atol=1e-12)
+    assert np.isfinite(area_weighted_normals(np.zeros((3, 3)), np.array([[0, 1, 2]]))).all()
+
+
+def test_edge_report_cases():
+    closed = edge_report(TETRA_F)
+    assert closed == {"edges": 6, "boundary_edges": 0, "non_manifold_edges": 0, "inconsistent_edges": 0,
+                      "watertight": True}
+    open_ = edge_report(TETRA_F[:3])
+    assert open_["boundary_edges"] == 3 and not open_["watertight"]
+    flipped = TETRA_F.copy()
+    flipped[0] = flipped[0][::-1]
+    rep = edge_report(flipped)
+    assert rep["inconsistent_edges"] == 3 and not rep["watertight"]
+    with_degenerate = edge_report(np.vstack([TETRA_F, [[0, 0, 1]]]))
+    assert with_degenerate == closed  # a face with a repeated corner has no edges
+    fan = edge_report(np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))
+    assert fan["non_manifold_edges"] == 1
+    assert edge_report(np.zeros((0, 3), np.int64))["watertight"] is False
+
+
+def test_scene_is_built_once_per_triangle_set_and_answers_correctly():
+    import open3d as o3d
+
+    s = trimesh.creation.icosphere(subdivisions=3)
+    a = raycasting_scene(s.vertices, s.faces)
+    b = raycasting_scene(s.vertices.copy(), s.faces.astype(np.int32))  # same content, other arrays
+    assert a is b
+    moved = raycasting_scene(s.vertices * 2.0, s.faces)
+    assert moved is not a
+    d = moved.compute_distance(o3d.core.Tensor(np.zeros((1, 3), np.float32))).numpy()
+    assert d[0] == pytest.approx(2.0, abs=0.02)
+
+
+def test_scene_cache_is_bounded():
+    geometry._SCENES.clear()
+    s = trimesh.creation.icosphere(subdivisions=1)
+    first = raycasting_scene(s.vertices, s.faces)
+    for k in range(RAYCAST_SCENE_CACHE):
+        raycasting_scene(s.vertices + k + 1.0, s.faces)
+    assert len(geometry._SCENES) == RAYCAST_SCENE_CACHE
+    assert raycasting_scene(s.vertices, s.faces) is not first  # evicted, built again
