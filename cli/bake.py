@@ -45,6 +45,12 @@ Examples:
 @click.option("--texture-model", "tex_path", metavar="MODEL", default=None,
               help="Texture model file (kind 'texture'): bakes the albedo map.")
 @output_option("Output folder.", folder=True, required=False)
+@click.option("--adaptive", "config__adaptive", type=click.Choice(["on", "off"]), default=None,
+              help="on: evaluate the fields on a coarse lattice per chart, refined where interpolation would exceed "
+                   "--tolerance; off: evaluate every texel [default: on].")
+@click.option("--tolerance", "config__tolerance_deg", type=float, default=None, metavar="DEG",
+              help="Adaptive bake: largest angle (degrees) between interpolated normals and what the fields give "
+                   "[default: 0.25].")
 @click.option("--texels", "texels_mode", type=click.Choice(list(_TEXELS)), default=None, hidden=True,
               help="Older spelling of --cache-texels: cache (yes), stream (no), auto (none).")
 @verbosity_options

@@ -11,10 +11,17 @@ from .bench import bench_options, report
 @bench_options
 @click.option("--sdf-model", type=click.Path(dir_okay=False), default=None,
               help="A trained SDF model of the bumpy sphere sample: adds error rows with its ∇f.")
-def command(quick: bool, json_path: str | None, sdf_model: str | None) -> None:
+@click.option("--anchor-model", type=click.Path(dir_okay=False), default=None,
+              help="A (256,3) SDF model of the anchor mesh (Spot when the reference data is there, else the bumpy "
+                   "sphere) for the 'against the anchor' table; default a randomly initialised one.")
+@click.option("--no-anchor", is_flag=True, help="Skip the 'against the anchor' table.")
+def command(quick: bool, json_path: str | None, sdf_model: str | None, anchor_model: str | None,
+            no_anchor: bool) -> None:
     """Texels per second of tangent-space normal maps from a (256, 3) SIREN (GEMM vs autograd normals), and
     the error of baked normals against time as map size and coarse face count vary on the bumpy sphere,
-    beside the classical mesh-to-mesh bake."""
+    beside the classical mesh-to-mesh bake; and our bake (full or adaptive, float32 or auto precision) of 2048²
+    and 4096² maps (quick: 256², 512²) against the open3d baseline and Blender's Cycles bake (when bpy is
+    installed), every map scored by the same decoder."""
     from neural_bake.bench.bake import run
 
-    report(run(quick=quick, sdf_model=sdf_model), json_path)
+    report(run(quick=quick, sdf_model=sdf_model, anchor=not no_anchor, anchor_model=anchor_model), json_path)

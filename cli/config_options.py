@@ -141,7 +141,10 @@ class ConfigCommand(click.Command):
         params.append(click.Option(["--print-config"], is_flag=True,
                                    help="Print the resolved settings as a TOML settings file and exit."))
         self._fields = list(hints)
+        own = {p.name for p in self.params}  # a field the verb spells itself (an older spelling) keeps it
         for name, hint in hints.items():
+            if _PREFIX + name in own:
+                continue
             default = getattr(base, name)
             varies = any(getattr(c, name) != default for c in by_preset.values())
             shown = f"[default: {_show(default)}" + (", or the preset's]" if varies else "]")
@@ -162,7 +165,7 @@ class ConfigCommand(click.Command):
     def resolve(self, ctx) -> tuple[object, str | None, dict]:
         """(config, preset applied, the verb's own params) from the parsed ``ctx.params``: the preset, the file,
         then the options given on the command line (an option left out keeps the file's or the preset's value)."""
-        from neural_bake.configs import read_config
+        from neural_bake.configs import convert, field_types, read_config
         from neural_bake.io.tomlio import read_toml
 
         spec = self.spec
@@ -186,7 +189,9 @@ class ConfigCommand(click.Command):
                 raise NeuralBakeError(f"{config_path}: preset={file_preset!r}: expected one of "
                                       f"{', '.join(spec.presets)}")
             preset = preset or file_preset
-        values.update(given)
+        hints = field_types(spec.load())  # a verb's own spelling of a field gives its text (e.g. on/off)
+        values.update({k: convert(v, hints[k], flag_name(k), text=True) if isinstance(v, str) else v
+                       for k, v in given.items()})
         preset = preset or spec.default_preset
         return spec.resolve(preset, values), preset, params
 

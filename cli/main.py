@@ -24,7 +24,7 @@ __all__ = ["main", "LazyGroup", "cli_message", "OPTIONS"]
 
 #: The CLI option of a library parameter whose option is not ``--`` and the name with dashes (``max_boxes`` →
 #: ``--max-boxes``); errors about a parameter's value name the option instead of the parameter.
-OPTIONS: dict[str, str] = {}
+OPTIONS: dict[str, str] = {"tolerance_deg": "--tolerance"}
 
 
 class LazyGroup(click.Group):

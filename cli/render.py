@@ -88,9 +88,12 @@ Examples:
 @click.option("--fps", type=float, default=12.0, show_default=True, help="Animation frame rate.")
 @click.option("--stats", "stats_path", type=click.Path(dir_okay=False), default=None,
               help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
+@click.option("--precision", type=click.Choice(["fp32", "auto"]), default="fp32", show_default=True,
+              help="Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU).")
 @verbosity_options
-def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects, channels,
-            channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path):
+def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects,
+            channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path,
+            precision):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
 
@@ -103,7 +106,7 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
     scene = load_scene(scene_path) if scene_path else Scene()
     obj = scene.objects[0] if scene.objects else None
     tex = texture_path or (obj.texture if obj else None)
-    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device)
+    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=precision)
     if len(scene.objects) > 1:
         raise SceneError(f"{scene_path}: the render verb draws MODEL as the scene's one object; the scene has "
                          f"{len(scene.objects)} (render several objects from Python with render([...], scene))")

@@ -89,6 +89,54 @@ HYBRID_SDF_TOL = 0.01
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
 
+# --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
+#: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
+#: the normals at its edge midpoints and centre lie within this of what its corners predict. Half the angle
+#: one step of an 8-bit normal map spans (about 0.45°): below what the map can show.
+ADAPTIVE_TOLERANCE_DEG = 0.25
+
+#: Coarse lattice step (sample-grid positions, a power of two) at which adaptive evaluation starts in each chart.
+ADAPTIVE_LATTICE = 16
+
+#: Adaptive evaluation: a cell whose colours (linear RGB(A)) differ from its corners' interpolation by more than
+#: this is refined (half an 8-bit step): the albedo map keeps the same refinement as the normal map.
+ADAPTIVE_COLOR_TOL = 0.5 / 255
+
+#: Adaptive evaluation: a cell whose f (unit frame) differs from its corners' interpolation by more than this is
+#: refined; f at texels only flags misses (|f| > δ), so this is a fraction of the narrowest bands.
+ADAPTIVE_VALUE_TOL = 5e-3
+
+#: Adaptive evaluation accepts a cell when its surplus (the midpoints' deviation from the corners' prediction) is
+#: at most this fraction of each tolerance: the margin for what an estimate from five points can miss.
+ADAPTIVE_SAFETY = 0.5
+
+#: Adaptive evaluation: a cell wider than this (sample-grid positions) is refined when a vertex of the coarse mesh
+#: lies inside it: around a vertex the piecewise-flat surface is a cone, where interpolation errs most.
+ADAPTIVE_VERTEX_SIDE = 4
+
+#: Adaptive evaluation: an edge of the coarse mesh whose faces' normals differ by more than this (degrees) is a
+#: feature like a vertex: cells wider than ``ADAPTIVE_VERTEX_SIDE`` it crosses are refined.
+ADAPTIVE_EDGE_DEG = 10.0
+
+#: A texel sample lies on the sample grid when its UV position is within this (sample-grid units) of a grid
+#: position; the others (border samples at a triangle's closest point) are evaluated, never interpolated.
+ADAPTIVE_GRID_SNAP = 1e-3
+
+#: Texel samples (about; a seeded uniform choice) at which an adaptive or reduced-precision bake evaluates the
+#: fields fully in float32 to measure its error against a full evaluation (the bake report's ``error_control``).
+ADAPTIVE_CHECK_SAMPLES = 4096
+
+#: precision "auto": bfloat16 hidden GEMMs are used only where a (4096, W) × (W, W) product with its conversions
+#: measured at least this many times faster than in float32 on the device (the rest of the work stays float32).
+BF16_MIN_SPEEDUP = 1.3
+
+#: precision "auto" in a bake also keeps float32 when bfloat16 normals measured a median angle above this (degrees)
+#: off float32 ones at a probe of the bake's own points: half the bake's budget against a full float32 evaluation.
+BF16_MAX_MEDIAN_DEG = 0.05
+
+#: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.
+PRECISION_PROBE_POINTS = 1024
+
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9

@@ -110,6 +110,8 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--report-samples", "0"], "report_samples 0: must be a positive integer"),
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
+        (["--tolerance", "0"], "--tolerance must be a number of degrees in (0, 90), got 0.0"),
+        (["--tolerance", "nan"], "--tolerance must be a number of degrees in (0, 90), got nan"),
     ],
 )
 def test_user_errors_are_one_line(files, tmp_path, capsys, args, message):
@@ -179,7 +181,7 @@ def test_console_script(files, tmp_path):
 def test_bench_bake_shrunken_run():
     from neural_bake.bench.bake import run
 
-    res = run(quick=True, sizes=[32], faces=[300], map_sizes=[32], autograd=True)
+    res = run(quick=True, sizes=[32], faces=[300], map_sizes=[32], autograd=True, anchor=False)
     assert res["name"] == "bake" and set(res["tables"]) == {"throughput", "error vs time"}
     (t,) = res["tables"]["throughput"]
     assert t["texels"] > 0 and t["texels/s"] > 0 and t["speed-up"] > 0
@@ -310,3 +312,44 @@ def test_coarse_keep_warns(files, tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     assert len(rep["warnings"]) == 1 and rep["warnings"][0].startswith("--coarse keep:")  # one line, not two
     assert [line for line in stdout.splitlines() if line.startswith("warning:")] == ["warning: " + rep["warnings"][0]]
+
+
+def test_adaptive_bake_reports_its_evaluated_share_and_error(files, tmp_path, capsys):
+    out_on, out_off = tmp_path / "on", tmp_path / "off"
+    common = [files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "128", "--no-baseline",
+              "--no-hybrid", "--precision", "fp32"]
+    code, stdout, err = run(common + ["--tolerance", "0.5", "-o", str(out_on)], capsys)
+    assert code == 0, err
+    on = json.loads((out_on / "report.json").read_text())["bake"]
+    assert on["adaptive"]["tolerance_deg"] == 0.5 and 0 < on["evaluated_fraction"] <= 1
+    control = on["error_control"]
+    assert control["samples"] > 0 and control["angle_deg"]["max"] <= 0.5
+    assert "adaptive evaluation:" in stdout and "% of the texel samples evaluated" in stdout
+    code, stdout, err = run(common + ["--adaptive", "off", "-o", str(out_off)], capsys)
+    assert code == 0, err
+    off = json.loads((out_off / "report.json").read_text())["bake"]
+    assert off["adaptive"] is None and off["evaluated_fraction"] == 1.0 and "error_control" not in off
+    assert "adaptive evaluation:" not in stdout and "precision: fp32 (float32 asked for)" in stdout
+    assert off["precision"]["sdf"] == "fp32"
+
+
+def test_bench_bake_anchor_table_shrunken():
+    from neural_bake.bench.bake import run
+    from neural_bake.fields import SdfField
+    from neural_bake.nets.siren import Siren
+
+    field = SdfField.from_model(Siren(32, 1, generator=torch.Generator().manual_seed(0)), name="tiny")
+    res = run(quick=True, sizes=[16], faces=[300], map_sizes=[16], autograd=False, anchor_sizes=[96],
+              anchor_model=field)
+    rows = res["tables"]["against the anchor"]
+    methods = [r["method"] for r in rows]
+    assert methods[:4] == ["ours full fp32", "ours adaptive fp32", "ours adaptive auto", "open3d mesh-to-mesh"]
+    full, adaptive = rows[0], rows[1]
+    assert full["vs full fp32 med°"] == 0.0 and full["evaluated"] == 1.0 and 0 < adaptive["evaluated"] <= 1.0
+    assert adaptive["vs full fp32 med°"] < 0.5  # an untrained field at 96²: the tolerance holds per sample
+    base = rows[3]
+    assert base["vs source med°"] < 1.0 < base["vs full fp32 med°"]  # the classical bake is the source's normals
+    assert all(r["÷ open3d s"] > 0 for r in rows) and base["÷ open3d s"] == 1.0
+    notes = " ".join(res["notes"])
+    assert "against the anchor:" in notes and "Blender Cycles:" in notes
+    assert "quality vs source unchanged within 0.05° median" in notes

@@ -7,7 +7,7 @@ import dataclasses
 import click
 import pytest
 
-from neural_bake.cli.config_options import ConfigCommand, flag_name
+from neural_bake.cli.config_options import ConfigCommand
 from neural_bake.cli.main import cli, main
 from neural_bake.configs import field_types
 
@@ -44,12 +44,14 @@ def test_every_config_field_has_an_option_with_one_help_line(path):
     cmd = command_of(path)
     assert isinstance(cmd, ConfigCommand)
     ctx = click.Context(cmd)
-    options = {o: p for p in cmd.get_params(ctx) for o in p.opts}
+    params = cmd.get_params(ctx)
+    options = {o: p for p in params for o in p.opts}
+    by_name = {p.name: p for p in params}
     cls = cmd.spec.load()
     names = [f.name for f in dataclasses.fields(cls)]
     assert names == cmd.config_fields() and len(names) >= 6
     for name in names:
-        param = options[flag_name(name)]
+        param = by_name["config__" + name]  # --field-name, or the verb's older spelling of it (bake --tolerance)
         assert param.help and "\n" not in param.help and "[default: " in param.help, name
         assert param.help.split(" [default: ")[0].strip(), name  # the field's own line, not only the default
     for opt in ("--config", "--print-config", "-q", "--quiet", "-v", "--verbose"):

@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..constants import DIRECTION_EPS
+from ..constants import ADAPTIVE_CHECK_SAMPLES, DIRECTION_EPS
 from ..errors import NeuralBakeError
 from ..fields import NestedSequence, SdfField, TextureField
 from ..geometry import area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
+from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
 from .padding import PADDING_METHODS, pad_charts
 
@@ -218,6 +219,144 @@ def _evaluate(
     return out
 
 
+def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n,) angles in degrees between the directions of rows ``a`` and ``b`` (n, 3), renormalised in float64
+    and measured as 2·atan2(|a − b|, |a + b|): exact near 0°, where arccos of a float32 dot product reads
+    a few hundredths of a degree for identical vectors."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), DIRECTION_EPS)
+    b = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), DIRECTION_EPS)
+    return np.degrees(2.0 * np.arctan2(np.linalg.norm(a - b, axis=1), np.linalg.norm(a + b, axis=1)))
+
+
+def _quantiles(x: np.ndarray) -> dict:
+    if x.size == 0:
+        return {"median": None, "p95": None, "max": None}
+    return {"median": float(np.median(x)), "p95": float(np.percentile(x, 95)), "max": float(x.max())}
+
+
+class _ErrorControl:
+    """How a bake evaluates its fields per band (every sample, or adaptively; float32 or reduced precision)
+    and what that costs in error.
+
+    ``evaluate(texels, points)`` returns :func:`_evaluate`'s dict for the band (plus ``evaluated``: (M,) bool,
+    the samples the fields were evaluated at). ``check(points, ev)`` evaluates a seeded uniform choice of about
+    ``samples`` of the bake's samples fully in float32 where they were not (interpolated ones, and every one
+    of a reduced-precision bake) and keeps their error;
+    ``summary()`` is the bake stats' ``adaptive`` and ``error_control`` entries.
+    """
+
+    def __init__(self, baker: "Baker", sdf, texture, adaptive, samples: int, seed: int, fast=None):
+        self.baker, self.sdf, self.texture, self.adaptive = baker, sdf, texture, adaptive
+        self.fast_sdf, self.fast_tex = fast if fast is not None else (sdf, texture)
+        self.reduced = self.fast_sdf is not sdf or self.fast_tex is not texture
+        self.precision: dict = {}
+        self.seed, self.seen = int(seed), 0
+        expected = baker.size * baker.size * baker.supersample**2
+        if baker.texels is not None:
+            expected = baker.texels.n_samples
+        self.checked = adaptive is not None or self.reduced
+        self.fraction = min(1.0, samples / max(1, expected)) if self.checked else 0.0
+        self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0}
+        self.cells: dict[str, int] = {}
+        self.angles: list[np.ndarray] = []
+        self.colors: list[np.ndarray] = []
+        self.values: list[np.ndarray] = []
+        self.interp: list[np.ndarray] = []
+        self._charts = None
+
+    def evaluate(self, tx, points: np.ndarray) -> dict:
+        b = self.baker
+        if self.adaptive is None:
+            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
+            ev["evaluated"] = np.ones(len(points), dtype=bool)
+            self.counts["samples"] += len(points)
+            self.counts["evaluated"] += len(points)
+            return ev
+        t0 = time.perf_counter()
+        if self._charts is None:
+            self._charts = chart_labels(b.mesh)
+            self._vertices = vertex_positions(b.mesh, b.shape, b.supersample)
+        times = {"time_sdf": 0.0, "time_texture": 0.0}
+
+        def fields(idx):
+            e = _evaluate(points[idx], b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
+            times["time_sdf"] += e["time_sdf"]
+            times["time_texture"] += e["time_texture"]
+            return e
+
+        res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
+                                fields, self.adaptive, vertices=self._vertices)
+        st = res["stats"]
+        for k in ("samples", "evaluated", "interpolated"):
+            self.counts[k] += st[k]
+        self.counts["calls"] += st["evaluation_calls"]
+        for k, v in st["cells_accepted"].items():
+            self.cells[k] = self.cells.get(k, 0) + v
+        ev = {"values": res["values"], "normals": res["normals"], "valid": res["valid"], "evaluated": res["evaluated"],
+              **times}
+        if self.texture is not None:
+            ev["colors"] = res["colors"]
+        ev["time_adaptive"] = time.perf_counter() - t0 - times["time_sdf"] - times["time_texture"]
+        return ev
+
+    def check(self, points: np.ndarray, ev: dict) -> None:
+        n = len(points)
+        index = np.arange(self.seen, self.seen + n, dtype=np.int64)
+        self.seen += n
+        if self.fraction <= 0 or n == 0:
+            return
+        keys = sample_keys(index, self.seed)
+        pick = np.flatnonzero(keys.astype(np.float64) < self.fraction * 2.0**64)
+        if pick.size == 0:
+            return
+        exact = ev["evaluated"][pick] & (not self.reduced)  # evaluated in float32: the reference itself
+        self.interp.append(~ev["evaluated"][pick])
+        ang = np.zeros(pick.size)
+        col = np.zeros(pick.size)
+        val = np.zeros(pick.size)
+        redo = pick[~exact]
+        if redo.size:
+            ref = _evaluate(points[redo], self.baker.mesh.frame, self.sdf, self.texture, self.baker.chunk_size)
+            both = ref["valid"] & ev["valid"][redo]
+            a = np.zeros(redo.size)
+            a[both] = _angles_deg(ev["normals"][redo][both], ref["normals"][both])
+            a[~both & (ref["valid"] != ev["valid"][redo])] = 180.0  # one of the two has no normal
+            ang[~exact] = a
+            val[~exact] = np.abs(ev["values"][redo] - ref["values"])
+            if self.texture is not None:
+                col[~exact] = np.abs(ev["colors"][redo] - ref["colors"]).max(axis=1)
+        self.angles.append(ang)
+        self.colors.append(col)
+        self.values.append(val)
+
+    def summary(self) -> dict:
+        c = self.counts
+        out: dict = {"adaptive": None if self.adaptive is None else {
+            "tolerance_deg": float(self.adaptive.tolerance_deg), "lattice": int(self.adaptive.lattice),
+            "color_tol": float(self.adaptive.color_tol), "value_tol": float(self.adaptive.value_tol),
+            "samples": c["samples"], "evaluated": c["evaluated"], "interpolated": c["interpolated"],
+            "evaluated_fraction": c["evaluated"] / max(1, c["samples"]),
+            "cells_accepted": self.cells, "evaluation_calls": c["calls"]},
+            "evaluated_fraction": c["evaluated"] / max(1, c["samples"])}
+        out["precision"] = self.precision
+        if self.checked:
+            ang = np.concatenate(self.angles) if self.angles else np.zeros(0)
+            col = np.concatenate(self.colors) if self.colors else np.zeros(0)
+            val = np.concatenate(self.values) if self.values else np.zeros(0)
+            interp = np.concatenate(self.interp) if self.interp else np.zeros(0, bool)
+            out["error_control"] = {
+                "reference": "full float32 evaluation of the same fields at the same samples",
+                "samples": int(ang.size), "interpolated": int(interp.sum()), "seed": self.seed,
+                "angle_deg": _quantiles(ang), "interpolated_angle_deg": _quantiles(ang[interp]),
+                "precision_angle_deg": _quantiles(ang[~interp]) if self.reduced else None,
+                "color_max": float(col.max()) if self.texture is not None and col.size else None,
+                "value_max": float(val.max()) if val.size else None,
+            }
+        return out
+
+
 def _check_chunk(chunk_size) -> int:
     if int(chunk_size) != chunk_size or chunk_size < 1:
         raise NeuralBakeError(f"chunk_size must be a positive integer, got {chunk_size!r}")
@@ -330,6 +469,15 @@ class Baker:
             self.texels = rasterize_texels(self.mesh, self.size, supersample=self.supersample, tangents=self.tangents)
             self.timings["rasterize"] = time.perf_counter() - t0
 
+    def _probe(self, field) -> torch.Tensor:
+        """Up to PRECISION_PROBE_POINTS points of the layout (the mesh's vertices and face centres), in
+        ``field``'s frame and dtype: where precision "auto" compares bfloat16 with float32."""
+        from ..constants import PRECISION_PROBE_POINTS
+
+        pts = np.concatenate([self.mesh.vertices, self.mesh.triangles.mean(axis=1)])
+        pts = pts[np.linspace(0, len(pts) - 1, min(len(pts), PRECISION_PROBE_POINTS)).astype(np.int64)]
+        return torch.as_tensor(_to_field_frame(pts, self.mesh.frame, field.frame), **_tensor_kwargs(field))
+
     def bands(self):
         """The texel samples in bands of texel rows: the cached :class:`TexelSet` as one band, or (streaming)
         one rasterised band after another (:func:`neural_bake.mesh.texels.iter_texels`). Their
@@ -352,6 +500,10 @@ class Baker:
         report_samples: int = REPORT_SAMPLES,
         seed: int = 0,
         hybrid=None,
+        adaptive: AdaptiveOptions | None = None,
+        check_samples: int = ADAPTIVE_CHECK_SAMPLES,
+        precision: str = "fp32",
+        precision_measure=None,
     ) -> BakeResult:
         """Bake ∇f (and g) at every texel sample into the maps.
 
@@ -363,6 +515,19 @@ class Baker:
         are counted. ``hybrid``: a :class:`~neural_bake.bake.hybrid.HybridFallback` (or any callable
         ``(mesh, texels, normals, valid) -> (normals, replaced mask)``) run on each band before encoding:
         the samples it replaces are flagged in ``result.hybrid`` and counted.
+
+        ``adaptive``: an :class:`~neural_bake.bake.adaptive.AdaptiveOptions` evaluates f, ∇f and g on a coarse
+        lattice per chart, refined where interpolation would exceed its tolerances, and interpolates the
+        other samples within their chart (:func:`~neural_bake.bake.adaptive.adaptive_evaluate`); None
+        evaluates every sample. An adaptive bake evaluates about ``check_samples`` samples (a seeded uniform
+        choice) fully as well and states in ``stats["error_control"]`` the angle between its normals and
+        those of the full evaluation there (0: no check).
+
+        ``precision``: "fp32", "bf16" or "auto": the networks' hidden GEMMs in bfloat16 where
+        :func:`~neural_bake.nets.precision.resolve_precision` says (``precision_measure`` is its injectable
+        speed check); ``stats["precision"]`` says what ran and why. A reduced-precision bake runs the same
+        sampled check against float32 (``stats["error_control"]["precision_angle_deg"]``: its evaluated
+        samples).
         """
         if delta is None:
             delta = sdf.delta
@@ -372,6 +537,20 @@ class Baker:
             raise NeuralBakeError(f"report_samples must be a non-negative integer, got {report_samples!r}")
         if isinstance(seed, bool) or int(seed) != seed or seed < 0:
             raise NeuralBakeError(f"seed must be a non-negative integer, got {seed!r}")
+        if isinstance(check_samples, bool) or int(check_samples) != check_samples or check_samples < 0:
+            raise NeuralBakeError(f"check_samples must be a non-negative integer, got {check_samples!r}")
+        if adaptive is not None and not isinstance(adaptive, AdaptiveOptions):
+            raise NeuralBakeError(f"adaptive must be AdaptiveOptions or None, got {type(adaptive).__name__}")
+        probe = self._probe(sdf) if precision == "auto" else None
+        fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
+            if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")
+        fast_tex, tex_prec, tex_why = (None, None, None) if texture is None else (
+            texture.with_precision(precision, measure=precision_measure,
+                                   probe=None if probe is None else self._probe(texture))
+            if hasattr(texture, "with_precision") else (texture, "fp32", "no precision choice"))
+        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex))
+        control.precision = {"asked": precision, "sdf": sdf_prec, "sdf_reason": sdf_why, "texture": tex_prec,
+                             "texture_reason": tex_why}
         keep = self.cache if keep_samples is None else bool(keep_samples)
         reservoir = None if keep or report_samples == 0 else _Reservoir(report_samples, seed)
         h, w = self.shape
@@ -384,16 +563,21 @@ class Baker:
         kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors", "replaced",
                                                  "neural")}
         counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0, "hybrid": 0}
-        secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0, "hybrid": 0.0}
+        secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0, "hybrid": 0.0, "adaptive": 0.0,
+                "check": 0.0}
         t_all = time.perf_counter()
         t_band = time.perf_counter()
         for tx in self.bands():
             if self.texels is None:
                 secs["rasterize"] += time.perf_counter() - t_band
             points = np.asarray(tx.points, dtype=np.float64)
-            ev = _evaluate(points, self.mesh.frame, sdf, texture, self.chunk_size)
+            ev = control.evaluate(tx, points)
             secs["sdf"] += ev["time_sdf"]
             secs["texture"] += ev["time_texture"]
+            secs["adaptive"] += ev.get("time_adaptive", 0.0)
+            t0 = time.perf_counter()
+            control.check(points, ev)
+            secs["check"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             normals, valid, values = ev["normals"], ev["valid"], ev["values"]
             if (~valid).any():  # zero gradient: the interpolated geometric normal
@@ -501,6 +685,7 @@ class Baker:
             "texels_per_second": float(n_texels / secs["bake"]) if secs["bake"] > 0 else None,
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
+            **control.summary(),
         }
         cat = lambda k: np.concatenate(kept[k]) if keep and kept[k] else None  # noqa: E731
         return BakeResult(

@@ -30,6 +30,7 @@ class SdfField:
     - ``name``: what messages and reports call it (the file name for a loaded field).
     - ``metadata``: provenance, the file's JSON metadata (kind, training config, how δ was obtained…).
     - ``model``: the :class:`~neural_bake.nets.siren.Siren` of a fitted field, None for an analytic one.
+    - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
     """
 
     def __init__(
@@ -46,6 +47,7 @@ class SdfField:
         self.metadata = dict(metadata or {})
         self.model = None
         self._pair: Callable | None = None
+        self.gemm_dtype: torch.dtype | None = None
 
     @classmethod
     def from_model(
@@ -69,6 +71,30 @@ class SdfField:
         field._pair = fn
         return field
 
+    def with_precision(self, precision: str, *, measure=None, probe: torch.Tensor | None = None
+                       ) -> tuple["SdfField", str, str]:
+        """``(field, resolved, reason)``: this field evaluating its hidden GEMMs at ``precision`` ("fp32",
+        "bf16", "auto"; :func:`~neural_bake.nets.precision.resolve_precision`, ``measure`` passed on) — a
+        shallow copy sharing the network, or this field itself when the result is fp32.
+
+        With ``probe`` (P, 3) points, "auto" also compares the normals there with float32 ones and keeps
+        float32 when their median angle exceeds :data:`~neural_bake.constants.BF16_MAX_MEDIAN_DEG`."""
+        from ..constants import BF16_MAX_MEDIAN_DEG
+        from ..nets.precision import reduced_copy
+
+        out, resolved, reason = reduced_copy(self, precision, measure=measure)
+        if out is self:
+            return self, resolved, reason
+        if precision == "auto" and probe is not None and len(probe):
+            ref, fast = self.value_and_normal(probe)[1], out.value_and_normal(probe)[1]
+            cos = (ref * fast).sum(dim=1).clamp(-1.0, 1.0).double()
+            median = float(torch.rad2deg(torch.acos(cos)).median())
+            if median > BF16_MAX_MEDIAN_DEG:
+                return self, "fp32", (f"{reason}, but its normals measured {median:.3f}° median off float32 at "
+                                      f"{len(probe)} points (> {BF16_MAX_MEDIAN_DEG}°)")
+            reason += f"; normals {median:.3f}° median off float32 at {len(probe)} points"
+        return out, resolved, reason
+
     @property
     def in_dim(self) -> int:
         """Input dimension: 3 (space); a space-time field has 4."""
@@ -79,7 +105,7 @@ class SdfField:
         if self.model is not None:
             from ..nets.gemm import gemm_gradient
 
-            values, grads = gemm_gradient(self.model, points)
+            values, grads = gemm_gradient(self.model, points, gemm_dtype=self.gemm_dtype)
             return values.reshape(-1), grads.reshape(-1, points.shape[-1])
         if self._pair is not None:
             with torch.no_grad():

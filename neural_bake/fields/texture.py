@@ -23,6 +23,7 @@ class TextureField:
       "delta"}`` (None when unknown).
     - ``metadata``: provenance, the file's JSON metadata (λ, training config…).
     - ``model``: the Siren of a fitted field, None for an analytic one.
+    - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
     """
 
     def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None,
@@ -32,6 +33,7 @@ class TextureField:
         self.fitted_against = fitted_against
         self.metadata = dict(metadata or {})
         self.model = fn if isinstance(fn, torch.nn.Module) else None
+        self.gemm_dtype: torch.dtype | None = None
 
     @classmethod
     def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren", delta: float | None = None,
@@ -41,10 +43,36 @@ class TextureField:
             raise ModelFileError(f"{name}: a texture model must have 3 or 4 outputs, this one has {model.out_dim}")
         return cls(model, frame=frame, name=name, delta=delta, fitted_against=fitted_against, metadata=metadata)
 
+    def with_precision(self, precision: str, *, measure=None, probe: torch.Tensor | None = None
+                       ) -> tuple["TextureField", str, str]:
+        """``(field, resolved, reason)`` as :meth:`neural_bake.fields.sdf.SdfField.with_precision`; with
+        ``probe`` points, "auto" keeps float32 when the colours there differ from float32 ones by more than
+        :data:`~neural_bake.constants.ADAPTIVE_COLOR_TOL` (median of the largest channel difference)."""
+        from ..constants import ADAPTIVE_COLOR_TOL
+        from ..nets.precision import reduced_copy
+
+        out, resolved, reason = reduced_copy(self, precision, measure=measure)
+        if out is self:
+            return self, resolved, reason
+        if precision == "auto" and probe is not None and len(probe):
+            diff = float((self.color(probe) - out.color(probe)).abs().amax(dim=1).median())
+            if diff > ADAPTIVE_COLOR_TOL:
+                return self, "fp32", (f"{reason}, but its colours measured {diff:.2g} median off float32 at "
+                                      f"{len(probe)} points (> {ADAPTIVE_COLOR_TOL:.2g})")
+            reason += f"; colours {diff:.2g} median off float32 at {len(probe)} points"
+        return out, resolved, reason
+
     def color(self, points: torch.Tensor) -> torch.Tensor:
-        """Linear RGB(A) (N, C) at ``points`` (N, 3); non-finite outputs become 0."""
+        """Linear RGB(A) (N, C) at ``points`` (N, 3); non-finite outputs become 0. A field with a
+        ``gemm_dtype`` runs its Siren through :func:`~neural_bake.nets.siren.siren_forward_inference` with it."""
         with torch.no_grad():
-            out = self.fn(points)
+            if self.gemm_dtype is not None:
+                from ..nets.siren import siren_forward_inference
+
+                layers = self.model.affine_layers(dtype=points.dtype, device=points.device)
+                out = siren_forward_inference(layers, points, gemm_dtype=self.gemm_dtype)
+            else:
+                out = self.fn(points)
         return torch.nan_to_num(out.reshape(points.shape[0], -1), nan=0.0, posinf=0.0, neginf=0.0)
 
     def __repr__(self) -> str:

@@ -64,6 +64,7 @@ def gemm_gradient(
     *,
     differentiable: bool = False,
     chunk_size: int | None = None,
+    gemm_dtype: torch.dtype | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Values and gradients of a SIREN at a batch of points, by GEMMs (no autograd).
 
@@ -78,6 +79,12 @@ def gemm_gradient(
             (and to ``points`` if it requires grad). No chunking. Default False: no graph, chunked.
         chunk_size: points per chunk of the no-grad path (default :func:`default_chunk_size`); ignored
             when ``differentiable``.
+        gemm_dtype: None (default: every product in the points' dtype) or a reduced precision such as
+            ``torch.bfloat16`` for the hidden W×W products of the no-grad reverse path (forward and gradient
+            stream): operands converted to it, accumulated by the BLAS in float32, results added to the
+            float32 biases and streams; the first (3 → W) and last layers and sin/cos stay in the points'
+            dtype (:mod:`neural_bake.nets.precision` decides where it pays). Ignored when ``differentiable``
+            and in forward mode.
 
     Returns:
         ``(values, grads)``: values (N, out_dim); grads (N, in_dim) if ``out_dim == 1`` else
@@ -112,7 +119,10 @@ def gemm_gradient(
             chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
                 mode, layers[0][0].shape[0], in_dim, out_dim
             )
-            values, grads = (_reverse_chunked if mode == "reverse" else _forward_chunked)(layers, points, chunk)
+            if mode == "reverse":
+                values, grads = _reverse_chunked(layers, points, chunk, gemm_dtype)
+            else:
+                values, grads = _forward_chunked(layers, points, chunk)
     if out_dim == 1:
         grads = grads.reshape(points.shape[0], in_dim)
     return values, grads
@@ -333,7 +343,7 @@ def _forward_graph(layers, x):
 # --- no-grad chunked paths (buffers reused across layers and chunks) --------------------------------------
 
 
-def _reverse_chunked(layers, x, chunk):
+def _reverse_chunked(layers, x, chunk, low=None):
     n, d = x.shape
     w_n, b_n = layers[-1]
     k, width = w_n.shape
@@ -343,6 +353,9 @@ def _reverse_chunked(layers, x, chunk):
         return values, grads
     c0 = min(chunk, n)
     hidden = layers[:-1]
+    # reduced precision: the hidden W×W products on ``low`` operands (the BLAS accumulates in float32; the
+    # result, rounded to ``low``, is added to the float32 bias / multiplied into the float32 stream)
+    low_fwd = [None] + [w.t().to(low).contiguous() for w, _ in hidden[1:]] if low is not None else None
     # cos A_i of every hidden layer (the pre-activation is written there first, then turned into cos
     # in place), two activation buffers and two gradient-stream buffers.
     cos_bufs = [x.new_empty((c0, width)) for _ in hidden]
@@ -350,13 +363,17 @@ def _reverse_chunked(layers, x, chunk):
     gbuf = [x.new_empty((c0 * k, width)), x.new_empty((c0 * k, width))]
     w_n_row = w_n.unsqueeze(0)  # (1, k, W)
     mats = _backward_mats(layers)[::-1]  # backward GEMM weights, last layer first
+    low_bwd = [m.to(low).contiguous() for m in mats[:-1]] if low is not None else None
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         c = stop - start
         h = x[start:stop]
         for i, (w, b) in enumerate(hidden):
             a = cos_bufs[i][:c]
-            torch.addmm(b, h, w.t(), out=a)
+            if low_fwd is not None and i > 0:
+                torch.add(b, torch.mm(h.to(low), low_fwd[i]), out=a)
+            else:
+                torch.addmm(b, h, w.t(), out=a)
             h = act[i % 2][:c]
             sincos_(a, h)
         torch.addmm(b_n, h, w_n.t(), out=values[start:stop])
@@ -367,7 +384,10 @@ def _reverse_chunked(layers, x, chunk):
             torch.mul(cos_bufs[-1][:c].unsqueeze(1), w_n_row, out=g.view(c, k, width))
         for i in range(len(hidden) - 1, 0, -1):
             g_next = gbuf[(len(hidden) - i) % 2][: c * k]
-            torch.mm(g, mats[len(hidden) - 1 - i], out=g_next)
+            if low_bwd is not None:
+                g_next.copy_(torch.mm(g.to(low), low_bwd[len(hidden) - 1 - i]))
+            else:
+                torch.mm(g, mats[len(hidden) - 1 - i], out=g_next)
             if k == 1:
                 g_next.mul_(cos_bufs[i - 1][:c])
             else:

@@ -146,7 +146,8 @@ def _is_functorch_wrapped(x: torch.Tensor) -> bool:
 
 
 def siren_forward_inference(
-    layers: list[tuple[torch.Tensor, torch.Tensor]], x: torch.Tensor, chunk_size: int | None = None
+    layers: list[tuple[torch.Tensor, torch.Tensor]], x: torch.Tensor, chunk_size: int | None = None,
+    gemm_dtype: torch.dtype | None = None,
 ) -> torch.Tensor:
     """A SIREN's values without autograd: ``layers`` from :meth:`Siren.affine_layers` (ω folded in).
 
@@ -154,7 +155,8 @@ def siren_forward_inference(
     ``chunk_size`` points (default :data:`FORWARD_CHUNK_ELEMENTS` ÷ width, at least 256) with two reused
     activation buffers: ``addmm`` into a buffer, then the sine in place (:func:`~neural_bake.nets.fastmath.sin_`:
     the C kernel where it measured faster than ``torch.sin``), so no temporary is allocated per layer. Call
-    under ``torch.no_grad()``.
+    under ``torch.no_grad()``. ``gemm_dtype`` (e.g. ``torch.bfloat16``): the hidden W×W products on operands
+    of that dtype, added to the biases in ``x``'s dtype (as :func:`~neural_bake.nets.gemm.gemm_gradient`).
     """
     n = x.shape[0]
     w_last, b_last = layers[-1]
@@ -165,13 +167,17 @@ def siren_forward_inference(
     chunk = max(1, int(chunk_size or forward_chunk_size(width)))
     c0 = min(chunk, n)
     bufs = [x.new_empty((c0, width)), x.new_empty((c0, width))]
+    low = [None] + [w.t().to(gemm_dtype).contiguous() for w, _ in layers[1:-1]] if gemm_dtype is not None else None
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         c = stop - start
         h = x[start:stop]
         for i, (w, b) in enumerate(layers[:-1]):
             a = bufs[i % 2][:c]
-            torch.addmm(b, h, w.t(), out=a)
+            if low is not None and i > 0:
+                torch.add(b, torch.mm(h.to(gemm_dtype), low[i]), out=a)
+            else:
+                torch.addmm(b, h, w.t(), out=a)
             sin_(a)  # the fast C sine where it measured faster than torch.sin (nets.fastmath)
             h = a
         torch.addmm(b_last, h, w_last.t(), out=out[start:stop])

@@ -123,6 +123,13 @@ class SpaceTimeAsset:
 
 
 # ------------------------------------------------------------------------------------------- constructors
+def _gemm_dtype(precision: str, model: Siren):
+    """The hidden GEMMs' dtype for ``model`` at ``precision`` (the baker's and the renderer's one decision)."""
+    from ..nets.precision import gemm_dtype, resolve_precision
+
+    return gemm_dtype(resolve_precision(precision, model)[0])
+
+
 def _arch_name(model: Siren) -> str:
     return f"({model.width},{model.depth})"
 
@@ -130,14 +137,14 @@ def _arch_name(model: Siren) -> str:
 class _SirenEval:
     """Value and GEMM value-and-gradient of a scalar SIREN, with ω-folded weights cached per dtype/device."""
 
-    def __init__(self, model: Siren, time: float | None = None):
+    def __init__(self, model: Siren, time: float | None = None, gemm_dtype: torch.dtype | None = None):
         if int(model.out_dim) != 1:
             raise RenderError(f"SDF level: the network must have 1 output, this one has {model.out_dim}")
         want = 3 if time is None else 4
         if int(model.in_dim) != want:
             raise RenderError(f"SDF level: expected a network of {want} inputs "
                               f"({'x, y, z' if time is None else 'x, y, z, t'}), got {model.in_dim}")
-        self.model, self.time = model, time
+        self.model, self.time, self.gemm_dtype = model, time, gemm_dtype
         self._layers: dict = {}
 
     def _inputs(self, points: torch.Tensor) -> torch.Tensor:
@@ -153,10 +160,11 @@ class _SirenEval:
                 self._layers[key] = [(w.detach(), b.detach()) for w, b in
                                      self.model.affine_layers(dtype=points.dtype, device=points.device)]
         with torch.no_grad():
-            return siren_forward_inference(self._layers[key], self._inputs(points)).reshape(-1)
+            return siren_forward_inference(self._layers[key], self._inputs(points),
+                                           gemm_dtype=self.gemm_dtype).reshape(-1)
 
     def value_and_gradient(self, points: torch.Tensor):
-        values, grads = gemm_gradient(self.model, self._inputs(points))
+        values, grads = gemm_gradient(self.model, self._inputs(points), gemm_dtype=self.gemm_dtype)
         return values.reshape(-1), grads[:, :3]
 
     def bound(self, centers: torch.Tensor, axes: torch.Tensor):
@@ -168,9 +176,11 @@ class _SirenEval:
         return range_bound(self.model, centers, axes, "affine-fixed")
 
 
-def siren_level(model: Siren, delta: float = 0.0, *, name: str | None = None, time: float | None = None) -> TraceLevel:
-    """A level from a scalar SIREN (3 inputs; 4 inputs (x, y, z, t) with ``time`` fixing t)."""
-    ev = _SirenEval(model, time)
+def siren_level(model: Siren, delta: float = 0.0, *, name: str | None = None, time: float | None = None,
+                precision: str = "fp32") -> TraceLevel:
+    """A level from a scalar SIREN (3 inputs; 4 inputs (x, y, z, t) with ``time`` fixing t). ``precision``:
+    "fp32", "bf16" or "auto" (:func:`neural_bake.nets.precision.resolve_precision`) for its hidden GEMMs."""
+    ev = _SirenEval(model, time, _gemm_dtype(precision, model))
     return TraceLevel(name or _arch_name(model), ev.value, ev.value_and_gradient, delta, ev.bound, model)
 
 
@@ -211,8 +221,11 @@ def _lipschitz_bound(value: Values, lip: float) -> Bound:
     return bound
 
 
-def siren_texture(model: Siren, *, name: str | None = None, time: float | None = None) -> TextureSource:
-    """A texture from a SIREN with 3 (RGB) or 4 (RGBA: alpha dropped) outputs; non-finite colours become 0."""
+def siren_texture(model: Siren, *, name: str | None = None, time: float | None = None,
+                  precision: str = "fp32") -> TextureSource:
+    """A texture from a SIREN with 3 (RGB) or 4 (RGBA: alpha dropped) outputs; non-finite colours become 0.
+    ``precision`` as :func:`siren_level`."""
+    low = _gemm_dtype(precision, model)
     if int(model.out_dim) not in (3, 4):
         raise RenderError(f"texture: the network must have 3 or 4 outputs, this one has {model.out_dim}")
     layers: dict = {}
@@ -225,7 +238,7 @@ def siren_texture(model: Siren, *, name: str | None = None, time: float | None =
                                model.affine_layers(dtype=points.dtype, device=points.device)]
         x = points if time is None else torch.cat([points, points.new_full((len(points), 1), float(time))], 1)
         with torch.no_grad():
-            out = siren_forward_inference(layers[key], x)[:, :3]
+            out = siren_forward_inference(layers[key], x, gemm_dtype=low)[:, :3]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
 
     return TextureSource(name or f"texture {_arch_name(model)}", color, model)
@@ -252,14 +265,15 @@ def level_names(models: Sequence[Siren]) -> list[str]:
     return names
 
 
-def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None, frame: Frame | None = None
-                    ) -> RenderAsset:
+def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None, frame: Frame | None = None,
+                    precision: str = "fp32") -> RenderAsset:
     """A RenderAsset from a nested sequence, an SDF field, a Siren, a list of Sirens or a RenderAsset.
 
     - nested sequence (``levels`` list of Sirens, ``deltas``, ``frame``): one level per network, δ from
       ``deltas`` (argument) or the sequence's; the last level's δ is 0 (f is traced itself).
     - SDF field (``value_and_gradient``; ``model`` a Siren or None): one level.
     - ``texture``: a TextureSource, a Siren, or a texture field (``color(points)``); ``frame`` overrides.
+    - ``precision``: "fp32", "bf16" or "auto" for the networks' hidden GEMMs (:func:`siren_level`).
 
     Raises RenderError for anything else, or a δ list of the wrong length.
     """
@@ -267,18 +281,18 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
         asset = obj
     elif isinstance(obj, Siren) or (isinstance(obj, (list, tuple)) and obj and all(isinstance(m, Siren) for m in obj)):
         models = [obj] if isinstance(obj, Siren) else list(obj)
-        asset = _from_models(models, deltas, frame or Frame())
+        asset = _from_models(models, deltas, frame or Frame(), precision)
     elif hasattr(obj, "levels") and isinstance(getattr(obj, "levels"), (list, tuple)):
         models = list(obj.levels)
         if not all(isinstance(m, Siren) for m in models):
             raise RenderError("asset: a nested sequence's levels must be Sirens")
         ds = deltas if deltas is not None else list(getattr(obj, "deltas", [0.0] * len(models)))
-        asset = _from_models(models, ds, frame or getattr(obj, "frame", None) or Frame())
+        asset = _from_models(models, ds, frame or getattr(obj, "frame", None) or Frame(), precision)
     elif hasattr(obj, "value_and_gradient"):
         model = getattr(obj, "model", None)
         name = str(getattr(obj, "name", "f"))
         if isinstance(model, Siren):
-            level = siren_level(model, 0.0, name=f"f {_arch_name(model)}")
+            level = siren_level(model, 0.0, name=f"f {_arch_name(model)}", precision=precision)
         else:
             level = TraceLevel(name, lambda p: obj.value_and_gradient(p)[0].reshape(-1),
                                lambda p: tuple(t for t in obj.value_and_gradient(p)), 0.0, None, None)
@@ -287,27 +301,28 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
         raise RenderError(f"asset: cannot render a {type(obj).__name__} (expected a nested sequence, an SDF "
                           "field or a Siren)")
     if texture is not None:
-        asset = asset.with_texture(_as_texture(texture))
+        asset = asset.with_texture(_as_texture(texture, precision))
     return asset
 
 
-def _from_models(models: list[Siren], deltas, frame: Frame) -> RenderAsset:
+def _from_models(models: list[Siren], deltas, frame: Frame, precision: str = "fp32") -> RenderAsset:
     deltas = [0.0] * len(models) if deltas is None else [float(d) for d in deltas]
     if len(deltas) != len(models):
         raise RenderError(f"asset: {len(models)} levels but {len(deltas)} δ values")
     deltas[-1] = 0.0  # the last level is f itself
     names = level_names(models)
-    return RenderAsset([siren_level(m, d, name=n) for m, d, n in zip(models, deltas, names)], frame)
+    return RenderAsset([siren_level(m, d, name=n, precision=precision) for m, d, n in zip(models, deltas, names)],
+                       frame)
 
 
-def _as_texture(tex) -> TextureSource:
+def _as_texture(tex, precision: str = "fp32") -> TextureSource:
     if isinstance(tex, TextureSource):
         return tex
     if isinstance(tex, Siren):
-        return siren_texture(tex)
+        return siren_texture(tex, precision=precision)
     model = getattr(tex, "model", None)
     if isinstance(model, Siren) and int(model.out_dim) in (3, 4):
-        return siren_texture(model)
+        return siren_texture(model, precision=precision)
     if hasattr(tex, "color"):
         return analytic_texture(tex.color, name=str(getattr(tex, "name", "texture")))
     raise RenderError(f"texture: cannot use a {type(tex).__name__} (expected a texture field or a Siren)")

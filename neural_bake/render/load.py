@@ -40,9 +40,11 @@ def _networks(field) -> list[Siren]:
     return [model]
 
 
-def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset | SpaceTimeAsset:
+def load_asset(path, *, texture=None, deltas=None, device=None, precision: str = "fp32"
+               ) -> RenderAsset | SpaceTimeAsset:
     """A RenderAsset (or a SpaceTimeAsset for 4-input networks) from a model file, with the texture file
-    ``texture`` and δ overrides ``deltas`` (coarse to fine; the file's otherwise).
+    ``texture`` and δ overrides ``deltas`` (coarse to fine; the file's otherwise). ``precision``: "fp32",
+    "bf16" or "auto" for the networks' hidden GEMMs (:func:`~neural_bake.nets.precision.resolve_precision`).
 
     Raises ModelFileError for unreadable files, RenderError for a texture given as MODEL or a texture file
     that is an SDF.
@@ -63,7 +65,8 @@ def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset |
         raise RenderError(f"deltas: {len(ds)} values for the {len(nets)} levels of {path}")
     in_dims = {int(m.in_dim) for m in nets}
     if in_dims == {3}:
-        return as_render_asset(nets, deltas=ds, texture=tex.model if tex is not None else None, frame=frame)
+        return as_render_asset(nets, deltas=ds, texture=tex.model if tex is not None else None, frame=frame,
+                               precision=precision)
     if in_dims != {4}:
         raise RenderError(f"MODEL {path}: networks take {sorted(in_dims)} inputs; expected 3 (x, y, z) or 4 "
                           "(x, y, z, t)")
@@ -77,11 +80,12 @@ def load_asset(path, *, texture=None, deltas=None, device=None) -> RenderAsset |
     time_input = time_input or getattr(field, "time_input", None) or float
 
     def at(t: float) -> RenderAsset:
-        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t))
+        levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t),
+                              precision=precision)
                   for i, (m, d, n) in enumerate(zip(nets, ds, names))]
         tx = None
         if tex_model is not None:
-            tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None)
+            tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None, precision=precision)
         return RenderAsset(levels, frame or Frame(), tx)
 
     return SpaceTimeAsset(at, time_range)

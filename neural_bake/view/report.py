@@ -410,11 +410,18 @@ def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bo
     if isinstance(base, dict):
         parts.append(f"<tr><td>classical bake vs truth, °</td><td>{_fmt(base.get('median'))}</td>"
                      f"<td>{_fmt(base.get('p95'))}</td><td>{_fmt(base.get('max'))}</td></tr>")
+    control = ((report.get("bake") or {}).get("error_control") or {}).get("angle_deg")
+    if isinstance(control, dict):  # adaptive / reduced-precision bake against a full float32 evaluation
+        parts.append(f"<tr><td>∇f vs full float32 evaluation (sampled), °</td><td>{_fmt(control.get('median'), 4)}"
+                     f"</td><td>{_fmt(control.get('p95'), 4)}</td><td>{_fmt(control.get('max'), 4)}</td></tr>")
     parts.append("</table><table style='margin-top:6px'>")
     for key, label in (("color_psnr_db", "colour PSNR, dB"), ("coverage", "UV coverage"),
                        ("miss_fraction", "texels off the band"), ("truth", "ground truth")):
         if key in report:
             parts.append(f"<tr><td>{_esc(label)}</td><td>{_fmt(report[key], 4)}</td></tr>")
+    fraction = (report.get("bake") or {}).get("evaluated_fraction")
+    if fraction is not None:
+        parts.append(f"<tr><td>texel samples evaluated (the rest interpolated)</td><td>{_fmt(fraction, 4)}</td></tr>")
     parts.append("</table>")
     # error maps
     parts.append("<h2>Errors over the UV layout</h2><div class='row'>")

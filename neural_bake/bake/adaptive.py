@@ -1,0 +1,398 @@
+"""Adaptive texel evaluation: the fields on a coarse lattice of each chart, refined where interpolation would err.
+
+The samples of a band of texels lie on the sample grid (H·s, W·s) (s = supersample). A *cell* is a square of
+that grid whose corners are multiples of its side k, from k = ``lattice`` down to 4. A cell is *pure* when
+every position of its closed square holds a sample of one chart (no seam, no uncovered texel, no border
+sample inside it) and, when wider than ``vertex_side``, no feature of the coarse mesh (a vertex, or an edge
+that bends more than ``ADAPTIVE_EDGE_DEG``) lies inside it. For a pure cell the fields are evaluated at its
+3×3 nodes (corners, edge midpoints, centre), and the cell is accepted when the midpoints' and the centre's
+values lie within ``ADAPTIVE_SAFETY`` times the tolerances of what the corners predict (the hierarchical
+surplus: an estimate of the interpolation error, larger than the error left when interpolating from the 3×3
+nodes in a smooth field). Its other samples are then interpolated from those 3×3 nodes, each from the four
+of its quarter, with weights from its position in space (:func:`_weights`; normals renormalised, f
+extrapolated to first order from each node). Otherwise, and for impure cells, the cell splits into four of
+side k/2. Every sample that no accepted cell covers is evaluated: chart borders, seams, islands smaller than
+the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
+nodes and samples of an accepted cell all belong to one chart.
+
+The same refinement serves every field: f, the unit normals ∇f/|∇f| and (when a texture is baked) the colours
+are evaluated at the same samples, and a cell is accepted only when all of them pass their tolerance. The
+surplus is an estimate, not a bound: a feature of the field narrower than the node spacing can hide between
+nodes; the bake measures its error against a full evaluation on a seeded subsample (the bake report).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTICE, ADAPTIVE_SAFETY, ADAPTIVE_TOLERANCE_DEG,
+                         ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
+from ..errors import NeuralBakeError
+from ..types import Mesh
+
+__all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate"]
+
+#: Interpolated sample positions handled at once (bounds the (n, 4, 3) corner arrays).
+_INTERP_CHUNK = 1 << 18
+
+
+@dataclass(frozen=True)
+class AdaptiveOptions:
+    """Settings of adaptive texel evaluation (:func:`adaptive_evaluate`)."""
+
+    tolerance_deg: float = ADAPTIVE_TOLERANCE_DEG
+    """Largest angle (degrees) between a cell's evaluated midpoint normals and their interpolation from its corners."""
+    lattice: int = ADAPTIVE_LATTICE
+    """Side of the coarsest cells in sample-grid positions (a power of two ≥ 2)."""
+    color_tol: float = ADAPTIVE_COLOR_TOL
+    """Largest colour difference (linear RGB(A)) between a midpoint and its interpolation."""
+    value_tol: float = ADAPTIVE_VALUE_TOL
+    """Largest |f| difference (unit frame) between a midpoint and its interpolation."""
+    vertex_side: int = ADAPTIVE_VERTEX_SIDE
+    """Largest side of a cell that may hold a mesh vertex (where the piecewise-flat surface is a cone)."""
+
+    def __post_init__(self):
+        t = self.tolerance_deg
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not (np.isfinite(t) and 0 < t < 90):
+            raise NeuralBakeError(f"tolerance_deg must be a number of degrees in (0, 90), got {t!r}",
+                                  parameter="tolerance_deg")
+        k = self.lattice
+        if isinstance(k, bool) or int(k) != k or k < 2 or int(k) & (int(k) - 1):
+            raise NeuralBakeError(f"lattice must be a power of two >= 2, got {k!r}", parameter="lattice")
+        for name in ("color_tol", "value_tol"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise NeuralBakeError(f"{name} must be a positive number, got {v!r}", parameter=name)
+
+
+def chart_labels(mesh: Mesh) -> np.ndarray:
+    """(F,) int64 chart of each face: the connected components of faces sharing a vertex.
+
+    ``mesh`` must be split at its UV seams (:func:`neural_bake.mesh.unwrap.split_uv_seams`, as
+    ``Baker.mesh`` is), so that faces sharing a vertex share its UV: a component is then a UV chart.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    nf, nv = len(faces), int(mesh.n_vertices)
+    if nf == 0:
+        return np.zeros(0, dtype=np.int64)
+    rows = np.repeat(np.arange(nf), 3)
+    graph = coo_matrix((np.ones(3 * nf, dtype=np.int8), (rows, nf + faces.reshape(-1))), shape=(nf + nv, nf + nv))
+    _, labels = connected_components(graph, directed=False)
+    return labels[:nf].astype(np.int64)
+
+
+def grid_positions(texels, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) (M,) int64 of each sample on the sample grid (H·s, W·s), row 0 at the top; -1 for samples
+    that are not at a grid position (border samples, placed at the closest point of a triangle).
+
+    ``texels``: a :class:`~neural_bake.mesh.texels.TexelSet` (or band) of ``mesh`` (per-corner UVs (F, 3, 2)).
+    A sample's position is recovered from its face's UVs and barycentrics; it must land on a grid position
+    within :data:`ADAPTIVE_GRID_SNAP` and inside its own texel, else it counts as off the grid.
+    """
+    s = int(texels.supersample)
+    h, w = texels.size
+    face = np.asarray(texels.face, dtype=np.int64)
+    if mesh.uv is None or len(face) == 0:
+        e = np.full(len(face), -1, dtype=np.int64)
+        return e, e.copy()
+    uv = np.einsum("mk,mkd->md", np.asarray(texels.bary, dtype=np.float64), np.asarray(mesh.uv, np.float64)[face])
+    x = uv[:, 0] * (w * s) - 0.5
+    y = (1.0 - uv[:, 1]) * (h * s) - 0.5
+    rx, ry = np.rint(x), np.rint(y)
+    col = np.mod(rx.astype(np.int64), w * s)
+    row = np.mod(ry.astype(np.int64), h * s)
+    pix = np.asarray(texels.pixel, dtype=np.int64)
+    ok = ((np.abs(x - rx) <= ADAPTIVE_GRID_SNAP) & (np.abs(y - ry) <= ADAPTIVE_GRID_SNAP)
+          & ~np.asarray(texels.border, dtype=bool) & (row // s == pix[:, 0]) & (col // s == pix[:, 1]))
+    return np.where(ok, row, -1), np.where(ok, col, -1)
+
+
+def vertex_positions(mesh: Mesh, size: tuple[int, int], supersample: int,
+                     edge_deg: float = ADAPTIVE_EDGE_DEG) -> np.ndarray:
+    """(K, 2) float64 (row, col) positions on the sample grid (H·s, W·s) of the coarse mesh's geometric
+    features: every face corner, and points at most half a grid step apart along every edge whose two faces'
+    normals differ by more than ``edge_deg`` degrees. Interpolation errs most there: around a vertex the
+    piecewise-flat surface is a cone, across such an edge it bends."""
+    if mesh.uv is None or mesh.n_faces == 0:
+        return np.zeros((0, 2))
+    h, w = size
+    s = int(supersample)
+    uv = np.asarray(mesh.uv, dtype=np.float64)  # (F, 3, 2)
+    grid = np.stack([(1.0 - uv[..., 1]) * (h * s) - 0.5, uv[..., 0] * (w * s) - 0.5], axis=-1)  # (F, 3, 2)
+    out = [grid.reshape(-1, 2)]
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    fn = np.asarray(mesh.face_normals, dtype=np.float64)
+    edges = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)  # (3F, 2)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    e = edges[order]
+    same = np.flatnonzero((e[1:] == e[:-1]).all(axis=1))  # pairs of face corners sharing an edge
+    a, b = order[same], order[same + 1]
+    sharp = np.einsum("ij,ij->i", fn[a // 3], fn[b // 3]) < np.cos(np.radians(edge_deg))
+    for corner in a[sharp]:
+        f, k = divmod(int(corner), 3)
+        p, q = grid[f, k], grid[f, (k + 1) % 3]
+        n = int(np.ceil(2 * np.abs(q - p).max())) + 1
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        out.append(p + t * (q - p))
+    pts = np.concatenate(out)
+    return np.stack([np.mod(pts[:, 0], h * s), np.mod(pts[:, 1], w * s)], axis=1)
+
+
+def _vertex_image(vertices: np.ndarray | None, r_base: int, hg: int, wg: int) -> np.ndarray:
+    """(hg, wg) int64 count of vertices whose position lies in [r, r + 1) × [c, c + 1) (local rows)."""
+    img = np.zeros((hg, wg), dtype=np.int64)
+    if vertices is None or len(vertices) == 0:
+        return img
+    r = np.floor(vertices[:, 0]).astype(np.int64) - r_base
+    c = np.floor(vertices[:, 1]).astype(np.int64)
+    ok = (r >= 0) & (r < hg) & (c >= 0) & (c < wg)
+    np.add.at(img, (r[ok], c[ok]), 1)
+    return img
+
+
+@dataclass
+class _Store:
+    """Per-sample field values of a band, filled by evaluation and interpolation."""
+
+    values: np.ndarray
+    normals: np.ndarray
+    valid: np.ndarray
+    colors: np.ndarray | None = None
+    evaluated: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    interpolated: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    calls: int = 0
+
+
+def _integral(image: np.ndarray) -> np.ndarray:
+    out = np.zeros((image.shape[0] + 1, image.shape[1] + 1), dtype=np.int64)
+    np.cumsum(np.cumsum(image, axis=0, dtype=np.int64), axis=1, out=out[1:, 1:])
+    return out
+
+
+def _box(s: np.ndarray, r0: np.ndarray, c0: np.ndarray, k: int) -> np.ndarray:
+    """Sums of the closed squares [r0, r0 + k] × [c0, c0 + k] from the integral image ``s``."""
+    r1, c1 = r0 + k + 1, c0 + k + 1
+    return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
+
+
+#: The 3×3 nodes of a cell as (row, col) multiples of half its side; corners are nodes 0, 2, 6, 8.
+_NODES = np.array([(a, b) for a in range(3) for b in range(3)], dtype=np.int64)
+
+
+def adaptive_evaluate(
+    texels,
+    charts: np.ndarray,
+    grid: tuple[np.ndarray, np.ndarray],
+    evaluate: Callable[[np.ndarray], dict],
+    options: AdaptiveOptions | None = None,
+    vertices: np.ndarray | None = None,
+) -> dict:
+    """Evaluate the fields at a band's samples adaptively (module docstring).
+
+    - ``texels``: the band's :class:`~neural_bake.mesh.texels.TexelSet` (M samples).
+    - ``charts``: (M,) int64 chart of each sample (``chart_labels(mesh)[texels.face]``).
+    - ``grid``: (row, col) of each sample on the sample grid, -1 off it (:func:`grid_positions`).
+    - ``vertices``: (V, 2) float (row, col) sample-grid positions of the mesh's vertices
+      (:func:`vertex_positions`): cells wider than ``options.vertex_side`` holding one are refined.
+    - ``evaluate``: sample indices (n,) int64 → ``{"values": (n,), "normals": (n, 3) unit ∇f (0 where
+      invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
+
+    Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
+    valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample) and
+    ``"stats"`` (samples evaluated / interpolated, cells accepted per level, evaluation calls).
+    """
+    opt = options or AdaptiveOptions()
+    m = int(texels.n_samples)
+    points = np.asarray(texels.points, dtype=np.float64)
+    store = _Store(values=np.zeros(m), normals=np.zeros((m, 3)), valid=np.zeros(m, bool),
+                   evaluated=np.zeros(m, bool), interpolated=np.zeros(m, bool))
+
+    def run(idx: np.ndarray) -> None:
+        idx = np.unique(idx)
+        idx = idx[~store.evaluated[idx]]
+        if idx.size == 0:
+            return
+        ev = evaluate(idx)
+        store.values[idx] = ev["values"]
+        nrm = np.asarray(ev["normals"], dtype=np.float64)
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        # renormalised in float64: a float32 unit vector's dot with itself is 1 only to ~1e-7, the size of
+        # cos(tolerance) − 1 for tolerances of a few hundredths of a degree
+        store.normals[idx] = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > DIRECTION_EPS)
+        store.valid[idx] = ev["valid"]
+        col = ev.get("colors")
+        if col is not None:
+            if store.colors is None:
+                store.colors = np.zeros((m, col.shape[1]))
+            store.colors[idx] = col
+        store.evaluated[idx] = True
+        store.calls += 1
+
+    gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
+    on = np.flatnonzero(gr >= 0)
+    k0 = int(opt.lattice)
+    levels: dict[int, int] = {}
+    if on.size:
+        r_base = (int(gr[on].min()) // k0) * k0
+        rows = int(gr[on].max()) - r_base + 1
+        hg = -(-rows // k0) * k0 + 1
+        wg = -(-(int(gc[on].max()) + 1) // k0) * k0 + 1
+        index = np.full((hg, wg), -1, dtype=np.int64)
+        index[gr[on] - r_base, gc[on]] = on
+        occ = index >= 0
+        lab = np.where(occ, np.asarray(charts, dtype=np.int64)[np.maximum(index, 0)] + 1, 0)
+        s0, s1, s2 = _integral(occ), _integral(lab), _integral(lab * lab)
+        sv = _integral(_vertex_image(vertices, r_base, hg, wg))
+        r0, c0 = (a.reshape(-1) for a in np.meshgrid(np.arange(0, hg - 1, k0), np.arange(0, wg - 1, k0),
+                                                      indexing="ij"))
+        keep = _box(s0, r0, c0, k0) > 0
+        r0, c0 = r0[keep], c0[keep]
+        k = k0
+        accepted: list[tuple[np.ndarray, np.ndarray, int]] = []
+        while k >= 4 and r0.size:  # a side-2 cell has no sample besides its 3×3 nodes
+            n = (k + 1) ** 2
+            cnt, t1, t2 = _box(s0, r0, c0, k), _box(s1, r0, c0, k), _box(s2, r0, c0, k)
+            pure = (cnt == n) & (t2 * n == t1 * t1)  # full and one chart (zero variance of the labels)
+            if k > opt.vertex_side:  # a mesh vertex inside: the surface is a cone there, not smooth
+                pure &= _box(sv, r0, c0, k - 1) == 0
+            h = k // 2
+            acc = np.zeros(len(r0), bool)
+            p = np.flatnonzero(pure)
+            if p.size:
+                nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
+                run(nodes.reshape(-1))
+                acc[p] = _surplus_ok(store, points, nodes, opt)
+            if acc.any():
+                accepted.append((r0[acc], c0[acc], k))
+                levels[k] = int(acc.sum())
+            split = ~acc
+            r0 = (r0[split, None] + h * np.array([0, 0, 1, 1])).reshape(-1)
+            c0 = (c0[split, None] + h * np.array([0, 1, 0, 1])).reshape(-1)
+            if h >= 2:
+                keep = _box(s0, r0, c0, h) > 0
+                r0, c0 = r0[keep], c0[keep]
+            k = h
+        for ar, ac, k in accepted:
+            _interpolate(store, points, index, ar, ac, k)
+    rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
+    run(rest)
+    n_eval = int(store.evaluated.sum())
+    return {
+        "values": store.values,
+        "normals": store.normals,
+        "valid": store.valid,
+        "colors": store.colors,
+        "evaluated": store.evaluated,
+        "interpolated": store.interpolated,
+        "stats": {"samples": m, "evaluated": n_eval, "interpolated": int(store.interpolated.sum()),
+                  "cells_accepted": {str(k): v for k, v in sorted(levels.items(), reverse=True)},
+                  "evaluation_calls": store.calls},
+    }
+
+
+def _weights(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n, 4) bilinear weights of ``points`` (n, 3) in the quads ``corners`` (n, 4, 3) (order (0,0), (0,1),
+    (1,0), (1,1)), from the points' coordinates (t, u) in the quads' least-squares parallelogram in 3-D.
+
+    The coordinates are measured in space, not in UV: a chart's UV map stretches each face differently, so
+    a field smooth on the surface has kinks along face edges in UV but not in these coordinates.
+    """
+    e_t = 0.5 * (corners[:, 2] - corners[:, 0] + corners[:, 3] - corners[:, 1])
+    e_u = 0.5 * (corners[:, 1] - corners[:, 0] + corners[:, 3] - corners[:, 2])
+    d = points - (corners.mean(axis=1) - 0.5 * e_t - 0.5 * e_u)
+    a, b, c = (np.einsum("ni,ni->n", x, y) for x, y in ((e_t, e_t), (e_t, e_u), (e_u, e_u)))
+    r_t, r_u = np.einsum("ni,ni->n", e_t, d), np.einsum("ni,ni->n", e_u, d)
+    det = a * c - b * b
+    ok = det > DIRECTION_EPS * np.maximum(a * c, DIRECTION_EPS)
+    det = np.where(ok, det, 1.0)
+    t = np.clip(np.where(ok, (c * r_t - b * r_u) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+    u = np.clip(np.where(ok, (a * r_u - b * r_t) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+    p00, p01, p10, p11 = (corners[:, i] for i in range(4))
+    for _ in range(_NEWTON):  # Gauss-Newton towards the bilinear patch's closest point
+        tt, uu = t[:, None], u[:, None]
+        bp = (1 - tt) * ((1 - uu) * p00 + uu * p01) + tt * ((1 - uu) * p10 + uu * p11)
+        jt = (1 - uu) * (p10 - p00) + uu * (p11 - p01)
+        ju = (1 - tt) * (p01 - p00) + tt * (p11 - p10)
+        res = points - bp
+        a, b, c = (np.einsum("ni,ni->n", x, y) for x, y in ((jt, jt), (jt, ju), (ju, ju)))
+        r_t, r_u = np.einsum("ni,ni->n", jt, res), np.einsum("ni,ni->n", ju, res)
+        det = a * c - b * b
+        ok = det > DIRECTION_EPS * np.maximum(a * c, DIRECTION_EPS)
+        det = np.where(ok, det, 1.0)
+        t = np.clip(t + np.where(ok, (c * r_t - b * r_u) / det, 0.0), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+        u = np.clip(u + np.where(ok, (a * r_u - b * r_t) / det, 0.0), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+    return np.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u], axis=1)
+
+
+#: How far outside its quad (in quad sides) a sample's spatial coordinates may reach before they are clamped.
+_EXTRAPOLATE = 0.5
+#: Gauss-Newton steps from the parallelogram's coordinates to the bilinear patch's closest point.
+_NEWTON = 2
+
+
+def _interp(w: np.ndarray, corners: np.ndarray, store: "_Store", points: np.ndarray, at: np.ndarray) -> tuple:
+    """Interpolated unit normals (n, 3), values (n,) and colours (n, C) or None at the points ``at`` (n, 3)
+    from the corner samples ``corners`` (n, 4) (positions ``points[corners]``) with weights ``w`` (n, 4).
+
+    f is interpolated from each corner's first-order extrapolation ``f_i + n_i · (p − p_i)`` (an SDF's
+    gradient is its unit normal): the sample points lie on flat faces that bend at edges, where f of the
+    points kinks but f of space does not."""
+    nc = store.normals[corners]
+    nrm = np.einsum("nc,ncd->nd", w, nc)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), DIRECTION_EPS)
+    ext = store.values[corners] + np.einsum("ncd,ncd->nc", nc, at[:, None, :] - points[corners])
+    val = np.einsum("nc,nc->n", w, ext)
+    col = None if store.colors is None else np.einsum("nc,ncd->nd", w, store.colors[corners])
+    return nrm, val, col
+
+
+def _surplus_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, opt: AdaptiveOptions) -> np.ndarray:
+    """(P,) bool: the cells whose 3×3 ``nodes`` (P, 9) sample indices pass every field's tolerance: the
+    midpoints' and centre's values against their interpolation from the cell's four corners."""
+    ok = store.valid[nodes].all(axis=1)
+    cos_tol = np.cos(np.radians(ADAPTIVE_SAFETY * opt.tolerance_deg))
+    value_tol, color_tol = ADAPTIVE_SAFETY * opt.value_tol, ADAPTIVE_SAFETY * opt.color_tol
+    corners = nodes[:, [0, 2, 6, 8]]
+    cpts = points[corners]
+    for mid in (1, 3, 4, 5, 7):
+        idx = nodes[:, mid]
+        nrm, val, col = _interp(_weights(cpts, points[idx]), corners, store, points, points[idx])
+        ok &= np.einsum("pi,pi->p", nrm, store.normals[idx]) >= cos_tol
+        ok &= np.abs(val - store.values[idx]) <= value_tol
+        if col is not None:
+            ok &= (np.abs(col - store.colors[idx]) <= color_tol).all(axis=1)
+    return ok
+
+
+def _interpolate(store: _Store, points: np.ndarray, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
+                 k: int) -> None:
+    """Interpolation from the 3×3 nodes of accepted cells (side ``k``) to their other samples, each from the
+    four nodes of its quarter of the cell (:func:`_weights`)."""
+    h = k // 2
+    d = np.arange(k + 1)
+    dr, dc = (a.reshape(-1) for a in np.meshgrid(d, d, indexing="ij"))
+    a, b = np.minimum(dr // h, 1), np.minimum(dc // h, 1)  # quarter of each offset
+    corner_r = np.stack([a, a, a + 1, a + 1], axis=1) * h
+    corner_c = np.stack([b, b + 1, b, b + 1], axis=1) * h
+    per = max(1, _INTERP_CHUNK // len(dr))
+    for s in range(0, len(r0), per):
+        rr, cc = r0[s: s + per, None], c0[s: s + per, None]
+        idx = index[rr + dr, cc + dc].reshape(-1)  # (P·O,)
+        fresh = ~store.evaluated[idx] & ~store.interpolated[idx]
+        if not fresh.any():
+            continue
+        corners = index[rr[:, :, None] + corner_r, cc[:, :, None] + corner_c].reshape(-1, 4)[fresh]  # (n, 4)
+        idx = idx[fresh]
+        nrm, val, col = _interp(_weights(points[corners], points[idx]), corners, store, points, points[idx])
+        store.normals[idx] = nrm
+        store.values[idx] = val
+        store.valid[idx] = True
+        if col is not None:
+            store.colors[idx] = col
+        store.interpolated[idx] = True

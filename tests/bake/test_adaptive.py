@@ -1,0 +1,316 @@
+"""Adaptive texel evaluation: within the tolerance of a full evaluation on analytic samples, never across a
+seam, islands and borders evaluated, creases refined, the report's figures, and the errors."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.bake.adaptive import (AdaptiveOptions, _weights, adaptive_evaluate, chart_labels, grid_positions,
+                                       vertex_positions)
+from neural_bake.bake.baker import Baker, _evaluate
+from neural_bake.errors import NeuralBakeError
+from neural_bake.fields import SdfField, TextureField
+from neural_bake.io.mesh_io import load_mesh
+from neural_bake.mesh.decimate import decimate
+from neural_bake.samples.generate import sample_path
+from neural_bake.samples.shapes import get_sample
+
+
+def angle_deg(a, b):
+    """Angles (degrees) between the rows' directions, exact near 0° (the bake's own measure)."""
+    from neural_bake.bake.baker import _angles_deg
+
+    return _angles_deg(a, b)
+
+
+def analytic_fields(name, frame):
+    """The sample's exact SDF (value and normal) and albedo as fields of unit-frame points."""
+    sample = get_sample(name)
+
+    def pair(p):
+        q = frame.to_source(p.cpu().numpy())
+        return (torch.as_tensor(sample.sdf(q) * frame.scale, dtype=p.dtype),
+                torch.as_tensor(sample.normal(q), dtype=p.dtype))
+
+    def albedo(p):
+        return torch.as_tensor(sample.albedo(frame.to_source(p.cpu().numpy())), dtype=p.dtype)
+
+    return sample, SdfField.from_value_and_gradient(pair, name=name), TextureField(albedo, name=name)
+
+
+@pytest.fixture(scope="module")
+def torus_baker():
+    mesh = load_mesh(sample_path("torus"))
+    return Baker(decimate(mesh, faces=600), 256), mesh.frame
+
+
+@pytest.fixture(scope="module")
+def sphere_baker():
+    mesh = load_mesh(sample_path("sphere"))
+    baker = Baker(decimate(mesh, faces=400), 512)
+    _, sdf, tex = analytic_fields("sphere", mesh.frame)
+    return baker, sdf, tex, baker.bake(sdf, tex)
+
+
+@pytest.mark.parametrize("tolerance, colours", [(0.05, True), (0.5, False)])
+def test_adaptive_bake_keeps_every_sample_within_the_tolerance(sphere_baker, tolerance, colours):
+    baker, sdf, tex, full = sphere_baker
+    tex = tex if colours else None
+    opt = AdaptiveOptions(tolerance_deg=tolerance)
+    res = baker.bake(sdf, tex, adaptive=opt)
+    err = angle_deg(res.normals, full.normals)
+    assert err.max() <= tolerance
+    assert np.abs(res.values - full.values).max() <= opt.value_tol
+    if colours:
+        assert np.abs(res.colors - full.colors).max() <= opt.color_tol
+    st = res.stats["adaptive"]
+    assert st["evaluated"] + st["interpolated"] == st["samples"] == full.stats["samples"]
+    assert res.stats["evaluated_fraction"] < 0.45  # it does interpolate
+    assert full.stats["evaluated_fraction"] == 1.0 and full.stats["adaptive"] is None
+    assert "error_control" not in full.stats
+    # the report's sampled check is the same comparison on a seeded subsample
+    control = res.stats["error_control"]
+    assert 0 < control["samples"] <= full.stats["samples"] and control["interpolated"] > 0
+    assert control["angle_deg"]["max"] <= err.max() + 1e-9
+    if colours:
+        assert control["color_max"] <= opt.color_tol
+    again = baker.bake(sdf, tex, adaptive=opt)
+    assert again.stats["error_control"] == control  # seeded
+    # the maps hold the same normals within the tolerance
+    assert np.abs(res.normal_map - full.normal_map).max() < np.radians(tolerance)
+
+
+def grid_texels(rows, cols, shape):
+    """A synthetic band: samples at grid positions (rows, cols) of a ``shape`` grid, points on the plane z = 0."""
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    points = np.stack([cols * 0.01, rows * 0.01, np.zeros(len(rows))], axis=1)
+    return SimpleNamespace(n_samples=len(rows), points=points, size=shape, supersample=1)
+
+
+def chart_field(charts, tilt_deg=10.0):
+    """Normals constant per chart (chart c tilted by c × tilt about y), f = 0, colours = chart id: a field
+    discontinuous across every seam. Returns (evaluate, counter of evaluated samples)."""
+    seen = []
+    t = np.radians(tilt_deg) * charts
+
+    def evaluate(idx):
+        seen.append(np.asarray(idx))
+        n = np.stack([np.sin(t[idx]), np.zeros(len(idx)), np.cos(t[idx])], axis=1)
+        return {"values": np.zeros(len(idx)), "normals": n, "valid": np.ones(len(idx), bool),
+                "colors": np.repeat(charts[idx, None].astype(float), 3, axis=1)}
+
+    return evaluate, seen
+
+
+def test_interpolation_never_crosses_a_seam_and_small_islands_are_evaluated():
+    # a 64 × 64 grid: chart 0 on the left, chart 1 on the right (a seam at column 37, off the lattice), an
+    # uncovered hole, and a 5 × 5 island of chart 2 inside the hole (smaller than the 16-lattice)
+    r, c = np.meshgrid(np.arange(64), np.arange(64), indexing="ij")
+    charts = np.where(c < 37, 0, 1)
+    hole = (r >= 20) & (r < 40) & (c >= 5) & (c < 25)
+    island = (r >= 27) & (r < 32) & (c >= 10) & (c < 15)
+    charts = np.where(island, 2, charts)
+    keep = ~hole | island
+    rows, cols, labels = r[keep], c[keep], charts[keep]
+    tx = grid_texels(rows, cols, (64, 64))
+    evaluate, seen = chart_field(labels)
+    res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, AdaptiveOptions(lattice=16))
+    exact, _ = chart_field(labels)
+    truth = exact(np.arange(len(rows)))
+    np.testing.assert_allclose(res["normals"], truth["normals"], atol=1e-12)  # no mixing of charts
+    np.testing.assert_allclose(res["colors"], truth["colors"], atol=1e-12)
+    assert res["evaluated"][labels == 2].all()  # the island: every sample evaluated
+    assert (res["evaluated"] | res["interpolated"]).all() and not (res["evaluated"] & res["interpolated"]).any()
+    # evaluated exactly once each
+    ids = np.concatenate(seen)
+    assert len(ids) == len(np.unique(ids)) == res["stats"]["evaluated"]
+    assert res["interpolated"].sum() > 0.5 * len(rows)
+
+
+def test_samples_off_the_grid_and_border_samples_are_evaluated():
+    r, c = np.meshgrid(np.arange(32), np.arange(32), indexing="ij")
+    rows, cols = r.reshape(-1), c.reshape(-1)
+    rows = np.where(np.arange(len(rows)) % 97 == 0, -1, rows)  # some samples off the grid (border samples)
+    cols = np.where(rows < 0, -1, cols)
+    labels = np.zeros(len(rows), dtype=np.int64)
+    tx = grid_texels(np.maximum(rows, 0), np.maximum(cols, 0), (32, 32))
+    evaluate, _ = chart_field(labels)
+    res = adaptive_evaluate(tx, labels, (rows, cols), evaluate)
+    assert res["evaluated"][rows < 0].all()
+    assert res["interpolated"].any()
+
+
+def test_linear_field_is_interpolated_exactly_float64_and_float32():
+    # normals and values that are affine in space: the interpolation reproduces them (up to renormalising)
+    r, c = np.meshgrid(np.arange(33), np.arange(33), indexing="ij")
+    rows, cols = r.reshape(-1), c.reshape(-1)
+    tx = grid_texels(rows, cols, (33, 33))
+    labels = np.zeros(len(rows), dtype=np.int64)
+    for dtype in (np.float64, np.float32):
+        def evaluate(idx, dtype=dtype):
+            p = tx.points[idx].astype(dtype)
+            v = (0.3 * p[:, 0] - 0.2 * p[:, 1]).astype(np.float64)
+            return {"values": v, "normals": np.tile([0.0, 0.0, 1.0], (len(idx), 1)), "valid": np.ones(len(idx), bool)}
+
+        res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, AdaptiveOptions(lattice=16))
+        ref = 0.3 * tx.points[:, 0] - 0.2 * tx.points[:, 1]
+        atol = 1e-12 if dtype == np.float64 else 1e-7
+        np.testing.assert_allclose(res["values"], ref, atol=atol)
+        assert res["stats"]["evaluated"] < 0.1 * len(rows)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_spatial_weights_match_the_bilinear_reference(dtype, rng):
+    # on a flat parallelogram the spatial coordinates are the parameters themselves: bilinear weights
+    o, a, b = rng.normal(size=(3, 50, 3)).astype(dtype)
+    corners = np.stack([o, o + b, o + a, o + a + b], axis=1).astype(np.float64)
+    t, u = rng.uniform(0, 1, (2, 50))
+    pts = o + t[:, None] * a + u[:, None] * b
+    ref = np.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u], axis=1)
+    np.testing.assert_allclose(_weights(corners, pts.astype(np.float64)), ref,
+                               atol=1e-9 if dtype == np.float64 else 1e-4)
+
+
+def test_jack_refines_along_its_creases():
+    mesh = load_mesh(sample_path("jack"))
+    baker = Baker(decimate(mesh, faces=2000), 512)
+    sample, sdf, _ = analytic_fields("jack", mesh.frame)
+    tx = baker.texels
+    pts = tx.points
+    full = _evaluate(pts, baker.mesh.frame, sdf, None, 1 << 16)
+    gr, gc = grid_positions(tx, baker.mesh)
+    on = gr >= 0
+    index = np.full(baker.shape, -1)
+    index[gr[on], gc[on]] = np.flatnonzero(on)
+    # crease samples: a grid neighbour of the same chart lies on another part of the union (the ball or
+    # another spike) with a normal more than 5° away: where a spike meets the ball the normal jumps
+    charts = chart_labels(baker.mesh)[tx.face]
+    part = np.argmin(sample._parts(mesh.frame.to_source(pts))[0], axis=1)
+    crease = np.zeros(len(pts), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            nb = np.full(len(pts), -1)
+            r, c = gr[on] + dy, gc[on] + dx
+            inside = (r >= 0) & (r < baker.size) & (c >= 0) & (c < baker.size)
+            nb[np.flatnonzero(on)[inside]] = index[r[inside], c[inside]]
+            ok = (nb >= 0) & (charts == charts[np.maximum(nb, 0)]) & (part != part[np.maximum(nb, 0)])
+            jump = angle_deg(full["normals"], full["normals"][np.maximum(nb, 0)]) > 5.0
+            crease |= ok & jump
+    assert crease.sum() > 200
+    for tolerance in (0.05, AdaptiveOptions().tolerance_deg):
+        res = adaptive_evaluate(tx, charts, (gr, gc),
+                                lambda i: _evaluate(pts[i], baker.mesh.frame, sdf, None, 1 << 16),
+                                AdaptiveOptions(tolerance_deg=tolerance),
+                                vertices=vertex_positions(baker.mesh, baker.shape, 1))
+        err = angle_deg(res["normals"], full["normals"])
+        assert err.max() <= tolerance
+        assert res["evaluated"][on & ~crease].mean() < 0.6  # away from the creases mostly interpolated
+        if tolerance == 0.05:
+            assert res["evaluated"][crease].all()  # every sample at a crease is evaluated
+        else:  # a looser tolerance may interpolate a crease sample from nodes on its own side, within it
+            assert res["evaluated"][crease].mean() > 0.99
+
+
+def test_chart_labels_are_the_uv_charts(torus_baker):
+    baker, _ = torus_baker
+    labels = chart_labels(baker.mesh)
+    assert labels.shape == (baker.mesh.n_faces,) and labels.min() == 0
+    # faces sharing a vertex share a chart
+    f = baker.mesh.faces
+    for k in range(3):
+        first = np.full(baker.mesh.n_vertices, -1)
+        first[f[:, k]] = labels
+        assert np.all(labels[np.flatnonzero(first[f[:, k]] >= 0)] == first[f[:, k]][first[f[:, k]] >= 0])
+
+
+@pytest.mark.parametrize("kwargs, name", [({"tolerance_deg": 0}, "tolerance_deg"), ({"tolerance_deg": float("nan")},
+                                          "tolerance_deg"), ({"tolerance_deg": 90}, "tolerance_deg"),
+                                          ({"lattice": 12}, "lattice"), ({"lattice": 1}, "lattice"),
+                                          ({"color_tol": -1.0}, "color_tol"), ({"value_tol": 0.0}, "value_tol")])
+def test_bad_options_are_refused(kwargs, name):
+    with pytest.raises(NeuralBakeError, match=name) as info:
+        AdaptiveOptions(**kwargs)
+    assert info.value.parameter == name
+
+
+def test_bake_refuses_a_bad_adaptive_argument_and_check_count(torus_baker):
+    baker, frame = torus_baker
+    _, sdf, _ = analytic_fields("torus", frame)
+    with pytest.raises(NeuralBakeError, match="adaptive must be AdaptiveOptions"):
+        baker.bake(sdf, adaptive=0.05)
+    with pytest.raises(NeuralBakeError, match="check_samples"):
+        baker.bake(sdf, adaptive=AdaptiveOptions(), check_samples=-1)
+
+
+def test_reduced_precision_bake_states_its_decision_and_error(torus_baker):
+    from neural_bake.nets.siren import Siren
+
+    baker, frame = torus_baker
+    field = SdfField.from_model(Siren(32, 1, generator=torch.Generator().manual_seed(0)))
+    slow = baker.bake(field, precision="auto", precision_measure=lambda w, d: 1.0)
+    assert slow.stats["precision"]["sdf"] == "fp32" and "measured 1.00×" in slow.stats["precision"]["sdf_reason"]
+    assert "error_control" not in slow.stats  # float32, every sample: nothing to check
+    low = baker.bake(field, precision="bf16")
+    assert low.stats["precision"]["sdf"] == "bf16"
+    control = low.stats["error_control"]
+    assert control["interpolated"] == 0 and control["samples"] > 0
+    measured = control["precision_angle_deg"]
+    err = angle_deg(low.normals, slow.normals)
+    assert 0 < measured["max"] <= err.max() and measured["median"] < 1.0
+    both = baker.bake(field, precision="bf16", adaptive=AdaptiveOptions(tolerance_deg=1.0))
+    assert both.stats["error_control"]["precision_angle_deg"]["median"] is not None
+    analytic = baker.bake(analytic_fields("torus", frame)[1], precision="auto")
+    assert analytic.stats["precision"]["sdf"] == "fp32"
+
+
+def counting(field, method):
+    """Wrap ``field.method`` to count the points it is called on; returns the list of call sizes."""
+    calls = []
+    inner = getattr(field, method)
+
+    def wrapped(points, *a, **k):
+        calls.append(len(points))
+        return inner(points, *a, **k)
+
+    setattr(field, method, wrapped)
+    return calls
+
+
+def test_one_evaluation_serves_every_output(sphere_baker, tmp_path):
+    """Normal map, albedo map, per-sample arrays and the report come from one evaluation of each field per
+    sample: the fields see exactly the evaluated samples plus the sampled check's interpolated ones."""
+    from neural_bake.bake.report import bake_report
+
+    baker, sdf, tex, _ = sphere_baker
+    _, sdf, tex = analytic_fields("sphere", baker.mesh.frame)
+    sdf_calls, tex_calls = counting(sdf, "value_and_normal"), counting(tex, "color")
+    res = baker.bake(sdf, tex, adaptive=AdaptiveOptions(tolerance_deg=0.2))
+    control = res.stats["error_control"]
+    evaluated = res.stats["adaptive"]["evaluated"]
+    assert sum(sdf_calls) == sum(tex_calls) == evaluated + control["interpolated"]
+    assert res.normal_map is not None and res.albedo is not None and res.colors.shape[0] == res.normals.shape[0]
+    before = (len(sdf_calls), len(tex_calls))
+    bake_report(res, baker, fine=None, out_dir=tmp_path)
+    assert (len(sdf_calls), len(tex_calls)) == before  # the report evaluates nothing
+    full_calls = []
+    sdf2 = analytic_fields("sphere", baker.mesh.frame)[1]
+    full_calls = counting(sdf2, "value_and_normal")
+    full = baker.bake(sdf2)
+    assert sum(full_calls) == full.stats["samples"]  # without adaptivity: each sample once
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_angle_measure_is_exact_near_zero(dtype, rng):
+    from neural_bake.bake.baker import _angles_deg
+
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    assert _angles_deg(a.astype(dtype), a.astype(dtype)).max() < 1e-5  # arccos of the dot would read ~0.02°
+    theta = rng.uniform(1e-4, 3.0, 200)
+    axis = np.cross(a, rng.normal(size=(200, 3)))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
+    tol = 1e-9 if dtype == np.float64 else 1e-3
+    np.testing.assert_allclose(_angles_deg(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)
