@@ -11,10 +11,15 @@ from __future__ import annotations
 
 import click
 
+from .options import say, verbosity_options
+
 __all__ = ["command"]
 
 
-@click.command("bake-frames")
+@click.command("bake-frames", epilog="""\b
+Example:
+  neural-bake fit morph samples/sphere.obj samples/torus.obj -o morph.sdf
+  neural-bake bake-frames morph.sdf --t 0:1:10 -o frames/ --format glb""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--t", "times", required=True, help="Frame times: START:STOP:COUNT (e.g. 0:1:10) or a list 0,0.5,1.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
@@ -24,6 +29,7 @@ __all__ = ["command"]
               help="Frame file format (positions and neural normals).")
 @click.option("--texture", type=click.Path(dir_okay=False), default=None,
               help="Texture model: per-vertex colours evaluated on the surface at each t.")
+@verbosity_options
 def command(model, times, out, resolution, fmt, texture):
     """Bake a space-time SDF (fit morph / fit sequence output, or its nested sequence) frame by frame."""
     from neural_bake.bake.frames import bake_frames
@@ -43,7 +49,7 @@ def command(model, times, out, resolution, fmt, texture):
     res = bake_frames(lambda t: fix_last_input(nets[0], time_input(t)), lambda t: fix_last_input(nets[-1], time_input(t)),
                       field.frame, ts, out, resolution=resolution, fmt=fmt, texture=tex)
     total = sum(s["march_s"] + s["normals_s"] + s["colours_s"] + s["write_s"] for s in res.stats)
-    click.echo(f"baked {len(res.files)} frames into {out} ({total / len(res.files):.2f} s per frame)")
+    say(f"baked {len(res.files)} frames into {out} ({total / len(res.files):.2f} s per frame)")
 
 
 

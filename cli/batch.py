@@ -19,7 +19,7 @@ def _stage_option(ctx, param, values):
 
 @click.command(epilog="""\b
 Example:
-  neural-bake samples --out meshes/
+  neural-bake samples -o meshes/
   neural-bake batch 'meshes/*.obj' -o baked/ --preset quick
   neural-bake batch assets.csv -o baked/ --set bake.size=1024 --workers 2
   neural-bake batch --preset quick --print-config > batch.toml

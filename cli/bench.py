@@ -23,7 +23,17 @@ BENCHES = {
 }
 
 
-@click.group(cls=LazyGroup, lazy=BENCHES)
+class BenchGroup(LazyGroup):
+    """The bench verbs: one without an example of its own shows the one every bench verb takes."""
+
+    def get_command(self, ctx, name):
+        cmd = super().get_command(ctx, name)
+        if cmd is not None and not cmd.epilog:
+            cmd.epilog = f"\b\nExample:\n  neural-bake bench {name} --quick --json {name}.json"
+        return cmd
+
+
+@click.group(cls=BenchGroup, lazy=BENCHES)
 def group():
     """Benchmarks: accuracy against time, beside the baseline a user would otherwise pick."""
 

@@ -1,23 +1,47 @@
-"""`neural-bake demo --out DIR`: the main job end to end on a bundled sample (thin verb)."""
+"""`neural-bake demo -o DIR`: the main job end to end on a bundled sample (thin verb)."""
 
 from __future__ import annotations
 
 import click
 
+from .config_options import ConfigCommand, ConfigSpec
+from .options import output_option, say, verbosity, verbosity_options
+
 __all__ = ["command"]
 
 
-@click.command()
-@click.option("--out", "out", default="demo-out", show_default=True, type=click.Path(file_okay=False),
-              help="Output folder (models, asset.glb, maps, report.json, demo.json).")
-@click.option("--sample", default="bumpy_sphere", show_default=True, help="Bundled sample to bake.")
-@click.option("--sdf-minutes", type=float, default=2.5, show_default=True, help="SDF fit budget, minutes.")
-@click.option("--texture-minutes", type=float, default=1.0, show_default=True, help="Texture fit budget, minutes.")
-@click.option("--size", type=int, default=1024, show_default=True, help="Map side in texels.")
-@click.option("--progress/--no-progress", default=True, help="Progress bars on stderr.")
-def command(out, sample, sdf_minutes, texture_minutes, size, progress):
-    """Fit, coarsen, bake and report on a bundled sample (about 4 minutes on 2 CPU cores)."""
-    from neural_bake.pipelines.demo import DemoConfig, run_demo
+def _config_class():
+    from neural_bake.pipelines.demo import DemoConfig
 
-    run_demo(out, DemoConfig(sample=sample, sdf_minutes=sdf_minutes, texture_minutes=texture_minutes, size=size,
-                             progress=progress), log=click.echo)
+    return DemoConfig
+
+
+def _resolve(preset, values):
+    from neural_bake.pipelines.demo import DemoConfig
+
+    return DemoConfig(**values)
+
+
+SPEC = ConfigSpec(load=_config_class, resolve=_resolve)
+
+
+@click.command(cls=ConfigCommand, config=SPEC, epilog="""\b
+Examples:
+  neural-bake demo -o demo-out
+  neural-bake demo -o demo-torus --sample torus --sdf-minutes 1 --size 512 --seed 1""")
+@output_option("Output folder (models, asset.glb, maps, report.json, demo.json) [default: demo-out].",
+               folder=True, required=False, old_spelling=True)
+@verbosity_options
+def command(output, config):
+    """Fit, coarsen, bake and report on a bundled sample (about 4 minutes on 2 CPU cores).
+
+    Every setting below is a field of the demo's config: a --config file sets them first, the options
+    given override it."""
+    from dataclasses import replace
+
+    from neural_bake.pipelines.demo import run_demo
+
+    if verbosity() < 0:
+        config = replace(config, progress=False)
+    say(f"settings: {config}", 1)
+    run_demo(output or "demo-out", config, log=say)

@@ -7,6 +7,8 @@ import os
 
 import click
 
+from .options import say, verbosity, verbosity_options
+
 __all__ = ["command", "load_shape", "network_options", "report_fit"]
 
 
@@ -49,7 +51,7 @@ def report_fit(fit, shapes_at_times, metrics: bool, output: str) -> None:
     from neural_bake.types import Mesh
 
     last = fit.history[-1] if fit.history else {}
-    click.echo(f"fit {fit.kind} {fit.config.width}x{fit.config.depth} ({fit.method}): {fit.steps} steps in "
+    say(f"fit {fit.kind} {fit.config.width}x{fit.config.depth} ({fit.method}): {fit.steps} steps in "
                f"{fit.seconds:.1f} s ({fit.stopped_reason}); final loss {last.get('loss', float('nan')):.4g}; "
                f"t in [{fit.time_range[0]:g}, {fit.time_range[1]:g}]")
     if metrics:
@@ -62,12 +64,12 @@ def report_fit(fit, shapes_at_times, metrics: bool, output: str) -> None:
                 try:
                     r = spacetime_metrics(fit, shape, t, n=20_000, resolution=96)
                 except FitError as exc:  # e.g. no zero level set yet: the model is still written
-                    click.echo(f"metrics at t = {t:g}: not measured ({exc})")
+                    say(f"metrics at t = {t:g}: not measured ({exc})")
                     continue
-                click.echo(f"metrics at t = {t:g} (unit frame): " + json.dumps(
+                say(f"metrics at t = {t:g} (unit frame): " + json.dumps(
                     {k: round(r[k], 6) for k in ("chamfer_l1", "hausdorff", "normal_median_deg")}))
     fit.save(output)
-    click.echo(f"wrote {output}")
+    say(f"wrote {output}")
 
 
 def pools(pool):
@@ -85,17 +87,21 @@ def check_output(output: str) -> None:
         raise FitError(f"{output}: folder {out_dir} does not exist")
 
 
-@click.command()
+@click.command(epilog="""\b
+Example:
+  neural-bake fit morph samples/sphere.obj samples/torus.obj -o morph.sdf --minutes 2
+  neural-bake render morph.sdf -o morph.gif --frames 24""")
 @click.argument("a", type=click.Path(dir_okay=False))
 @click.argument("b", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
-@click.option("--method", type=click.Choice(["lse", "interpolate"]), default="lse", show_default=True,
+@click.option("--method", type=click.Choice(["lse", "interpolate"]), default="interpolate", show_default=True,
               help="lse: level set equation df/dt + v|grad f| = 0 with v = d_A - d_B; interpolate: supervised "
                    "blend of the two distances plus the eikonal term.")
 @click.option("--align", type=click.Choice(["source", "unit"]), default="source", show_default=True,
               help="source: the shapes keep their places; unit: each is centred and scaled first (unrelated models).")
 @network_options
+@verbosity_options
 def command(a, b, output, method, align, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics,
             progress):
     """Fit a space-time SDF morphing shape A (t = 0) into shape B (t = 1); A and B are meshes or SDF model files."""
@@ -104,7 +110,7 @@ def command(a, b, output, method, align, width, depth, steps, minutes, seed, lr,
     check_output(output)
     sa, sb = load_shape(a), load_shape(b)
     fit = fit_morph(sa, sb, method=method, align=align, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed,
-                    lr=lr, time_extent=time_extent, progress=progress, **pools(pool))
+                    lr=lr, time_extent=time_extent, progress=progress and verbosity() >= 0, **pools(pool))
     if align == "unit":  # the metrics compare with the shapes as the fit saw them
         from dataclasses import replace
 

@@ -8,11 +8,15 @@ from pathlib import Path
 import click
 
 from .fit_morph import check_output, network_options, pools, report_fit
+from .options import verbosity, verbosity_options
 
 __all__ = ["command"]
 
 
-@click.command()
+@click.command(epilog="""\b
+Example:
+  neural-bake samples -o samples/ --names twisting_torus
+  neural-bake fit sequence samples/twisting_torus -o twist.sdf --minutes 3""")
 @click.argument("frames", nargs=-1, required=True, type=click.Path())
 @click.option("--times", default=None,
               help="Frame times: START:STOP:COUNT or a comma-separated list (default: the folder's frames.json, "
@@ -20,6 +24,7 @@ __all__ = ["command"]
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
 @network_options
+@verbosity_options
 def command(frames, times, output, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics, progress):
     """Fit a space-time SDF through the mesh FRAMES (files, or one folder with frames.json as `neural-bake
     samples` writes it)."""
@@ -46,5 +51,5 @@ def command(frames, times, output, width, depth, steps, minutes, seed, lr, time_
         raise NeuralBakeError(f"--times: {len(ts)} times for {len(files)} frames")
     meshes = [load_mesh(f) for f in files]
     fit = fit_sequence(meshes, ts, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed, lr=lr,
-                       time_extent=time_extent, progress=progress, **pools(pool))
+                       time_extent=time_extent, progress=progress and verbosity() >= 0, **pools(pool))
     report_fit(fit, list(zip(ts, meshes)), metrics, output)

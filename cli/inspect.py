@@ -7,7 +7,10 @@ import json
 import click
 
 
-@click.command()
+@click.command(epilog="""\b
+Example:
+  neural-bake inspect samples/bumpy_sphere.obj
+  neural-bake inspect scan.ply --texture scan.png --json""")
 @click.argument("mesh", metavar="MESH")
 @click.option("--texture", "texture", metavar="IMG", default=None,
               help="Base-colour image for a mesh whose file names none (PNG, JPEG, EXR, TIFF).")

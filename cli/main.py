@@ -78,7 +78,7 @@ def cli():
 
     \b
     Typical run:
-      neural-bake samples --out samples/
+      neural-bake samples -o samples/
       neural-bake inspect samples/bumpy_sphere.obj
       neural-bake fit sdf samples/bumpy_sphere.obj -o bumpy.sdf
       neural-bake bake samples/bumpy_sphere.obj --sdf bumpy.sdf --coarse decimate:2000 -o out/

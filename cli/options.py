@@ -6,7 +6,7 @@ import math
 
 import click
 
-__all__ = ["refuse_nonpositive", "lock_outputs"]
+__all__ = ["refuse_nonpositive", "lock_outputs", "output_option", "verbosity_options", "verbosity", "say"]
 
 
 def refuse_nonpositive(**options) -> None:
@@ -25,3 +25,61 @@ def lock_outputs(*paths) -> None:
     from neural_bake.io.outdir import locked_outputs
 
     click.get_current_context().with_resource(locked_outputs(*paths))
+
+
+def output_option(help: str, *, folder: bool = False, required: bool = True, old_spelling: bool = False):
+    """``-o/--output PATH`` (parameter ``output``); ``old_spelling`` keeps ``--out`` as a hidden alias for
+    command lines written before every verb spelled it ``-o/--output``."""
+    import functools
+
+    kind = dict(file_okay=False) if folder else dict(dir_okay=False)
+
+    def deco(fn):
+        inner = fn
+        if old_spelling:
+            @functools.wraps(inner)
+            def fn(*args, out_alias=None, **kwargs):
+                if out_alias is not None:
+                    if kwargs.get("output") not in (None, out_alias):
+                        raise click.UsageError("give -o/--output once (--out is its older spelling)")
+                    kwargs["output"] = out_alias
+                if required and kwargs.get("output") is None:
+                    raise click.UsageError("missing option -o/--output")
+                return inner(*args, **kwargs)
+
+            fn = click.option("--out", "out_alias", type=click.Path(**kind), default=None, hidden=True)(fn)
+        return click.option("-o", "--output", "output", type=click.Path(**kind), default=None,
+                            required=required and not old_spelling, help=help)(fn)
+
+    return deco
+
+
+def verbosity_options(fn):
+    """``-q/--quiet`` (no progress bars, only warnings, errors and the output asked for) and ``-v/--verbose``
+    (also the resolved settings and each step's details); the verb reads them with :func:`say`."""
+    import functools
+
+    inner = fn
+
+    @functools.wraps(inner)
+    def fn(*args, quiet=False, verbose=False, **kwargs):
+        if quiet and verbose:
+            raise click.UsageError("give --quiet or --verbose, not both")
+        click.get_current_context().meta["neural_bake.verbosity"] = -1 if quiet else 1 if verbose else 0
+        return inner(*args, **kwargs)
+
+    fn = click.option("-v", "--verbose", is_flag=True, help="Also print the resolved settings and details.")(fn)
+    return click.option("-q", "--quiet", is_flag=True,
+                        help="No progress bars; print only warnings, errors and what was asked for.")(fn)
+
+
+def verbosity() -> int:
+    """-1 quiet, 0 normal, 1 verbose (of the running verb; 0 outside one)."""
+    ctx = click.get_current_context(silent=True)
+    return ctx.find_root().meta.get("neural_bake.verbosity", 0) if ctx else 0
+
+
+def say(message: str, level: int = 0) -> None:
+    """Print ``message`` when the verbosity is at least ``level`` (0: normal lines, 1: --verbose details)."""
+    if verbosity() >= level:
+        click.echo(message)

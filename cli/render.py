@@ -13,6 +13,8 @@ from pathlib import Path
 
 import click
 
+from .options import say, verbosity, verbosity_options
+
 __all__ = ["command"]
 
 
@@ -46,12 +48,22 @@ def _size(text: str | None):
     return parts[0], parts[1]
 
 
-@click.command()
+@click.command(epilog="""\b
+Examples:
+  neural-bake render bumpy.nested -o bumpy.png --texture bumpy.tex --size 512
+  neural-bake render bumpy.nested -o bumpy.png --config scene.toml --effects shading,shadows --device cuda
+  neural-bake render morph.sdf -o morph.gif --frames 24 --fps 12""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", "out", default=None, type=click.Path(dir_okay=False),
               help="Colour image (PNG, EXR…); a .gif or .mp4 for a space-time model.")
-@click.option("--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
-              help="TOML scene file (camera, lights, material, effects, channels, trace settings).")
+@click.option("--config", "--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML scene file (camera, lights, material, effects, channels, trace settings); the options "
+                   "given override it.")
+@click.option("--print-config", is_flag=True,
+              help="Print the resolved scene (the file's, the options on top, the camera that frames MODEL) as "
+                   "a scene file and exit.")
+@click.option("--device", default=None, help="Torch device of the networks and rays: cpu, cuda, cuda:1, … "
+                                             "[default: cpu].")
 @click.option("--texture", "texture_path", type=click.Path(dir_okay=False), default=None,
               help="Texture field file (neural texture mapping; adds the texture effect).")
 @click.option("--size", default=None, help="Image size: N (square) or WxH pixels [default 256].")
@@ -78,8 +90,10 @@ def _size(text: str | None):
               help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
 @click.option("--precision", type=click.Choice(["fp32", "auto"]), default="fp32", show_default=True,
               help="Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU).")
-def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov, effects, channels, channel_format,
-            mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path, precision):
+@verbosity_options
+def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects,
+            channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path,
+            precision):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
 
@@ -92,7 +106,7 @@ def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov
     scene = load_scene(scene_path) if scene_path else Scene()
     obj = scene.objects[0] if scene.objects else None
     tex = texture_path or (obj.texture if obj else None)
-    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, precision=precision)
+    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=precision)
     if len(scene.objects) > 1:
         raise SceneError(f"{scene_path}: the render verb draws MODEL as the scene's one object; the scene has "
                          f"{len(scene.objects)} (render several objects from Python with render([...], scene))")
@@ -132,8 +146,20 @@ def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov
         w, h = wh or (base.width, base.height)
         scene = scene.with_(camera=Camera(pos or base.position, target or base.look_at, base.up,
                                           base.fov_deg if fov is None else fov, w, h))
-    render_kw = {"size": wh, "fov_deg": fov}
+    render_kw = {"size": wh, "fov_deg": fov, "device": device}
     cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if print_config:
+        from neural_bake.io.tomlio import toml_text
+        from neural_bake.render.renderer import scene_camera
+        from neural_bake.render.scene import scene_table
+
+        camera = scene_camera([first], scene, size=wh, fov_deg=fov, device=device,
+                              cache_dir=None if isinstance(asset, SpaceTimeAsset) else Path(cache) / "neural_bake",
+                              grids=[None] if isinstance(asset, SpaceTimeAsset) else None)
+        click.echo(toml_text(scene_table(scene.with_(camera=camera))), nl=False)
+        return
+    if out is None:
+        raise click.UsageError("missing -o/--output (needed unless --print-config)")
 
     out_path = Path(out)
     if isinstance(asset, SpaceTimeAsset):
@@ -142,11 +168,12 @@ def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov
         tr = _time_range(time_range)
 
         def progress(i, n, seconds):
-            click.echo(f"frame {i}/{n} ({seconds:.2f} s)", err=True)
+            if verbosity() >= 0:
+                click.echo(f"frame {i}/{n} ({seconds:.2f} s)", err=True)
 
         res = render_sequence(asset, scene, out_path.with_name(f"{out_path.stem}_frames"), frames=frames,
                               time_range=tr, animation=out_path, fps=fps, progress=progress, **render_kw)
-        click.echo(f"wrote {len(res.frames)} frames to {out_path.stem}_frames/ and {out_path}")
+        say(f"wrote {len(res.frames)} frames to {out_path.stem}_frames/ and {out_path}")
         stats = res.stats
     else:
         if out_path.suffix.lower() in (".gif", ".mp4"):
@@ -154,12 +181,12 @@ def command(model, out, scene_path, texture_path, size, camera_pos, look_at, fov
         result = render(asset, scene, cache_dir=Path(cache) / "neural_bake", **render_kw)
         paths = write_render(result, out_path, channel_format=channel_format)
         s = result.stats
-        click.echo(f"wrote {', '.join(str(p) for p in paths)} ({s['pixels']['hit']} of {s['pixels']['total']} "
+        say(f"wrote {', '.join(str(p) for p in paths)} ({s['pixels']['hit']} of {s['pixels']['total']} "
                    f"pixels hit, {s['seconds']['total']:.2f} s)")
         stats = s
     if stats_path:
         atomic_write_text(stats_path, dumps(finite(stats)))
-        click.echo(f"wrote {stats_path}")
+        say(f"wrote {stats_path}")
 
 
 def _time_range(text):

@@ -4,17 +4,23 @@ from __future__ import annotations
 
 import click
 
+from .options import output_option, say, verbosity_options
 
-@click.command()
+
+@click.command(epilog="""\b
+Examples:
+  neural-bake view baked/
+  neural-bake view baked/asset.glb --headless -o turntable/ --views 12""")
 @click.argument("path", metavar="PATH")
 @click.option("--headless", is_flag=True,
-              help="Write the turntable frames and a GIF (no browser); see --out.")
-@click.option("--out", "out", metavar="DIR", default=None,
-              help="Folder of the --headless frames (default PATH/turntable, or beside a GLB).")
+              help="Write the turntable frames and a GIF (no browser); see --output.")
+@output_option("Folder of the --headless frames (default PATH/turntable, or beside a GLB).", folder=True,
+               required=False, old_spelling=True)
 @click.option("--views", type=int, default=8, show_default=True, help="Turntable views.")
 @click.option("--size", type=int, default=320, show_default=True, help="Side of each render, pixels.")
 @click.option("--no-open", "no_open", is_flag=True, help="Write the report but do not open a browser.")
-def command(path: str, headless: bool, out: str | None, views: int, size: int, no_open: bool) -> None:
+@verbosity_options
+def command(path: str, headless: bool, output: str | None, views: int, size: int, no_open: bool) -> None:
     """Check a bake by eye. PATH is a bake's output folder (with asset.glb) or a GLB file.
 
     Writes PATH/report/index.html (an interactive glTF viewer of the baked asset beside its source,
@@ -23,4 +29,4 @@ def command(path: str, headless: bool, out: str | None, views: int, size: int, n
     """
     from neural_bake.pipelines.view_asset import view_path
 
-    view_path(path, headless=headless, out=out, views=views, size=size, open_browser=not no_open, log=click.echo)
+    view_path(path, headless=headless, out=output, views=views, size=size, open_browser=not no_open, log=say)

@@ -18,7 +18,7 @@ from typing import Callable
 
 from neural_bake.constants import ADAPTIVE_TOLERANCE_DEG
 
-__all__ = ["BakeAssetConfig", "bake_asset", "MAPS"]
+__all__ = ["BakeAssetConfig", "bake_asset", "bake_config", "PRESETS", "MAPS"]
 
 MAPS = ("normal", "albedo", "vertex")
 
@@ -74,6 +74,41 @@ class BakeAssetConfig:
     """Adaptive bake: largest angle (degrees) between interpolated normals and what the fields give."""
     precision: str = "auto"
     """Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster and within 0.05° of float32)."""
+    device: str | None = None
+    """Torch device of the networks ("cpu", "cuda", …; None: the CPU); the texels follow them there."""
+
+
+#: Bake presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
+#: BENCHMARKS.md.
+PRESETS: dict[str, dict] = {
+    "quick": {"coarse": "decimate:1000", "size": 512},
+    "default": {"coarse": "decimate:2000", "size": 2048},
+    "high": {"coarse": "decimate:5000", "size": 4096, "supersample": 2},
+}
+
+
+def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
+    """A BakeAssetConfig from a preset name (:data:`PRESETS`) and field overrides; NeuralBakeError for an
+    unknown preset or field."""
+    from dataclasses import fields, replace
+
+    from neural_bake.errors import NeuralBakeError
+
+    cfg = BakeAssetConfig()
+    if preset is not None:
+        if preset not in PRESETS:
+            raise NeuralBakeError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        cfg = replace(cfg, **PRESETS[preset])
+    unknown = sorted(set(overrides) - {f.name for f in fields(BakeAssetConfig)})
+    if unknown:
+        raise NeuralBakeError(f"bake: unknown setting(s) {', '.join(unknown)}")
+    cfg = replace(cfg, **overrides)
+    for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
+                          ("bits", (8, 16))):
+        if getattr(cfg, name) not in allowed:
+            raise NeuralBakeError(f"{name} {getattr(cfg, name)!r}: must be one of {', '.join(map(str, allowed))}",
+                                  parameter=name)
+    return cfg
 
 
 def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, texture_model=None,
@@ -150,9 +185,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        sdf_file = _load_field(sdf_path, "--sdf", "sdf")
+        sdf_file = _load_field(sdf_path, "--sdf", "sdf", cfg.device)
         sdf = _sdf_for(sdf_file, coarse)
-        tex = _load_field(tex_path, "--texture-model", "texture") if tex_path else None
+        tex = _load_field(tex_path, "--texture-model", "texture", cfg.device) if tex_path else None
         if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
             delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
             log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
@@ -318,14 +353,15 @@ def _check_uv_area(path, uv, size: int) -> None:
                         f"{size}x{size} map; bake with --coarse decimate or march, which unwrap a new layout")
 
 
-def _load_field(path, option: str, want: str):
-    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field."""
+def _load_field(path, option: str, want: str, device=None):
+    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field, its
+    networks on ``device``."""
     from neural_bake.errors import ModelFileError
     from neural_bake.fields import NestedSequence, SdfField, TextureField, load_field
 
     if not Path(path).exists():
         raise ModelFileError(f"{option} {path}: no such model file")
-    field = load_field(path)
+    field = load_field(path, device=device)
     types, expected = ((SdfField, NestedSequence), "an SDF (kind 'sdf' or a nested sequence)") if want == "sdf" \
         else ((TextureField,), "a texture field (kind 'texture')")
     if not isinstance(field, types):

@@ -26,6 +26,7 @@ from typing import Callable
 
 from neural_bake.errors import NeuralBakeError
 
+from .bake_asset import PRESETS as BAKE_PRESETS
 from .manifest import STAGE_NAMES, AssetSpec, read_manifest
 
 __all__ = ["BatchConfig", "PRESETS", "run_batch", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
@@ -43,24 +44,24 @@ EXECUTORS = ("local", "ray")
 PRESETS: dict[str, dict[str, dict]] = {
     "quick": {
         "sdf": {"preset": "quick", "minutes": 0.4},
-        "nested": {"levels": "32x1", "steps": 300, "certify": False},
+        "nested": {"preset": "quick"},
         "texture": {"preset": "quick", "minutes": 0.2},
-        "coarse": {"spec": "decimate:1000"},
-        "bake": {"size": 512},
+        "coarse": {"spec": BAKE_PRESETS["quick"]["coarse"]},
+        "bake": {"preset": "quick"},
     },
     "default": {
         "sdf": {"preset": "default"},
-        "nested": {"levels": "64x1", "steps": 2000},
+        "nested": {"preset": "default"},
         "texture": {"preset": "default"},
-        "coarse": {"spec": "decimate:2000"},
-        "bake": {"size": 2048},
+        "coarse": {"spec": BAKE_PRESETS["default"]["coarse"]},
+        "bake": {"preset": "default"},
     },
     "high": {
         "sdf": {"preset": "high"},
-        "nested": {"levels": "64x1,256x1", "steps": 4000},
+        "nested": {"preset": "high"},
         "texture": {"preset": "high"},
-        "coarse": {"spec": "decimate:5000"},
-        "bake": {"size": 4096, "supersample": 2},
+        "coarse": {"spec": BAKE_PRESETS["high"]["coarse"]},
+        "bake": {"preset": "high"},
     },
 }
 
@@ -172,7 +173,7 @@ def _batch_options(cfg: BatchConfig) -> dict[str, dict]:
     if cfg.seed is not None:
         common = {"sdf": {"seed": cfg.seed}, "nested": {"seed": cfg.seed}, "texture": {"seed": cfg.seed}}
     if cfg.device is not None:
-        common = _merge(common, {"sdf": {"device": cfg.device}, "texture": {"device": cfg.device}})
+        common = _merge(common, {stage: {"device": cfg.device} for stage in ("sdf", "nested", "texture", "bake")})
     return _merge(copy.deepcopy(PRESETS[cfg.preset]), common, cfg.stages)
 
 
@@ -256,6 +257,7 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
     log(f"batch: {len(assets)} assets ({len(refused)} refused), preset {cfg.preset}, {cfg.executor} executor, "
         f"{workers} worker(s) x {threads} thread(s)")
     try:
+        tasks = _skip_cached(tasks, record, log if not cfg.quiet else lambda m: None)
         if cfg.executor == "local":
             _run_local(tasks, workers, record, on_event)
         else:
@@ -271,6 +273,21 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
         log(line)
     _write_index(out, summary, log)
     return summary
+
+
+def _skip_cached(tasks: list[dict], record: Callable[[dict], None], log: Callable[[str], None]) -> list[dict]:
+    """Record the assets whose every stage is cached here, with no worker process; return the others."""
+    from .stages import cached_record
+
+    todo = []
+    for task in tasks:
+        rec = cached_record(task)
+        if rec is None:
+            todo.append(task)
+            continue
+        log(f"[{task['name']}] every stage unchanged, skipped")
+        record(rec)
+    return todo
 
 
 #: The batch's HTML index (a row per asset: thumbnail, status, headline metrics, failure), in OUT.

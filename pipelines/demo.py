@@ -23,8 +23,8 @@ class DemoConfig:
 
     sample: str = "bumpy_sphere"
     """Bundled sample to bake (see `neural-bake samples`)."""
-    sdf_preset: str = "128x2"
-    """SDF network preset (W x D)."""
+    sdf_preset: str = "default"
+    """SDF preset: quick, default or high (64x1, 128x2, 256x3), or a network WxD of `fit sdf`."""
     sdf_minutes: float = 2.5
     """Time budget of the SDF fit, minutes."""
     nested_levels: str = "32x1"
@@ -34,7 +34,7 @@ class DemoConfig:
     nested_boxes: int = 2000
     """Box budget of the range-analysis certification of each level's δ (0: estimated δ only)."""
     texture_preset: str = "quick"
-    """Texture network preset."""
+    """Texture preset: quick, default or high."""
     texture_minutes: float = 1.0
     """Time budget of the texture fit, minutes."""
     coarse: str = "decimate:2000"
@@ -48,6 +48,8 @@ class DemoConfig:
     """Progress bars on stderr during the fits."""
     report_views: int = 8
     """Turntable views of the HTML report (0: no report)."""
+    device: str | None = None
+    """Torch device of the fits ("cpu", "cuda", …; None: the CPU)."""
 
 
 def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], None] = print) -> dict:
@@ -87,7 +89,8 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
         f"{'x'.join(map(str, mesh.texture.shape[:2])) if mesh.texture is not None else 'none'}")
 
     log(f"[2/5] fitting the SDF ({cfg.sdf_preset}, {cfg.sdf_minutes:g} min budget)")
-    sdf = fit_sdf(mesh, preset=cfg.sdf_preset, minutes=cfg.sdf_minutes, seed=cfg.seed, progress=cfg.progress)
+    sdf = fit_sdf(mesh, preset=cfg.sdf_preset, minutes=cfg.sdf_minutes, seed=cfg.seed, progress=cfg.progress,
+                  device=cfg.device)
     sdf_path = stage / "sdf.safetensors"
     sdf.save(sdf_path)
     sample = get_sample(cfg.sample)
@@ -111,7 +114,7 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     log(f"[4/5] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget, λ > 0, band δ of "
         f"level 0)")
     tex = fit_texture(mesh, seq, preset=cfg.texture_preset, minutes=cfg.texture_minutes, seed=cfg.seed,
-                      progress=cfg.progress)
+                      progress=cfg.progress, device=cfg.device or "cpu")
     tex_path = stage / "texture.safetensors"
     tex.save(tex_path)
     tex_q = texture_metrics(tex.model, mesh, seq, delta=tex.delta, n=50_000)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-import types
 import typing
 import warnings
 from dataclasses import asdict, dataclass
@@ -32,10 +31,11 @@ from pathlib import Path
 from typing import Callable
 
 from neural_bake.errors import NeuralBakeError, NeuralBakeWarning
+from neural_bake.fit.nested import NestedFitConfig
 
 from .manifest import STAGE_NAMES
 
-__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "stage_key_config", "run_asset",
+__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "stage_key_config", "run_asset", "cached_record",
            "STAGE_FILES", "RECORD_NAME", "RECORD_FORMAT", "set_threads"]
 
 #: The per-asset record of done stages (JSON), in the asset's folder.
@@ -50,26 +50,8 @@ STAGE_FILES = {"sdf": "sdf.safetensors", "nested": "nested.safetensors", "textur
 _NOT_IN_KEY = {"progress", "checkpoint", "checkpoint_every", "resume", "log_every"}
 
 
-@dataclass
-class NestedStageConfig:
-    """Settings of the nested stage (:func:`neural_bake.fit.nested.fit_nested`); one line per field."""
-
-    levels: str = "64x1"
-    """Coarse levels WIDTHxDEPTH, coarse to fine, comma-separated ("" or "none": no nested stage)."""
-    steps: int = 2000
-    """Distillation steps per level."""
-    minutes: float | None = None
-    """Wall-clock budget per level in minutes (None: none)."""
-    band: float = 0.1
-    """Δ: half-width (unit frame) of the band around the zero level sets where |h - f| is measured."""
-    eps: float = 1e-3
-    """ε of Prop. 1 added to the sup-norms."""
-    certify: bool = True
-    """Certify the sup-norms by range analysis."""
-    max_boxes: int = 20_000
-    """Box budget of the certification."""
-    seed: int = 0
-    """Seed of weights and samples."""
+#: The nested stage's settings are the nested fit's own.
+NestedStageConfig = NestedFitConfig
 
 
 @dataclass
@@ -92,44 +74,24 @@ def _stage_classes():
 
 
 def _coerce(value, hint, what: str):
-    """A manifest value (text from CSV or a text file, or a JSON value) as the field's type."""
-    if not isinstance(value, str):
-        return value
-    args = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
-    text = value.strip()
-    if type(None) in args and text.lower() in ("none", "null"):
-        return None
-    for t in (a for a in args if a is not type(None)):
-        try:
-            if t is bool:
-                low = text.lower()
-                if low in ("true", "yes", "on", "1"):
-                    return True
-                if low in ("false", "no", "off", "0"):
-                    return False
-                continue
-            if t is int:
-                return int(text)
-            if t is float:
-                return float(text)
-            if t is str:
-                return text
-            if typing.get_origin(t) is tuple:
-                return tuple(float(x) for x in text.replace(",", " ").split())
-        except ValueError:
-            continue
-    names = " or ".join(getattr(a, "__name__", str(a)) for a in args)
-    raise NeuralBakeError(f"{what}={value!r}: expected {names}")
+    """A manifest value as the field's type: text (CSV, a text file) converted, a JSON value as it is."""
+    from neural_bake.configs import convert
+
+    return convert(value, hint, what) if isinstance(value, str) else value
 
 
 def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
     """``{stage: config object}`` from ``{stage: {field: value}}`` (text values converted to the field types).
 
-    ``sdf`` and ``texture`` take a ``preset`` key (their library presets), applied before the other fields.
+    ``sdf``, ``nested``, ``texture`` and ``bake`` take a ``preset`` key (their presets), applied before the
+    other fields.
     Raises NeuralBakeError naming ``STAGE.FIELD`` (and ``where``) for an unknown field or a bad value.
     """
+    from neural_bake.fit.nested import nested_config
     from neural_bake.fit.sdf import config_from
     from neural_bake.fit.texture import _resolve_config
+
+    from .bake_asset import bake_config
 
     prefix = f"{where}: " if where else ""
     classes = _stage_classes()
@@ -140,8 +102,8 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
         given = dict(options.get(stage, {}))
         values = {}
         preset = given.pop("preset", None)
-        if preset is not None and stage not in ("sdf", "texture"):
-            raise NeuralBakeError(f"{prefix}{stage}.preset: only sdf and texture have presets")
+        if preset is not None and stage == "coarse":
+            raise NeuralBakeError(f"{prefix}{stage}.preset: the coarse stage has no presets (the bake's set it)")
         for k, v in given.items():
             if k not in hints or k == "coarse" and stage == "bake":
                 hint = " (the coarse mesh is set by coarse.spec)" if k == "coarse" else ""
@@ -152,6 +114,10 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
                 out[stage] = config_from(preset=preset, **values)
             elif stage == "texture":
                 out[stage] = _resolve_config(None, {**values, **({"preset": preset} if preset else {})})
+            elif stage == "nested":
+                out[stage] = nested_config(preset, **values)
+            elif stage == "bake":
+                out[stage] = bake_config(preset, **values)
             else:
                 out[stage] = cls(**values)
         except NeuralBakeError as exc:
@@ -279,7 +245,38 @@ def _load_record(folder: Path) -> dict:
     return rec
 
 
-def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
+class _WouldRun(Exception):
+    """A stage of a :func:`cached_record` check is not cached."""
+
+
+def cached_record(task: dict) -> dict | None:
+    """The asset's record, made in this process without running anything, when ``stages.json`` shows every
+    stage done with its present key and unchanged outputs (an all-cached asset needs no worker); None when a
+    stage would run or the check cannot tell (the worker then runs the asset and reports any failure)."""
+    rec = _load_record(Path(task["folder"]))
+    if not {"sdf", "coarse", "bake"} <= set(rec.get("stages", {})):
+        return None
+    t_start = time.perf_counter()
+    result: dict = {"name": task["name"], "mesh": task["mesh"], "status": "ok", "reason": None, "stages": {},
+                    "metrics": {}, "warnings": []}
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", NeuralBakeWarning)
+            _run_stages(task, result, lambda msg: None, dry=True)
+    except KeyboardInterrupt:
+        raise
+    except BaseException:  # _WouldRun, or anything the worker is to report
+        return None
+    for w in caught:
+        if issubclass(w.category, NeuralBakeWarning) and str(w.message) not in result["warnings"]:
+            result["warnings"].append(str(w.message))
+    result["seconds"] = time.perf_counter() - t_start
+    return result
+
+
+def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool = False) -> None:
+    """Run (or skip) the stages of one asset into ``result``; ``dry``: raise _WouldRun instead of running a
+    stage, and write nothing."""
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.digest import arrays_digest, file_digest, json_digest
     from neural_bake.io.jsonio import dumps
@@ -295,7 +292,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
     result["metrics"]["faces"] = mesh.n_faces
     log(f"loaded {Path(mesh_path).name}: {mesh.n_faces} faces in {time.perf_counter() - t0:.1f} s")
     folder.mkdir(parents=True, exist_ok=True)
-    _remove_stale(folder)
+    if not dry:
+        _remove_stale(folder)
     record = _load_record(folder)
     stages = record.get("stages", {})
     record = {"format": RECORD_FORMAT, "name": task["name"], "mesh": mesh_path, "texture": texture, "stages": stages}
@@ -320,6 +318,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
             result["metrics"][name] = prev.get("metrics", {})
             log(f"{name}: unchanged, skipped")
             return
+        if dry:
+            raise _WouldRun(name)
         result["stages"][name] = {"status": "running", "seconds": 0.0}
         t = time.perf_counter()
         metrics = run(out, key)
@@ -355,7 +355,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         from neural_bake.fit.sdf import load_sdf
 
         n = nested_cfg
-        seq = fit_nested(load_sdf(sdf_path), parse_levels(n.levels), steps=n.steps, minutes=n.minutes, seed=n.seed,
+        seq = fit_nested(load_sdf(sdf_path, device=n.device), parse_levels(n.levels), steps=n.steps, minutes=n.minutes, seed=n.seed,
                          band=n.band, eps=n.eps, certify=n.certify, certify_max_boxes=n.max_boxes, progress=False,
                          stability_samples=())
         seq.save(out)
@@ -413,7 +413,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None]) -> None:
         return _bake_metrics(report)
 
     stage("bake", ["mesh", field_key, "texture", "coarse"], stage_key_config(bake_cfg), run_bake)
-    save_record()
+    if not dry:
+        save_record()
 
 
 def _remove_stale(folder: Path, pattern: str = ".*.tmp*", keep: Path | None = None) -> None:

@@ -138,3 +138,30 @@ def test_nested_sequence_file_renders_with_normal_mapping(tmp_path, capsys, fit_
     scene.write_text(f'[[objects]]\nmodel = "{path}"\ndeltas = [0.0, 0.0]\n')
     code, _, err = run([str(path), "-o", str(tmp_path / "d.png"), "--size", "16", "--scene", str(scene)], capsys)
     assert code == 0, err
+
+
+def test_print_config_is_the_resolved_scene_and_renders_the_same_image(models, tmp_path, capsys):
+    import tomllib
+
+    opts = ["--size", "40x32", "--fov", "30", "--effects", "shading,shadows", "--iterations", "40", "--mode",
+            "fixed"]
+    code, text, err = run([models["sdf"], *opts, "--print-config"], capsys)
+    assert code == 0, err
+    scene = tomllib.loads(text)
+    assert scene["effects"] == ["shading", "shadows"] and scene["trace"]["iterations"] == [40]
+    assert (scene["camera"]["width"], scene["camera"]["height"], scene["camera"]["fov_deg"]) == (40, 32, 30.0)
+    f = tmp_path / "scene.toml"
+    f.write_text(text)
+    code, again, err = run([models["sdf"], "--config", str(f), "--print-config"], capsys)
+    assert code == 0 and again == text, err
+    assert run([models["sdf"], *opts, "-o", str(tmp_path / "a.png")], capsys)[0] == 0
+    assert run([models["sdf"], "--config", str(f), "-o", str(tmp_path / "b.png")], capsys)[0] == 0
+    assert np.array_equal(read_image(tmp_path / "a.png"), read_image(tmp_path / "b.png"))
+    # options override the file; a bad key is one line naming the file and the key
+    code, text, err = run([models["sdf"], "--config", str(f), "--effects", "shading", "--print-config"], capsys)
+    assert code == 0 and tomllib.loads(text)["effects"] == ["shading"]
+    f.write_text("effekts = ['shading']\n")
+    code, _, err = run([models["sdf"], "--config", str(f), "--print-config"], capsys)
+    assert code == 2 and err.startswith(f"neural-bake: error: {f}: unknown key 'effekts'") and err.count("\n") == 1
+    code, _, err = run([models["sdf"]], capsys)
+    assert code == 2 and "missing -o/--output" in err

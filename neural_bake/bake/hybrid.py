@@ -73,11 +73,18 @@ class HybridFallback:
         self.seconds = 0.0
 
     def field_values(self, points: np.ndarray) -> np.ndarray:
-        """f (M,) at ``points`` (M, 3) in the fine mesh's unit frame (converted to the field's frame)."""
-        from .baker import _evaluate
+        """f (M,) at ``points`` (M, 3) in the fine mesh's unit frame (converted to the field's frame): the
+        field's forward pass alone (:meth:`~neural_bake.fields.sdf.SdfField.value`), no gradient."""
+        import torch
 
-        ev = _evaluate(np.asarray(points, dtype=np.float64), self.fine.frame, self.sdf, None, self.chunk_size)
-        return ev["values"]
+        from .baker import _tensor_kwargs, _to_field_frame
+
+        pts = _to_field_frame(np.asarray(points, dtype=np.float64), self.fine.frame, self.sdf.frame)
+        kw = _tensor_kwargs(self.sdf)
+        out = np.empty(len(pts))
+        for s in range(0, len(pts), self.chunk_size):
+            out[s: s + self.chunk_size] = self.sdf.value(torch.as_tensor(pts[s: s + self.chunk_size], **kw)).double().cpu().numpy()
+        return out
 
     def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray):
         import time

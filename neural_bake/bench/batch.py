@@ -9,7 +9,7 @@ the median baked normal error against the samples' analytic surfaces (the same m
 
 Assets: full run, each of the four bundled samples twice (SDF seeds 0 and 1: eight assets, so that four
 workers have work to share), the ``quick`` preset's networks with step caps; ``quick``: low-resolution copies
-of two samples and tiny fits, with 1 and 2 workers (a smoke run of the machinery).
+of the four samples and tiny fits, with 1, 2 and 4 workers too (a smoke run of the machinery).
 """
 
 from __future__ import annotations
@@ -104,14 +104,14 @@ def run(quick: bool = False, workers: tuple[int, ...] | None = None) -> dict:
     from ..samples.shapes import SAMPLES, get_sample
 
     s = settings(quick)
-    workers = workers or ((1, 2) if quick else (1, 2, 4))
+    workers = workers or (1, 2, 4)
     notes = []
     with tempfile.TemporaryDirectory(prefix="nb-bench-batch-") as tmp:
         root = Path(tmp)
         if quick:
             (root / "meshes").mkdir()
             meshes = {n: write_sample(get_sample(n).mesh(resolution=300, texture_size=64), root / "meshes", n)
-                      for n in ("sphere", "torus")}
+                      for n in SAMPLES}
         else:  # each bundled sample twice (SDF seeds 0 and 1), so that 4 workers have 8 assets to share
             meshes = {f"{n}_{c}": sample_path(n) for n in SAMPLES for c in ("a", "b")}
         manifest = root / "assets.csv"

@@ -120,6 +120,21 @@ class SdfField:
             (grads,) = torch.autograd.grad(values.sum(), p)
         return values.detach(), grads.detach()
 
+    def value(self, points: torch.Tensor) -> torch.Tensor:
+        """f (N,) at ``points`` (N, 3) without the gradient (a network's forward pass alone, its hidden GEMMs
+        at ``gemm_dtype``); a NaN value becomes +inf, as in :meth:`value_and_normal`."""
+        with torch.no_grad():
+            if self.model is not None:
+                from ..nets.siren import siren_forward_inference
+
+                layers = self.model.affine_layers(dtype=points.dtype, device=points.device)
+                values = siren_forward_inference(layers, points, gemm_dtype=self.gemm_dtype)
+            elif self._pair is not None:
+                values = self._pair(points)[0]
+            else:
+                values = self.fn(points)
+        return torch.nan_to_num(values.reshape(-1), nan=float("inf"))
+
     def value_and_normal(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """f (N,), unit normals ∇f/|∇f| (N, 3) and ``valid`` (N,) bool (False where |∇f| < GRAD_EPS or
         non-finite; those normals are zero, never NaN). A NaN value becomes +inf (outside every band)."""

@@ -41,6 +41,7 @@ import heapq
 import math
 import time
 import warnings
+from dataclasses import dataclass
 
 import torch
 
@@ -52,8 +53,57 @@ from ..nets.siren import Siren
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
-__all__ = ["NestedSequence", "fit_nested", "band_samples", "estimate_sup_norm", "certify_sup_norm",
+__all__ = ["NestedSequence", "NestedFitConfig", "PRESETS", "nested_config", "fit_nested", "band_samples", "estimate_sup_norm", "certify_sup_norm",
            "parse_levels", "NESTED_FORMAT"]
+
+
+@dataclass
+class NestedFitConfig:
+    """Settings of a nested fit (the `fit nested` verb and the batch's nested stage); one line per field."""
+
+    levels: str = "64x1,256x1"
+    """Coarse levels WIDTHxDEPTH, coarse to fine, comma-separated ("" or "none" in a batch: no nested stage)."""
+    steps: int = 2000
+    """Distillation steps per level."""
+    minutes: float | None = None
+    """Wall-clock budget per level in minutes (None: none)."""
+    band: float = 0.1
+    """Δ: half-width (unit frame) of the band around the zero level sets where |h - f| is measured."""
+    eps: float = 1e-3
+    """ε of Prop. 1 added to the sup-norms."""
+    certify: bool = True
+    """Certify the sup-norms by range analysis."""
+    max_boxes: int = 20_000
+    """Box budget of the certification."""
+    seed: int = 0
+    """Seed of weights and samples."""
+    device: str | None = None
+    """Torch device of the distillation ("cpu", "cuda", …; None: the fine model's)."""
+
+
+#: Nested-fit presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
+#: BENCHMARKS.md.
+PRESETS: dict[str, dict] = {
+    "quick": {"levels": "32x1", "steps": 300, "certify": False},
+    "default": {"levels": "64x1", "steps": 2000},
+    "high": {"levels": "64x1,256x1", "steps": 4000},
+}
+
+
+def nested_config(preset: str | None = None, **overrides) -> NestedFitConfig:
+    """A NestedFitConfig from a preset name (:data:`PRESETS`) and field overrides; FitError for an unknown
+    preset or field."""
+    from dataclasses import fields, replace
+
+    cfg = NestedFitConfig()
+    if preset is not None:
+        if preset not in PRESETS:
+            raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        cfg = replace(cfg, **PRESETS[preset])
+    unknown = sorted(set(overrides) - {f.name for f in fields(NestedFitConfig)})
+    if unknown:
+        raise FitError(f"fit_nested: unknown setting(s) {', '.join(unknown)}")
+    return replace(cfg, **overrides)
 
 
 # ----------------------------------------------------------------------------------------------- band & sup

@@ -29,7 +29,9 @@ hand-written backward): one ordinary ``backward()``, no double-backward autograd
   - sequence: the eikonal term only (the frames pin the shape at their times, the network interpolates).
 
 Both morph methods give the same path where the blend of the ends' distances is itself a distance (concentric
-spheres); BENCHMARKS.md ("Dynamic SDFs") measures them against each other at equal time. Shapes far apart:
+spheres). At equal steps the interpolation reaches the end shapes and a distance field (eikonal residual) in
+between clearly better for a slightly higher cost per step, so it is the default; the LSE is kept for a motion
+prescribed by the level set equation (BENCHMARKS.md, "bench dynamic", has the figures). Shapes far apart:
 the linear blend's zero set is empty in the middle of the morph (every point is far from one of the ends), so
 the shape shrinks away and grows back — a property of the distance blend, not a failure of the fit.
 """
@@ -78,8 +80,9 @@ class SpaceTimeFitConfig:
     """ω0 of the first layer (hidden layers use 30); stored in the model file."""
     time_extent: float = 1.0
     """E: the fitted time range maps onto τ ∈ [−E, E] (a smaller E gives smoother motion in t)."""
-    method: str = "lse"
-    """Morph only: "lse" (level set equation) or "interpolate" (supervised interpolation + eikonal)."""
+    method: str = "interpolate"
+    """Morph only: "interpolate" (supervised interpolation + eikonal; better quality per minute) or "lse"
+    (level set equation)."""
     steps: int = 3000
     """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
     minutes: float | None = None

@@ -45,25 +45,33 @@ def _value(v) -> str:
     return json.dumps(str(v), ensure_ascii=False)  # a TOML basic string is a JSON string
 
 
-def toml_text(table: dict, comments: dict | None = None) -> str:
-    """TOML of ``{key: scalar, …, section: {key: scalar}}``; None is written as the string "none" (TOML has no
-    null; the readers of settings files take "none" as None). ``comments[key]`` / ``comments[section][key]``:
-    a comment line above the key."""
-    comments = comments or {}
-    lines = []
+def _tables(v) -> bool:
+    """Whether ``v`` is written as an array of tables (``[[name]]``): a non-empty list of dicts."""
+    return isinstance(v, (list, tuple)) and bool(v) and all(isinstance(x, dict) for x in v)
 
-    def emit(d: dict, notes: dict):
+
+def toml_text(table: dict, comments: dict | None = None) -> str:
+    """TOML of ``{key: scalar or array, …, section: {…}, name: [{…}, …]}`` (sections and arrays of tables
+    nest); None is written as the string "none" (TOML has no null; the readers of settings files take "none"
+    as None). ``comments[key]`` / ``comments[section][key]``: a comment line above the key."""
+    lines: list[str] = []
+
+    def emit(d: dict, notes: dict, prefix: str):
         for k, v in d.items():
-            if isinstance(v, dict):
+            if isinstance(v, dict) or _tables(v):
                 continue
             if notes.get(k):
                 lines.append(f"# {notes[k]}")
             lines.append(f'{k} = "none"' if v is None else f"{k} = {_value(v)}")
+        for k, v in d.items():
+            name = f"{prefix}{k}"
+            if isinstance(v, dict):
+                lines.extend(["", f"[{name}]"])
+                emit(v, notes.get(k) or {}, name + ".")
+            elif _tables(v):
+                for item in v:
+                    lines.extend(["", f"[[{name}]]"])
+                    emit(item, {}, name + ".")
 
-    emit(table, comments)
-    for k, v in table.items():
-        if isinstance(v, dict):
-            lines.append("")
-            lines.append(f"[{k}]")
-            emit(v, comments.get(k) or {})
+    emit(table, comments or {}, "")
     return "\n".join(lines) + "\n"

@@ -37,7 +37,7 @@ from .skip import occupancy_for
 from .stats import EvalCounter
 from .trace import TraceSettings, lod_weights, trace_rays
 
-__all__ = ["RenderResult", "render", "default_camera", "object_bounds"]
+__all__ = ["RenderResult", "render", "default_camera", "scene_camera", "object_bounds"]
 
 
 @dataclass
@@ -152,10 +152,7 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
     _plan_check(assets, scene)
     counter = EvalCounter()
     grids = [_grid(a, scene, counter, dtype, device, cache_dir) for a in assets]
-    w, h = size or (256, 256)
-    cam = camera or scene.camera or default_camera(assets, transforms, width=w, height=h,
-                                                   fov_deg=40.0 if fov_deg is None else fov_deg,
-                                                   grids=[g for g, _, _ in grids])
+    cam = camera or scene_camera(assets, scene, size=size, fov_deg=fov_deg, grids=[g for g, _, _ in grids])
     seconds: dict[str, float] = {}
     t_start = time.perf_counter()
     o_w, d_w = cam.rays(device=device, dtype=dtype)
@@ -306,6 +303,21 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
         "mode": "guaranteed" if scene.guaranteed else settings.mode,
     }
     return RenderResult(channels, stats, cam, counter)
+
+
+def scene_camera(assets, scene: Scene, *, size: tuple[int, int] | None = None, fov_deg: float | None = None,
+                 grids=None, device=None, dtype=torch.float32, cache_dir=None) -> Camera:
+    """The camera :func:`render` uses for ``assets`` (a list, one per scene object) and ``scene``: the scene's,
+    else :func:`default_camera` framing the objects by their skipping grids (built here when ``grids`` is
+    None), of ``size`` (default 256²) and ``fov_deg`` (default 40°)."""
+    if scene.camera is not None:
+        return scene.camera
+    transforms = [o.transform for o in scene.objects] if scene.objects else [None] * len(assets)
+    if grids is None:
+        grids = [_grid(a, scene, EvalCounter(), dtype, device, cache_dir)[0] for a in assets]
+    w, h = size or (256, 256)
+    return default_camera(assets, transforms, width=w, height=h, fov_deg=40.0 if fov_deg is None else fov_deg,
+                          grids=grids)
 
 
 def _grid(asset: RenderAsset, scene: Scene, counter: EvalCounter, dtype, device, cache_dir=None):

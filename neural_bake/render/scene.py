@@ -51,7 +51,7 @@ from .trace import TraceSettings
 
 __all__ = [
     "SceneError", "Scene", "SceneObject", "Transform", "AmbientOcclusion", "EFFECTS", "CHANNELS",
-    "load_scene", "parse_list",
+    "load_scene", "parse_list", "scene_table",
 ]
 
 #: Effects a scene can call for.
@@ -330,3 +330,23 @@ def load_scene(path) -> Scene:
             objs.append(obj)
         kw["objects"] = tuple(objs)
     return _build(Scene, kw, str(path))
+
+
+def scene_table(scene: Scene) -> dict:
+    """The TOML table of ``scene`` (module docstring) that :func:`load_scene` reads back to an equal scene:
+    every field, None values left out (None is each one's default), lights with their ``kind``."""
+    from dataclasses import asdict
+
+    from .shading import PointLight
+
+    def drop_none(v):
+        if isinstance(v, dict):
+            return {k: drop_none(x) for k, x in v.items() if x is not None}
+        if isinstance(v, (list, tuple)):
+            return [drop_none(x) for x in v]
+        return v
+
+    table = drop_none(asdict(scene))
+    table["lights"] = [{"kind": "point" if isinstance(light, PointLight) else "directional",
+                        **drop_none(asdict(light))} for light in scene.lights]
+    return table

@@ -61,10 +61,12 @@ def render_sequence(
     progress: Callable[[int, int, float], None] | None = None,
     size: tuple[int, int] | None = None,
     fov_deg: float | None = None,
+    device=None,
 ) -> SequenceResult:
     """Render ``frames`` frames of ``asset`` into ``frames_dir/frame_0000.png`` … and, with ``animation``
     (a .gif or .mp4 path), the animation. The camera (the scene's, or one framing the asset at its first
     time, of ``size`` and ``fov_deg``) stays fixed over the sequence. ``progress(i, n, seconds)`` is called after each frame.
+    ``device``: the torch device of the rays (default: the CPU; the networks stay where ``asset`` has them).
     """
     if not isinstance(asset, SpaceTimeAsset):
         raise RenderError(f"render_sequence: expected a space-time asset, got {type(asset).__name__}")
@@ -90,7 +92,7 @@ def render_sequence(
     try:
         paths = []
         for i, t in enumerate(times):
-            res = render(asset.at(t), scene)
+            res = render(asset.at(t), scene, device=device)
             counter.merge(res.counter)
             rgb = res.channels.get("color")
             if rgb is None:

@@ -314,3 +314,19 @@ def test_angle_measure_is_exact_near_zero(dtype, rng):
     b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
     tol = 1e-9 if dtype == np.float64 else 1e-3
     np.testing.assert_allclose(_angles_deg(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_field_value_is_the_forward_pass_of_value_and_normal(dtype):
+    """The hybrid's f at source points comes from the forward pass alone: the same values as the GEMM pass."""
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(32, 2, generator=torch.Generator().manual_seed(0)).to(dtype)
+    field = SdfField.from_model(model)
+    x = torch.rand(500, 3, dtype=dtype, generator=torch.Generator().manual_seed(1)) - 0.5
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    torch.testing.assert_close(field.value(x), field.value_and_normal(x)[0], atol=tol, rtol=tol)
+    analytic = SdfField(lambda p: p.norm(dim=1) - 0.5)
+    torch.testing.assert_close(analytic.value(x), x.norm(dim=1) - 0.5)
+    nan = SdfField(lambda p: torch.full((len(p),), float("nan"), dtype=p.dtype))
+    assert torch.isinf(nan.value(x)).all()

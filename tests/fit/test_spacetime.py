@@ -103,7 +103,7 @@ def test_common_frame_holds_every_shape_and_reframe_keeps_the_source_geometry():
 # ------------------------------------------------------------------------------------------ morphs
 @pytest.fixture(scope="module")
 def sphere_to_torus():
-    return fit_morph(_mesh("sphere"), _mesh("torus"), steps=400, seed=0, **TINY)
+    return fit_morph(_mesh("sphere"), _mesh("torus"), method="lse", steps=400, seed=0, **TINY)
 
 
 def test_morph_changes_topology_sphere_into_torus(sphere_to_torus):
@@ -121,7 +121,7 @@ def test_morph_changes_topology_sphere_into_torus(sphere_to_torus):
 def test_lse_morph_of_concentric_spheres_moves_the_radius_linearly():
     # d_A − d_B is constant (0.4 in source units) for concentric spheres: the LSE moves the surface at that speed
     big, small = _mesh("sphere", 800), _mesh("sphere", 800, scale=0.5 / 0.9)
-    fit = fit_morph(big, small, steps=300, seed=2, **TINY)
+    fit = fit_morph(big, small, method="lse", steps=300, seed=2, **TINY)
     for t in (0.0, 0.5, 1.0):
         v, _ = zero_level_mesh(fit.at(t), 48)
         radius = np.linalg.norm(fit.frame.to_source(v), axis=1)
@@ -153,7 +153,7 @@ def test_morph_from_a_fitted_field_in_another_frame_starts_at_its_values():
     # the analytic sphere of radius 0.9 written as a network: the (1, 0) Siren can't, so fit one frame
     seq = fit_sequence([_mesh("sphere", 600)], [0.0], steps=150, **TINY)
     a = Fitted(seq.at(0.0), seq.frame)
-    fit = fit_morph(a, _mesh("torus", 600, shift=(1.5, 0.0, 0.0)), steps=250, **TINY)
+    fit = fit_morph(a, _mesh("torus", 600, shift=(1.5, 0.0, 0.0)), method="lse", steps=250, **TINY)
     assert fit.frame != seq.frame  # the torus moved the common frame: values are converted between frames
     rng = np.random.default_rng(0)
     d = rng.normal(size=(2000, 3))
@@ -368,6 +368,7 @@ def test_render_verb_maps_t_onto_the_network_time_input(sphere_to_torus, tmp_pat
 def test_unit_alignment_puts_unrelated_models_in_one_place():
     a, b = _mesh("sphere", 300), _mesh("sphere", 300, shift=(50.0, 0.0, 0.0), scale=10.0)
     fit = fit_morph(a, b, align="unit", steps=60, **TINY)
+    assert fit.method == "interpolate"  # the default
     # both spheres centred and scaled into [-0.9, 0.9]^3: the common frame is the identity
     assert fit.frame.center == (0.0, 0.0, 0.0) and abs(fit.frame.scale - 1.0) < 1e-12
     with pytest.raises(FitError, match="align must be 'source' or 'unit', got 'middle'"):

@@ -74,7 +74,10 @@ def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples, ti
 
     # the same batch again: every stage of the finished assets is skipped
     sdf_bytes = (out / "ball" / "sdf.safetensors").read_bytes()
-    again = run_batch(manifest, out, BatchConfig(stages=tiny(), workers=2, quiet=True), log=lambda m: None)
+    started = []  # the finished assets are recorded here, without a worker process each
+    again = run_batch(manifest, out, BatchConfig(stages=tiny(), workers=2, quiet=True), log=lambda m: None,
+                      on_event=lambda kind, name, **info: started.append(name) if kind == "start" else None)
+    assert started == []  # (the two bad rows are refused before any work, as in the first run)
     for name in ("ball", "ring"):
         assert statuses(again, name) == dict.fromkeys(("sdf", "nested", "texture", "coarse", "bake"), "cached")
         assert again["assets"][name]["metrics"]["bake"] == summary["assets"][name]["metrics"]["bake"]
