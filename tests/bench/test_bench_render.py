@@ -28,7 +28,7 @@ def test_bench_render_table_structure(cache, tmp_path):
     rows = res["tables"]["configurations"]
     configs = [(r["config"], r["iterations"]) for r in rows]
     assert configs == [("coarse only", "40"), ("fine only", "40"), ("fine only", "15"), ("normal mapping", "40,0"),
-                       ("multiscale", "30,10"), ("multiscale", "30,20"), ("multiscale", "30,30"),
+                       ("normal mapping, auto precision", "40,0"), ("multiscale", "30,10"), ("multiscale", "30,20"), ("multiscale", "30,30"),
                        ("three levels", "30,10,10"), ("straightforward (baseline)", "40")]
     fine40 = rows[1]
     assert fine40["speedup_vs_fine40"] == 1.0
@@ -41,6 +41,11 @@ def test_bench_render_table_structure(cache, tmp_path):
     assert g[1]["boxes"] > 0 and g[1]["cost_ratio"] > 0
     (check,) = res["tables"]["targets"]
     assert check["ms_30_30_met"] == (check["ms_30_30_mse"] <= TARGETS["ms_30_30_mse_max"])
+    assert check["nm_auto_speedup_met"] == (check["nm_auto_speedup"] >= TARGETS["nm_speedup_min"])
+    auto = rows[4]
+    assert auto["trace_evals"] == rows[3]["trace_evals"]  # the same trace; only f's normals change precision
+    assert abs(auto["mse"] - rows[3]["mse"]) < 0.05 * rows[3]["mse"] + 1e-6
+    assert any(n.startswith("normal mapping, auto precision: f's normals in ") for n in res["notes"])
     assert plot.is_file() and plot.stat().st_size > 1000
     assert any("read from the cache" in n for n in res["notes"])
 
