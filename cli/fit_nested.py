@@ -23,9 +23,9 @@ def _resolve(preset, values):
 
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "default", "high"),
-                  costs={"quick": "32x1, 300 steps, not certified: about 20 s",
-                         "default": "64x1, 2000 steps: about 1 min",
-                         "high": "64x1 and 256x1, 4000 steps each: about 4 min"},
+                  costs={"quick": "32x1, 300 steps, not certified: about 15 s",
+                         "default": "64x1, 2000 steps: about 25 s",
+                         "high": "64x1 and 256x1, 4000 steps each: about 2 min"},
                   preset_help="Levels and steps (none: the defaults below)", required=("model", "output"))
 
 
