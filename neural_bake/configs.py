@@ -21,6 +21,21 @@ from .errors import NeuralBakeError
 __all__ = ["field_docs", "field_help", "field_types", "convert", "type_name", "read_config", "config_table"]
 
 
+def preset_config(cls, presets: dict, preset: str | None, overrides: dict, *, what: str,
+                  error: type[NeuralBakeError] = NeuralBakeError):
+    """``cls()`` with the fields of ``presets[preset]`` (when a preset is named), then ``overrides``; ``error``
+    names an unknown preset or an unknown field (``what``: the stage the message names)."""
+    cfg = cls()
+    if preset is not None:
+        if preset not in presets:
+            raise error(f"preset: unknown preset {preset!r} (choose from {', '.join(presets)})")
+        cfg = dataclasses.replace(cfg, **presets[preset])
+    unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(cls)})
+    if unknown:
+        raise error(f"{what}: unknown setting(s) {', '.join(unknown)}")
+    return dataclasses.replace(cfg, **overrides)
+
+
 @lru_cache(maxsize=None)
 def field_docs(cls) -> dict[str, str]:
     """``{field: help}`` of a dataclass: the string literal under each field, whitespace collapsed; fields of

@@ -90,19 +90,10 @@ PRESETS: dict[str, dict] = {
 def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
     """A BakeAssetConfig from a preset name (:data:`PRESETS`) and field overrides; NeuralBakeError for an
     unknown preset or field."""
-    from dataclasses import fields, replace
-
+    from neural_bake.configs import preset_config
     from neural_bake.errors import NeuralBakeError
 
-    cfg = BakeAssetConfig()
-    if preset is not None:
-        if preset not in PRESETS:
-            raise NeuralBakeError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
-        cfg = replace(cfg, **PRESETS[preset])
-    unknown = sorted(set(overrides) - {f.name for f in fields(BakeAssetConfig)})
-    if unknown:
-        raise NeuralBakeError(f"bake: unknown setting(s) {', '.join(unknown)}")
-    cfg = replace(cfg, **overrides)
+    cfg = preset_config(BakeAssetConfig, PRESETS, preset, overrides, what="bake")
     for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
                           ("bits", (8, 16))):
         if getattr(cfg, name) not in allowed:

@@ -93,17 +93,9 @@ PRESETS: dict[str, dict] = {
 def nested_config(preset: str | None = None, **overrides) -> NestedFitConfig:
     """A NestedFitConfig from a preset name (:data:`PRESETS`) and field overrides; FitError for an unknown
     preset or field."""
-    from dataclasses import fields, replace
+    from ..configs import preset_config
 
-    cfg = NestedFitConfig()
-    if preset is not None:
-        if preset not in PRESETS:
-            raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
-        cfg = replace(cfg, **PRESETS[preset])
-    unknown = sorted(set(overrides) - {f.name for f in fields(NestedFitConfig)})
-    if unknown:
-        raise FitError(f"fit_nested: unknown setting(s) {', '.join(unknown)}")
-    return replace(cfg, **overrides)
+    return preset_config(NestedFitConfig, PRESETS, preset, overrides, what="fit_nested", error=FitError)
 
 
 # ----------------------------------------------------------------------------------------------- band & sup
