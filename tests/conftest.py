@@ -27,6 +27,25 @@ def rng():
     return np.random.default_rng(1234)
 
 
+class Ticker:
+    """A clock that advances ``dt`` seconds on every read: every measured interval is a multiple of it, and a
+    budget follows it, not the machine's load."""
+
+    def __init__(self, dt):
+        self.t, self.dt, self.calls = 0.0, dt, 0
+
+    def __call__(self):
+        self.t += self.dt
+        self.calls += 1
+        return self.t
+
+
+@pytest.fixture
+def ticker():
+    """The :class:`Ticker` class: ``ticker(dt)`` is a simulated clock."""
+    return Ticker
+
+
 def _fit_sphere_siren(r: float = 0.7, width: int = 32, steps: int = 250, depth: int = 1, seed: int = 0) -> Siren:
     """A small Siren (ω0 10) fitted to the sphere SDF |x| − r on [-1, 1]³ by ``steps`` Adam steps; seeded."""
     net = Siren(width, depth, omega_0=10.0, generator=torch.Generator().manual_seed(seed))

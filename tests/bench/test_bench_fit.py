@@ -8,18 +8,7 @@ from neural_bake.bench.fit import run
 from neural_bake.nets.model_io import load_model
 
 
-class Ticker:
-    """A clock that advances ``dt`` seconds on every read."""
-
-    def __init__(self, dt):
-        self.t, self.dt = 0.0, dt
-
-    def __call__(self):
-        self.t += self.dt
-        return self.t
-
-
-def test_bench_fit_smallest_run_saves_models(tmp_path, monkeypatch):
+def test_bench_fit_smallest_run_saves_models(tmp_path, monkeypatch, ticker):
     from neural_bake.fit import sdf
 
     # a simulated clock bounds the polish by its reads, not by its evaluations: keep the polish short
@@ -27,7 +16,7 @@ def test_bench_fit_smallest_run_saves_models(tmp_path, monkeypatch):
     # 1.8 s of a simulated clock: enough steps for the micro-batch tuner, however loaded
     # the machine
     res = run(quick=True, presets=["64x1"], minutes=0.03, step_networks=[(16, 1)], save_dir=tmp_path / "models",
-              clock=Ticker(0.02))
+              clock=ticker(0.02))
     step = res["tables"]["training step"]
     assert [r["network"] for r in step] == ["16x1"]
     assert step[0]["ours_s"] > 0 and step[0]["autograd_2x_backward_s"] > 0

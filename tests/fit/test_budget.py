@@ -11,21 +11,9 @@ from neural_bake.fit.budget import STEP_WORK, budget_record, expected_steps, pro
 from neural_bake.fit.training import LoopConfig, train
 
 
-class Ticker:
-    """A clock that advances ``dt`` seconds on every call: every measured interval is a multiple of it."""
-
-    def __init__(self, dt):
-        self.t, self.dt, self.calls = 0.0, dt, 0
-
-    def __call__(self):
-        self.t += self.dt
-        self.calls += 1
-        return self.t
-
-
-def test_probe_measures_the_best_product_with_the_clock():
+def test_probe_measures_the_best_product_with_the_clock(ticker):
     # each product is timed by two consecutive calls: one tick
-    g = probe_gflops(size=64, repeat=3, clock=Ticker(1e-3))
+    g = probe_gflops(size=64, repeat=3, clock=ticker(1e-3))
     assert math.isclose(g, 2 * 64**3 / 1e-3 / 1e9)
     real = probe_gflops(size=64, repeat=3)
     assert real > 0 and probe_gflops(size=64, repeat=3) == real  # measured once per process
@@ -56,7 +44,7 @@ def test_stop_notes():
     assert stop_note("steps", 500, 12.0, None, 500) == "step count (500) done"
 
 
-def test_train_budget_follows_the_injected_clock():
+def test_train_budget_follows_the_injected_clock(ticker):
     model = torch.nn.Linear(3, 1)
     x = torch.randn(32, 3)
 
@@ -64,14 +52,14 @@ def test_train_budget_follows_the_injected_clock():
         loss = (model(x) ** 2).mean()
         return {"loss": loss}
 
-    clock = Ticker(10.0)  # every step looks like it took 20 s (two clock reads a step)
+    clock = ticker(10.0)  # every step looks like it took 20 s (two clock reads a step)
     res = train(model, step_fn, LoopConfig(steps=1000, minutes=1.0, progress=False, log_every=1), clock=clock)
     assert res.stopped_reason == "time budget" and res.steps == 3  # 60 s of budget, 20 s a step
     assert [h["seconds"] for h in res.history] == [20.0, 40.0, 60.0]
     assert res.seconds == pytest.approx(80.0)  # the budget check at 70 s stops it; the end is read at 80 s
 
 
-def test_slow_texture_fit_warns_and_records(tmp_path):
+def test_slow_texture_fit_warns_and_records(tmp_path, ticker):
     """A texture fit whose clock says each step took 20 s makes 3 of the thousands of steps its preset makes
     here: it warns in one line and the model file records both figures."""
     from neural_bake.fit.texture import fit_texture
@@ -88,7 +76,7 @@ def test_slow_texture_fit_warns_and_records(tmp_path):
         return n[:, 0] - 0.9, x / n.clamp_min(1e-12)
 
     with pytest.warns(NeuralBakeWarning, match=r"texture:quick: made 3 steps of the ~\d+ this machine makes in 60 s"):
-        fit = fit_texture(mesh, sphere_sdf, preset="quick", pool=2000, clock=Ticker(10.0))
+        fit = fit_texture(mesh, sphere_sdf, preset="quick", pool=2000, clock=ticker(10.0))
     b = fit.budget
     assert b["steps"] == fit.steps == 3 and b["expected_steps"] > 6 and b["ratio"] < 0.5
     assert b["stopped"] == "time budget (60 s) used" and b["gflops"] > 0

@@ -636,33 +636,21 @@ def test_polish_settings_are_not_part_of_the_fingerprint_so_a_checkpoint_can_be_
     assert not torch.equal(weights(first.model), weights(again.model))
 
 
-class Ticker:
-    """A clock that advances ``dt`` seconds on every read: the run's budget decisions follow it, not the
-    machine's load."""
-
-    def __init__(self, dt):
-        self.t, self.dt = 0.0, dt
-
-    def __call__(self):
-        self.t += self.dt
-        return self.t
-
-
-def test_polish_time_comes_out_of_the_budget():
+def test_polish_time_comes_out_of_the_budget(ticker):
     # Adam stops early enough for the polish to run (without the time set aside it would find none left),
     # and the two together keep to the budget: 9 s of 0.05-s clock reads
     fit = fit_sdf(sphere(), steps=10**6, minutes=0.15, seed=0, polish_evals=30, polish_points=4096,
-                  clock=Ticker(0.05), **TINY)
+                  clock=ticker(0.05), **TINY)
     assert fit.stopped_reason == "time budget" and fit.polish["evals"] > 2
     assert fit.seconds <= 0.15 * 60 + 0.5
     assert fit.seconds - fit.polish["seconds"] < 0.15 * 60 - 31 * 0.05  # the reserve: 30 evaluations + checks
 
 
-def test_polish_share_sets_aside_part_of_the_budget_and_the_polish_runs_to_its_end():
+def test_polish_share_sets_aside_part_of_the_budget_and_the_polish_runs_to_its_end(ticker):
     # 30 % of 6 s for the polish: Adam stops near 4.2 s and the polish, with far more evaluations allowed than
     # fit, runs until the budget's end instead of stopping at an estimate of its cost
     fit = fit_sdf(sphere(), steps=10**6, minutes=0.1, seed=0, polish_evals=100_000, polish_share=0.3,
-                  polish_points=4096, clock=Ticker(0.02), **TINY)
+                  polish_points=4096, clock=ticker(0.02), **TINY)
     adam = fit.seconds - fit.polish["seconds"]
     assert fit.stopped_reason == "time budget" and fit.polish["evals"] > 2
     assert 0.7 * 6 - 0.1 < adam <= 0.7 * 6 + 0.1
