@@ -232,7 +232,7 @@ def run(quick: bool = False, *, steps: int | None = None, frames: int | None = N
         bake_s = time.perf_counter() - t0
         model_kb = model.stat().st_size / 1024
         frames_mb = sum(f.stat().st_size for f in baked.files) / len(baked.files) * n_frames / 2**20
-    rows_cost = [{"frames": n_frames, "size": f"{px}x{px}", "render_total_s": round(render_s, 1),
+    rows_cost = [{"frames": n_frames, "size": f"{px}x{px}", "render_total_s": round(render_s, 3),
                   "render_per_frame_s": round(render_s / n_frames, 3), "rendered": rendered,
                   "target_render_s": 60 * TARGET_RENDER_MINUTES,
                   "target_met": rendered and render_s < 60 * TARGET_RENDER_MINUTES,
