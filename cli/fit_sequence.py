@@ -23,9 +23,12 @@ Example:
                    "else evenly spaced over [0, 1]).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
+@click.option("--method", type=click.Choice(["interpolate", "eikonal"]), default="interpolate", show_default=True,
+              help="Between frames: interpolate the two neighbouring frames' distances, or the eikonal term alone.")
 @network_options
 @verbosity_options
-def command(frames, times, output, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics, progress):
+def command(frames, times, output, method, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics,
+            progress):
     """Fit a space-time SDF through the mesh FRAMES (files, or one folder with frames.json as `neural-bake
     samples` writes it)."""
     from neural_bake.errors import NeuralBakeError
@@ -50,6 +53,6 @@ def command(frames, times, output, width, depth, steps, minutes, seed, lr, time_
     if len(ts) != len(files):
         raise NeuralBakeError(f"--times: {len(ts)} times for {len(files)} frames")
     meshes = [load_mesh(f) for f in files]
-    fit = fit_sequence(meshes, ts, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed, lr=lr,
+    fit = fit_sequence(meshes, ts, method=method, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed, lr=lr,
                        time_extent=time_extent, progress=progress and verbosity() >= 0, **pools(pool))
     report_fit(fit, list(zip(ts, meshes)), metrics, output)

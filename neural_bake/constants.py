@@ -233,6 +233,13 @@ LOSS_GRAD_FLOOR = 1e-6
 #: A mined point of the network's zero set is kept when its |f| after the Newton projection is at most this.
 MINED_ZERO_SET_TOL = 1e-3
 
+#: A point projected onto a space-time field's zero set is used as a surface sample only where |∇f| is above
+#: this (its normal ∇f/|∇f| is defined).
+MIN_SURFACE_GRAD = 1e-3
+
+#: The least time budget (minutes) left to a space-time fit's training loop after its set-up.
+MIN_BUDGET_MINUTES = 1e-3
+
 #: The Newton projection onto f = 0 leaves a point whose |∇f|² is at most this where it is (no NaN).
 NEWTON_MIN_GRAD_SQ = 1e-12
 

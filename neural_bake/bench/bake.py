@@ -200,11 +200,11 @@ def run(
 
 def _anchor_mesh():
     """(name, fine mesh): Spot from the reference data folder when present
-    (:func:`neural_bake.bench.fidelity.data_folder`), else the bumpy sphere sample."""
+    (:func:`neural_bake.bench.common.data_folder`), else the bumpy sphere sample."""
     import warnings
 
     from ..io.mesh_io import load_mesh
-    from .fidelity import data_folder
+    from .common import data_folder
 
     data = data_folder()
     obj = data / "spot" / "spot_triangulated.obj" if data is not None else None

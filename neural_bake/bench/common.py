@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import platform
 import time
+from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
@@ -16,7 +17,28 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..io.jsonio import dumps
 
-__all__ = ["timeit", "timeit_interleaved", "format_table", "write_json", "machine_info", "load_note"]
+__all__ = ["data_folder", "data_file", "timeit", "timeit_interleaved", "format_table", "write_json", "machine_info", "load_note"]
+
+
+def data_folder(path: str | os.PathLike | None = None) -> Path | None:
+    """The data folder: ``path``, else ``$NEURAL_BAKE_DATA``, else the first ``shared/data`` found beside the
+    repository or its parent folders; None when there is none."""
+    if path is not None:
+        return Path(path) if Path(path).is_dir() else None
+    env = os.environ.get("NEURAL_BAKE_DATA")
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    here = Path(__file__).resolve()
+    for parent in here.parents[2:5]:
+        cand = parent / "shared" / "data"
+        if cand.is_dir():
+            return cand
+    return None
+
+
+def data_file(relative: str) -> Path:
+    """``relative`` inside the data folder (:func:`data_folder`); a path that does not exist when there is none."""
+    return (data_folder() or Path("shared") / "data") / relative
 
 
 def timeit(fn: Callable[[], object], repeat: int = 3, warmup: int = 1, min_time: float = 0.0) -> float:

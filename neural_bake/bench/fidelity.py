@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NeuralBakeError
-from .common import load_note, machine_info
+from .common import data_folder, load_note, machine_info
 
 __all__ = ["run", "MESHES", "SAMPLINGS", "data_folder", "open_caps"]
 
@@ -48,22 +48,6 @@ SAMPLINGS: dict[str, dict] = {
 
 #: Issue 27's targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error.
 TARGETS = {("nefertiti", "64x1"): 1.4, ("nefertiti", "256x3"): 1.0}
-
-
-def data_folder(path: str | os.PathLike | None = None) -> Path | None:
-    """The data folder: ``path``, else ``$NEURAL_BAKE_DATA``, else the first ``shared/data`` found beside the
-    repository or its parent folders; None when there is none."""
-    if path is not None:
-        return Path(path) if Path(path).is_dir() else None
-    env = os.environ.get("NEURAL_BAKE_DATA")
-    if env:
-        return Path(env) if Path(env).is_dir() else None
-    here = Path(__file__).resolve()
-    for parent in here.parents[2:5]:
-        cand = parent / "shared" / "data"
-        if cand.is_dir():
-            return cand
-    return None
 
 
 def open_caps(model, mesh, *, n: int = 50_000, resolution: int = 128, seed: int = 0,

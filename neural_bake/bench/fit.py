@@ -28,7 +28,7 @@ Two tables, measured in the same run:
   loop a user would otherwise run — and the polished row carries the ratios ``*_vs_no_polish``.
 
 Scope. Full run: the bundled samples ``bumpy_sphere``, ``torus``, ``jack`` plus ``spot`` and ``bunny`` from
-``/work/shared/data`` when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh, and
+the data folder (:func:`~neural_bake.bench.common.data_folder`) when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh, and
 2 more for 64x1 without its polish): about 28 minutes per mesh, two and a half hours in all — run it on an
 otherwise idle machine. ``--quick``: the bumpy sphere only, (64, 1) for 30 s and (256, 3) for 20 s with small
 pools, metrics on 20k samples at grid 96, and the step timing at the default batch without the compiled
@@ -37,19 +37,18 @@ column — under two minutes; its accuracy figures are NOT the targets'.
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
 import torch
 
 from ..constants import LOSS_GRAD_FLOOR
-from .common import load_note, machine_info, timeit_interleaved
+from .common import data_folder, load_note, machine_info, timeit_interleaved
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
 
 #: Where the shared real meshes live (spot, bunny); absent meshes are skipped with a note.
-DATA_DIR = Path(os.environ.get("NEURAL_BAKE_DATA", "/work/shared/data"))
+DATA_DIR = data_folder() or Path("shared") / "data"
 
 TARGETS = {"256x3": {"hausdorff": 0.005, "normal_median_deg": 3.0}, "64x1": {"hausdorff": 0.01}}
 

@@ -5,7 +5,7 @@ Two tables:
 - ``throughput``: surface samples (points, normals, uv, colours), near samples (σ = 0.01 / 0.003 mixed)
   and uniform samples with their ground-truth signed distance, on the bundled bumpy sphere (closed), the
   same with a cap cut off (open: the accelerated winding number signs it), and Keenan Crane's spot
-  from ``/work/shared/data`` when present.
+  from the data folder when present.
 - ``sign``: on the same query points (half near the surface, half uniform in the cube), each inside test
   against the exact generalised winding number (the reference): agreement of the signs, time, and the
   speed ratio to the baseline a user would otherwise pick, measured in the same run:
@@ -16,18 +16,17 @@ Two tables:
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
 from ..geometry import raycasting_scene
 from ..io.mesh_io import load_mesh
 from ..types import Mesh
-from .common import machine_info
+from .common import data_file, machine_info
 
 __all__ = ["run"]
 
-SPOT = Path("/work/shared/data/spot/spot_triangulated.obj")
+SPOT = data_file("spot/spot_triangulated.obj")
 
 
 def _meshes() -> tuple[dict[str, Mesh], list[str]]:

@@ -14,7 +14,7 @@ ray parity): the benchmark measures texture fitting alone, not the quality of a 
 - ``torus``: the bundled torus sample (checker/stripe texture) when present;
 - ``checker<k>``: the generated lat-long sphere with a k × k/2 checkerboard texture (high frequency: the PSNR ceiling
   that a given network reaches in the budget, reported rather than hidden);
-- ``spot``: ``/work/shared/data/spot`` (textured cow) when present.
+- ``spot``: ``spot/`` of the data folder (textured cow) when present.
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ import torch
 from ..geometry import raycasting_scene
 from ..errors import NeuralBakeError
 from ..types import Mesh
-from .common import load_note, machine_info, timeit
+from .common import data_file, load_note, machine_info, timeit
 
-__all__ = ["run", "latlong_sphere", "mesh_sdf", "SPOT"]
+__all__ = ["run", "default_settings", "latlong_sphere", "mesh_sdf", "SPOT"]
 
 #: The textured Spot mesh of the shared data (used when present).
-SPOT = Path("/work/shared/data/spot/spot_triangulated.obj")
+SPOT = data_file("spot/spot_triangulated.obj")
 
 
 def latlong_sphere(n_lat: int = 48, n_lon: int = 96, tex_hw: tuple[int, int] = (256, 512), radius: float = 0.9,
@@ -170,18 +170,39 @@ def _row(name, label, fit, m, total_s, baseline):
             "band_ratio": None, "render_mse": m["render_mse"], "render_mse_band": m["render_mse_band"]}
 
 
-def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta: float | None = None,
-        progress: bool = False) -> dict:
+def default_settings(quick: bool, presets=None, lam: float = 1e-3) -> list[dict]:
+    """The benchmark's settings: quick, a (64, 1) net for 9 s; else the presets quick and default on every
+    case and high on sphere and Spot (about an hour). ``presets`` keeps only those presets (shared names or
+    the earlier fast, medium, fine), each on every case; NeuralBakeError for an unknown name."""
+    from ..fit.presets import PRESET_NAMES, TEXTURE_ALIASES
+
+    wanted = None if not presets else [TEXTURE_ALIASES.get(p, p) for p in presets]
+    unknown = [p for p in wanted or () if p not in PRESET_NAMES]
+    if unknown:
+        raise NeuralBakeError(f"--preset: unknown preset {unknown[0]!r} (choose {', '.join(PRESET_NAMES)})")
+    if quick:
+        return [{"label": "(64,1) 9s", "width": 64, "depth": 1, "minutes": 0.15, "steps": 100000,
+                 "batch": 1024, "lr": 5e-4, "pool": 50000, "lam": lam}]
+    settings = [{"label": "quick", "preset": "quick", "lam": lam},
+                {"label": "default", "preset": "default", "lam": lam, "equal_time": False},
+                {"label": "high", "preset": "high", "lam": lam, "equal_time": False, "only": ["sphere", "spot"]}]
+    if wanted is None:
+        return settings
+    return [{k: v for k, v in s.items() if k != "only"} for s in settings if s["label"] in wanted]
+
+
+def run(quick: bool = False, *, cases=None, settings=None, presets=None, seed: int = 0,
+        delta: float | None = None, progress: bool = False) -> dict:
     """Fit and measure texture nets; returns the benchmark dict (see the module docstring).
 
     - ``cases``: names among "sphere", "torus", "checker<k>", "spot" (default: all four with checker16;
       quick: sphere and checker16).
     - ``settings``: list of dicts of :class:`TextureFitConfig` overrides with a "label" and λ > 0, plus
-      optional "equal_time" (bool, default True) and "only" (case names). Default: the presets fast and
-      medium on every case and fine on sphere and Spot, default λ (about an hour); quick: (64, 1) for 9 s.
+      optional "equal_time" (bool, default True) and "only" (case names); default :func:`default_settings`.
       Each setting runs with its λ in its budget, then the λ = 0 baseline for the same number of steps
       ("equal steps") and, if "equal_time", for the same time budget. ``band_ratio`` = the equal-steps
       baseline's band change / this λ's.
+    - ``presets``: keep only these presets of :func:`default_settings` (not with ``quick``).
     """
     from ..fit.texture import DEFAULT_DELTA, TextureFitConfig, fit_texture, texture_metrics
 
@@ -189,15 +210,7 @@ def run(quick: bool = False, *, cases=None, settings=None, seed: int = 0, delta:
     if cases is None:
         cases = ["sphere", "checker16"] if quick else ["sphere", "torus", "checker16", "spot"]
     if settings is None:
-        if quick:
-            settings = [{"label": "(64,1) 9s", "width": 64, "depth": 1, "minutes": 0.15, "steps": 100000,
-                         "batch": 1024, "lr": 5e-4, "pool": 50000, "lam": default_lam}]
-        else:
-            # about an hour on the shared 2-core CPU: fast and medium everywhere, fine on sphere and Spot
-            settings = [{"label": "fast", "preset": "fast", "lam": default_lam},
-                        {"label": "medium", "preset": "medium", "lam": default_lam, "equal_time": False},
-                        {"label": "fine", "preset": "fine", "lam": default_lam, "equal_time": False,
-                         "only": ["sphere", "spot"]}]
+        settings = default_settings(quick, presets, default_lam)
     delta = DEFAULT_DELTA if delta is None else float(delta)
     metric_opts = {"n": 4000, "n_views": 2, "resolution": 48} if quick else {"n": 50000, "n_views": 8,
                                                                             "resolution": 256}

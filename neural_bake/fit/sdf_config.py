@@ -82,6 +82,10 @@ class SdfFitConfig:
     mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
     the Hausdorff distance; this spends steps on them, trading a little Chamfer-L1 for a lower Hausdorff
     distance (docs/findings.md)."""
+    surface_normals: str = "face"
+    """Normals the normal term pulls ∇f towards at surface samples: "face" (the sampled face's geometric
+    normal: the piecewise-flat mesh's own) or "vertex" (the interpolated vertex normals, the file's own where it
+    has them: the smooth surface a renderer shades, and the reference of the bake report)."""
     curvature_sampling: float = 0.0
     """Part of the surface and near-surface pools drawn by the mesh's curvature (0: off, all uniform by
     area): faces are drawn with :func:`~neural_bake.fit.sampling.curvature_face_weights` with a uniform share
@@ -244,6 +248,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
     if not (0.0 <= cfg.zero_fraction <= 1.0 - cfg.hard_fraction):
         raise FitError(f"fit_sdf: zero_fraction must be in [0, 1 - hard_fraction], got {cfg.zero_fraction!r} "
                        f"(hard_fraction {cfg.hard_fraction!r})")
+    if cfg.surface_normals not in ("face", "vertex"):
+        raise FitError(f"fit_sdf: surface_normals must be 'face' or 'vertex', got {cfg.surface_normals!r}")
     if not (0.0 <= cfg.curvature_sampling <= 1.0):
         raise FitError(f"fit_sdf: curvature_sampling must be in [0, 1], got {cfg.curvature_sampling!r}")
     if not (0.0 <= cfg.error_sampling <= 1.0 - cfg.hard_fraction):

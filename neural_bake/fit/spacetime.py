@@ -26,7 +26,10 @@ hand-written backward): one ordinary ``backward()``, no double-backward autograd
   - morph, ``method="interpolate"``: supervised interpolation (f − ((1 − s) d_A + s d_B))², s = (t − t0) /
     (t1 − t0), regularised by the eikonal term (the blend of two SDFs is no SDF where their normals differ:
     the eikonal term trades exactness of the blend for a distance field);
-  - sequence: the eikonal term only (the frames pin the shape at their times, the network interpolates).
+  - sequence, ``method="interpolate"`` (default): the same supervised interpolation between the two frames
+    around each time, s = (t − t_k) / (t_{k+1} − t_k), on points near either frame and uniform in the cube;
+  - sequence, ``method="eikonal"``: the eikonal term only (the frames pin the shape at their times, the
+    network alone decides what lies between them).
 
 Both morph methods give the same path where the blend of the ends' distances is itself a distance (concentric
 spheres). At equal steps the interpolation reaches the end shapes and a distance field (eikonal residual) in
@@ -48,7 +51,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..constants import UNIT_FRAME_EXTENT
+from ..constants import (LOSS_GRAD_FLOOR, MIN_BUDGET_MINUTES, MIN_SURFACE_GRAD, MINED_ZERO_SET_TOL,
+                         UNIT_FRAME_EXTENT)
 from ..errors import FitError, ModelFileError, NeuralBakeWarning
 from ..fields.spacetime import SPACETIME_KIND, SpaceTimeField, check_time_mapping, time_to_tau
 from ..nets.gemm import gemm_gradient
@@ -57,7 +61,7 @@ from ..nets.timeslice import fix_last_input
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
-__all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "reframe",
+__all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "SEQUENCE_METHODS", "reframe",
            "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND", "parse_times",
            "nest_spacetime", "nesting_by_time", "choose_deltas", "DELTA_POLICIES"]
 
@@ -66,6 +70,9 @@ _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 #: The morph methods of :func:`fit_morph` (see the module docstring).
 MORPH_METHODS = ("lse", "interpolate")
+
+#: The in-between methods of :func:`fit_sequence` (see the module docstring).
+SEQUENCE_METHODS = ("interpolate", "eikonal")
 
 
 @dataclass
@@ -81,8 +88,9 @@ class SpaceTimeFitConfig:
     time_extent: float = 1.0
     """E: the fitted time range maps onto τ ∈ [−E, E] (a smaller E gives smoother motion in t)."""
     method: str = "interpolate"
-    """Morph only: "interpolate" (supervised interpolation + eikonal; better quality per minute) or "lse"
-    (level set equation)."""
+    """What holds in between the given shapes. Morph: "interpolate" (supervised interpolation + eikonal;
+    better quality per minute) or "lse" (level set equation). Sequence: "interpolate" (between the two
+    neighbouring frames) or "eikonal" (the eikonal term alone)."""
     steps: int = 3000
     """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
     minutes: float | None = None
@@ -94,8 +102,7 @@ class SpaceTimeFitConfig:
     batch_uniform: int = 512
     """Uniform points in [-1, 1]³ (with true SDF) per step, shared by the shapes."""
     batch_between: int = 2048
-    """Points at times in between per step (morph: the LSE or interpolation term and eikonal; sequence:
-    eikonal)."""
+    """Points at times in between per step (the LSE or interpolation term, and eikonal)."""
     lr: float = 2e-4
     """Initial Adam learning rate (cosine decay to ``lr_min_factor`` of it)."""
     lr_schedule: str = "cosine"
@@ -121,7 +128,8 @@ class SpaceTimeFitConfig:
     pool_uniform: int = 12_500
     """Uniform samples per shape (a sequence: ÷ K, at least 1,024)."""
     pool_between: int = 50_000
-    """Morph: points (near either end, and uniform) with both ends' distances, for the in-between terms."""
+    """Points (near either end of a morph or of a sequence's time step, and uniform) with the distances to
+    both, for the in-between terms."""
     sigmas: tuple[float, ...] = (0.003, 0.01, 0.05)
     """Standard deviations (common unit frame) of the near-surface offsets, mixed in equal parts."""
     seed: int = 0
@@ -136,7 +144,7 @@ class SpaceTimeFitConfig:
     """"float32" or "float64"."""
 
 
-def _config_from(config: SpaceTimeFitConfig | None, fn: str, **overrides) -> SpaceTimeFitConfig:
+def _config_from(config: SpaceTimeFitConfig | None, fn: str, methods=MORPH_METHODS, **overrides) -> SpaceTimeFitConfig:
     cfg = config or SpaceTimeFitConfig()
     names = {f.name for f in fields(SpaceTimeFitConfig)}
     unknown = sorted(set(overrides) - names)
@@ -162,8 +170,8 @@ def _config_from(config: SpaceTimeFitConfig | None, fn: str, **overrides) -> Spa
             raise FitError(f"{fn}: {name} must be a non-negative number, got {v!r}")
     if not cfg.sigmas or not all(math.isfinite(s) and s > 0 for s in cfg.sigmas):
         raise FitError(f"{fn}: sigmas must be positive numbers, got {cfg.sigmas!r}")
-    if cfg.method not in MORPH_METHODS:
-        raise FitError(f"{fn}: method must be one of {', '.join(MORPH_METHODS)}, got {cfg.method!r}")
+    if cfg.method not in methods:
+        raise FitError(f"{fn}: method must be one of {', '.join(methods)}, got {cfg.method!r}")
     if cfg.dtype not in _DTYPES:
         raise FitError(f"{fn}: dtype must be one of {', '.join(_DTYPES)}, got {cfg.dtype!r}")
     if cfg.minutes is not None and not (math.isfinite(cfg.minutes) and cfg.minutes > 0):
@@ -306,7 +314,7 @@ class _FieldShape:
             x = project_to_zero_set(self.model, torch.as_tensor(near, dtype=self.dtype, device=self.device), 3)
             values, grads = gemm_gradient(self.model, x)
             gn = torch.linalg.vector_norm(grads, dim=1)
-            ok = (values[:, 0].abs() < 1e-3) & (gn > 1e-3) & (x.abs() <= 1.0).all(dim=1)
+            ok = (values[:, 0].abs() < MINED_ZERO_SET_TOL) & (gn > MIN_SURFACE_GRAD) & (x.abs() <= 1.0).all(dim=1)
             got_p.append(x[ok].double().cpu().numpy())
             got_n.append((grads[ok] / gn[ok, None]).double().cpu().numpy())
             have += int(ok.sum())
@@ -349,7 +357,7 @@ class SpaceTimeFit:
     kind: str = "morph"
     """"morph" or "sequence"."""
     method: str = "lse"
-    """Morph: "lse" or "interpolate"; sequence: "frames"."""
+    """Morph: "lse" or "interpolate"; sequence: "interpolate" or "eikonal" ("frames" in earlier files)."""
     times: list[float] = field(default_factory=list)
     """The times where shapes were given (the morph's 0 and 1; the sequence's frame times)."""
     history: list[dict] = field(default_factory=list)
@@ -399,16 +407,20 @@ class SpaceTimeFit:
 # ----------------------------------------------------------------------------------------------- losses
 def spacetime_loss_terms(model: Siren, surf: torch.Tensor, surf_n: torch.Tensor, vol: torch.Tensor,
                          vol_d: torch.Tensor, between: torch.Tensor, between_d: torch.Tensor | None,
-                         cfg: SpaceTimeFitConfig, *, mode: str, dtau_dt: float) -> dict:
+                         cfg: SpaceTimeFitConfig, *, mode: str, dtau_dt: float,
+                         between_w: torch.Tensor | None = None) -> dict:
     """The loss terms of one step (scalar tensors) and their weighted sum ``"loss"``.
 
     Args:
         surf, surf_n: (S, 4) surface points (x, τ) at shape times and (S, 3) their unit outward normals.
         vol, vol_d: (V, 4) near/uniform points at shape times and (V,) their true signed distances.
         between: (B, 4) points at times in between.
-        between_d: (B, 2) the morph's end distances (d_A, d_B) at the between points (None for a sequence).
-        mode: "lse", "interpolate" or "frames" (eikonal only in between).
+        between_d: (B, 2) the distances (d_A, d_B) of the shapes before and after each between point (None
+            with "eikonal").
+        mode: "lse", "interpolate" or "eikonal" (eikonal only in between).
         dtau_dt: dτ/dt = 2E / (t1 − t0), the factor turning ∂f/∂τ into ∂f/∂t.
+        between_w: (B,) the interpolation weight s of d_B at each between point (default: a morph's,
+            s = (τ / E + 1) / 2).
 
     One differentiable GEMM pass gives f and its full gradient at all S + V + B points (no double-backward).
     """
@@ -421,7 +433,7 @@ def spacetime_loss_terms(model: Siren, surf: torch.Tensor, surf_n: torch.Tensor,
     zero = f.new_zeros(())
     terms = {
         "surface": (f[:s] ** 2).mean() if s else zero,
-        "normal": (1.0 - (gx[:s] * surf_n).sum(1) / gnorm[:s].clamp_min(1e-6)).mean() if s else zero,
+        "normal": (1.0 - (gx[:s] * surf_n).sum(1) / gnorm[:s].clamp_min(LOSS_GRAD_FLOOR)).mean() if s else zero,
         "sdf": ((f[s:s + v] - vol_d) ** 2).mean() if v else zero,
         "eikonal": ((1.0 - gnorm) ** 2).mean(),
     }
@@ -434,7 +446,7 @@ def spacetime_loss_terms(model: Siren, surf: torch.Tensor, surf_n: torch.Tensor,
         terms["lse"] = ((f_t + speed * gnorm[s + v:]) ** 2).mean()
         loss = loss + cfg.w_lse * terms["lse"]
     elif b and mode == "interpolate":
-        w = (between[:, 3] / cfg.time_extent + 1.0) * 0.5
+        w = (between[:, 3] / cfg.time_extent + 1.0) * 0.5 if between_w is None else between_w
         target = (1.0 - w) * between_d[:, 0] + w * between_d[:, 1]
         terms["interp"] = ((f[s + v:] - target) ** 2).mean()
         loss = loss + cfg.w_interp * terms["interp"]
@@ -493,6 +505,32 @@ def _between_pool(shapes, cfg: SpaceTimeFitConfig, dtype, device):
     return _tensor(x[ok], dtype, device), _tensor(d[ok], dtype, device)
 
 
+def _sequence_between_pool(shapes, taus, cfg: SpaceTimeFitConfig, dtype, device):
+    """Sequence: points for the in-between terms, each in one time step [τ_k, τ_{k+1}] (steps drawn in
+    proportion to their length, so τ ends up uniform): near frame k, near frame k + 1 and uniform in the cube,
+    with the distances to both frames. Returns (P, 3) points, (P, 2) distances, (P, 2) the step's τ ends."""
+    rng_seed = int(cfg.seed) * 10_007 + 7_777
+    rng = np.random.default_rng([rng_seed, 5])
+    lengths = np.diff(np.asarray(taus, dtype=np.float64))
+    counts = rng.multinomial(int(cfg.pool_between), lengths / lengths.sum())
+    xs, ds, ends = [], [], []
+    for k, c in enumerate(counts):
+        a, b = shapes[k], shapes[k + 1]
+        third = int(c) // 3
+        parts = [rng.uniform(-1.0, 1.0, size=(int(c) - 2 * third, 3))]
+        if third:
+            parts += [a.near(third, cfg.sigmas, rng_seed + 2 * k)[0], b.near(third, cfg.sigmas, rng_seed + 2 * k + 1)[0]]
+        x = np.concatenate(parts).astype(np.float64)
+        if len(x) == 0:
+            continue
+        xs.append(x)
+        ds.append(np.stack([a.distance(x), b.distance(x)], axis=1))
+        ends.append(np.tile([taus[k], taus[k + 1]], (len(x), 1)))
+    x, d, e = np.concatenate(xs), np.concatenate(ds), np.concatenate(ends)
+    ok = np.isfinite(d).all(axis=1) & np.isfinite(x).all(axis=1)
+    return _tensor(x[ok], dtype, device), _tensor(d[ok], dtype, device), _tensor(e[ok], dtype, device)
+
+
 # ----------------------------------------------------------------------------------------------- fitting
 def _run(shapes, taus, kind: str, method: str, cfg: SpaceTimeFitConfig, frame: Frame, time_range, times, desc: str):
     device = torch.device(cfg.device or "cpu")
@@ -502,26 +540,38 @@ def _run(shapes, taus, kind: str, method: str, cfg: SpaceTimeFitConfig, frame: F
     model.train()
     t_start = time.perf_counter()
     pools = _ShapePools(shapes, taus, cfg, dtype, device, share=kind == "sequence")
-    between_p, between_d = (_between_pool(shapes, cfg, dtype, device) if kind == "morph" and cfg.batch_between
-                            else (pools.vol[:, :3], None))
-    if between_p.shape[0] == 0:
-        between_p = pools.surf[:, :3]
     span = float(time_range[1] - time_range[0])
     dtau_dt = 2.0 * cfg.time_extent / span if span > 0 else 0.0
     single = span == 0.0
-    mode = method if kind == "morph" else "frames"
+    between_p, between_d, between_ends = pools.vol[:, :3], None, None
+    if cfg.batch_between and not single and method in ("lse", "interpolate"):
+        if kind == "morph":
+            between_p, between_d = _between_pool(shapes, cfg, dtype, device)
+        else:
+            between_p, between_d, between_ends = _sequence_between_pool(shapes, taus, cfg, dtype, device)
+    if between_p.shape[0] == 0:
+        between_p, between_d, between_ends = pools.surf[:, :3], None, None
+    mode = method if between_d is not None else "eikonal"
 
     def step_fn(step: int, g: torch.Generator) -> dict:
         surf, surf_n, vol, vol_d = pools.draw(cfg, g)
         nb = 0 if single else int(cfg.batch_between)
         bi = torch.randint(0, between_p.shape[0], (nb,), generator=g).to(device)
-        tau = (torch.rand(nb, generator=g, dtype=torch.float64) * 2.0 - 1.0) * cfg.time_extent
-        between = torch.cat([torch.index_select(between_p, 0, bi), tau.to(device=device, dtype=dtype)[:, None]], 1)
+        u = torch.rand(nb, generator=g, dtype=torch.float64)
+        w = None
+        if between_ends is None:
+            tau = ((u * 2.0 - 1.0) * cfg.time_extent).to(device=device, dtype=dtype)
+        else:  # a sequence: τ uniform in each point's time step, s its place in the step
+            lo_hi = torch.index_select(between_ends, 0, bi)
+            w = u.to(device=device, dtype=dtype)
+            tau = lo_hi[:, 0] + w * (lo_hi[:, 1] - lo_hi[:, 0])
+        between = torch.cat([torch.index_select(between_p, 0, bi), tau[:, None]], 1)
         bd = torch.index_select(between_d, 0, bi) if between_d is not None else None
-        return spacetime_loss_terms(model, surf, surf_n, vol, vol_d, between, bd, cfg, mode=mode, dtau_dt=dtau_dt)
+        return spacetime_loss_terms(model, surf, surf_n, vol, vol_d, between, bd, cfg, mode=mode, dtau_dt=dtau_dt,
+                                    between_w=w)
 
     loop = LoopConfig(steps=cfg.steps, minutes=None if cfg.minutes is None else
-                      max(cfg.minutes - (time.perf_counter() - t_start) / 60.0, 1e-3),
+                      max(cfg.minutes - (time.perf_counter() - t_start) / 60.0, MIN_BUDGET_MINUTES),
                       lr=cfg.lr, lr_schedule=cfg.lr_schedule, lr_min_factor=cfg.lr_min_factor, seed=cfg.seed,
                       progress=cfg.progress, log_every=cfg.log_every, desc=desc)
     res = train(model, step_fn, loop)
@@ -584,14 +634,15 @@ def fit_sequence(meshes: Sequence[Mesh], times: Sequence[float], config: SpaceTi
                  **overrides) -> SpaceTimeFit:
     """Train a space-time Siren through mesh frames: f(·, t_k) is the SDF of ``meshes[k]``.
 
-    The static losses hold at each frame time, the eikonal term at times in between. Frames need no vertex
+    The static losses hold at each frame time; in between, the interpolation of the two neighbouring frames'
+    distances (``method="interpolate"``, default) or the eikonal term alone (``"eikonal"``). Frames need no vertex
     correspondence (any vertex counts, any topology); they are placed in one common unit frame. A single
     frame gives a field over the single time ``times[0]``.
 
     Args:
         meshes: K ≥ 1 :class:`~neural_bake.types.Mesh` frames.
         times: K strictly increasing finite times (any units).
-        config, **overrides: as in :func:`fit_morph` (``method`` is unused).
+        config, **overrides: as in :func:`fit_morph`; ``method`` is "interpolate" or "eikonal".
 
     Returns:
         A :class:`SpaceTimeFit` with ``time_range`` (times[0], times[-1]), ``kind`` "sequence".
@@ -600,7 +651,7 @@ def fit_sequence(meshes: Sequence[Mesh], times: Sequence[float], config: SpaceTi
         FitError: no frames, a frame that is not a Mesh or has no faces, times of another length, not
             finite or not strictly increasing, invalid settings, divergence.
     """
-    cfg = _config_from(config, "fit_sequence", **overrides)
+    cfg = _config_from(config, "fit_sequence", SEQUENCE_METHODS, **overrides)
     meshes = list(meshes)
     if not meshes:
         raise FitError("fit_sequence: meshes is empty (give at least one frame)")
@@ -618,7 +669,7 @@ def fit_sequence(meshes: Sequence[Mesh], times: Sequence[float], config: SpaceTi
     shapes = [_MeshShape(m, frame, m.name if m.source else f"meshes[{i}]") for i, m in enumerate(meshes)]
     time_range = (float(ts[0]), float(ts[-1]))
     taus = time_to_tau(ts, time_range, cfg.time_extent)
-    return _run(shapes, list(taus), "sequence", "frames", cfg, frame, time_range, ts.tolist(),
+    return _run(shapes, list(taus), "sequence", cfg.method, cfg, frame, time_range, ts.tolist(),
                 f"fit sequence {cfg.width}x{cfg.depth}")
 
 

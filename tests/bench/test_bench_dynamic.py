@@ -47,6 +47,9 @@ def test_sequence_is_measured_at_every_frame_of_the_animation(result):
     assert len([r for r in rows if not r["frame"]]) == len(times) - 1  # half-way between frames
     assert all(r["hausdorff"] is None or (0 < r["chamfer_l1"] <= r["hausdorff"] < 2) for r in rows)
     assert all(r["hausdorff"] is not None for r in rows if r["frame"])
+    # the baseline (eikonal term alone between frames) is measured at the same times
+    assert all(r["hausdorff_eikonal"] is None or 0 < r["chamfer_l1_eikonal"] <= r["hausdorff_eikonal"] < 2
+               for r in rows)
 
 
 def test_nesting_holds_at_every_sampled_t(result):

@@ -35,7 +35,7 @@ def _topology(model, res=48):
 
 
 # ------------------------------------------------------------------------------------------ losses and time
-@pytest.mark.parametrize("mode", ["lse", "interpolate", "frames"])
+@pytest.mark.parametrize("mode", ["lse", "interpolate", "eikonal"])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_loss_terms_match_an_autograd_reference(mode, dtype):
     gen = torch.Generator().manual_seed(0)
@@ -73,6 +73,12 @@ def test_loss_terms_match_an_autograd_reference(mode, dtype):
     for k, v in ref.items():
         torch.testing.assert_close(terms[k].detach(), v.detach(), **tol)
     assert set(terms) == set(ref) | {"loss"}
+    if mode == "interpolate":  # a sequence's weights: each point's place in its own time step
+        w = torch.rand(60, generator=gen, dtype=dtype)
+        got = spacetime_loss_terms(model, surf, surf_n, vol, vol_d, between, bd, cfg, mode=mode, dtau_dt=dtau_dt,
+                                   between_w=w)["interp"]
+        torch.testing.assert_close(got.detach(), ((f[90:] - ((1 - w) * bd[:, 0] + w * bd[:, 1])) ** 2).mean().detach(),
+                                   **tol)
     for a, b in zip(fast, model.parameters()):
         # float32: the weighted terms (up to 3000×) cancel, so the rounding is relative to the largest entry
         scale = float(b.grad.abs().max())
@@ -182,6 +188,40 @@ def test_sequence_one_shape_into_two_with_different_vertex_counts():
         assert np.median(err) < 0.02 and err.max() < 0.1
 
 
+def _sphere(radius, res=600):
+    m = SAMPLES["sphere"].mesh(res, 8)
+    v = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True) * radius
+    return mesh_from_arrays(v, m.faces)
+
+
+def test_sequence_interpolates_between_frames():
+    """Concentric spheres at unequal times: the blend of the two neighbouring frames' distances is the exact SDF
+    of the sphere of the interpolated radius, so with "interpolate" the zero set between frames follows it; with
+    the eikonal term alone nothing ties it there."""
+    frames = [_sphere(r) for r in (0.3, 0.5, 0.8)]
+    times = [0.0, 0.5, 1.5]
+    between = {0.25: 0.4, 1.0: 0.65}  # t: the radius half-way through each time step
+
+    def error_between(fit):
+        errs = []
+        for t, radius in between.items():
+            d = np.random.default_rng(3).normal(size=(2000, 3))
+            p = d / np.linalg.norm(d, axis=1, keepdims=True) * radius  # source frame
+            with torch.no_grad():
+                f = fit.at(t)(torch.as_tensor(fit.frame.to_unit(p), dtype=torch.float32))[:, 0].numpy()
+            errs.append(fit.frame.distance_to_source(np.median(np.abs(f))))  # f is about a distance
+        return errs
+
+    interp = fit_sequence(frames, times, steps=250, **TINY)
+    eik = fit_sequence(frames, times, steps=250, method="eikonal", **TINY)
+    assert interp.method == "interpolate" and eik.method == "eikonal"
+    e_interp, e_eik = error_between(interp), error_between(eik)
+    # a (32, 1) network after 250 steps: within 0.1 of the sphere between frames, where the eikonal term alone
+    # lets the shape vanish (|f| about 0.5 there)
+    assert max(e_interp) < 0.1, e_interp
+    assert all(a < 0.25 * b for a, b in zip(e_interp, e_eik)), (e_interp, e_eik)
+
+
 def test_single_frame_sequence_lives_at_one_time():
     m = _mesh("torus", 600)
     fit = fit_sequence([m], [0.3], steps=150, **TINY)
@@ -206,6 +246,8 @@ def test_errors():
         fit_sequence([m, "frame.obj"], [0.0, 1.0])
     with pytest.raises(FitError, match="fit_morph: method must be one of lse, interpolate, got 'magic'"):
         fit_morph(m, m, method="magic")
+    with pytest.raises(FitError, match="fit_sequence: method must be one of interpolate, eikonal, got 'lse'"):
+        fit_sequence([m, m], [0.0, 1.0], method="lse")
     with pytest.raises(FitError, match="fit_morph: unknown setting"):
         fit_morph(m, m, colour="red")
     with pytest.raises(FitError, match="fit_sequence: width must be a positive integer"):

@@ -513,6 +513,17 @@ def test_bench_run_with_tiny_settings_reports_the_lam0_baselines():
     assert res["name"] == "texture" and res["machine"]["cores"] and res["tables"]["orthogonality term cost per step"]
 
 
+def test_bench_default_settings_by_preset():
+    from neural_bake.bench.texture import default_settings
+
+    full = default_settings(False)
+    assert [s["label"] for s in full] == ["quick", "default", "high"] and full[2]["only"] == ["sphere", "spot"]
+    picked = default_settings(False, ["default", "fine"], lam=0.5)  # an earlier name is an alias
+    assert [(s["label"], s["preset"], s["lam"]) for s in picked] == [("default", "default", 0.5), ("high", "high", 0.5)]
+    assert all("only" not in s for s in picked)  # a preset asked for runs on every case
+    assert len(default_settings(True)) == 1
+
+
 def test_bench_unknown_case_is_a_one_line_cli_error(capsys):
     from neural_bake.cli.main import main
 
@@ -520,3 +531,5 @@ def test_bench_unknown_case_is_a_one_line_cli_error(capsys):
     assert "neural-bake: error: --case: unknown case 'cube'" in capsys.readouterr().err
     assert main(["bench", "texture", "--quick", "--case", "checkerx"]) == 2
     assert "'checkerx' needs a positive cell count" in capsys.readouterr().err
+    assert main(["bench", "texture", "--quick", "--preset", "huge"]) == 2
+    assert "neural-bake: error: --preset: unknown preset 'huge' (choose quick, default, high)" in capsys.readouterr().err

@@ -2,7 +2,6 @@
 
 import json
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +9,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from neural_bake.bench.common import data_file
 from neural_bake.constants import UNIT_FRAME_EXTENT
 from neural_bake.errors import ImageError, MeshError, NeuralBakeError, NeuralBakeWarning
 from neural_bake.io.colour import sample_texture, srgb_to_linear
@@ -17,7 +17,7 @@ from neural_bake.io.images import read_image, write_image
 from neural_bake.io.mesh_io import load_mesh, mesh_from_arrays, save_mesh
 from neural_bake.types import Frame
 
-SPOT = Path("/work/shared/data/spot")
+SPOT = data_file("spot")
 
 # four quadrants, 8-bit sRGB levels so that 8-bit files store them exactly; row 0 = top of the image
 QUAD_COLOURS = {  # (u, v) centre of the quadrant, v up -> sRGB colour
