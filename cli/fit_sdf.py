@@ -24,7 +24,7 @@ def _config_class():
     return SdfFitConfig
 
 
-SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="256x3",
+SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="default",
                   presets=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
                   described=("quick", "default", "high", "256x2"),
                   preset_help="Network (W, D) and time budget (64x1, 128x2 and 256x3 are quick, default and high)",

@@ -83,6 +83,15 @@ def test_print_config_round_trips_through_a_config_file(path, tmp_path, capsys):
     assert set(loaded) == set(cmd.config_fields())
 
 
+def test_fit_sdf_defaults_to_the_default_preset(capsys):
+    import tomllib
+
+    code, text, err = run(capsys, "fit", "sdf", "--print-config")
+    got = tomllib.loads(text)
+    assert code == 0 and (got["width"], got["depth"], got["minutes"]) == (128, 2, 5.0), err
+    assert got["surface_normals"] == "vertex"
+
+
 def test_a_config_file_applies_first_and_options_override_it(tmp_path, capsys):
     import tomllib
 

@@ -37,11 +37,12 @@ def test_fit_sequence_from_a_frames_folder_and_from_files(files, tmp_path, capsy
     out = tmp_path / "seq.safetensors"
     assert main(["fit", "sequence", str(folder), "-o", str(out), "--no-metrics", *TINY]) == 0
     fit = load_spacetime(out)
-    assert fit.kind == "sequence" and fit.times == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert fit.kind == "sequence" and fit.times == [0.0, 0.25, 0.5, 0.75, 1.0] and fit.method == "interpolate"
     frames = sorted(folder.glob("*.obj"))[:2]
     assert main(["fit", "sequence", *map(str, frames), "--times", "2,5", "-o", str(out), "--no-metrics",
-                 *TINY]) == 0
-    assert load_spacetime(out).time_range == (2.0, 5.0)
+                 "--method", "eikonal", *TINY]) == 0
+    fit = load_spacetime(out)
+    assert fit.time_range == (2.0, 5.0) and fit.method == "eikonal"
 
 
 def test_errors(files, tmp_path, capsys):

@@ -195,10 +195,32 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
     ({"lr_min_factor": 0.0}, "lr_min_factor must be in"),
     ({"focus_tau": -0.01}, "focus_tau must be a non-negative number"),
     ({"focus_tau": math.inf}, "focus_tau must be a non-negative number"),
+    ({"surface_normals": "smooth"}, "surface_normals must be 'face' or 'vertex'"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
         fit_sdf(sphere(sub=1), **kw)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_surface_normals_target_the_faces_or_the_smooth_surface(dtype):
+    """On a coarse icosphere the interpolated vertex normals are far closer to the sphere's own normals (the
+    positions) than the faces' normals are; the pools carry the kind asked for."""
+    from neural_bake.fit.sdf_config import config_from
+    from neural_bake.fit.sdf_pools import _Pools
+
+    mesh = sphere(sub=1)
+    err = {}
+    for kind in ("face", "vertex"):
+        pools = _Pools(mesh, config_from(surface_normals=kind, pool_surface=5000, pool_near=0, batch_near=0,
+                                         pool_uniform=0, batch_uniform=0), torch.device("cpu"), dtype)
+        data = pools.get(0)
+        p, n = data["surf_p"], data["surf_n"]
+        assert p.dtype == n.dtype == dtype
+        assert torch.allclose(n.norm(dim=1), torch.ones(len(n), dtype=dtype), atol=1e-5)
+        cos = (n * torch.nn.functional.normalize(p, dim=1)).sum(1).clamp(-1, 1)
+        err[kind] = float(torch.rad2deg(torch.acos(cos)).median())
+    assert err["vertex"] < 0.5 * err["face"], err
 
 
 def test_not_a_mesh():
