@@ -1,7 +1,9 @@
-"""Shared test set-up: one torch thread per test process (pytest-xdist runs one process per core), and no
-hypothesis example database in the working directory (tests write only under tmp_path)."""
+"""Shared test set-up: one torch thread per test process (pytest-xdist runs one process per core), no
+hypothesis example database in the working directory (tests write only under tmp_path), and Ctrl-C live in
+the CLI processes the tests start."""
 
 import os
+import signal
 import tempfile
 
 # hypothesis keeps caches in ./.hypothesis unless told otherwise: keep them out of the working tree
@@ -17,6 +19,11 @@ from hypothesis import settings
 from neural_bake.nets.siren import Siren
 
 torch.set_num_threads(1)
+
+# a test run started in the background of a non-interactive shell inherits SIGINT ignored, and every CLI it
+# starts would too (an ignored signal stays ignored across exec): the Ctrl-C tests need SIGINT to act
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 settings.register_profile("neural_bake", database=None, deadline=None)
 settings.load_profile("neural_bake")
