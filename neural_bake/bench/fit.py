@@ -28,11 +28,12 @@ Two tables, measured in the same run:
   loop a user would otherwise run — and the polished row carries the ratios ``*_vs_no_polish``.
 
 Scope. Full run: the bundled samples ``bumpy_sphere``, ``torus``, ``jack`` plus ``spot`` and ``bunny`` from
-the data folder (:func:`~neural_bake.bench.common.data_folder`) when present, × the four presets at their budgets (2 + 5 + 8 + 10 minutes per mesh, and
-2 more for 64x1 without its polish): about 28 minutes per mesh, two and a half hours in all — run it on an
-otherwise idle machine. ``--quick``: the bumpy sphere only, (64, 1) for 30 s and (256, 3) for 20 s with small
-pools, metrics on 20k samples at grid 96, and the step timing at the default batch without the compiled
-column — under two minutes; its accuracy figures are NOT the targets'.
+the data folder (:func:`~neural_bake.bench.common.data_folder`) when present, × the four presets at their
+budgets (2 + 5 + 8 + 10 minutes per mesh, and 2 more for 64x1 without its polish): about 28 minutes per mesh,
+two and a half hours in all — run it on an otherwise idle machine. ``--quick``: the bumpy sphere only,
+(64, 1) for 30 s and (256, 3) for 20 s with small pools, metrics on 20k samples at grid 96, and the step
+timing at the default batch without the compiled column — under two minutes; its accuracy figures are NOT
+the targets'.
 """
 
 from __future__ import annotations
