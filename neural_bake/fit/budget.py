@@ -24,13 +24,14 @@ __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_
 
 #: GFLOP-equivalents of one Adam step per preset (seconds per step × sgemm GFLOP/s of the machine it was
 #: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by "WxD", texture presets by "texture:NAME".
-#: 64x1, 256x3 and texture:default are measured (Spot, quiet); 128x2 and 256x2 scale 256x3 by their hidden
-#: GEMMs (W²·D); the other texture presets scale texture:default by their estimated cost relative to it
-#: (points per step × the SDF cost per point of their network).
+#: 64x1, 256x3 and texture:default are measured (Spot, quiet); 128x2 and 256x2 are estimates between the
+#: measured compiled and uncompiled costs (the loss is compiled for budgets of five minutes or more); the other
+#: texture presets scale texture:default by their estimated cost relative to it (points per step × the SDF
+#: cost per point of their network).
 STEP_WORK: dict[str, float] = {
     "64x1": 1.76,
-    "128x2": 2.9,
-    "256x2": 11.7,
+    "128x2": 4.2,
+    "256x2": 16.7,
     "256x3": 17.5,
     "texture:quick": 0.9,
     "texture:default": 4.2,

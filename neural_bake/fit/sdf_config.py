@@ -82,11 +82,11 @@ class SdfFitConfig:
     mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
     the Hausdorff distance; this spends steps on them, trading a little Chamfer-L1 for a lower Hausdorff
     distance (docs/findings.md)."""
-    surface_normals: str = "vertex"
-    """Normals the normal term pulls ∇f towards at surface samples: "vertex" (the interpolated vertex normals,
-    the file's own where it has them: the surface a renderer shades and a classical bake reproduces) or "face"
-    (the sampled face's geometric normal: the piecewise-flat mesh's own). How the default was chosen:
-    docs/findings.md."""
+    surface_normals: str = "face"
+    """Normals the normal term pulls ∇f towards at surface samples: "face" (the sampled face's geometric
+    normal: an unbiased sample of the smooth surface the mesh approximates) or "vertex" (the interpolated
+    vertex normals, the file's own where it has them: the shading a renderer and a classical bake show, which
+    blurs relief over a ring of faces). The trade-off, measured: docs/findings.md."""
     curvature_sampling: float = 0.0
     """Part of the surface and near-surface pools drawn by the mesh's curvature (0: off, all uniform by
     area): faces are drawn with :func:`~neural_bake.fit.sampling.curvature_face_weights` with a uniform share
