@@ -54,8 +54,8 @@ Examples:
   neural-bake render bumpy.nested -o bumpy.png --config scene.toml --effects shading,shadows --device cuda
   neural-bake render morph.sdf -o morph.gif --frames 24 --fps 12""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out", default=None, type=click.Path(dir_okay=False),
-              help="Colour image (PNG, EXR…); a .gif or .mp4 for a space-time model.")
+@click.option("-o", "--output", "out", default=None, type=click.Path(),
+              help="Colour image (PNG, EXR…); for a space-time model a folder of frames or a .gif or .mp4.")
 @click.option("--config", "--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
               help="TOML scene file (camera, lights, material, effects, channels, trace settings); the options "
                    "given override it.")
@@ -85,6 +85,9 @@ Examples:
 @click.option("--no-skip", is_flag=True, default=False, help="Turn off empty-space skipping.")
 @click.option("--frames", type=int, default=24, show_default=True, help="Frames of a space-time model's animation.")
 @click.option("--time-range", default=None, help="T0,T1 of a space-time model [default: the model's].")
+@click.option("--t", "times", default=None,
+              help="Frame times of a space-time model: START:STOP:COUNT (e.g. 0:1:60) or a list 0,0.5,1 "
+                   "(instead of --frames and --time-range).")
 @click.option("--fps", type=float, default=12.0, show_default=True, help="Animation frame rate.")
 @click.option("--stats", "stats_path", type=click.Path(dir_okay=False), default=None,
               help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
@@ -92,8 +95,8 @@ Examples:
               help="Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU).")
 @verbosity_options
 def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects,
-            channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, fps, stats_path,
-            precision):
+            channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, times, fps,
+            stats_path, precision):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
 
@@ -163,21 +166,31 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
 
     out_path = Path(out)
     if isinstance(asset, SpaceTimeAsset):
-        if out_path.suffix.lower() not in (".gif", ".mp4"):
-            raise SceneError(f"-o {out}: a space-time model renders an animation; give a .gif or .mp4 path")
+        as_folder = out.endswith(("/", "\\")) or out_path.is_dir() or not out_path.suffix
+        if not as_folder and out_path.suffix.lower() not in (".gif", ".mp4"):
+            raise SceneError(f"-o {out}: a space-time model renders frames into a folder (-o frames/) or an "
+                             f"animation (a .gif or .mp4 path)")
         tr = _time_range(time_range)
+        ts = None
+        if times is not None:
+            from neural_bake.fit.spacetime import parse_times
+
+            ts = parse_times(times, name="--t")
 
         def progress(i, n, seconds):
             if verbosity() >= 0:
                 click.echo(f"frame {i}/{n} ({seconds:.2f} s)", err=True)
 
-        res = render_sequence(asset, scene, out_path.with_name(f"{out_path.stem}_frames"), frames=frames,
-                              time_range=tr, animation=out_path, fps=fps, progress=progress, **render_kw)
-        say(f"wrote {len(res.frames)} frames to {out_path.stem}_frames/ and {out_path}")
+        frames_dir = out_path if as_folder else out_path.with_name(f"{out_path.stem}_frames")
+        res = render_sequence(asset, scene, frames_dir, frames=frames, time_range=tr, times=ts,
+                              animation=None if as_folder else out_path, fps=fps, progress=progress, **render_kw)
+        say(f"wrote {len(res.frames)} frames to {frames_dir}/" + ("" if as_folder else f" and {out_path}"))
         stats = res.stats
     else:
         if out_path.suffix.lower() in (".gif", ".mp4"):
             raise SceneError(f"-o {out}: an animation needs a space-time model (networks of x, y, z, t)")
+        if out_path.is_dir() or out.endswith(("/", "\\")):
+            raise SceneError(f"-o {out}: a folder; a still render needs an image path (e.g. shot.png)")
         result = render(asset, scene, cache_dir=Path(cache) / "neural_bake", **render_kw)
         paths = write_render(result, out_path, channel_format=channel_format)
         s = result.stats

@@ -8,11 +8,12 @@ imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships)
 
 from __future__ import annotations
 
+import math
 import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -56,6 +57,7 @@ def render_sequence(
     *,
     frames: int = 24,
     time_range: tuple[float, float] | None = None,
+    times: Sequence[float] | None = None,
     animation=None,
     fps: float = 12.0,
     progress: Callable[[int, int, float], None] | None = None,
@@ -63,7 +65,8 @@ def render_sequence(
     fov_deg: float | None = None,
     device=None,
 ) -> SequenceResult:
-    """Render ``frames`` frames of ``asset`` into ``frames_dir/frame_0000.png`` … and, with ``animation``
+    """Render ``frames`` frames of ``asset`` (evenly over ``time_range``, or at ``times`` when given) into
+    ``frames_dir/frame_0000.png`` … and, with ``animation``
     (a .gif or .mp4 path), the animation. The camera (the scene's, or one framing the asset at its first
     time, of ``size`` and ``fov_deg``) stays fixed over the sequence. ``progress(i, n, seconds)`` is called after each frame.
     ``device``: the torch device of the rays (default: the CPU; the networks stay where ``asset`` has them).
@@ -71,7 +74,13 @@ def render_sequence(
     if not isinstance(asset, SpaceTimeAsset):
         raise RenderError(f"render_sequence: expected a space-time asset, got {type(asset).__name__}")
     tr = time_range or asset.time_range
-    times = frame_times(frames, tr)
+    if times is None:
+        times = frame_times(frames, tr)
+    else:
+        times = [float(t) for t in times]
+        if not times or not all(math.isfinite(t) for t in times):
+            raise RenderError(f"times: expected finite times, got {times!r:.80}")
+        tr = (min(times), max(times))
     if not (isinstance(fps, (int, float)) and 0 < fps <= 120):
         raise RenderError(f"fps: expected a number in (0, 120], got {fps!r}")
     anim = Path(animation) if animation is not None else None

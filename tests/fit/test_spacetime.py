@@ -405,6 +405,28 @@ def test_render_verb_maps_t_onto_the_network_time_input(sphere_to_torus, tmp_pat
     assert np.abs(first - last).mean() > 0.01  # the sphere became a torus
     assert main(["render", str(path), "-o", str(out), "--frames", "2", "--size", "16", "--time-range", "0,2"]) == 2
     assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
+    # --t names the times; a folder output gets the frames alone (no animation)
+    folder = tmp_path / "frames"
+    assert main(["render", str(path), "-o", f"{folder}/", "--t", "0:1:2", "--size", "16"]) == 0
+    assert sorted(p.name for p in folder.iterdir()) == ["frame_0000.png", "frame_0001.png"]
+    again = [read_image(p) for p in sorted(folder.iterdir())]
+    assert main(["render", str(path), "-o", str(folder), "--t", "1,0", "--size", "16"]) == 0  # a list, any order
+    swapped = [read_image(p) for p in sorted(folder.iterdir())]
+    np.testing.assert_allclose(swapped[0], again[1])
+    np.testing.assert_allclose(swapped[1], again[0])
+    capsys.readouterr()
+    assert main(["render", str(path), "-o", str(folder), "--t", "0:2:3", "--size", "16"]) == 2
+    assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
+    assert main(["render", str(path), "-o", str(folder), "--t", "soon", "--size", "16"]) == 2
+    assert "--t: 'soon' is not START:STOP:COUNT" in capsys.readouterr().err
+    assert main(["render", str(path), "-o", str(tmp_path / "m.png"), "--size", "16"]) == 2
+    assert "a space-time model renders frames into a folder" in capsys.readouterr().err
+    still = sphere_to_torus.at(0.5)  # a static model into a folder: refused in one line
+    from neural_bake.fields.files import save_model
+
+    static = save_model(still, tmp_path / "still.sdf", kind="sdf", frame=sphere_to_torus.frame)
+    assert main(["render", str(static), "-o", str(folder), "--size", "16"]) == 2
+    assert "a folder; a still render needs an image path" in capsys.readouterr().err
 
 
 def test_unit_alignment_puts_unrelated_models_in_one_place():
