@@ -61,9 +61,9 @@ from ..nets.timeslice import fix_last_input
 from ..types import Frame, Mesh
 from .training import LoopConfig, train
 
-__all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "SEQUENCE_METHODS", "reframe",
-           "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND", "parse_times",
-           "nest_spacetime", "nesting_by_time", "choose_deltas", "DELTA_POLICIES"]
+__all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "SEQUENCE_METHODS",
+           "reframe", "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND",
+           "parse_times", "nest_spacetime", "nesting_by_time", "choose_deltas", "DELTA_POLICIES"]
 
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -144,7 +144,8 @@ class SpaceTimeFitConfig:
     """"float32" or "float64"."""
 
 
-def _config_from(config: SpaceTimeFitConfig | None, fn: str, methods=MORPH_METHODS, **overrides) -> SpaceTimeFitConfig:
+def _config_from(config: SpaceTimeFitConfig | None, fn: str, methods=MORPH_METHODS,
+                 **overrides) -> SpaceTimeFitConfig:
     cfg = config or SpaceTimeFitConfig()
     names = {f.name for f in fields(SpaceTimeFitConfig)}
     unknown = sorted(set(overrides) - names)
