@@ -165,8 +165,9 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
         raise click.UsageError("missing -o/--output (needed unless --print-config)")
 
     out_path = Path(out)
+    names_folder = out.endswith(("/", "\\")) or out_path.is_dir()
     if isinstance(asset, SpaceTimeAsset):
-        as_folder = out.endswith(("/", "\\")) or out_path.is_dir() or not out_path.suffix
+        as_folder = names_folder or not out_path.suffix
         if not as_folder and out_path.suffix.lower() not in (".gif", ".mp4"):
             raise SceneError(f"-o {out}: a space-time model renders frames into a folder (-o frames/) or an "
                              f"animation (a .gif or .mp4 path)")
@@ -189,7 +190,7 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
     else:
         if out_path.suffix.lower() in (".gif", ".mp4"):
             raise SceneError(f"-o {out}: an animation needs a space-time model (networks of x, y, z, t)")
-        if out_path.is_dir() or out.endswith(("/", "\\")):
+        if names_folder:
             raise SceneError(f"-o {out}: a folder; a still render needs an image path (e.g. shot.png)")
         result = render(asset, scene, cache_dir=Path(cache) / "neural_bake", **render_kw)
         paths = write_render(result, out_path, channel_format=channel_format)

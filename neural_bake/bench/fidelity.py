@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import NeuralBakeError
 from .common import data_folder, load_note, machine_info
 
-__all__ = ["run", "MESHES", "SAMPLINGS", "data_folder", "open_caps"]
+__all__ = ["run", "MESHES", "SAMPLINGS", "open_caps"]
 
 #: The real meshes, relative to the data folder, with their bake settings: game assets bake onto themselves.
 MESHES: dict[str, dict] = {
