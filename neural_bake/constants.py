@@ -137,6 +137,14 @@ BF16_MAX_MEDIAN_DEG = 0.05
 #: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.
 PRECISION_PROBE_POINTS = 1024
 
+#: Float32 CPU GEMMs go to oneDNN instead of the BLAS (nets.cpu_gemm) only where a (4096, W) × (W, W) product
+#: measured at least this many times faster there: below it the choice is within timing noise.
+ONEDNN_MIN_SPEEDUP = 1.1
+
+#: ... and only where that product's error relative to float64 stayed within this: float32 GEMMs of widths up
+#: to 512 read ~1e-6; one with its operands rounded to bfloat16 ~1e-3.
+FP32_GEMM_REL_TOL = 1e-5
+
 #: A camera whose up vector's cross product with the view direction is shorter than this has up parallel to
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9

@@ -213,9 +213,13 @@ def adaptive_evaluate(
     store = _Store(values=np.zeros(m), normals=np.zeros((m, 3)), valid=np.zeros(m, bool),
                    evaluated=np.zeros(m, bool), interpolated=np.zeros(m, bool))
 
+    todo = np.zeros(m, bool)
+
     def run(idx: np.ndarray) -> None:
-        idx = np.unique(idx)
-        idx = idx[~store.evaluated[idx]]
+        todo[idx] = True  # a mask, not np.unique: linear in the band, no sort
+        todo[store.evaluated] = False
+        idx = np.flatnonzero(todo)
+        todo[idx] = False
         if idx.size == 0:
             return
         ev = evaluate(idx)
@@ -313,27 +317,11 @@ def _weights(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
     det = np.where(ok, det, 1.0)
     t = np.clip(np.where(ok, (c * r_t - b * r_u) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
     u = np.clip(np.where(ok, (a * r_u - b * r_t) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
-    p00, p01, p10, p11 = (corners[:, i] for i in range(4))
-    for _ in range(_NEWTON):  # Gauss-Newton towards the bilinear patch's closest point
-        tt, uu = t[:, None], u[:, None]
-        bp = (1 - tt) * ((1 - uu) * p00 + uu * p01) + tt * ((1 - uu) * p10 + uu * p11)
-        jt = (1 - uu) * (p10 - p00) + uu * (p11 - p01)
-        ju = (1 - tt) * (p01 - p00) + tt * (p11 - p10)
-        res = points - bp
-        a, b, c = (np.einsum("ni,ni->n", x, y) for x, y in ((jt, jt), (jt, ju), (ju, ju)))
-        r_t, r_u = np.einsum("ni,ni->n", jt, res), np.einsum("ni,ni->n", ju, res)
-        det = a * c - b * b
-        ok = det > DIRECTION_EPS * np.maximum(a * c, DIRECTION_EPS)
-        det = np.where(ok, det, 1.0)
-        t = np.clip(t + np.where(ok, (c * r_t - b * r_u) / det, 0.0), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
-        u = np.clip(u + np.where(ok, (a * r_u - b * r_t) / det, 0.0), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
     return np.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u], axis=1)
 
 
 #: How far outside its quad (in quad sides) a sample's spatial coordinates may reach before they are clamped.
 _EXTRAPOLATE = 0.5
-#: Gauss-Newton steps from the parallelogram's coordinates to the bilinear patch's closest point.
-_NEWTON = 2
 
 
 def _interp(w: np.ndarray, corners: np.ndarray, store: "_Store", points: np.ndarray, at: np.ndarray) -> tuple:

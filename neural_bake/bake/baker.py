@@ -103,6 +103,8 @@ class _Reservoir:
         pick = np.flatnonzero(keys < self.keys.max()) if len(self.keys) >= self.limit else np.arange(n)
         if pick.size == 0:
             return
+        if pick.size > self.limit:  # only the band's ``limit`` smallest keys can be among the smallest overall
+            pick = np.sort(pick[np.argpartition(keys[pick], self.limit - 1)[: self.limit]])
         new = {k: np.asarray(v)[pick] for k, v in arrays.items() if v is not None}
         keys, index = np.concatenate([self.keys, keys[pick]]), np.concatenate([self.index, index[pick]])
         data = new if self.data is None else {k: np.concatenate([self.data[k], new[k]]) for k in new}

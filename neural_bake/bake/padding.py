@@ -99,42 +99,33 @@ def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool =
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
-    """Pull: 2×2 box-filter the (premultiplied colour, weight) pyramid; push: fill holes from coarser levels."""
-    levels = [(img * covered[:, :, None], covered.astype(np.float64))]
-    while max(levels[-1][1].shape) > 1:
+    """Pull: 2×2 box-filter the (premultiplied colour, weight) pyramid; push: fill holes from coarser levels.
+
+    Runs in torch on the image's dtype (channels first), whose pooling and bilinear ×2 upsampling
+    (``align_corners=False``: texel centres aligned, borders replicated) are one pass each per level."""
+    import torch
+    import torch.nn.functional as F
+
+    x = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).unsqueeze(0)  # (1, C, H, W)
+    w0 = torch.from_numpy(covered).to(x.dtype)[None, None]
+    levels = [(x * w0, w0)]
+    while max(levels[-1][1].shape[-2:]) > 1:
         c, w = levels[-1]
-        h, wd = w.shape
-        ph, pw = h % 2, wd % 2
-        c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
-        w = np.pad(w, ((0, ph), (0, pw)))
-        c2 = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
-        w2 = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        h, wd = w.shape[-2:]
+        c = F.pad(c, (0, wd % 2, 0, h % 2))
+        w = F.pad(w, (0, wd % 2, 0, h % 2))
+        c2 = F.avg_pool2d(c, 2) * 4.0
+        w2 = F.avg_pool2d(w, 2) * 4.0
         # normalise so a level holds averages of the filled texels with weight min(1, sum)
-        avg = np.divide(c2, w2[:, :, None], out=np.zeros_like(c2), where=w2[:, :, None] > 0)
-        wn = np.minimum(w2, 1.0)
-        levels.append((avg * wn[:, :, None], wn))
-    # push: from the coarsest level down, blend each level's own value with the upsampled coarser one
+        wn = w2.clamp(max=1.0)
+        levels.append((c2 / w2.clamp(min=1e-30) * wn, wn))
     c, w = levels[-1]
-    cur = np.divide(c, w[:, :, None], out=np.zeros_like(c), where=w[:, :, None] > 0)
+    cur = c / w.clamp(min=1e-30)  # w is 0 or ≥ 1 at the coarsest level, c 0 where w is
+    # push: from the coarsest level down, blend each level's own value with the upsampled coarser one
     for c, w in reversed(levels[:-1]):
-        h, wd = w.shape
-        up = _upsample(cur, (h, wd))
-        own = np.divide(c, w[:, :, None], out=np.zeros_like(c), where=w[:, :, None] > 0)
-        a = np.clip(w, 0.0, 1.0)[:, :, None]
-        cur = a * own + (1 - a) * up
-    return cur
-
-
-def _upsample(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Bilinear ×2 upsampling (texel centres aligned, borders replicated) cropped to ``shape``."""
-
-    def up(a: np.ndarray, axis: int) -> np.ndarray:
-        a = np.moveaxis(a, axis, 0)
-        p = np.concatenate([a[:1], a, a[-1:]], axis=0)
-        out = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
-        out[0::2] = 0.75 * p[1:-1] + 0.25 * p[:-2]
-        out[1::2] = 0.75 * p[1:-1] + 0.25 * p[2:]
-        return np.moveaxis(out, 0, axis)
-
-    h, w = shape
-    return up(up(img, 0)[:h], 1)[:, :w]
+        h, wd = w.shape[-2:]
+        up = F.interpolate(cur, scale_factor=2, mode="bilinear", align_corners=False)[:, :, :h, :wd]
+        own = c / w.clamp(min=1e-30)
+        a = w.clamp(0.0, 1.0)
+        cur = torch.lerp(up, own, a)
+    return cur[0].permute(1, 2, 0).contiguous().numpy()

@@ -44,6 +44,7 @@ import torch
 from ..constants import BLOWUP_LOSS_FLOOR
 from ..errors import FitError, NeuralBakeWarning, TrainingDivergedError
 from ..io.atomic import atomic_path
+from ..nets.cpu_gemm import gemm_route, model_width
 from ..nets.heap import keep_freed_memory
 
 __all__ = ["LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
@@ -237,6 +238,14 @@ def train(
     Returns a :class:`LoopResult`; the model holds the final (or best) weights, never non-finite ones.
     Raises FitError when divergence persists after ``max_restarts`` learning-rate halvings.
     """
+    first = next(iter(model.parameters()), None)
+    device = first.device if first is not None else torch.device("cpu")
+    with gemm_route(model_width(model), device):  # float32 CPU GEMMs where they run fastest (nets.cpu_gemm)
+        return _train(model, step_fn, config, evaluate=evaluate, fingerprint=fingerprint, metadata=metadata,
+                      on_log=on_log, clock=clock)
+
+
+def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, clock) -> LoopResult:
     cfg = config or LoopConfig()
     _validate(cfg)
     keep_freed_memory()  # a step's tensors reuse the last step's memory instead of page-faulting (nets.heap)

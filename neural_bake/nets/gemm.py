@@ -36,6 +36,7 @@ from torch.autograd.function import once_differentiable
 
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
+from .cpu_gemm import gemm_route, model_width
 from .fastmath import sincos, sincos_
 
 __all__ = ["gemm_gradient", "normalized_gradient", "autograd_graph_only", "default_chunk_size", "sin_cos",
@@ -110,11 +111,12 @@ def gemm_gradient(
         raise NeuralBakeError(f"gemm_gradient: points has {int((~torch.isfinite(points)).sum())} non-finite values")
 
     dtype, device = points.dtype, points.device
-    if differentiable and torch.is_grad_enabled():
+    if differentiable and torch.is_grad_enabled():  # a training step: its loop picks the GEMM route
         layers = model.affine_layers(dtype=dtype, device=device)
         values, grads = (_reverse_graph if mode == "reverse" else _forward_graph)(layers, points)
     else:
-        with torch.no_grad():
+        # float32 CPU GEMMs on the route that runs them fastest here (nets.cpu_gemm)
+        with torch.no_grad(), gemm_route(model_width(model), device):
             layers = model.affine_layers(dtype=dtype, device=device)
             chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
                 mode, layers[0][0].shape[0], in_dim, out_dim

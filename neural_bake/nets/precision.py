@@ -23,6 +23,7 @@ import torch
 
 from ..constants import BF16_MIN_SPEEDUP
 from ..errors import NeuralBakeError
+from .cpu_gemm import gemm_route
 
 __all__ = ["PRECISIONS", "resolve_precision", "gemm_dtype", "measure_bf16_speedup", "bf16_supported", "reduced_copy"]
 
@@ -49,19 +50,22 @@ def bf16_supported(device: torch.device | str = "cpu") -> tuple[bool, str]:
 
 
 def measure_bf16_speedup(width: int, device: torch.device | str = "cpu", repeats: int = 5) -> float:
-    """Seconds of a float32 (4096, width) × (width, width) product ÷ seconds of the same with the operand
-    converted to bfloat16 and the result back to float32 (best of ``repeats`` each, interleaved)."""
+    """Seconds of a float32 (4096, width) × (width, width) product (on the CPU, on the route
+    :mod:`neural_bake.nets.cpu_gemm` picks) ÷ seconds of the same with the operand converted to bfloat16 and
+    the result back to float32 (best of ``repeats`` each, interleaved)."""
     device = torch.device(device)
     gen = torch.Generator().manual_seed(0)
     a = torch.rand(4096, int(width), generator=gen).to(device)
     w = torch.rand(int(width), int(width), generator=gen).to(device)
     wb = w.to(torch.bfloat16)
     best = {"fp32": float("inf"), "bf16": float("inf")}
-    for _ in range(int(repeats)):
-        for name, fn in (("fp32", lambda: torch.mm(a, w)), ("bf16", lambda: torch.mm(a.to(torch.bfloat16), wb).float())):
-            t0 = time.perf_counter()
-            fn().sum().item()  # .item(): waits for an asynchronous device
-            best[name] = min(best[name], time.perf_counter() - t0)
+    with gemm_route(int(width), device):  # float32 on the route its products take (nets.cpu_gemm)
+        for _ in range(int(repeats)):
+            for name, fn in (("fp32", lambda: torch.mm(a, w)),
+                             ("bf16", lambda: torch.mm(a.to(torch.bfloat16), wb).float())):
+                t0 = time.perf_counter()
+                fn().sum().item()  # .item(): waits for an asynchronous device
+                best[name] = min(best[name], time.perf_counter() - t0)
     return best["fp32"] / max(best["bf16"], 1e-12)
 
 

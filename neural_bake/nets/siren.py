@@ -9,6 +9,7 @@ from torch import nn
 
 from ..constants import DEFAULT_OMEGA_0
 from ..errors import NeuralBakeError
+from .cpu_gemm import gemm_route
 from .fastmath import sin_
 
 __all__ = ["Siren", "siren_forward_inference", "forward_chunk_size", "FORWARD_CHUNK_ELEMENTS"]
@@ -164,7 +165,15 @@ def siren_forward_inference(
     if n == 0:
         return out
     width = layers[0][0].shape[0]
-    chunk = max(1, int(chunk_size or forward_chunk_size(width)))
+    with gemm_route(width, x.device):  # float32 CPU GEMMs where they run fastest (nets.cpu_gemm)
+        _forward_chunks(layers, x, out, max(1, int(chunk_size or forward_chunk_size(width))), gemm_dtype)
+    return out
+
+
+def _forward_chunks(layers, x, out, chunk, gemm_dtype):
+    n = x.shape[0]
+    w_last, b_last = layers[-1]
+    width = layers[0][0].shape[0]
     c0 = min(chunk, n)
     bufs = [x.new_empty((c0, width)), x.new_empty((c0, width))]
     low = [None] + [w.t().to(gemm_dtype).contiguous() for w, _ in layers[1:-1]] if gemm_dtype is not None else None
@@ -181,4 +190,3 @@ def siren_forward_inference(
             sin_(a)  # the fast C sine where it measured faster than torch.sin (nets.fastmath)
             h = a
         torch.addmm(b_last, h, w_last.t(), out=out[start:stop])
-    return out

@@ -75,3 +75,50 @@ def test_errors():
         pad_charts(img, np.ones((4, 4)), pixels=-1)
     with pytest.raises(NeuralBakeError, match="image must be"):
         pad_charts(np.zeros((4, 4, 3, 1)), np.ones((4, 4)))
+
+
+def _pull_push_reference(img, covered):
+    """The pull-push pyramid written plainly in float64 numpy: 2×2 sums of (premultiplied colour, weight),
+    weights clamped to 1; pushed down by bilinear ×2 upsampling with replicated borders."""
+    levels = [(img.astype(np.float64) * covered[:, :, None], covered.astype(np.float64))]
+    while max(levels[-1][1].shape) > 1:
+        c, w = levels[-1]
+        c = np.pad(c, ((0, c.shape[0] % 2), (0, c.shape[1] % 2), (0, 0)))
+        w = np.pad(w, ((0, w.shape[0] % 2), (0, w.shape[1] % 2)))
+        c2 = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
+        w2 = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        avg = np.divide(c2, w2[:, :, None], out=np.zeros_like(c2), where=w2[:, :, None] > 0)
+        wn = np.minimum(w2, 1.0)
+        levels.append((avg * wn[:, :, None], wn))
+
+    def up(a, axis):
+        a = np.moveaxis(a, axis, 0)
+        p = np.concatenate([a[:1], a, a[-1:]], axis=0)
+        out = np.empty((2 * a.shape[0], *a.shape[1:]))
+        out[0::2] = 0.75 * p[1:-1] + 0.25 * p[:-2]
+        out[1::2] = 0.75 * p[1:-1] + 0.25 * p[2:]
+        return np.moveaxis(out, 0, axis)
+
+    c, w = levels[-1]
+    cur = np.divide(c, w[:, :, None], out=np.zeros_like(c), where=w[:, :, None] > 0)
+    for c, w in reversed(levels[:-1]):
+        h, wd = w.shape
+        upsampled = up(up(cur, 0)[:h], 1)[:, :wd]
+        own = np.divide(c, w[:, :, None], out=np.zeros_like(c), where=w[:, :, None] > 0)
+        a = np.clip(w, 0.0, 1.0)[:, :, None]
+        cur = a * own + (1 - a) * upsampled
+    return cur
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(40, 50), (37, 23), (1, 9)])  # even, odd and one-row sizes
+def test_pull_push_matches_the_plain_reference(rng, dtype, shape):
+    from neural_bake.bake.padding import _pull_push
+
+    img = rng.uniform(0, 1, size=(*shape, 3)).astype(dtype)
+    cov = rng.uniform(size=shape) < 0.1
+    cov[0, 0] = True
+    out = _pull_push(img, cov)
+    assert out.dtype == dtype and out.shape == img.shape
+    tol = 1e-5 if dtype == np.float32 else 1e-12
+    assert np.allclose(out, _pull_push_reference(img, cov), atol=tol)
