@@ -59,12 +59,12 @@ def pad_charts(
         # first mip levels at a chart's edge never mix in a neighbouring chart's pushed-down colours
         rings = PULL_PUSH_DILATE if pixels is None else min(int(pixels), PULL_PUSH_DILATE)
         near, near_mask = _dilate(work, covered, rings, return_mask=True)
-        out[near_mask] = near[near_mask]
+        np.copyto(out, near, where=near_mask[:, :, None])  # a masked copy, not fancy indexing
         if pixels is not None:
             dist = ndimage.distance_transform_cdt(~covered, metric="chessboard")
             far = dist > pixels
-            out[far] = img[far]
-    out[covered] = img[covered]
+            np.copyto(out, img, where=far[:, :, None], casting="same_kind")
+    np.copyto(out, img, where=covered[:, :, None], casting="same_kind")
     out = out.astype(img.dtype, copy=False)
     return out[:, :, 0] if squeeze else out
 
@@ -73,29 +73,31 @@ _NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
 def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool = False):
-    """``steps`` rings of dilation; work is proportional to the ring sizes, not the image size."""
+    """``steps`` rings of dilation; work is proportional to the ring sizes, not the image size (one copy of
+    the image, no padded copies: neighbours across the border are skipped)."""
     h, w = filled.shape
-    imgp = np.pad(img, ((1, 1), (1, 1), (0, 0)))
-    fp = np.pad(filled, 1)
+    out = img.copy()
+    fp = filled.copy()
     for _ in range(steps):
-        core = fp[1:-1, 1:-1]
-        near = np.zeros_like(core)
-        for di, dj in _NEIGHBOURS:
-            near |= fp[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
-        ii, jj = np.nonzero(near & ~core)
+        near = np.zeros_like(fp)
+        for di, dj in _NEIGHBOURS:  # near[i, j] |= fp[i + di, j + dj] where that exists
+            near[max(0, -di): h - max(0, di), max(0, -dj): w - max(0, dj)] |= \
+                fp[max(0, di): h - max(0, -di), max(0, dj): w - max(0, -dj)]
+        ii, jj = np.nonzero(near & ~fp)
         if ii.size == 0:
             break
-        ii, jj = ii + 1, jj + 1
         acc = np.zeros((ii.size, img.shape[2]), dtype=img.dtype)
         cnt = np.zeros(ii.size, dtype=img.dtype)
         for di, dj in _NEIGHBOURS:
-            f = fp[ii + di, jj + dj]
-            acc[f] += imgp[ii[f] + di, jj[f] + dj]
+            ni, nj = ii + di, jj + dj
+            inside = (ni >= 0) & (ni < h) & (nj >= 0) & (nj < w)
+            f = np.zeros(ii.size, dtype=bool)
+            f[inside] = fp[ni[inside], nj[inside]]
+            acc[f] += out[ni[f], nj[f]]
             cnt += f
-        imgp[ii, jj] = acc / cnt[:, None]
+        out[ii, jj] = acc / cnt[:, None]
         fp[ii, jj] = True
-    out = imgp[1:-1, 1:-1].copy()
-    return (out, fp[1:-1, 1:-1].copy()) if return_mask else out
+    return (out, fp) if return_mask else out
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
