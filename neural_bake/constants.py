@@ -153,6 +153,15 @@ CAMERA_PARALLEL_EPS = 1e-9
 #: warns that it was slowed (the machine was busy) and is weaker than the preset's.
 BUDGET_WARN_FRACTION = 0.5
 
+#: ... and blames the drawing of its training samples instead of the machine when that took at least this
+#: share of the budget (an open mesh's winding numbers, a pool refresh too slow for the budget).
+BUDGET_SAMPLING_SHARE = 0.5
+
+#: A time-budgeted SDF fit rebuilds its sample pools (every ``refresh_every`` steps) only while the rebuilds,
+#: the next one included, stay within this share of its time; a mesh whose pools are slow to draw (an open
+#: scan's winding numbers: 40 s for the 124k-face ogre) keeps its pools longer instead of losing its steps.
+POOL_REFRESH_MAX_SHARE = 0.2
+
 #: Pixels peeled off the common mask of two renders before an "interior" comparison: the outline of a coarse
 #: mesh differs from its source's by a pixel or two, and those pixels would swamp the shading differences.
 INTERIOR_ERODE_PX = 2

@@ -243,6 +243,7 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool) -> list[d
     from ..bake.baker import Baker
     from ..bake.baseline import baseline_bake, raycasting_scene
     from ..bake.report import decode_map
+    from ..constants import ADAPTIVE_TOLERANCE_DEG
     from ..fields import SdfField, load_sdf_field
     from ..geometry import angular_error
     from ..mesh.decimate import decimate
@@ -271,6 +272,9 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool) -> list[d
         variants = [("full", None, "fp32"), ("adaptive", AdaptiveOptions(), "fp32"), ("adaptive", AdaptiveOptions(), "auto")]
         if not quick:
             variants.append(("full", None, "auto"))
+            # what a looser tolerance buys: four times the default
+            loose = AdaptiveOptions(tolerance_deg=4 * ADAPTIVE_TOLERANCE_DEG)
+            variants.append((f"adaptive {loose.tolerance_deg:g}°", loose, "fp32"))
         results = {}
         for kind, adaptive, precision in variants:
             res = baker.bake(field, keep_samples=False, adaptive=adaptive, precision=precision, seed=seed)

@@ -18,7 +18,7 @@ from typing import Callable
 
 import torch
 
-from ..constants import BUDGET_WARN_FRACTION, MIN_SECONDS
+from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
 __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_budget", "stop_note", "cache_file"]
 
@@ -126,18 +126,25 @@ def expected_steps(preset: str | None, seconds: float | None, gflops: float | No
 
 
 def budget_record(steps: int, expected: int | None, *, preset: str | None = None, seconds: float | None = None,
-                  gflops: float | None = None, stopped_reason: str | None = None) -> dict:
+                  gflops: float | None = None, stopped_reason: str | None = None,
+                  sampling_share: float | None = None) -> dict:
     """The budget's account, JSON-ready: ``steps`` made, ``expected`` (None: no reference), their ``ratio``,
-    the ``gflops`` probe, and ``warning``: one line when fewer than half the expected steps were made (None
-    otherwise). A run that stopped at its step cap is not short of time and gets no warning."""
+    the ``gflops`` probe, ``sampling_share`` (the part of the fit's time spent drawing training samples, or
+    None when not measured), and ``warning``: one line when fewer than half the expected steps were
+    made (None otherwise), naming the sampling as the cause when it took at least
+    :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the budget, else a busy or slowed machine. A run
+    that stopped at its step cap is not short of time and gets no warning."""
     ratio = None if not expected else steps / expected
+    share = None if sampling_share is None else float(sampling_share)
     warning = None
     if ratio is not None and ratio < BUDGET_WARN_FRACTION and stopped_reason != "steps":
+        why = (f"drawing training samples took {100 * share:.0f} % of its time (an open mesh's winding "
+               "numbers are costly)" if share is not None and share >= BUDGET_SAMPLING_SHARE
+               else "the machine was busy or slowed")
         warning = (f"{preset or 'fit'}: made {steps} steps of the ~{expected} this machine makes in "
-                   f"{seconds or 0:.0f} s ({100 * ratio:.0f} %): the machine was busy or slowed; the fit is "
-                   "weaker than the preset's")
+                   f"{seconds or 0:.0f} s ({100 * ratio:.0f} %): {why}; the fit is weaker than the preset's")
     return {"preset": preset, "steps": int(steps), "expected_steps": expected, "ratio": ratio,
-            "budget_seconds": seconds, "gflops": gflops, "warning": warning}
+            "budget_seconds": seconds, "gflops": gflops, "sampling_share": share, "warning": warning}
 
 
 def stop_note(stopped_reason: str, steps: int, seconds: float, minutes: float | None, step_cap: int) -> str:
@@ -152,10 +159,12 @@ def stop_note(stopped_reason: str, steps: int, seconds: float, minutes: float | 
 
 
 def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float | None, step_cap: int,
-               stopped_reason: str, budget_seconds: float | None = None) -> dict | None:
+               stopped_reason: str, budget_seconds: float | None = None,
+               sampling_share: float | None = None) -> dict | None:
     """The budget account of a finished fit (:func:`budget_record` plus ``stopped``: :func:`stop_note`), and
     its warning issued as a :class:`~neural_bake.errors.NeuralBakeWarning`; None for a fit without a time
-    budget. ``budget_seconds``: the part of the budget the counted steps had (default: all of it)."""
+    budget. ``budget_seconds``: the part of the budget the counted steps had (default: all of it);
+    ``sampling_share``: the part of the steps' time spent drawing training samples (None: not measured)."""
     if not minutes:
         return None
     import warnings
@@ -165,7 +174,7 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
     span = 60.0 * minutes if budget_seconds is None else budget_seconds
     gflops = probe_gflops() if preset in STEP_WORK else None
     rec = budget_record(steps, expected_steps(preset, span, gflops), preset=preset, seconds=span, gflops=gflops,
-                        stopped_reason=stopped_reason)
+                        stopped_reason=stopped_reason, sampling_share=sampling_share)
     rec["stopped"] = stop_note(stopped_reason, steps, seconds, minutes, step_cap)
     if rec["warning"]:
         warnings.warn(rec["warning"], NeuralBakeWarning, stacklevel=3)

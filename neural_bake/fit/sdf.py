@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..constants import POOL_REFRESH_MAX_SHARE
 from ..errors import FitError, ModelFileError
 from ..nets.compiled import CompiledFn, long_run, should_compile
 from ..nets.siren import Siren
@@ -206,7 +207,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     gen = torch.Generator().manual_seed(int(cfg.seed))
     model = Siren(cfg.width, cfg.depth, omega_0=cfg.omega_0, generator=gen).to(device=device, dtype=dtype)
     model.train()
-    pools = _Pools(mesh, cfg, device, dtype)
+    # a budgeted run keeps its pools longer where rebuilding them would eat its steps (POOL_REFRESH_MAX_SHARE)
+    pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None)
 
     fingerprint = _fingerprint(mesh, cfg)  # of the settings as asked ("auto" included)
     if cfg.gemm_dtype == "auto":
@@ -279,8 +281,11 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype, now)
             reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)
         loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
+    t_adam = time.perf_counter()  # real seconds, as the sampling's timer counts (the budget's clock may be a test's)
     res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name}, clock=now)
-    budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None)
+    adam_real = time.perf_counter() - t_adam
+    budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None,
+                     sampling["seconds"] / adam_real if adam_real > 0 else None)
     polish = None
     seconds = res.seconds
     if cfg.polish_evals:
@@ -300,7 +305,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
                   sampling_seconds=sampling["seconds"], distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 
-def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None) -> dict | None:
+def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None,
+            sampling_share: float | None = None) -> dict | None:
     """The budget account of Adam's part of a run (its steps against the preset's on this machine); the
     preset counts only when the run kept its network and batch (else its step cost is another)."""
     from .budget import fit_budget
@@ -313,7 +319,8 @@ def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | No
                 ref.width, ref.depth, ref.batch, ref.batch_near, ref.batch_uniform):
             key = None
     return fit_budget(key, steps=res.steps, seconds=res.seconds, minutes=cfg.minutes, step_cap=int(cfg.steps),
-                      stopped_reason=res.stopped_reason, budget_seconds=adam_seconds)
+                      stopped_reason=res.stopped_reason, budget_seconds=adam_seconds,
+                      sampling_share=sampling_share)
 
 
 def _polish_loss(batch, *, model: Siren, cfg: SdfFitConfig, micro: int) -> torch.Tensor:

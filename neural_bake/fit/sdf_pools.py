@@ -6,6 +6,9 @@ resumed run rebuilds exactly the same pools.
 
 from __future__ import annotations
 
+import time
+from typing import Callable
+
 import numpy as np
 import torch
 
@@ -17,17 +20,35 @@ from .sdf_config import SdfFitConfig
 
 
 class _Pools:
-    """Sample pools drawn from the mesh, rebuilt for every refresh index (deterministic in (seed, index))."""
+    """Sample pools drawn from the mesh, rebuilt for every refresh index (deterministic in (seed, index)).
 
-    def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype):
+    ``max_share`` (time-budgeted runs): a refresh is skipped, keeping the current pools, while the time of
+    the builds so far plus the last build's (the next one's estimate) would exceed this share of the time
+    since the first build began, as ``clock`` measures it; ``skipped`` counts the skipped refresh indices."""
+
+    def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype, *, max_share: float | None = None,
+                 clock: Callable[[], float] = time.perf_counter):
         self.mesh, self.cfg, self.device, self.dtype = mesh, cfg, device, dtype
         self.index = None
         self.face_weights = None  # curvature sampling's per-face probabilities (computed once)
+        self.max_share, self.clock = max_share, clock
+        self.started: float | None = None
+        self.build_seconds = self.last_build = 0.0
+        self.skipped: set[int] = set()
 
     def get(self, step: int):
         idx = step // self.cfg.refresh_every if self.cfg.refresh_every else 0
         if idx != self.index:
+            if self.started is not None and self.max_share:
+                elapsed = self.clock() - self.started
+                if self.build_seconds + self.last_build > self.max_share * (elapsed + self.last_build):
+                    self.skipped.add(idx)
+                    return self.data
+            t0 = self.clock()
             self._build(idx)
+            self.last_build = self.clock() - t0
+            self.build_seconds += self.last_build
+            self.started = t0 if self.started is None else self.started
         return self.data
 
     def _build(self, idx: int) -> None:

@@ -8,6 +8,7 @@ import time
 
 import torch
 
+from ..nets.cpu_gemm import gemm_route
 from .sdf_config import SdfFitConfig
 
 __all__ = ["TRAIN_CHUNK_ELEMENTS", "TUNE_EVERY", "micro_batch_count", "MicroBatchTuner"]
@@ -84,12 +85,13 @@ def _bf16_pays(cfg: SdfFitConfig, device, dtype) -> bool:
     a = torch.rand(4096, cfg.width, device=device)
     w = torch.rand(cfg.width, cfg.width, device=device)
     best = {}
-    for name, (x, y) in {"f32": (a, w), "bf16": (a.bfloat16(), w.bfloat16())}.items():
-        times = []
-        for _ in range(6):
-            t0 = time.perf_counter()
-            torch.mm(x, y).sum().item()  # .item(): waits for an asynchronous device
-            times.append(time.perf_counter() - t0)
-        best[name] = min(times[1:])
+    with gemm_route(cfg.width, device):  # float32 as the training loop runs it (nets.cpu_gemm)
+        for name, (x, y) in {"f32": (a, w), "bf16": (a.bfloat16(), w.bfloat16())}.items():
+            times = []
+            for _ in range(6):
+                t0 = time.perf_counter()
+                torch.mm(x, y).sum().item()  # .item(): waits for an asynchronous device
+                times.append(time.perf_counter() - t0)
+            best[name] = min(times[1:])
     return best["f32"] >= 1.5 * best["bf16"]
 

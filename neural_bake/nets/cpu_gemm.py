@@ -39,17 +39,22 @@ ENV_ROUTE = "NEURAL_BAKE_CPU_GEMM"
 _decided: dict[int, tuple[str, str]] = {}
 
 
-def _onednn_setting_exists() -> bool:
+def _matmul_setting():
+    """torch's oneDNN matmul settings object (``fp32_precision``), or None where this torch has none."""
     matmul = getattr(torch.backends.mkldnn, "matmul", None)
-    return torch.backends.mkldnn.is_available() and hasattr(matmul, "fp32_precision")
+    return matmul if torch.backends.mkldnn.is_available() and hasattr(matmul, "fp32_precision") else None
+
+
+def _onednn_setting_exists() -> bool:
+    return _matmul_setting() is not None
 
 
 @contextlib.contextmanager
 def _onednn(on: bool) -> Iterator[None]:
-    if not _onednn_setting_exists():
+    matmul = _matmul_setting()
+    if matmul is None:
         yield
         return
-    matmul = torch.backends.mkldnn.matmul
     before = matmul.fp32_precision
     matmul.fp32_precision = "bf16" if on else "none"
     try:
@@ -60,7 +65,8 @@ def _onednn(on: bool) -> Iterator[None]:
 
 def route_in_use() -> str:
     """"onednn" when float32 CPU GEMMs may go to oneDNN right now, else "blas"."""
-    if _onednn_setting_exists() and torch.backends.mkldnn.matmul.fp32_precision == "bf16":
+    matmul = _matmul_setting()
+    if matmul is not None and matmul.fp32_precision == "bf16":
         return "onednn"
     return "blas"
 

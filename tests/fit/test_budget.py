@@ -38,6 +38,17 @@ def test_budget_record_warns_below_half():
     assert budget_record(10, None)["ratio"] is None
 
 
+def test_budget_warning_names_the_sampling_when_it_took_the_time():
+    slow = budget_record(40, 100, preset="64x1", seconds=90, stopped_reason="time budget", sampling_share=0.72)
+    assert slow["sampling_share"] == 0.72
+    assert slow["warning"] == ("64x1: made 40 steps of the ~100 this machine makes in 90 s (40 %): drawing "
+                               "training samples took 72 % of its time (an open mesh's winding numbers are "
+                               "costly); the fit is weaker than the preset's")
+    # a small sampling share leaves the machine as the cause
+    busy = budget_record(40, 100, preset="64x1", seconds=90, stopped_reason="time budget", sampling_share=0.13)
+    assert "the machine was busy or slowed" in busy["warning"]
+
+
 def test_stop_notes():
     assert stop_note("time budget", 10, 60.0, 1.0, 500) == "time budget (60 s) used"
     assert stop_note("steps", 500, 12.04, 1.0, 500) == "step cap (500) reached after 12.0 s of the 60-s budget"

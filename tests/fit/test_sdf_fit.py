@@ -844,3 +844,30 @@ def test_cli_fit_sdf_reports_the_micro_batch_tuning(tmp_path, capsys):
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("micro-batches: "))
     assert "1: " in line and "2: " in line and "4: " in line and " ms" in line  # 13,312 points × 64: rule 4
     assert load_sdf(out).micro_batch_tuning[0]["step"] == 0
+
+
+def test_budgeted_pools_skip_refreshes_that_would_eat_the_budget():
+    """A refresh is skipped while the builds (the next one included) would pass the share of the run's time,
+    by the injected clock: each build here costs 10 clock seconds."""
+    from neural_bake.fit.sdf_config import config_from
+    from neural_bake.fit.sdf_pools import _Pools
+
+    now = {"t": 0.0}
+
+    class Timed(_Pools):
+        def _build(self, idx):
+            super()._build(idx)
+            now["t"] += 10.0
+
+    cfg = config_from(pool_surface=500, pool_near=0, batch_near=0, pool_uniform=0, batch_uniform=0,
+                      refresh_every=100)
+    pools = Timed(sphere(sub=1), cfg, torch.device("cpu"), torch.float32, max_share=0.2, clock=lambda: now["t"])
+    first = pools.get(0)
+    now["t"] = 30.0  # 20 s of steps after a 10-s build: another build would make 20 of 40 s
+    assert pools.get(100) is first and pools.skipped == {1}
+    now["t"] = 90.0  # 20 of 100 s: within the share
+    assert pools.get(150) is not first and pools.index == 1 and pools.build_seconds == 20.0
+    # without a share (a run with a step count) every refresh index is built, as the seed reproduces
+    plain = _Pools(sphere(sub=1), cfg, torch.device("cpu"), torch.float32)
+    plain.get(0)
+    assert plain.get(100) is not None and plain.index == 1 and not plain.skipped
