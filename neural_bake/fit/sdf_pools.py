@@ -1,7 +1,8 @@
 """The sample pools of SDF fitting and each step's draw from them (hard examples and mined zero-set points).
 
 Pools are drawn from the mesh once per ``refresh_every`` steps, seeded by ``(seed, refresh index)`` so a
-resumed run rebuilds exactly the same pools.
+resumed run rebuilds exactly the same pools; a time-budgeted run skips the refreshes that would take more
+than its share of the time (:class:`_Pools`, ``max_share``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ class _Pools:
 
     ``max_share`` (time-budgeted runs): a refresh is skipped, keeping the current pools, while the time of
     the builds so far plus the last build's (the next one's estimate) would exceed this share of the time
-    since the first build began, as ``clock`` measures it; ``skipped`` counts the skipped refresh indices."""
+    since the first build began, as ``clock`` measures it; ``skipped`` holds the refresh indices skipped."""
 
     def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype, *, max_share: float | None = None,
                  clock: Callable[[], float] = time.perf_counter):
