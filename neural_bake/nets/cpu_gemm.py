@@ -36,7 +36,7 @@ __all__ = ["ROUTES", "ENV_ROUTE", "measure_route", "decide_route", "gemm_route",
 ROUTES = ("auto", "blas", "onednn")
 ENV_ROUTE = "NEURAL_BAKE_CPU_GEMM"
 
-_decided: dict[int, tuple[str, str]] = {}
+_decided: dict[tuple[str, int], tuple[str, str]] = {}
 
 
 def _matmul_setting():
@@ -99,7 +99,7 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     """``(route, reason)`` for float32 CPU GEMMs of a ``width``-wide network: "blas" or "onednn".
 
     ``measure(width)`` returns :func:`measure_route`'s dict (default: that function; decisions are cached per
-    width unless a ``measure`` is given). ``env``: the override (default: ``NEURAL_BAKE_CPU_GEMM``); an
+    setting and width unless a ``measure`` is given). ``env``: the override (default: ``NEURAL_BAKE_CPU_GEMM``); an
     unknown value raises :class:`NeuralBakeError` naming the variable.
     """
     value = (os.environ.get(ENV_ROUTE, "") if env is None else env).strip().lower() or "auto"
@@ -110,8 +110,8 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     if not _onednn_setting_exists():
         return "blas", "this torch cannot send float32 GEMMs to oneDNN"
     width = int(width)
-    if measure is None and value == "auto" and width in _decided:
-        return _decided[width]
+    if measure is None and (value, width) in _decided:  # gemm_route asks at every call: measure once
+        return _decided[(value, width)]
     m = (measure or measure_route)(width)
     if m["onednn_error"] > FP32_GEMM_REL_TOL:
         out = ("blas", f"oneDNN's float32 GEMM was not float32-accurate here (relative error "
@@ -123,8 +123,8 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     else:
         out = ("blas", f"oneDNN's float32 GEMM measured {m['speedup']:.2f}× (< {ONEDNN_MIN_SPEEDUP}×) the "
                        f"BLAS's here (width {width})")
-    if measure is None and value == "auto":
-        _decided[width] = out
+    if measure is None:
+        _decided[(value, width)] = out
     return out
 
 
