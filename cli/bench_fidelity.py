@@ -23,7 +23,9 @@ from .bench import bench_options, report
                    "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
 @click.option("--steps", default=None, metavar="LIST",
               help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")
-def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps) -> None:
+@click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None, metavar="DIRECTORY",
+              help="Also save every fitted SDF as DIR/MESH-PRESET.sdf (e.g. for bench bake --anchor-model).")
+def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps, save_dir) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
     without their caps); times; texture PSNR; storage. Meshes not present are skipped, saying so."""
@@ -41,4 +43,5 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
         raise click.BadParameter(f"expected positive integers separated by commas, got {steps!r}",
                                  param_hint="--steps")
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
-               minutes=minutes, texture=texture, sampling=variants, steps=counts, log=click.echo), json_path)
+               minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir, log=click.echo),
+           json_path)

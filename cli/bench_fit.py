@@ -14,7 +14,7 @@ __all__ = ["command"]
 @click.option("--mesh", "meshes", multiple=True,
               help="Meshes: bumpy_sphere, torus, jack, sphere, spot, bunny (repeatable; default: all but "
                    "sphere; quick: bumpy_sphere).")
-@click.option("--preset", "presets", multiple=True, type=click.Choice(["64x1", "128x2", "256x2", "256x3"]),
+@click.option("--preset", "presets", multiple=True, type=click.Choice(["quick", "64x1", "128x2", "256x2", "256x3", "high"]),
               help="Presets to run (repeatable; default all, quick 64x1 and 256x3).")
 @click.option("--minutes", type=float, default=None, help="Override every preset's time budget.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit.")
@@ -26,8 +26,8 @@ __all__ = ["command"]
 def command(quick, json_path, meshes, presets, minutes, seed, save_dir, compare_polish):
     """SDF fitting: Chamfer/Hausdorff/normal error against training time; step vs autograd and roofline.
 
-    The full run fits every preset at its budget (2/5/8/10 min; 64x1 also without its L-BFGS polish) on
-    bumpy_sphere, torus, jack, spot and bunny: about two and a half hours. --quick: bumpy_sphere, 64x1 for 30 s and 256x3 for 20 s (< 2 minutes).
+    The full run fits every preset at its budget (2/2/5/8/10/10 min; 64x1 also without its L-BFGS polish) on
+    bumpy_sphere, torus, jack, spot and bunny: about three and a half hours. --quick: bumpy_sphere, 64x1 for 30 s and 256x3 for 20 s (< 2 minutes).
     """
     from neural_bake.bench.fit import run
 

@@ -26,8 +26,8 @@ def _config_class():
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="default",
                   presets=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
-                  described=("quick", "default", "high", "256x2"),
-                  preset_help="Network (W, D) and time budget (64x1, 128x2 and 256x3 are quick, default and high)",
+                  described=("quick", "default", "high", "64x1", "256x2", "256x3"),
+                  preset_help="Network (W, D) and time budget (default is 128x2)",
                   required=("mesh", "output"), pass_preset=True)
 
 

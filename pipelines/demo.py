@@ -24,9 +24,13 @@ class DemoConfig:
     sample: str = "bumpy_sphere"
     """Bundled sample to bake (see `neural-bake samples`)."""
     sdf_preset: str = "default"
-    """SDF preset: quick, default or high (64x1, 128x2, 256x3), or a network WxD of `fit sdf`."""
+    """SDF preset: quick, default or high (192x3 for 2 minutes, 128x2, 256x4 for 10), or a network WxD of `fit sdf`."""
     sdf_minutes: float = 2.5
     """Time budget of the SDF fit, minutes."""
+    sdf_surface_normals: str = "face"
+    """Normals the SDF fit's normal term targets (``SdfFitConfig.surface_normals``). "face", not the fit's
+    default "vertex": the sample is a known smooth surface and the demo scores against it, where a face normal
+    is an unbiased sample of that surface and the mesh's vertex normals blur its bumps (docs/findings.md)."""
     nested_levels: str = "32x1"
     """Coarse levels of the nested sequence, WIDTHxDEPTH coarse to fine, comma-separated."""
     nested_minutes: float = 0.5
@@ -90,7 +94,7 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
 
     log(f"[2/5] fitting the SDF ({cfg.sdf_preset}, {cfg.sdf_minutes:g} min budget)")
     sdf = fit_sdf(mesh, preset=cfg.sdf_preset, minutes=cfg.sdf_minutes, seed=cfg.seed, progress=cfg.progress,
-                  device=cfg.device)
+                  device=cfg.device, surface_normals=cfg.sdf_surface_normals)
     sdf_path = stage / "sdf.safetensors"
     sdf.save(sdf_path)
     sample = get_sample(cfg.sample)

@@ -89,7 +89,7 @@ def test_fit_sdf_defaults_to_the_default_preset(capsys):
     code, text, err = run(capsys, "fit", "sdf", "--print-config")
     got = tomllib.loads(text)
     assert code == 0 and (got["width"], got["depth"], got["minutes"]) == (128, 2, 5.0), err
-    assert got["surface_normals"] == "face"
+    assert got["surface_normals"] == "vertex"
 
 
 def test_a_config_file_applies_first_and_options_override_it(tmp_path, capsys):

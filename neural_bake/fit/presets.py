@@ -12,8 +12,9 @@ __all__ = ["PRESET_NAMES", "SDF_ALIASES", "TEXTURE_ALIASES", "resolve_preset"]
 #: The shared preset names, cheapest first.
 PRESET_NAMES = ("quick", "default", "high")
 
-#: SDF preset names onto the architecture presets.
-SDF_ALIASES = {"quick": "64x1", "default": "128x2", "high": "256x3"}
+#: SDF preset names onto the architecture presets (``quick`` and ``high`` are presets of their own, (192, 3)
+#: and (256, 4) Sirens for 2 and 10 minutes: :data:`neural_bake.fit.sdf.PRESETS`).
+SDF_ALIASES = {"default": "128x2"}
 
 #: Earlier texture preset names onto the shared ones.
 TEXTURE_ALIASES = {"fast": "quick", "medium": "default", "fine": "high"}

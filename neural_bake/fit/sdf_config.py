@@ -82,11 +82,12 @@ class SdfFitConfig:
     mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
     the Hausdorff distance; this spends steps on them, trading a little Chamfer-L1 for a lower Hausdorff
     distance (docs/findings.md)."""
-    surface_normals: str = "face"
-    """Normals the normal term pulls ∇f towards at surface samples: "face" (the sampled face's geometric
-    normal: an unbiased sample of the smooth surface the mesh approximates) or "vertex" (the interpolated
-    vertex normals, the file's own where it has them: the shading a renderer and a classical bake show, which
-    blurs relief over a ring of faces). The trade-off, measured: docs/findings.md."""
+    surface_normals: str = "vertex"
+    """Normals the normal term pulls ∇f towards at surface samples: "vertex" (the interpolated vertex normals,
+    the file's own where it has them: the shading a renderer and a classical bake show, which the bake report
+    scores maps against) or "face" (the sampled face's geometric normal: an unbiased sample of the smooth
+    surface the mesh approximates, better when that surface is known and the mesh is only its sampling). The
+    trade-off, measured: docs/findings.md."""
     curvature_sampling: float = 0.0
     """Part of the surface and near-surface pools drawn by the mesh's curvature (0: off, all uniform by
     area): faces are drawn with :func:`~neural_bake.fit.sampling.curvature_face_weights` with a uniform share
@@ -180,10 +181,14 @@ class SdfFitConfig:
 #: The training settings of the multi-layer presets (how they were chosen: docs/findings.md).
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
-#: Architecture presets ``"WxD"`` with their time budgets (minutes; the step cap is only a safety net).
+#: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"`` and ``"high"``
+#: (the best networks found for 2 and 10 minutes: (192, 3) and (256, 4) Sirens, fewer steps of larger
+#: networks) and the architecture presets ``"WxD"`` (``default`` names 128x2: :mod:`.presets`).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
+    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER},
+    "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from neural_bake.bench.fidelity import open_caps, run
+from neural_bake.fit.sdf import load_sdf
 from neural_bake.types import Mesh
 
 
@@ -40,16 +41,18 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     path = tmp_path / "cup.obj"
     m = open_sphere(sub=3)
     trimesh.Trimesh(m.vertices, m.faces, process=False).export(path)
-    res = run(quick=True, meshes=[str(path)], minutes=0.02, size=48, faces=200)
+    res = run(quick=True, meshes=[str(path)], minutes=0.02, size=48, faces=200, save_dir=tmp_path / "models")
     (row,) = res["rows"]
-    assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "64x1" and row["steps"] >= 1
+    saved = load_sdf(tmp_path / "models" / "cup-quick.sdf")  # the fitted field, kept to re-bake or time
+    assert saved.steps == row["steps"] and (saved.config.width, saved.config.depth) == (192, 3)
+    assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "192x3" and row["steps"] >= 1
     assert row["cap_max"] is not None and row["hausdorff_without_caps"] is not None
     # the classical bake of a mesh onto its own decimation is close; the coarse mesh's own normals are not
     assert row["classical_median_deg"] < 2.0 < row["coarse_median_deg"]
     # a field of a second's training is poor: the hybrid takes the classical normal where it is off
     assert row["hybrid_pct"] > 0 and row["map_median_deg"] <= row["neural_median_deg"]
     assert row["map_max_deg"] >= row["map_p95_deg"] and row["classical_max_deg"] >= row["classical_p95_deg"]
-    assert row["networks_kb"] == pytest.approx((3 * 64 + 64 + 64 * 64 + 64 + 64 + 1) * 4 / 1024)
+    assert row["networks_kb"] == pytest.approx((3 * 192 + 192 + 3 * (192 * 192 + 192) + 192 + 1) * 4 / 1024)
     assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)
     json.dumps(res)
 

@@ -129,7 +129,7 @@ def test_open_mesh_fits_without_nan():
 
 
 def test_presets_and_config():
-    assert set(PRESETS) == {"64x1", "128x2", "256x2", "256x3"}
+    assert set(PRESETS) == {"quick", "high", "64x1", "128x2", "256x2", "256x3"}
     from neural_bake.fit.sdf import config_from
 
     assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
@@ -141,9 +141,11 @@ def test_presets_and_config():
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
     assert config_from(preset="64x1", minutes=None).minutes is None  # ... except where None means "none"
-    # the shared names are aliases of the architecture presets
-    for alias, key in (("quick", "64x1"), ("default", "128x2"), ("high", "256x3")):
-        assert config_from(preset=alias) == config_from(preset=key)
+    # default is an alias of an architecture preset; quick and high are larger networks for 2 and 10 minutes
+    assert config_from(preset="default") == config_from(preset="128x2")
+    q, h = config_from(preset="quick"), config_from(preset="high")
+    assert (q.width, q.depth, q.minutes) == (192, 3, 2.0) and q != config_from(preset="64x1")
+    assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
 
 
 def test_slow_sdf_fit_warns_and_records(tmp_path):
@@ -158,7 +160,7 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
         return t[0]
 
     with pytest.warns(NeuralBakeWarning, match=r"^64x1: made 6 steps of the ~\d+ this machine makes in 120 s"):
-        fit = fit_sdf(sphere(sub=2), preset="quick", clock=clock, polish_evals=0, pool_surface=20000,
+        fit = fit_sdf(sphere(sub=2), preset="64x1", clock=clock, polish_evals=0, pool_surface=20000,
                       pool_near=20000, pool_uniform=5000, progress=False)
     b = fit.budget
     assert fit.steps == b["steps"] == 6 and b["expected_steps"] > 12 and b["budget_seconds"] == 120.0
@@ -171,12 +173,12 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", NeuralBakeWarning)
         t[0] = 0.0
-        other = fit_sdf(sphere(sub=2), preset="quick", clock=clock, polish_evals=0, minutes=0.5, **TINY)
+        other = fit_sdf(sphere(sub=2), preset="64x1", clock=clock, polish_evals=0, minutes=0.5, **TINY)
     assert other.budget["expected_steps"] is None and other.budget["warning"] is None
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"preset": "512x9"}, "unknown preset '512x9'.*quick \\(64x1\\)"),
+    ({"preset": "512x9"}, "unknown preset '512x9'; choose one of quick, high, 64x1.*default \\(128x2\\)"),
     ({"bogus": 1}, "unknown setting"),
     ({"batch": 0}, "batch must be a positive integer"),
     ({"w_eikonal": -1.0}, "w_eikonal must be a non-negative"),
