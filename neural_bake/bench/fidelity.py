@@ -233,6 +233,11 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     caps_of_steps = [None] if not steps else [int(n) for n in steps]
     if any(n is not None and n < 1 for n in caps_of_steps):
         raise NeuralBakeError(f"fidelity: steps must be positive integers, got {steps!r}")
+    if save_dir is not None:  # before any fit: a bad folder fails in a second, not after an hour
+        try:
+            Path(save_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise NeuralBakeError(f"{save_dir}: cannot create the models folder ({exc.strerror or exc})") from None
     rows = []
     for name, path, spec in jobs:
         mesh = load_mesh(path, spec.get("texture"))
@@ -250,7 +255,6 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             fit = fit_sdf(mesh, preset=preset, progress=False, **over, **SAMPLINGS[variant])
             fit_s = time.perf_counter() - t0
             if save_dir is not None:
-                Path(save_dir).mkdir(parents=True, exist_ok=True)
                 stem = "-".join([Path(name).stem, preset, *([] if step_cap is None else [str(step_cap)]),
                                  *([] if variant == "preset" else [variant])])
                 fit.save(Path(save_dir) / f"{stem}.sdf")

@@ -87,7 +87,7 @@ def test_sampling_variants_at_equal_steps_get_ratios_against_uniform(tmp_path):
     json.dumps(res)
 
 
-def test_bad_sampling_and_steps_are_refused(capsys):
+def test_bad_sampling_and_steps_are_refused(tmp_path, capsys):
     from neural_bake.cli.main import main
     from neural_bake.errors import NeuralBakeError
 
@@ -95,6 +95,12 @@ def test_bad_sampling_and_steps_are_refused(capsys):
         run(quick=True, meshes=["x.obj"], sampling=["curvy"])
     with pytest.raises(NeuralBakeError, match="steps must be positive"):
         run(quick=True, meshes=["x.obj"], steps=[0])
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(NeuralBakeError, match=r"file/models: cannot create the models folder"):
+        run(quick=True, meshes=["x.obj"], save_dir=tmp_path / "file" / "models")
+    assert main(["bench", "fidelity", "--quick", "--mesh", "x.obj", "--save-models", str(tmp_path / "file" / "m")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "cannot create the models folder" in err and len(err.splitlines()) == 1, err
     for args, hint in ((["--sampling", "uniform,curvy"], "--sampling"), (["--steps", "10,x"], "--steps")):
         assert main(["bench", "fidelity", "--quick", *args]) == 2
         assert f"Invalid value for {hint}" in capsys.readouterr().err
