@@ -260,6 +260,8 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool) -> list[d
     else:
         field = SdfField.from_model(Siren(256, 3, generator=torch.Generator().manual_seed(seed)), name="(256,3) random")
         label = f"{name}, a randomly initialised (256,3) SIREN (its normals vary far faster than a fitted one's)"
+    net = field.model
+    arch = (f"({net.width},{net.depth})" if hasattr(net, "width") and hasattr(net, "depth") else "an analytic field")
     have_bpy, why_bpy = blender.available()
     notes.append(f"against the anchor: {label}, decimated to {coarse.n_faces} faces; object-space maps decoded "
                  f"at the same 2^18 seeded texel samples; Blender Cycles: {why_bpy if not have_bpy else why_bpy + ' (CPU, 1 sample)'}")
@@ -329,7 +331,7 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool) -> list[d
         budget = {2048: 3.0, 4096: 12.0}.get(size)
         if budget is not None:
             notes.append(f"target: {size}² from (256,3) in ≤ {budget:g} s: adaptive auto {best['bake s']:.1f} s "
-                         f"({'met' if best['bake s'] <= budget else 'NOT met'})")
+                         f"from {arch} ({'met' if best['bake s'] <= budget else 'NOT met'})")
         if size == 2048:
             notes.append(f"target: 2048² median angle to the full float32 evaluation ≤ 0.1°: "
                          f"{best['vs full fp32 med°']:.3f}° ({'met' if best['vs full fp32 med°'] <= 0.1 else 'NOT met'})")

@@ -23,14 +23,15 @@ from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_budget", "stop_note", "cache_file"]
 
 #: GFLOP-equivalents of one Adam step per preset (seconds per step × sgemm GFLOP/s of the machine it was
-#: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "WxD"), texture presets by
-#: "texture:NAME". 64x1 and texture:default are measured (Spot, quiet), quick (192x3, uncompiled) and high (256x4,
-#: compiled) on nefertiti, quiet, and 256x3 too (9,109–9,363 steps in the Adam part of 10 minutes on four meshes, float32 GEMMs on
-#: oneDNN); 128x2 and 256x2 are estimates between the measured compiled and uncompiled costs (the loss is compiled for budgets of five minutes or more); the other
-#: texture presets scale texture:default by their estimated cost relative to it (points per step × the SDF
-#: cost per point of their network).
+#: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high", "WxD"), texture
+#: presets by "texture:NAME". Measured on the quiet AVX-512 EPYC: 64x1 and texture:default (Spot), quick
+#: (192x3, uncompiled: the median of eight meshes, 52–101 ms a step), high (256x4, compiled: nefertiti) and
+#: 256x3 (9,109–9,363 steps in the Adam part of 10 minutes on four meshes, float32 GEMMs on oneDNN). 128x2 and
+#: 256x2 are estimates between the measured compiled and uncompiled costs (the loss is compiled for budgets of
+#: five minutes or more); the other texture presets scale texture:default by their estimated cost relative to
+#: it (points per step × the SDF cost per point of their network).
 STEP_WORK: dict[str, float] = {
-    "quick": 14.6,
+    "quick": 12.3,
     "high": 21.4,
     "64x1": 1.76,
     "128x2": 4.2,
