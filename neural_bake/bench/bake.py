@@ -261,7 +261,7 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool) -> list[d
         field = SdfField.from_model(Siren(256, 3, generator=torch.Generator().manual_seed(seed)), name="(256,3) random")
         label = f"{name}, a randomly initialised (256,3) SIREN (its normals vary far faster than a fitted one's)"
     net = field.model
-    arch = (f"({net.width},{net.depth})" if hasattr(net, "width") and hasattr(net, "depth") else "an analytic field")
+    arch = "an analytic field" if net is None else f"({net.width},{net.depth})"
     have_bpy, why_bpy = blender.available()
     notes.append(f"against the anchor: {label}, decimated to {coarse.n_faces} faces; object-space maps decoded "
                  f"at the same 2^18 seeded texel samples; Blender Cycles: {why_bpy if not have_bpy else why_bpy + ' (CPU, 1 sample)'}")
