@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+import torch
 
 from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTICE, ADAPTIVE_SAFETY, ADAPTIVE_TOLERANCE_DEG,
                          ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
@@ -36,7 +37,7 @@ from ..types import Mesh
 __all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate"]
 
 #: Interpolated sample positions handled at once (bounds the (n, 4, 3) corner arrays).
-_INTERP_CHUNK = 1 << 18
+_INTERP_CHUNK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -192,6 +193,7 @@ def adaptive_evaluate(
     evaluate: Callable[[np.ndarray], dict],
     options: AdaptiveOptions | None = None,
     vertices: np.ndarray | None = None,
+    dtype: torch.dtype = torch.float64,
 ) -> dict:
     """Evaluate the fields at a band's samples adaptively (module docstring).
 
@@ -200,6 +202,8 @@ def adaptive_evaluate(
     - ``grid``: (row, col) of each sample on the sample grid, -1 off it (:func:`grid_positions`).
     - ``vertices``: (V, 2) float (row, col) sample-grid positions of the mesh's vertices
       (:func:`vertex_positions`): cells wider than ``options.vertex_side`` holding one are refined.
+    - ``dtype``: of the tolerance checks and the interpolation (torch, on the CPU's threads): float32 for
+      the fields of a float32 network (its own precision), float64 (the default) to interpolate exactly.
     - ``evaluate``: sample indices (n,) int64 → ``{"values": (n,), "normals": (n, 3) unit ∇f (0 where
       invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
 
@@ -271,7 +275,7 @@ def adaptive_evaluate(
             if p.size:
                 nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 run(nodes.reshape(-1))
-                acc[p] = _surplus_ok(store, points, nodes, opt)
+                acc[p] = _surplus_ok(store, points, nodes, opt, dtype)
             if acc.any():
                 accepted.append((r0[acc], c0[acc], k))
                 levels[k] = int(acc.sum())
@@ -282,8 +286,9 @@ def adaptive_evaluate(
                 keep = _box(s0, r0, c0, h) > 0
                 r0, c0 = r0[keep], c0[keep]
             k = h
+        packed = _pack(store, points, None, dtype) if accepted else None  # the nodes: all evaluated by now
         for ar, ac, k in accepted:
-            _interpolate(store, points, index, ar, ac, k)
+            _interpolate(store, packed, index, ar, ac, k)
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     run(rest)
     n_eval = int(store.evaluated.sum())
@@ -300,87 +305,118 @@ def adaptive_evaluate(
     }
 
 
-def _weights(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(n, 4) bilinear weights of ``points`` (n, 3) in the quads ``corners`` (n, 4, 3) (order (0,0), (0,1),
-    (1,0), (1,1)), from the points' coordinates (t, u) in the quads' least-squares parallelogram in 3-D.
+def _weights(corners: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """(4, n) bilinear weights of ``points`` (3, n) in the quads ``corners`` (3, 4, n) (corner order (0,0),
+    (0,1), (1,0), (1,1); coordinates first, so that every operation runs on contiguous rows of n), from
+    the points' coordinates (t, u) in the quads' least-squares parallelogram in 3-D; in the tensors' dtype.
 
     The coordinates are measured in space, not in UV: a chart's UV map stretches each face differently, so
     a field smooth on the surface has kinks along face edges in UV but not in these coordinates.
     """
-    e_t = 0.5 * (corners[:, 2] - corners[:, 0] + corners[:, 3] - corners[:, 1])
-    e_u = 0.5 * (corners[:, 1] - corners[:, 0] + corners[:, 3] - corners[:, 2])
-    d = points - (corners.mean(axis=1) - 0.5 * e_t - 0.5 * e_u)
-    a, b, c = (np.einsum("ni,ni->n", x, y) for x, y in ((e_t, e_t), (e_t, e_u), (e_u, e_u)))
-    r_t, r_u = np.einsum("ni,ni->n", e_t, d), np.einsum("ni,ni->n", e_u, d)
+    c0, c1, c2, c3 = corners.unbind(1)
+    e_t = 0.5 * (c2 - c0 + c3 - c1)
+    e_u = 0.5 * (c1 - c0 + c3 - c2)
+    d = points - 0.25 * (c0 + c1 + c2 + c3) + 0.5 * (e_t + e_u)
+    a, b, c = (e_t * e_t).sum(0), (e_t * e_u).sum(0), (e_u * e_u).sum(0)
+    r_t, r_u = (e_t * d).sum(0), (e_u * d).sum(0)
     det = a * c - b * b
-    ok = det > DIRECTION_EPS * np.maximum(a * c, DIRECTION_EPS)
-    det = np.where(ok, det, 1.0)
-    t = np.clip(np.where(ok, (c * r_t - b * r_u) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
-    u = np.clip(np.where(ok, (a * r_u - b * r_t) / det, 0.5), -_EXTRAPOLATE, 1 + _EXTRAPOLATE)
-    return np.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u], axis=1)
+    eps = torch.finfo(det.dtype).eps
+    ok = det > 64 * eps * torch.clamp(a * c, min=DIRECTION_EPS)  # a parallelogram, not a segment or a point
+    det = torch.where(ok, det, torch.ones_like(det))
+    half = torch.full_like(det, 0.5)
+    t = torch.where(ok, (c * r_t - b * r_u) / det, half).clamp_(-_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+    u = torch.where(ok, (a * r_u - b * r_t) / det, half).clamp_(-_EXTRAPOLATE, 1 + _EXTRAPOLATE)
+    return torch.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u])
 
 
 #: How far outside its quad (in quad sides) a sample's spatial coordinates may reach before they are clamped.
 _EXTRAPOLATE = 0.5
 
 
-def _interp(w: np.ndarray, corners: np.ndarray, store: "_Store", points: np.ndarray, at: np.ndarray) -> tuple:
-    """Interpolated unit normals (n, 3), values (n,) and colours (n, C) or None at the points ``at`` (n, 3)
-    from the corner samples ``corners`` (n, 4) (positions ``points[corners]``) with weights ``w`` (n, 4).
+def _pack(store: "_Store", points: np.ndarray, rows: np.ndarray | None, dtype: torch.dtype) -> torch.Tensor:
+    """(7 + C, n) tensor of ``dtype``: point (3), unit normal (3), value (1) and colour (C) of the samples
+    ``rows`` (None: all), one column per sample: a cell's corners are gathered in one pass, and the
+    arithmetic runs on contiguous rows."""
+    cols = [points, store.normals, store.values[:, None]] + ([] if store.colors is None else [store.colors])
+    sel = None if rows is None else torch.from_numpy(np.ascontiguousarray(rows))
+    out = torch.empty((sum(c.shape[1] for c in cols), len(points) if sel is None else len(sel)), dtype=dtype)
+    at = 0
+    for c in cols:
+        t = torch.from_numpy(c)
+        out[at: at + c.shape[1]] = (t if sel is None else t.index_select(0, sel)).t()
+        at += c.shape[1]
+    return out
+
+
+def _interp(packed: torch.Tensor, corners: torch.Tensor, at: torch.Tensor) -> tuple:
+    """Unit normals (n, 3), values (n,) and colours (n, C) or None interpolated at the columns ``at`` (n,)
+    of ``packed`` (:func:`_pack`) from its columns ``corners`` (n, 4), with the spatial weights of
+    :func:`_weights`.
 
     f is interpolated from each corner's first-order extrapolation ``f_i + n_i · (p − p_i)`` (an SDF's
     gradient is its unit normal): the sample points lie on flat faces that bend at edges, where f of the
     points kinks but f of space does not."""
-    nc = store.normals[corners]
-    nrm = np.einsum("nc,ncd->nd", w, nc)
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), DIRECTION_EPS)
-    ext = store.values[corners] + np.einsum("ncd,ncd->nc", nc, at[:, None, :] - points[corners])
-    val = np.einsum("nc,nc->n", w, ext)
-    col = None if store.colors is None else np.einsum("nc,ncd->nd", w, store.colors[corners])
-    return nrm, val, col
+    n = len(corners)
+    g = packed.index_select(1, corners.t().reshape(-1)).view(packed.shape[0], 4, n)  # (7 + C, 4, n)
+    pc, nc = g[:3], g[3:6]
+    pa = packed[:3].index_select(1, at)  # (3, n)
+    w = _weights(pc, pa)  # (4, n)
+    nrm = (w * nc).sum(1)  # (3, n)
+    nrm /= (nrm * nrm).sum(0).sqrt_().clamp_(min=DIRECTION_EPS)  # not vector_norm: slow across rows
+    val = (w * (g[6] + ((pa[:, None, :] - pc) * nc).sum(0))).sum(0)
+    col = None if packed.shape[0] == 7 else (w * g[7:]).sum(1).t()
+    return nrm.t(), val, col
 
 
-def _surplus_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, opt: AdaptiveOptions) -> np.ndarray:
+def _surplus_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, opt: AdaptiveOptions,
+                dtype: torch.dtype) -> np.ndarray:
     """(P,) bool: the cells whose 3×3 ``nodes`` (P, 9) sample indices pass every field's tolerance: the
-    midpoints' and centre's values against their interpolation from the cell's four corners."""
+    midpoints' and centre's values against their interpolation from the cell's four corners (in ``dtype``;
+    angles as chord lengths |a − b| = 2·sin(θ/2), exact near 0° in float32 too)."""
     ok = store.valid[nodes].all(axis=1)
-    cos_tol = np.cos(np.radians(ADAPTIVE_SAFETY * opt.tolerance_deg))
+    chord = 2.0 * np.sin(np.radians(ADAPTIVE_SAFETY * opt.tolerance_deg) / 2.0)
     value_tol, color_tol = ADAPTIVE_SAFETY * opt.value_tol, ADAPTIVE_SAFETY * opt.color_tol
-    corners = nodes[:, [0, 2, 6, 8]]
-    cpts = points[corners]
-    for mid in (1, 3, 4, 5, 7):
-        idx = nodes[:, mid]
-        nrm, val, col = _interp(_weights(cpts, points[idx]), corners, store, points, points[idx])
-        ok &= np.einsum("pi,pi->p", nrm, store.normals[idx]) >= cos_tol
-        ok &= np.abs(val - store.values[idx]) <= value_tol
-        if col is not None:
-            ok &= (np.abs(col - store.colors[idx]) <= color_tol).all(axis=1)
-    return ok
+    packed = _pack(store, points, nodes.reshape(-1), dtype)
+    local = torch.arange(nodes.size).view(nodes.shape)
+    mids = local[:, [1, 3, 4, 5, 7]].t().reshape(-1)  # (5P,): the five non-corner nodes, one after another
+    nrm, val, col = _interp(packed, local[:, [0, 2, 6, 8]].repeat(5, 1), mids)
+    own = packed.index_select(1, mids)
+    diff = nrm.t() - own[3:6]
+    good = (diff * diff).sum(0) <= chord * chord
+    good &= (val - own[6]).abs() <= value_tol
+    if col is not None:
+        good &= ((col.t() - own[7:]).abs() <= color_tol).all(dim=0)
+    return ok & good.view(5, -1).all(dim=0).numpy()
 
 
-def _interpolate(store: _Store, points: np.ndarray, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
+def _interpolate(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
                  k: int) -> None:
     """Interpolation from the 3×3 nodes of accepted cells (side ``k``) to their other samples, each from the
-    four nodes of its quarter of the cell (:func:`_weights`)."""
+    four nodes of its quarter of the cell (:func:`_weights`); ``packed``: :func:`_pack` of every sample."""
     h = k // 2
     d = np.arange(k + 1)
     dr, dc = (a.reshape(-1) for a in np.meshgrid(d, d, indexing="ij"))
+    other = (dr % h != 0) | (dc % h != 0)  # the nodes themselves were evaluated
+    dr, dc = dr[other], dc[other]
     a, b = np.minimum(dr // h, 1), np.minimum(dc // h, 1)  # quarter of each offset
-    corner_r = np.stack([a, a, a + 1, a + 1], axis=1) * h
+    corner_r = np.stack([a, a, a + 1, a + 1], axis=1) * h  # (O, 4)
     corner_c = np.stack([b, b + 1, b, b + 1], axis=1) * h
+    done = store.evaluated | store.interpolated
     per = max(1, _INTERP_CHUNK // len(dr))
     for s in range(0, len(r0), per):
-        rr, cc = r0[s: s + per, None], c0[s: s + per, None]
-        idx = index[rr + dr, cc + dc].reshape(-1)  # (P·O,)
-        fresh = ~store.evaluated[idx] & ~store.interpolated[idx]
-        if not fresh.any():
+        rr, cc = r0[s: s + per], c0[s: s + per]
+        idx = index[rr[:, None] + dr, cc[:, None] + dc].reshape(-1)  # (P·O,)
+        fresh = np.flatnonzero(~done[idx])
+        if fresh.size == 0:
             continue
-        corners = index[rr[:, :, None] + corner_r, cc[:, :, None] + corner_c].reshape(-1, 4)[fresh]  # (n, 4)
+        cell, off = np.divmod(fresh, len(dr))
+        corners = index[rr[cell, None] + corner_r[off], cc[cell, None] + corner_c[off]]  # (n, 4)
         idx = idx[fresh]
-        nrm, val, col = _interp(_weights(points[corners], points[idx]), corners, store, points, points[idx])
-        store.normals[idx] = nrm
-        store.values[idx] = val
+        nrm, val, col = _interp(packed, torch.from_numpy(corners), torch.from_numpy(idx))
+        store.normals[idx] = nrm.double().numpy()
+        store.values[idx] = val.double().numpy()
         store.valid[idx] = True
         if col is not None:
-            store.colors[idx] = col
+            store.colors[idx] = col.double().numpy()
         store.interpolated[idx] = True
+        done[idx] = True

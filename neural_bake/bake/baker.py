@@ -105,13 +105,13 @@ class _Reservoir:
             return
         if pick.size > self.limit:  # only the band's ``limit`` smallest keys can be among the smallest overall
             pick = np.sort(pick[np.argpartition(keys[pick], self.limit - 1)[: self.limit]])
-        new = {k: np.asarray(v)[pick] for k, v in arrays.items() if v is not None}
+        new = {k: np.take(np.asarray(v), pick, axis=0) for k, v in arrays.items() if v is not None}  # take: a few × faster than [pick] on (n, 3)
         keys, index = np.concatenate([self.keys, keys[pick]]), np.concatenate([self.index, index[pick]])
         data = new if self.data is None else {k: np.concatenate([self.data[k], new[k]]) for k in new}
         if len(keys) > self.limit:
             keep = np.sort(np.argpartition(keys, self.limit - 1)[: self.limit])  # sorted: full texel order
             keys, index = keys[keep], index[keep]
-            data = {k: v[keep] for k, v in data.items()}
+            data = {k: np.take(v, keep, axis=0) for k, v in data.items()}
         self.keys, self.index, self.data = keys, index, data
 
     def sample(self, size: tuple[int, int], supersample: int) -> TexelSample:
@@ -288,8 +288,11 @@ class _ErrorControl:
             times["time_texture"] += e["time_texture"]
             return e
 
+        # float32 fields are interpolated in float32 (their own precision), anything else in float64
+        dtypes = {_tensor_kwargs(f)["dtype"] for f in (self.sdf, self.texture) if f is not None}
+        dtype = torch.float32 if dtypes == {torch.float32} else torch.float64
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
-                                fields, self.adaptive, vertices=self._vertices)
+                                fields, self.adaptive, vertices=self._vertices, dtype=dtype)
         st = res["stats"]
         for k in ("samples", "evaluated", "interpolated"):
             self.counts[k] += st[k]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (AdaptiveOptions, _weights, adaptive_evaluate, chart_labels, grid_positions,
+from neural_bake.bake.adaptive import (AdaptiveOptions, _interp, _pack, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
                                        vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -169,8 +169,47 @@ def test_spatial_weights_match_the_bilinear_reference(dtype, rng):
     t, u = rng.uniform(0, 1, (2, 50))
     pts = o + t[:, None] * a + u[:, None] * b
     ref = np.stack([(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u], axis=1)
-    np.testing.assert_allclose(_weights(corners, pts.astype(np.float64)), ref,
-                               atol=1e-9 if dtype == np.float64 else 1e-4)
+    tdt = torch.float64 if dtype == np.float64 else torch.float32
+    w = _weights(torch.as_tensor(corners, dtype=tdt).permute(2, 1, 0), torch.as_tensor(pts, dtype=tdt).t())
+    assert w.dtype == tdt
+    np.testing.assert_allclose(w.t().numpy(), ref, atol=1e-9 if dtype == np.float64 else 1e-3)  # random, some thin
+
+
+@pytest.mark.parametrize("dtype, atol", [(torch.float64, 1e-10), (torch.float32, 1e-4)])
+def test_interpolation_kernel_matches_a_per_sample_reference(dtype, atol, rng):
+    # cells: squares of side 0.01 bent a little out of plane, samples inside; fields: random smooth-ish
+    n = 300
+    o = rng.uniform(-1, 1, (n, 3))
+    a, b = rng.normal(size=(2, n, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True) * 100
+    b -= (b * a).sum(1, keepdims=True) * a / (a * a).sum(1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True) * 100
+    bend = rng.normal(scale=1e-3, size=(n, 3))
+    corners = np.stack([o, o + b, o + a, o + a + b + bend], axis=1)
+    t, u = rng.uniform(0, 1, (2, n))
+    at = o + t[:, None] * a + u[:, None] * b
+    points = np.concatenate([corners.reshape(-1, 3), at])
+    normals = rng.normal(size=(len(points), 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    store = _Store(values=rng.normal(scale=0.01, size=len(points)), normals=normals, valid=np.ones(len(points), bool),
+                   colors=rng.uniform(size=(len(points), 3)))
+    cidx = np.arange(4 * n).reshape(n, 4)
+    aidx = 4 * n + np.arange(n)
+    nrm, val, col = _interp(_pack(store, points, None, dtype), torch.from_numpy(cidx), torch.from_numpy(aidx))
+    assert nrm.dtype == val.dtype == col.dtype == dtype
+    for i in range(n):  # the reference: one sample at a time, least squares by numpy
+        c = corners[i]
+        e_t, e_u = 0.5 * (c[2] - c[0] + c[3] - c[1]), 0.5 * (c[1] - c[0] + c[3] - c[2])
+        base = c.mean(axis=0) - 0.5 * e_t - 0.5 * e_u
+        (tt, uu), *_ = np.linalg.lstsq(np.stack([e_t, e_u], axis=1), at[i] - base, rcond=None)
+        w = np.array([(1 - tt) * (1 - uu), (1 - tt) * uu, tt * (1 - uu), tt * uu])
+        nc = normals[cidx[i]]
+        ref_n = w @ nc
+        ref_n /= np.linalg.norm(ref_n)
+        ref_v = w @ (store.values[cidx[i]] + ((at[i] - c) * nc).sum(axis=1))
+        np.testing.assert_allclose(nrm[i].double().numpy(), ref_n, atol=atol)
+        np.testing.assert_allclose(float(val[i]), ref_v, atol=atol)
+        np.testing.assert_allclose(col[i].double().numpy(), w @ store.colors[cidx[i]], atol=atol)
 
 
 def test_jack_refines_along_its_creases():
