@@ -620,7 +620,8 @@ class Baker:
                     acc_col[band] += col
             else:
                 miss_s = np.zeros(0, dtype=bool)
-            covered |= np.asarray(tx.coverage, dtype=bool)
+            if len(values):  # a band's coverage is the full grid, set in its own rows only
+                covered[band] |= np.asarray(tx.coverage, dtype=bool)[band]
             counts["samples"] += len(values)
             counts["invalid"] += int((~valid).sum())
             counts["singular"] += int((~frame_ok).sum())

@@ -50,21 +50,21 @@ def pad_charts(
     covered = cov > 0
     if not covered.any() or covered.all() or pixels == 0:
         return np.array(image, copy=True)
-    work = img.astype(np.float32 if img.dtype == np.float32 else np.float64)
+    work = img.astype(np.float32 if img.dtype == np.float32 else np.float64)  # a copy: filled in place
     if method == "dilate":
-        out = _dilate(work, covered, 16 if pixels is None else int(pixels))
+        out = work
+        _dilate(out, covered, 16 if pixels is None else int(pixels))
     else:
         out = _pull_push(work, covered)
+        np.copyto(out, work, where=covered[:, :, None])
         # the first rings come from dilation (values of the nearest chart only), so that bilinear and the
         # first mip levels at a chart's edge never mix in a neighbouring chart's pushed-down colours
         rings = PULL_PUSH_DILATE if pixels is None else min(int(pixels), PULL_PUSH_DILATE)
-        near, near_mask = _dilate(work, covered, rings, return_mask=True)
-        np.copyto(out, near, where=near_mask[:, :, None])  # a masked copy, not fancy indexing
+        _dilate(out, covered, rings)
         if pixels is not None:
             dist = ndimage.distance_transform_cdt(~covered, metric="chessboard")
             far = dist > pixels
             np.copyto(out, img, where=far[:, :, None], casting="same_kind")
-    np.copyto(out, img, where=covered[:, :, None], casting="same_kind")
     out = out.astype(img.dtype, copy=False)
     return out[:, :, 0] if squeeze else out
 
@@ -72,22 +72,25 @@ def pad_charts(
 _NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
-def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool = False):
-    """``steps`` rings of dilation; work is proportional to the ring sizes, not the image size (one copy of
-    the image, no padded copies: neighbours across the border are skipped)."""
+def _dilate(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
+    """``steps`` rings of dilation into ``out`` (H, W, C), in place: each ring gives the unfilled texels next
+    to a filled one the mean of their filled 8-neighbours; only texels of ``filled`` and of earlier rings
+    are read. After the first ring (one pass over the image) the work is proportional to the rings: the
+    next ring is the unfilled neighbours of the last one (an unfilled texel next to an older one would
+    have been in an older ring)."""
     h, w = filled.shape
-    out = img.copy()
     fp = filled.copy()
-    for _ in range(steps):
-        near = np.zeros_like(fp)
-        for di, dj in _NEIGHBOURS:  # near[i, j] |= fp[i + di, j + dj] where that exists
-            near[max(0, -di): h - max(0, di), max(0, -dj): w - max(0, dj)] |= \
-                fp[max(0, di): h - max(0, -di), max(0, dj): w - max(0, -dj)]
-        ii, jj = np.nonzero(near & ~fp)
+    near = np.zeros_like(fp)
+    for di, dj in _NEIGHBOURS:  # near[i, j] |= fp[i + di, j + dj] where that exists
+        near[max(0, -di): h - max(0, di), max(0, -dj): w - max(0, dj)] |= \
+            fp[max(0, di): h - max(0, -di), max(0, dj): w - max(0, -dj)]
+    ii, jj = np.nonzero(near & ~fp)
+    offsets = np.array(_NEIGHBOURS, dtype=np.int64)
+    for step in range(steps):
         if ii.size == 0:
             break
-        acc = np.zeros((ii.size, img.shape[2]), dtype=img.dtype)
-        cnt = np.zeros(ii.size, dtype=img.dtype)
+        acc = np.zeros((ii.size, out.shape[2]), dtype=out.dtype)
+        cnt = np.zeros(ii.size, dtype=out.dtype)
         for di, dj in _NEIGHBOURS:
             ni, nj = ii + di, jj + dj
             inside = (ni >= 0) & (ni < h) & (nj >= 0) & (nj < w)
@@ -97,11 +100,17 @@ def _dilate(img: np.ndarray, filled: np.ndarray, steps: int, return_mask: bool =
             cnt += f
         out[ii, jj] = acc / cnt[:, None]
         fp[ii, jj] = True
-    return (out, fp) if return_mask else out
+        if step + 1 < steps:
+            ni, nj = (ii[:, None] + offsets[:, 0]).ravel(), (jj[:, None] + offsets[:, 1]).ravel()
+            inside = (ni >= 0) & (ni < h) & (nj >= 0) & (nj < w)
+            flat = ni[inside] * w + nj[inside]
+            flat = np.unique(flat[~fp.reshape(-1)[flat]])  # sorted: the row-major order of np.nonzero
+            ii, jj = np.divmod(flat, w)
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
     """Pull: 2×2 box-filter the (premultiplied colour, weight) pyramid; push: fill holes from coarser levels.
+    The covered texels of the result hold pushed-down values too: the caller restores them.
 
     Runs in torch on the image's dtype (channels first), whose pooling and bilinear ×2 upsampling
     (``align_corners=False``: texel centres aligned, borders replicated) are one pass each per level."""
@@ -123,10 +132,15 @@ def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
         levels.append((c2 / w2.clamp(min=1e-30) * wn, wn))
     c, w = levels[-1]
     cur = c / w.clamp(min=1e-30)  # w is 0 or ≥ 1 at the coarsest level, c 0 where w is
-    # push: from the coarsest level down, blend each level's own value with the upsampled coarser one
-    for c, w in reversed(levels[:-1]):
+    # push: from the coarsest level down, blend each level's own value with the upsampled coarser one; the
+    # full-resolution level keeps the upsampled values only (its covered texels are the caller's to restore)
+    for i in range(len(levels) - 2, -1, -1):
+        c, w = levels[i]
         h, wd = w.shape[-2:]
         up = F.interpolate(cur, scale_factor=2, mode="bilinear", align_corners=False)[:, :, :h, :wd]
+        if i == 0:
+            cur = up
+            break
         own = c / w.clamp(min=1e-30)
         a = w.clamp(0.0, 1.0)
         cur = torch.lerp(up, own, a)
