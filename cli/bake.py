@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import click
 
+from neural_bake.constants import ADAPTIVE_TOLERANCE_DEG
+
 from .config_options import ConfigCommand, ConfigSpec
 from .options import output_option, say, verbosity_options
 
@@ -49,8 +51,8 @@ Examples:
               help="on: evaluate the fields on a coarse lattice per chart, refined where interpolation would exceed "
                    "--tolerance; off: evaluate every texel [default: on].")
 @click.option("--tolerance", "config__tolerance_deg", type=float, default=None, metavar="DEG",
-              help="Adaptive bake: largest angle (degrees) between interpolated normals and what the fields give "
-                   "[default: 0.25].")
+              help="Adaptive bake: tolerance (degrees) of the interpolation test; the report states the measured "
+                   f"angle to a full evaluation [default: {ADAPTIVE_TOLERANCE_DEG:g}].")
 @click.option("--texels", "texels_mode", type=click.Choice(list(_TEXELS)), default=None, hidden=True,
               help="Older spelling of --cache-texels: cache (yes), stream (no), auto (none).")
 @verbosity_options
