@@ -249,7 +249,7 @@ def test_jack_refines_along_its_creases():
         if tolerance == 0.05:
             assert res["evaluated"][crease].all()  # every sample at a crease is evaluated
         else:  # a looser tolerance may interpolate a crease sample from nodes on its own side, within it
-            assert res["evaluated"][crease].mean() > 0.99
+            assert res["evaluated"][crease].mean() > 0.98
 
 
 def test_chart_labels_are_the_uv_charts(torus_baker):
