@@ -102,6 +102,18 @@ def grid_positions(texels, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     if mesh.uv is None or len(face) == 0:
         e = np.full(len(face), -1, dtype=np.int64)
         return e, e.copy()
+    if s == 1:  # one sample per texel, at its centre unless it is a border sample: the grid is the texels
+        pix = np.asarray(texels.pixel, dtype=np.int64)
+        off = np.asarray(texels.border, dtype=bool)
+        return np.where(off, -1, pix[:, 0]), np.where(off, -1, pix[:, 1])
+    return _grid_positions_from_uv(texels, mesh)
+
+
+def _grid_positions_from_uv(texels, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`grid_positions` from the samples' UVs (any supersampling)."""
+    s = int(texels.supersample)
+    h, w = texels.size
+    face = np.asarray(texels.face, dtype=np.int64)
     uv = np.einsum("mk,mkd->md", np.asarray(texels.bary, dtype=np.float64), np.asarray(mesh.uv, np.float64)[face])
     x = uv[:, 0] * (w * s) - 0.5
     y = (1.0 - uv[:, 1]) * (h * s) - 0.5
@@ -171,14 +183,17 @@ class _Store:
 
 
 def _integral(image: np.ndarray) -> np.ndarray:
-    out = np.zeros((image.shape[0] + 1, image.shape[1] + 1), dtype=np.int64)
-    np.cumsum(np.cumsum(image, axis=0, dtype=np.int64), axis=1, out=out[1:, 1:])
+    """Integral image of counts (int32 where the grid is small enough not to overflow it) with a leading zero
+    row and column."""
+    dtype = np.int32 if image.size < 2**31 - 1 else np.int64
+    out = np.zeros((image.shape[0] + 1, image.shape[1] + 1), dtype=dtype)
+    np.cumsum(np.cumsum(image, axis=0, dtype=dtype), axis=1, out=out[1:, 1:])
     return out
 
 
-def _box(s: np.ndarray, r0: np.ndarray, c0: np.ndarray, k: int) -> np.ndarray:
-    """Sums of the closed squares [r0, r0 + k] × [c0, c0 + k] from the integral image ``s``."""
-    r1, c1 = r0 + k + 1, c0 + k + 1
+def _box(s: np.ndarray, r0: np.ndarray, c0: np.ndarray, k: int, kc: int | None = None) -> np.ndarray:
+    """Sums of the closed rectangles [r0, r0 + k] × [c0, c0 + kc] (kc = k: squares) from the integral image ``s``."""
+    r1, c1 = r0 + k + 1, c0 + (k if kc is None else kc) + 1
     return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
 
 
@@ -254,8 +269,12 @@ def adaptive_evaluate(
         index = np.full((hg, wg), -1, dtype=np.int64)
         index[gr[on] - r_base, gc[on]] = on
         occ = index >= 0
-        lab = np.where(occ, np.asarray(charts, dtype=np.int64)[np.maximum(index, 0)] + 1, 0)
-        s0, s1, s2 = _integral(occ), _integral(lab), _integral(lab * lab)
+        lab = np.where(occ, np.asarray(charts, dtype=np.int64)[np.maximum(index, 0)], -1)
+        # a full closed square holds one chart when no two neighbours in it differ: sums of the changes
+        # between horizontal (sh) and vertical (sv_) neighbours over the square's inner pairs
+        s0 = _integral(occ)
+        sh = _integral(lab[:, 1:] != lab[:, :-1])
+        sv_ = _integral(lab[1:, :] != lab[:-1, :])
         sv = _integral(_vertex_image(vertices, r_base, hg, wg))
         r0, c0 = (a.reshape(-1) for a in np.meshgrid(np.arange(0, hg - 1, k0), np.arange(0, wg - 1, k0),
                                                       indexing="ij"))
@@ -265,8 +284,8 @@ def adaptive_evaluate(
         accepted: list[tuple[np.ndarray, np.ndarray, int]] = []
         while k >= 4 and r0.size:  # a side-2 cell has no sample besides its 3×3 nodes
             n = (k + 1) ** 2
-            cnt, t1, t2 = _box(s0, r0, c0, k), _box(s1, r0, c0, k), _box(s2, r0, c0, k)
-            pure = (cnt == n) & (t2 * n == t1 * t1)  # full and one chart (zero variance of the labels)
+            pure = _box(s0, r0, c0, k) == n  # full
+            pure &= (_box(sh, r0, c0, k, k - 1) == 0) & (_box(sv_, r0, c0, k - 1, k) == 0)  # one chart
             if k > opt.vertex_side:  # a mesh vertex inside: the surface is a cone there, not smooth
                 pure &= _box(sv, r0, c0, k - 1) == 0
             h = k // 2

@@ -2,12 +2,13 @@
 seam, islands and borders evaluated, creases refined, the report's figures, and the errors."""
 
 from types import SimpleNamespace
+import warnings
 
 import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (AdaptiveOptions, _interp, _pack, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
+from neural_bake.bake.adaptive import (AdaptiveOptions, _grid_positions_from_uv, _interp, _pack, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
                                        vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -210,6 +211,26 @@ def test_interpolation_kernel_matches_a_per_sample_reference(dtype, atol, rng):
         np.testing.assert_allclose(nrm[i].double().numpy(), ref_n, atol=atol)
         np.testing.assert_allclose(float(val[i]), ref_v, atol=atol)
         np.testing.assert_allclose(col[i].double().numpy(), w @ store.colors[cidx[i]], atol=atol)
+
+
+def test_grid_positions_of_one_sample_per_texel_are_the_texels():
+    # the shortcut at supersample 1 against the positions recovered from the samples' UVs, on a mesh whose
+    # UVs leave [0, 1] (wrapped copies) and with border samples
+    import dataclasses
+
+    unwrapped = Baker(decimate(load_mesh(sample_path("torus")), faces=300), 8).mesh
+    shifted = dataclasses.replace(unwrapped, uv=unwrapped.uv + np.array([1.0, -1.0]), uv_policy="wrap")
+    for mesh in (unwrapped, shifted):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the wrap is announced
+            baker = Baker(mesh, 96)
+        tx = baker.texels
+        fast = grid_positions(tx, baker.mesh)
+        slow = _grid_positions_from_uv(tx, baker.mesh)
+        np.testing.assert_array_equal(fast[0], slow[0])
+        np.testing.assert_array_equal(fast[1], slow[1])
+        assert tx.border.any() and (fast[0][tx.border] < 0).all()  # border samples off the grid
+        assert (fast[0] >= 0).mean() > 0.5
 
 
 def test_jack_refines_along_its_creases():
