@@ -418,18 +418,20 @@ def _interpolate(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.
     other = (dr % h != 0) | (dc % h != 0)  # the nodes themselves were evaluated
     dr, dc = dr[other], dc[other]
     a, b = np.minimum(dr // h, 1), np.minimum(dc // h, 1)  # quarter of each offset
-    corner_r = np.stack([a, a, a + 1, a + 1], axis=1) * h  # (O, 4)
-    corner_c = np.stack([b, b + 1, b, b + 1], axis=1) * h
+    wg = index.shape[1]
+    flat_index = index.reshape(-1)  # flat positions: 1-D takes, several times faster than 2-D fancy indexing
+    offset = dr * wg + dc  # (O,)
+    corner_offset = (np.stack([a, a, a + 1, a + 1], axis=1) * wg + np.stack([b, b + 1, b, b + 1], axis=1)) * h
     done = store.evaluated | store.interpolated
     per = max(1, _INTERP_CHUNK // len(dr))
     for s in range(0, len(r0), per):
-        rr, cc = r0[s: s + per], c0[s: s + per]
-        idx = index[rr[:, None] + dr, cc[:, None] + dc].reshape(-1)  # (P·O,)
-        fresh = np.flatnonzero(~done[idx])
+        base = r0[s: s + per] * wg + c0[s: s + per]
+        idx = np.take(flat_index, (base[:, None] + offset).reshape(-1))  # (P·O,)
+        fresh = np.flatnonzero(~np.take(done, idx))
         if fresh.size == 0:
             continue
         cell, off = np.divmod(fresh, len(dr))
-        corners = index[rr[cell, None] + corner_r[off], cc[cell, None] + corner_c[off]]  # (n, 4)
+        corners = np.take(flat_index, base[cell, None] + corner_offset[off])  # (n, 4)
         idx = idx[fresh]
         nrm, val, col = _interp(packed, torch.from_numpy(corners), torch.from_numpy(idx))
         store.normals[idx] = nrm.double().numpy()
