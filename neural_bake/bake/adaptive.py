@@ -191,9 +191,9 @@ def _integral(image: np.ndarray) -> np.ndarray:
     return out
 
 
-def _box(s: np.ndarray, r0: np.ndarray, c0: np.ndarray, k: int, kc: int | None = None) -> np.ndarray:
-    """Sums of the closed rectangles [r0, r0 + k] × [c0, c0 + kc] (kc = k: squares) from the integral image ``s``."""
-    r1, c1 = r0 + k + 1, c0 + (k if kc is None else kc) + 1
+def _box(s: np.ndarray, r0: np.ndarray, c0: np.ndarray, k: int) -> np.ndarray:
+    """Sums of the closed squares [r0, r0 + k] × [c0, c0 + k] from the integral image ``s``."""
+    r1, c1 = r0 + k + 1, c0 + k + 1
     return s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
 
 
@@ -270,11 +270,11 @@ def adaptive_evaluate(
         index[gr[on] - r_base, gc[on]] = on
         occ = index >= 0
         lab = np.where(occ, np.asarray(charts, dtype=np.int64)[np.maximum(index, 0)], -1)
-        # a full closed square holds one chart when no two neighbours in it differ: sums of the changes
-        # between horizontal (sh) and vertical (sv_) neighbours over the square's inner pairs
+        # a full closed square [r0, r0 + k]² holds one chart when no position of [r0, r0 + k)² differs from
+        # its right or lower neighbour (that reaches every position but the far corner) and the far corner
+        # matches the near one
         s0 = _integral(occ)
-        sh = _integral(lab[:, 1:] != lab[:, :-1])
-        sv_ = _integral(lab[1:, :] != lab[:-1, :])
+        sd = _integral((lab[:-1, 1:] != lab[:-1, :-1]) | (lab[1:, :-1] != lab[:-1, :-1]))
         sv = _integral(_vertex_image(vertices, r_base, hg, wg))
         r0, c0 = (a.reshape(-1) for a in np.meshgrid(np.arange(0, hg - 1, k0), np.arange(0, wg - 1, k0),
                                                       indexing="ij"))
@@ -285,7 +285,7 @@ def adaptive_evaluate(
         while k >= 4 and r0.size:  # a side-2 cell has no sample besides its 3×3 nodes
             n = (k + 1) ** 2
             pure = _box(s0, r0, c0, k) == n  # full
-            pure &= (_box(sh, r0, c0, k, k - 1) == 0) & (_box(sv_, r0, c0, k - 1, k) == 0)  # one chart
+            pure &= (_box(sd, r0, c0, k - 1) == 0) & (lab[r0 + k, c0 + k] == lab[r0, c0])  # one chart
             if k > opt.vertex_side:  # a mesh vertex inside: the surface is a cone there, not smooth
                 pure &= _box(sv, r0, c0, k - 1) == 0
             h = k // 2

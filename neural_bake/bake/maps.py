@@ -120,10 +120,17 @@ def splat(
     wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
     n = (b - a) * w
     c = values.shape[1]
-    acc = np.empty((n, c))
-    for k in range(c):
-        acc[:, k] = np.bincount(flat, weights=values[:, k] * wt, minlength=n)
-    wsum = np.bincount(flat, weights=wt, minlength=n)
+    if len(flat) and bool((flat[1:] > flat[:-1]).all()):
+        # strictly increasing texels (a band of one sample per texel, as rasterised): a scatter, same sums
+        acc = np.zeros((n, c))
+        acc[flat] = values * wt[:, None]
+        wsum = np.zeros(n)
+        wsum[flat] = wt
+    else:
+        acc = np.empty((n, c))
+        for k in range(c):
+            acc[:, k] = np.bincount(flat, weights=values[:, k] * wt, minlength=n)
+        wsum = np.bincount(flat, weights=wt, minlength=n)
     if average:
         np.divide(acc, wsum[:, None], out=acc, where=wsum[:, None] > 0)
     return acc.reshape(b - a, w, c), wsum.reshape(b - a, w)
