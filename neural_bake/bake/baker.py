@@ -24,7 +24,7 @@ from ..geometry import area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
-from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .padding import PADDING_METHODS, pad_charts
 
 __all__ = ["Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
@@ -602,10 +602,7 @@ class Baker:
                 pix = np.asarray(tx.pixel)
                 r0, r1 = int(pix[:, 0].min()), int(pix[:, 0].max()) + 1
                 band = slice(r0, r1)
-                vec, ws = splat(encoded, pix, tx.weight, self.shape, rows=(r0, r1), average=False)
-                acc_vec[band] += vec
-                wsum[band] += ws
-                del vec
+                splat_into(acc_vec, wsum, encoded, pix, tx.weight)
                 miss_s = np.abs(values) > delta if delta is not None else np.zeros(len(values), dtype=bool)
                 if miss_s.any():
                     miss_count[band] += splat(np.ones((int(miss_s.sum()), 1)), pix[miss_s], None, self.shape,
@@ -614,10 +611,9 @@ class Baker:
                     hybrid_count[band] += splat(np.ones((int(replaced.sum()), 1)), pix[replaced], None, self.shape,
                                                 rows=(r0, r1))[1]
                 if texture is not None:
-                    col, _ = splat(ev["colors"], pix, tx.weight, self.shape, rows=(r0, r1), average=False)
                     if acc_col is None:
-                        acc_col = np.zeros((h, w, col.shape[2]), dtype=np.float32)
-                    acc_col[band] += col
+                        acc_col = np.zeros((h, w, ev["colors"].shape[1]), dtype=np.float32)
+                    splat_into(acc_col, None, ev["colors"], pix, tx.weight)
             else:
                 miss_s = np.zeros(0, dtype=bool)
             if len(values):  # a band's coverage is the full grid, set in its own rows only

@@ -27,6 +27,7 @@ __all__ = [
     "normals_to_colors",
     "colors_to_normals",
     "splat",
+    "splat_into",
 ]
 
 NORMAL_SPACES = ("tangent", "object")
@@ -95,6 +96,34 @@ def normals_to_colors(x: np.ndarray) -> np.ndarray:
 def colors_to_normals(c: np.ndarray) -> np.ndarray:
     """Encoded colours (..., 3) in [0, 1] -> unit vectors ``normalize(2c - 1)``; zero vectors stay zero."""
     return _unit(np.asarray(c, dtype=np.float64) * 2.0 - 1.0)[0]
+
+
+def splat_into(
+    acc: np.ndarray,
+    wsum: np.ndarray | None,
+    values: np.ndarray,
+    pixel: np.ndarray,
+    weight: np.ndarray | None,
+) -> None:
+    """Add the weighted sums of per-sample ``values`` (M, C) into the image ``acc`` (H, W, C) in place (and
+    the weight sums into ``wsum`` (H, W), unless None): :func:`splat` without a full-size temporary when the
+    samples' texels are strictly increasing (one sample per texel, as rasterised), the sums otherwise."""
+    h, w = acc.shape[:2]
+    flat = np.asarray(pixel[:, 0], dtype=np.int64) * w + np.asarray(pixel[:, 1], dtype=np.int64)
+    if len(flat) == 0:
+        return
+    wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
+    if bool((flat[1:] > flat[:-1]).all()):
+        a = acc.reshape(h * w, -1)
+        a[flat] += np.asarray(values, dtype=np.float64) * wt[:, None]
+        if wsum is not None:
+            wsum.reshape(-1)[flat] += wt
+        return
+    r0, r1 = int(pixel[:, 0].min()), int(pixel[:, 0].max()) + 1
+    part, ws = splat(values, pixel, weight, (h, w), rows=(r0, r1), average=False)
+    acc[r0:r1] += part
+    if wsum is not None:
+        wsum[r0:r1] += ws
 
 
 def splat(
