@@ -640,6 +640,14 @@ def _gltf_missing_images(p: Path) -> list[str]:
     return [u for u in uris if isinstance(u, str) and not u.startswith("data:") and not (p.parent / unquote(u)).is_file()]
 
 
+def _image_key(image) -> tuple:
+    """A key equal for images of equal content (mode, size and pixels), whichever objects hold them."""
+    import hashlib
+
+    arr = np.asarray(image)
+    return arr.shape, str(arr.dtype), hashlib.blake2b(np.ascontiguousarray(arr).tobytes(), digest_size=16).digest()
+
+
 def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_texture: bool = True):
     import trimesh
 
@@ -701,8 +709,9 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_text
             texture[..., :3] *= factor[:3]
             if texture.shape[2] == 4:
                 texture[..., 3] *= factor[3]
-        if len({id(im) for im in imgs}) > 1:
-            _warn(notes, f"{name}: geometries use {len({id(im) for im in imgs})} textures; only the first is used")
+        distinct = len({_image_key(im) for im in imgs})  # by content: a reader may copy one image per geometry
+        if distinct > 1:
+            _warn(notes, f"{name}: geometries use {distinct} different base-colour textures; only the first is used")
     if not want_texture:
         return vertices, faces, uv, None, None
     if ext == ".gltf":

@@ -621,3 +621,27 @@ def test_truncated_glb(tmp_path):
     (tmp_path / "t.glb").write_bytes(data[: len(data) * 9 // 10])
     with pytest.raises(MeshError, match=r"t\.glb: unreadable GLB file \(.+\)"):
         load_mesh(tmp_path / "t.glb")
+
+
+def _textured_box(colour, offset):
+    from PIL import Image
+
+    b = trimesh.creation.box()
+    b.apply_translation([offset, 0, 0])
+    mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.new("RGB", (4, 4), colour))
+    b.visual = trimesh.visual.TextureVisuals(uv=np.full((len(b.vertices), 2), 0.5), material=mat)
+    return b
+
+
+def test_geometries_sharing_one_texture_load_without_a_warning(tmp_path):
+    # a reader copies the image per geometry: the copies are one texture, not several
+    trimesh.Scene([_textured_box((200, 10, 10), 0), _textured_box((200, 10, 10), 3)]).export(tmp_path / "same.glb")
+    m = load_mesh(tmp_path / "same.glb")
+    assert m.texture is not None and not any("textures" in w for w in m.warnings)
+
+
+def test_geometries_with_different_textures_warn_that_only_the_first_is_used(tmp_path):
+    trimesh.Scene([_textured_box((200, 10, 10), 0), _textured_box((10, 10, 200), 3)]).export(tmp_path / "two.glb")
+    with pytest.warns(NeuralBakeWarning, match=r"two\.glb: geometries use 2 different base-colour textures; only the first"):
+        m = load_mesh(tmp_path / "two.glb")
+    assert m.texture is not None
