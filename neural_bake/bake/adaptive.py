@@ -36,7 +36,7 @@ from ..types import Mesh
 
 __all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate"]
 
-#: Interpolated sample positions handled at once (bounds the (n, 4, 3) corner arrays).
+#: Interpolated samples handled at once (bounds the (7 + C, 4, n) gathered corner arrays; small enough for the cache).
 _INTERP_CHUNK = 1 << 16
 
 

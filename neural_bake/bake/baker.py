@@ -105,7 +105,8 @@ class _Reservoir:
             return
         if pick.size > self.limit:  # only the band's ``limit`` smallest keys can be among the smallest overall
             pick = np.sort(pick[np.argpartition(keys[pick], self.limit - 1)[: self.limit]])
-        new = {k: np.take(np.asarray(v), pick, axis=0) for k, v in arrays.items() if v is not None}  # take: a few × faster than [pick] on (n, 3)
+        # np.take: a few times faster than fancy indexing on (n, 3) arrays
+        new = {k: np.take(np.asarray(v), pick, axis=0) for k, v in arrays.items() if v is not None}
         keys, index = np.concatenate([self.keys, keys[pick]]), np.concatenate([self.index, index[pick]])
         data = new if self.data is None else {k: np.concatenate([self.data[k], new[k]]) for k in new}
         if len(keys) > self.limit:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (AdaptiveOptions, _grid_positions_from_uv, _interp, _pack, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
-                                       vertex_positions)
+from neural_bake.bake.adaptive import (AdaptiveOptions, _grid_positions_from_uv, _interp, _pack, _Store, _weights,
+                                       adaptive_evaluate, chart_labels, grid_positions, vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fields import SdfField, TextureField
