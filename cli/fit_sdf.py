@@ -26,8 +26,8 @@ def _config_class():
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="default",
                   presets=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
-                  described=("quick", "default", "high", "64x1", "256x2", "256x3"),
-                  preset_help="Network (W, D) and time budget (default is 128x2)",
+                  described=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
+                  preset_help="Network (W, D) and time budget (default: (192, 3) for 5 minutes)",
                   required=("mesh", "output"), pass_preset=True)
 
 

@@ -23,8 +23,9 @@ class DemoConfig:
 
     sample: str = "bumpy_sphere"
     """Bundled sample to bake (see `neural-bake samples`)."""
-    sdf_preset: str = "default"
-    """SDF preset: quick, default or high (192x3 for 2 minutes, 128x2, 256x4 for 10), or a network WxD of `fit sdf`."""
+    sdf_preset: str = "128x2"
+    """SDF preset: quick, default or high (192x3 for 2 minutes, 192x3 for 5, 256x4 for 10), or a network WxD of
+    `fit sdf` (the demo's 128x2 at its 2.5-minute budget, which the bundled sample's figures were measured with)."""
     sdf_minutes: float = 2.5
     """Time budget of the SDF fit, minutes."""
     sdf_surface_normals: str = "face"

@@ -88,7 +88,7 @@ def test_fit_sdf_defaults_to_the_default_preset(capsys):
 
     code, text, err = run(capsys, "fit", "sdf", "--print-config")
     got = tomllib.loads(text)
-    assert code == 0 and (got["width"], got["depth"], got["minutes"]) == (128, 2, 5.0), err
+    assert code == 0 and (got["width"], got["depth"], got["minutes"]) == (192, 3, 5.0), err
     assert got["surface_normals"] == "vertex"
 
 

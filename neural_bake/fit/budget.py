@@ -25,13 +25,15 @@ __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_
 #: GFLOP-equivalents of one Adam step per preset (seconds per step × sgemm GFLOP/s of the machine it was
 #: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high", "WxD"), texture
 #: presets by "texture:NAME". Measured on a quiet machine (BENCHMARKS.md): 64x1 and texture:default (Spot), quick
-#: (192x3, uncompiled: the median of eight meshes, 52–101 ms a step), high (256x4, compiled: nefertiti) and
+#: (192x3, uncompiled: the median of eight meshes, 52–101 ms a step), default (192x3, compiled: nefertiti,
+#: 5,862 steps in 5 minutes), high (256x4, compiled: nefertiti) and
 #: 256x3 (9,109–9,363 steps in the Adam part of 10 minutes on four meshes, float32 GEMMs on oneDNN). 128x2 and
 #: 256x2 are estimates between the measured compiled and uncompiled costs (the loss is compiled for budgets of
 #: five minutes or more); the other texture presets scale texture:default by their estimated cost relative to
 #: it (points per step × the SDF cost per point of their network).
 STEP_WORK: dict[str, float] = {
     "quick": 12.3,
+    "default": 11.2,
     "high": 21.4,
     "64x1": 1.76,
     "128x2": 4.2,

@@ -12,9 +12,9 @@ __all__ = ["PRESET_NAMES", "SDF_ALIASES", "TEXTURE_ALIASES", "resolve_preset"]
 #: The shared preset names, cheapest first.
 PRESET_NAMES = ("quick", "default", "high")
 
-#: SDF preset names onto the architecture presets (``quick`` and ``high`` are presets of their own, (192, 3)
-#: and (256, 4) Sirens for 2 and 10 minutes: :data:`neural_bake.fit.sdf.PRESETS`).
-SDF_ALIASES = {"default": "128x2"}
+#: SDF preset names onto the architecture presets: none (``quick``, ``default`` and ``high`` are presets of
+#: their own, (192, 3), (192, 3) and (256, 4) Sirens for 2, 5 and 10 minutes: :data:`neural_bake.fit.sdf.PRESETS`).
+SDF_ALIASES: dict[str, str] = {}
 
 #: Earlier texture preset names onto the shared ones.
 TEXTURE_ALIASES = {"fast": "quick", "medium": "default", "fine": "high"}

@@ -182,7 +182,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             signed by the generalised winding number (see :mod:`neural_bake.fit.sampling`).
         config: the settings (default :class:`SdfFitConfig`).
         preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), or the shared names
-            ``"quick"`` (192x3 for 2 minutes), ``"default"`` (128x2), ``"high"`` (256x4 for 10 minutes),
+            ``"quick"`` (192x3 for 2 minutes), ``"default"`` (192x3 for 5), ``"high"`` (256x4 for 10 minutes),
             applied before ``overrides``.
         clock: the seconds every budget decision of the run measures — Adam's budget, the share of bf16
             steps, the polish's reserve and deadline (default ``time.perf_counter``;

@@ -181,13 +181,14 @@ class SdfFitConfig:
 #: The training settings of the multi-layer presets (how they were chosen: docs/findings.md).
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
-#: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"`` and ``"high"``
-#: (the best networks found for 2 and 10 minutes: (192, 3) and (256, 4) Sirens, fewer steps of larger
-#: networks) and the architecture presets ``"WxD"`` (``default`` names 128x2: :mod:`.presets`).
+#: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
+#: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
+#: fewer steps of larger networks) and the architecture presets ``"WxD"`` (the shared names: :mod:`.presets`).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER},
+    "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
@@ -213,8 +214,8 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
 
         key = resolve_preset(preset, SDF_ALIASES, PRESETS)
         if key is None:
-            raise FitError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)} or "
-                           f"{', '.join(f'{a} ({k})' for a, k in SDF_ALIASES.items())}")
+            aliases = "".join(f", {a} ({k})" for a, k in SDF_ALIASES.items())
+            raise FitError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}{aliases}")
         cfg = replace(cfg, **PRESETS[key])
     names = {f.name for f in fields(SdfFitConfig)}
     unknown = sorted(set(overrides) - names)

@@ -129,7 +129,7 @@ def test_open_mesh_fits_without_nan():
 
 
 def test_presets_and_config():
-    assert set(PRESETS) == {"quick", "high", "64x1", "128x2", "256x2", "256x3"}
+    assert set(PRESETS) == {"quick", "default", "high", "64x1", "128x2", "256x2", "256x3"}
     from neural_bake.fit.sdf import config_from
 
     assert config_from(preset="256x3").hard_pool == 0.05 and config_from(preset="64x1").hard_pool == 0.02
@@ -141,10 +141,10 @@ def test_presets_and_config():
     assert (c.width, c.depth, c.seed, c.minutes) == (64, 1, 3, 2.0)
     assert config_from(SdfFitConfig(), steps=None).steps == SdfFitConfig().steps  # None keeps the default
     assert config_from(preset="64x1", minutes=None).minutes is None  # ... except where None means "none"
-    # default is an alias of an architecture preset; quick and high are larger networks for 2 and 10 minutes
-    assert config_from(preset="default") == config_from(preset="128x2")
-    q, h = config_from(preset="quick"), config_from(preset="high")
+    # quick, default and high: the best networks found for 2, 5 and 10 minutes
+    q, d, h = config_from(preset="quick"), config_from(preset="default"), config_from(preset="high")
     assert (q.width, q.depth, q.minutes) == (192, 3, 2.0) and q != config_from(preset="64x1")
+    assert (d.width, d.depth, d.minutes) == (192, 3, 5.0) and d != config_from(preset="128x2")
     assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
 
 
@@ -178,7 +178,7 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"preset": "512x9"}, "unknown preset '512x9'; choose one of quick, high, 64x1.*default \\(128x2\\)"),
+    ({"preset": "512x9"}, "unknown preset '512x9'; choose one of quick, default, high, 64x1, 128x2, 256x2, 256x3$"),
     ({"bogus": 1}, "unknown setting"),
     ({"batch": 0}, "batch must be a positive integer"),
     ({"w_eikonal": -1.0}, "w_eikonal must be a non-negative"),
