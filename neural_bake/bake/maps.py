@@ -98,6 +98,12 @@ def colors_to_normals(c: np.ndarray) -> np.ndarray:
     return _unit(np.asarray(c, dtype=np.float64) * 2.0 - 1.0)[0]
 
 
+def _one_per_texel(flat: np.ndarray) -> bool:
+    """Are the samples' flat texel indices strictly increasing (one sample per texel, in the rasteriser's
+    order)? Then their sums are a scatter."""
+    return len(flat) > 0 and bool((flat[1:] > flat[:-1]).all())
+
+
 def splat_into(
     acc: np.ndarray,
     wsum: np.ndarray | None,
@@ -113,7 +119,7 @@ def splat_into(
     if len(flat) == 0:
         return
     wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
-    if bool((flat[1:] > flat[:-1]).all()):
+    if _one_per_texel(flat):
         a = acc.reshape(h * w, -1)
         a[flat] += np.asarray(values, dtype=np.float64) * wt[:, None]
         if wsum is not None:
@@ -149,8 +155,7 @@ def splat(
     wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
     n = (b - a) * w
     c = values.shape[1]
-    if len(flat) and bool((flat[1:] > flat[:-1]).all()):
-        # strictly increasing texels (a band of one sample per texel, as rasterised): a scatter, same sums
+    if _one_per_texel(flat):  # a scatter, the same sums
         acc = np.zeros((n, c))
         acc[flat] = values * wt[:, None]
         wsum = np.zeros(n)
