@@ -106,14 +106,13 @@ def grid_positions(texels, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
         pix = np.asarray(texels.pixel, dtype=np.int64)
         off = np.asarray(texels.border, dtype=bool)
         return np.where(off, -1, pix[:, 0]), np.where(off, -1, pix[:, 1])
-    return _grid_positions_from_uv(texels, mesh)
+    return _grid_positions_from_uv(texels, mesh, face)
 
 
-def _grid_positions_from_uv(texels, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`grid_positions` from the samples' UVs (any supersampling)."""
+def _grid_positions_from_uv(texels, mesh: Mesh, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`grid_positions` from the samples' UVs (any supersampling); ``face``: the samples' faces (int64)."""
     s = int(texels.supersample)
     h, w = texels.size
-    face = np.asarray(texels.face, dtype=np.int64)
     uv = np.einsum("mk,mkd->md", np.asarray(texels.bary, dtype=np.float64), np.asarray(mesh.uv, np.float64)[face])
     x = uv[:, 0] * (w * s) - 0.5
     y = (1.0 - uv[:, 1]) * (h * s) - 0.5

@@ -268,6 +268,9 @@ class _ErrorControl:
         self.values: list[np.ndarray] = []
         self.interp: list[np.ndarray] = []
         self._charts = None
+        # float32 fields are interpolated in float32 (their own precision), anything else in float64
+        dtypes = {_tensor_kwargs(f)["dtype"] for f in (sdf, texture) if f is not None}
+        self.dtype = torch.float32 if dtypes == {torch.float32} else torch.float64
 
     def evaluate(self, tx, points: np.ndarray) -> dict:
         b = self.baker
@@ -289,11 +292,8 @@ class _ErrorControl:
             times["time_texture"] += e["time_texture"]
             return e
 
-        # float32 fields are interpolated in float32 (their own precision), anything else in float64
-        dtypes = {_tensor_kwargs(f)["dtype"] for f in (self.sdf, self.texture) if f is not None}
-        dtype = torch.float32 if dtypes == {torch.float32} else torch.float64
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
-                                fields, self.adaptive, vertices=self._vertices, dtype=dtype)
+                                fields, self.adaptive, vertices=self._vertices, dtype=self.dtype)
         st = res["stats"]
         for k in ("samples", "evaluated", "interpolated"):
             self.counts[k] += st[k]
