@@ -221,7 +221,8 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                 hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
                                         keep_baseline=baseline and baker.cache)
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
-                             hybrid=hybrid, adaptive=adaptive, precision=cfg.precision)
+                             hybrid=hybrid, adaptive=adaptive, precision=cfg.precision,
+                             texture_at="point" if keep else "surface")
             if res.stats["texels_covered"] == 0:
                 raise MeshError(f"{mesh}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
             if hybrid is not None:
@@ -303,7 +304,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                 log(f"warning: {w}")
         if "vertex" in maps:
             t0 = time.perf_counter()
-            vb = bake_vertices(coarse_m, sdf, tex)
+            vb = bake_vertices(coarse_m, sdf, tex, texture_at="point" if keep else "surface")
             colors = None if vb["colors"] is None else np.clip(vb["colors"][:, :3], 0, 1)
             export_glb(stage / "vertex.glb", coarse_m, normals=vb["normals"], vertex_colors=colors)
             export_vertex_ply(stage / "vertex.ply", coarse_m, normals=vb["normals"], vertex_colors=colors)

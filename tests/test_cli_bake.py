@@ -205,6 +205,7 @@ def test_delta_defaults_to_the_texture_models_band(files, tmp_path, capsys):
     assert code == 0, err
     rep = json.loads((out / "report.json").read_text())
     assert rep["bake"]["delta"] == pytest.approx(1e-9)
+    assert rep["bake"]["texture_at"] == "point"  # baked onto the source: the colours are read where they were fitted
     assert "from band.tex" in stdout
     # an untrained net is nowhere near 0 on the sphere: every covered texel is off the band
     assert rep["miss_texels"] == rep["texels_covered"] > 0
@@ -225,6 +226,7 @@ def test_streamed_bake_writes_a_sampled_report(files, tmp_path):
     rep = json.loads((tmp_path / "s" / "report.json").read_text())
     m = cached["sampling"]["of"]
     assert cached["sampling"]["sampled"] == [] and cached["sampling"]["samples"] == m > 1000
+    assert cached["bake"]["texture_at"] == rep["bake"]["texture_at"] == "surface"  # a decimation: its closest points
     assert rep["sampling"]["samples"] == 300 and rep["sampling"]["of"] == m and "note" not in rep
     assert streamed["sampling"]["samples"] == 300  # the returned report is the written one
     assert {"vs_truth_deg", "vs_gradient_deg", "color_psnr_db", "baseline.vs_truth_deg"} <= set(rep["sampling"]["sampled"])

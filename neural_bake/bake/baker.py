@@ -27,7 +27,7 @@ from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_pos
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .padding import PADDING_METHODS, pad_charts
 
-__all__ = ["Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
+__all__ = ["TEXTURE_AT", "Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
 
 DEFAULT_CHUNK = 1 << 16
 #: Texel samples a streamed bake keeps for its quality report (about 64 MB of per-sample data).
@@ -191,10 +191,27 @@ def _to_field_frame(points: np.ndarray, mesh_frame: Frame, field_frame: Frame | 
     return field_frame.to_unit(mesh_frame.to_source(points))
 
 
+#: Where a bake reads the colour field: at the closest point of the SDF's zero set, or at the sample itself.
+TEXTURE_AT = ("surface", "point")
+
+
+def _surface_points(points_sdf: np.ndarray, values: np.ndarray, normals: np.ndarray, valid: np.ndarray,
+                    reach: float | None) -> np.ndarray:
+    """The closest points q = p − f(p)·∇f(p) of the SDF's zero set (§3 of the nested-neighbourhoods paper: the
+    point whose colour a neighbourhood point carries), in the SDF's frame; |f| clamped to ``reach`` (the
+    colour field's band), samples without a gradient left where they are."""
+    step = np.where(valid, values, 0.0)
+    if reach is not None:
+        step = np.clip(step, -reach, reach)
+    return points_sdf - step[:, None] * normals
+
+
 def _evaluate(
-    points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: TextureField | None, chunk_size: int
+    points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: TextureField | None, chunk_size: int,
+    texture_at: str = "point",
 ) -> dict:
-    """f, unit ∇f, valid and g at ``points`` (M, 3) (mesh unit frame), in chunks of ``chunk_size``."""
+    """f, unit ∇f, valid and g at ``points`` (M, 3) (mesh unit frame), in chunks of ``chunk_size``; g at the
+    points themselves or, ``texture_at="surface"`` (with an SDF), at their closest points on f = 0."""
     m = len(points)
     out: dict = {"time_sdf": 0.0, "time_texture": 0.0}
     if sdf is not None:
@@ -212,7 +229,13 @@ def _evaluate(
         out.update(values=values, normals=normals, valid=valid)
     if texture is not None:
         kw = _tensor_kwargs(texture)
-        pts = _to_field_frame(points, mesh_frame, texture.frame)
+        at = points
+        if texture_at == "surface" and sdf is not None:
+            reach = texture.delta if texture.delta is not None else sdf.delta
+            q = _surface_points(_to_field_frame(points, mesh_frame, sdf.frame), out["values"], out["normals"],
+                                out["valid"], reach)
+            at = q if sdf.frame is None or sdf.frame == mesh_frame else mesh_frame.to_unit(sdf.frame.to_source(q))
+        pts = _to_field_frame(at, mesh_frame, texture.frame)
         chunks = []
         t0 = time.perf_counter()
         for s in range(0, m, chunk_size):
@@ -250,8 +273,10 @@ class _ErrorControl:
     ``summary()`` is the bake stats' ``adaptive`` and ``error_control`` entries.
     """
 
-    def __init__(self, baker: "Baker", sdf, texture, adaptive, samples: int, seed: int, fast=None):
+    def __init__(self, baker: "Baker", sdf, texture, adaptive, samples: int, seed: int, fast=None,
+                 texture_at: str = "point"):
         self.baker, self.sdf, self.texture, self.adaptive = baker, sdf, texture, adaptive
+        self.texture_at = texture_at
         self.fast_sdf, self.fast_tex = fast if fast is not None else (sdf, texture)
         self.reduced = self.fast_sdf is not sdf or self.fast_tex is not texture
         self.precision: dict = {}
@@ -275,7 +300,7 @@ class _ErrorControl:
     def evaluate(self, tx, points: np.ndarray) -> dict:
         b = self.baker
         if self.adaptive is None:
-            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
+            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
             ev["evaluated"] = np.ones(len(points), dtype=bool)
             self.counts["samples"] += len(points)
             self.counts["evaluated"] += len(points)
@@ -287,7 +312,7 @@ class _ErrorControl:
         times = {"time_sdf": 0.0, "time_texture": 0.0}
 
         def fields(idx):
-            e = _evaluate(points[idx], b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size)
+            e = _evaluate(points[idx], b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
             times["time_sdf"] += e["time_sdf"]
             times["time_texture"] += e["time_texture"]
             return e
@@ -324,7 +349,8 @@ class _ErrorControl:
         val = np.zeros(pick.size)
         redo = pick[~exact]
         if redo.size:
-            ref = _evaluate(points[redo], self.baker.mesh.frame, self.sdf, self.texture, self.baker.chunk_size)
+            ref = _evaluate(points[redo], self.baker.mesh.frame, self.sdf, self.texture, self.baker.chunk_size,
+                            self.texture_at)
             both = ref["valid"] & ev["valid"][redo]
             a = np.zeros(redo.size)
             a[both] = _angles_deg(ev["normals"][redo][both], ref["normals"][both])
@@ -363,6 +389,12 @@ class _ErrorControl:
         return out
 
 
+def _check_texture_at(texture_at) -> str:
+    if texture_at not in TEXTURE_AT:
+        raise NeuralBakeError(f"texture_at must be one of {', '.join(TEXTURE_AT)}, got {texture_at!r}")
+    return texture_at
+
+
 def _check_chunk(chunk_size) -> int:
     if int(chunk_size) != chunk_size or chunk_size < 1:
         raise NeuralBakeError(f"chunk_size must be a positive integer, got {chunk_size!r}")
@@ -370,15 +402,16 @@ def _check_chunk(chunk_size) -> int:
 
 
 def bake_vertices(
-    mesh: Mesh, sdf: SdfField, texture: TextureField | None = None, *, chunk_size: int = DEFAULT_CHUNK
+    mesh: Mesh, sdf: SdfField, texture: TextureField | None = None, *, chunk_size: int = DEFAULT_CHUNK,
+    texture_at: str = "surface",
 ) -> dict:
-    """Per-vertex neural normal (and texture) mapping.
+    """Per-vertex neural normal (and texture) mapping; ``texture_at`` as in :meth:`Baker.bake`.
 
     Returns ``{"normals": (V, 3) float64 unit (unit frame axes), "colors": (V, C) linear or None,
     "valid": (V,) bool, "sdf": (V,) f at the vertices, "invalid": count}``. Vertices with an unusable
     gradient (|∇f| ≈ 0) keep the mesh's own vertex normal.
     """
-    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size))
+    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size), _check_texture_at(texture_at))
     normals = ev["normals"]
     valid = ev["valid"]
     from ..mesh.tangents import vertex_normals
@@ -510,6 +543,7 @@ class Baker:
         check_samples: int = ADAPTIVE_CHECK_SAMPLES,
         precision: str = "fp32",
         precision_measure=None,
+        texture_at: str = "surface",
     ) -> BakeResult:
         """Bake ∇f (and g) at every texel sample into the maps.
 
@@ -534,7 +568,13 @@ class Baker:
         speed check); ``stats["precision"]`` says what ran and why. A reduced-precision bake runs the same
         sampled check against float32 (``stats["error_control"]["precision_angle_deg"]``: its evaluated
         samples).
+
+        ``texture_at``: where g is read: "surface" (default), at each sample's closest point on the SDF's
+        zero set, p − f(p)·∇f(p) with |f| clamped to the colour field's δ, so the colours the texture was
+        fitted to on the source surface reach a coarse surface off it; "point", at the sample itself (right
+        when the mesh baked is the source, ``--coarse keep``).
         """
+        _check_texture_at(texture_at)
         if delta is None:
             delta = sdf.delta
         if delta is not None and not (np.isfinite(delta) and delta > 0):
@@ -554,7 +594,8 @@ class Baker:
             texture.with_precision(precision, measure=precision_measure,
                                    probe=None if probe is None else self._probe(texture))
             if hasattr(texture, "with_precision") else (texture, "fp32", "no precision choice"))
-        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex))
+        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex),
+                                texture_at=texture_at)
         control.precision = {"asked": precision, "sdf": sdf_prec, "sdf_reason": sdf_why, "texture": tex_prec,
                              "texture_reason": tex_why}
         keep = self.cache if keep_samples is None else bool(keep_samples)
@@ -688,6 +729,7 @@ class Baker:
             "texels_per_second": float(n_texels / secs["bake"]) if secs["bake"] > 0 else None,
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
+            "texture_at": None if texture is None else texture_at,
             **control.summary(),
         }
         cat = lambda k: np.concatenate(kept[k]) if keep and kept[k] else None  # noqa: E731

@@ -262,6 +262,50 @@ def test_albedo_is_the_colour_field_at_texels():
     assert np.allclose(res.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :2], tx.points[:, :2] + 0.5, atol=1e-6)
 
 
+def radial_colour():
+    """A colour field that is not constant along the normal lines: channel 0 is the distance from the centre."""
+    return lambda p: torch.stack([p.norm(dim=1), 0.5 + 0.5 * p[:, 0] / p.norm(dim=1), 0 * p[:, 0]], 1)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_texture_is_read_at_the_closest_point_of_the_zero_set(dtype):
+    # the coarse surface lies 10 % outside the field's sphere: "surface" reads g on the sphere, "point" at the texel
+    mesh = sphere_mesh(radius=1.1 * R)
+    sdf = SdfField(lambda p: p.norm(dim=1) - R)
+    tex = ColorField(lambda p: radial_colour()(p).to(dtype))
+    baker = Baker(mesh, 32, padding=None)
+    on = baker.bake(sdf, tex)
+    at = baker.bake(sdf, tex, texture_at="point")
+    pts = baker.texels.points
+    tol = 1e-5 if dtype == torch.float32 else 1e-9
+    assert np.allclose(on.colors[:, 0], R, atol=tol)
+    assert np.allclose(at.colors[:, 0], np.linalg.norm(pts, axis=1), atol=tol)
+    # the direction is kept: the closest point of a sphere lies on the same ray
+    assert np.allclose(on.colors[:, 1], at.colors[:, 1], atol=tol)
+    assert on.stats["texture_at"] == "surface" and at.stats["texture_at"] == "point"
+    assert np.array_equal(on.normal_map, at.normal_map)  # the normals do not depend on where g is read
+
+
+def test_texture_reach_is_clamped_to_the_colour_fields_band_and_skips_zero_gradients():
+    mesh = sphere_mesh(radius=1.1 * R)
+    sdf = SdfField(lambda p: p.norm(dim=1) - R)
+    res = Baker(mesh, 32, padding=None).bake(sdf, ColorField(radial_colour(), delta=0.01))
+    dist = np.linalg.norm(Baker(mesh, 32, padding=None).texels.points, axis=1)
+    # a texel farther than δ from the zero set moves by δ only
+    assert np.allclose(res.colors[:, 0], dist - np.clip(dist - R, -0.01, 0.01), atol=1e-9)
+    flat = Baker(mesh, 32, padding=None).bake(SdfField(lambda p: 0 * p[:, 0] + 0.05), ColorField(radial_colour()))
+    assert flat.stats["invalid_gradients"] == len(flat.colors)
+    assert np.allclose(flat.colors[:, 0], dist, atol=1e-9)  # no gradient: read where the sample is
+
+
+def test_bake_vertices_reads_texture_on_the_surface_unless_told():
+    mesh = sphere_mesh(radius=1.1 * R, uv=False)
+    sdf = SdfField(lambda p: p.norm(dim=1) - R)
+    assert np.allclose(bake_vertices(mesh, sdf, ColorField(radial_colour()))["colors"][:, 0], R)
+    at = bake_vertices(mesh, sdf, ColorField(radial_colour()), texture_at="point")["colors"][:, 0]
+    assert np.allclose(at, np.linalg.norm(mesh.vertices, axis=1))
+
+
 def test_bake_texels_wrapper_and_siren_field():
     from neural_bake.nets.siren import Siren
 
@@ -308,6 +352,10 @@ def test_errors():
         Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), report_samples=2.5)
     with pytest.raises(NeuralBakeError, match="seed must be a non-negative integer"):
         Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), seed=-3)
+    with pytest.raises(NeuralBakeError, match="texture_at must be one of surface, point"):
+        Baker(mesh, 8).bake(SdfField(lambda p: p[:, 2]), texture_at="texel")
+    with pytest.raises(NeuralBakeError, match="texture_at must be one of surface, point"):
+        bake_vertices(mesh, SdfField(lambda p: p[:, 2]), texture_at=None)
 
 
 def test_non_manifold_coarse_mesh_without_uvs():

@@ -28,6 +28,17 @@ def truth(p):
     return unit(p - C)
 
 
+def colour_field():
+    """Colours constant along the field's normal lines (its direction from C): what the bake reads at a texel's
+    closest point of the zero set is the colour at the texel itself, the truth below."""
+    c = torch.as_tensor(C)
+    return ColorField(lambda p: ((p - c) / (p - c).norm(dim=1, keepdim=True) + 1) / 2)
+
+
+def truth_colors(p):
+    return (unit(p - C) + 1) / 2
+
+
 def fine_sphere():
     t = trimesh.creation.icosphere(subdivisions=4, radius=R)
     return Mesh(vertices=np.asarray(t.vertices) + C, faces=np.asarray(t.faces, dtype=np.int64))
@@ -39,7 +50,7 @@ def baked():
     m = unwrap(Mesh(vertices=np.asarray(ico.vertices), faces=np.asarray(ico.faces, dtype=np.int64)), resolution=64)
     m.vertex_normals = None  # the Baker recomputes them welded across seams
     baker = Baker(m, 64)
-    colour = ColorField(lambda p: (p / R + 1) / 2)
+    colour = colour_field()
     c = torch.as_tensor(C)
     res = baker.bake(SdfField(lambda p: (p - c).norm(dim=1) - R), colour)
     return baker, res
@@ -59,7 +70,7 @@ def test_report_on_sphere(tmp_path, baked):
     fine = fine_sphere()
     base = baseline_bake(baker.mesh, fine, baker.texels, cage=0.2)
     rep = bake_report(
-        res, baker, truth=truth, truth_colors=lambda p: (p / R + 1) / 2, baseline=base, out_dir=tmp_path,
+        res, baker, truth=truth, truth_colors=truth_colors, baseline=base, out_dir=tmp_path,
         timings={"load": 0.5},
     )
     json.dumps(rep)  # JSON-ready
@@ -129,7 +140,7 @@ def _bake_pair(report_samples, band_samples=300):
     m.vertex_normals = None
     c = torch.as_tensor(C)
     f = SdfField(lambda p: (p - c).norm(dim=1) - R)
-    colour = ColorField(lambda p: (p / R + 1) / 2)
+    colour = colour_field()
     cached_baker = Baker(m, 64)
     streamed_baker = Baker(m, 64, cache_texels=False, band_samples=band_samples)
     cached = cached_baker.bake(f, colour, delta=DELTA)
@@ -140,7 +151,7 @@ def _bake_pair(report_samples, band_samples=300):
 def _reports(tmp_path, report_samples):
     cb, cres, sb, sres = _bake_pair(report_samples)
     fine = fine_sphere()
-    kw = dict(truth=truth, truth_colors=lambda p: (p / R + 1) / 2)
+    kw = dict(truth=truth, truth_colors=truth_colors)
     cached = bake_report(cres, cb, baseline_fn=lambda tx: baseline_bake(cb.mesh, fine, tx, cage=0.2),
                          out_dir=tmp_path / "c", **kw)
     streamed = bake_report(sres, sb, baseline_fn=lambda tx: baseline_bake(sb.mesh, fine, tx, cage=0.2),
