@@ -82,11 +82,13 @@ class TraceLevel:
 
 @dataclass
 class TextureSource:
-    """A colour field: points (N, 3), unit frame → linear RGB (N, 3). ``name`` for the counters."""
+    """A colour field: points (N, 3), unit frame → linear RGB (N, 3). ``name`` for the counters; ``delta``: the
+    band it was fitted to be constant across (None: unknown), how far the renderer moves a read (normal mapping)."""
 
     name: str
     color: Values
     model: Siren | None = None
+    delta: float | None = None
 
 
 @dataclass
@@ -222,7 +224,7 @@ def _lipschitz_bound(value: Values, lip: float) -> Bound:
 
 
 def siren_texture(model: Siren, *, name: str | None = None, time: float | None = None,
-                  precision: str = "fp32") -> TextureSource:
+                  precision: str = "fp32", delta: float | None = None) -> TextureSource:
     """A texture from a SIREN with 3 (RGB) or 4 (RGBA: alpha dropped) outputs; non-finite colours become 0.
     ``precision`` as :func:`siren_level`."""
     low = _gemm_dtype(precision, model)
@@ -241,7 +243,7 @@ def siren_texture(model: Siren, *, name: str | None = None, time: float | None =
             out = siren_forward_inference(layers[key], x, gemm_dtype=low)[:, :3]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
 
-    return TextureSource(name or f"texture {_arch_name(model)}", color, model)
+    return TextureSource(name or f"texture {_arch_name(model)}", color, model, delta)
 
 
 def analytic_texture(fn: Values, *, name: str = "texture") -> TextureSource:
@@ -321,8 +323,9 @@ def _as_texture(tex, precision: str = "fp32") -> TextureSource:
     if isinstance(tex, Siren):
         return siren_texture(tex, precision=precision)
     model = getattr(tex, "model", None)
+    delta = getattr(tex, "delta", None)
     if isinstance(model, Siren) and int(model.out_dim) in (3, 4):
-        return siren_texture(model, precision=precision)
+        return siren_texture(model, precision=precision, delta=delta)
     if hasattr(tex, "color"):
-        return analytic_texture(tex.color, name=str(getattr(tex, "name", "texture")))
+        return replace(analytic_texture(tex.color, name=str(getattr(tex, "name", "texture"))), delta=delta)
     raise RenderError(f"texture: cannot use a {type(tex).__name__} (expected a texture field or a Siren)")

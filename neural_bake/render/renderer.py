@@ -8,7 +8,8 @@ need it, and counts it under its effect in :class:`~neural_bake.render.stats.Eva
 2. ``normals`` (for shading, the normal channel, shadows or AO): GEMM normals of the last traced level at
    the hits; with ``normal_mapping`` instead those of ``scene.normal_level`` (the fine f by default:
    neural normal mapping, §4.1), counted under ``normal_mapping``.
-3. ``texture``: the texture field at the hits (neural texture mapping, §4.2).
+3. ``texture``: the texture field at the hits (neural texture mapping, §4.2); with ``normal_mapping``, at
+   the hits' closest points of the mapped level's zero set (p − f(p)·∇f(p), |f| clamped to the texture's δ).
 4. ``shadows``: one shadow ray per hit and light, traced against every object.
 5. ``ambient_occlusion``: SDF samples along the normal of the last traced level.
 6. ``hole_map``: the guaranteed caster on f along the rays sphere tracing missed: pixels where it finds a
@@ -193,8 +194,9 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
 
     want = set(scene.channels) | {"hit"}
     effects = set(scene.effects)
-    need_normals = bool({"shading", "shadows", "ambient_occlusion"} & effects) or "normal" in want
     need_color = "color" in want
+    need_normals = bool({"shading", "shadows", "ambient_occlusion"} & effects) or "normal" in want or (
+        need_color and {"texture", "normal_mapping"} <= effects)  # the texture is read at the mapped point
 
     color = torch.empty((n, 3), dtype=dtype, device=o_w.device)
     color[:] = torch.as_tensor(scene.background, dtype=dtype, device=o_w.device)
@@ -211,11 +213,11 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
         levels = ob.asset.levels
         its = settings.iterations_for(len(levels))
         last = max(j for j, k in enumerate(its) if k > 0) if not scene.guaranteed else len(levels) - 1
-        n_u = None
+        n_u = v_nm = None
         if need_normals:  # 2. normals
             tic = time.perf_counter()
             if "normal_mapping" in effects:
-                _, g = counter.value_and_gradient(levels[scene.normal_level], "normal_mapping", p_u)
+                v_nm, g = counter.value_and_gradient(levels[scene.normal_level], "normal_mapping", p_u)
             elif settings.lod is not None and len(levels) > 1 and not scene.guaranteed:
                 g = _blended_gradient(levels, lod[pix], counter, p_u)
             else:
@@ -230,7 +232,13 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
         albedo = torch.as_tensor(scene.material.albedo, dtype=dtype, device=o_w.device).expand(pix.numel(), 3)
         if "texture" in effects:  # 3. texture
             tic = time.perf_counter()
-            albedo = counter.color(ob.asset.texture, "texture", p_u).to(dtype)
+            p_t = p_u
+            if v_nm is not None:  # the colour of the mapped level's closest point, p − f(p)·∇f(p) (§4.2)
+                reach = ob.asset.texture.delta
+                step = v_nm.reshape(-1).to(dtype)
+                step = step if reach is None else step.clamp(-reach, reach)
+                p_t = p_u - step[:, None] * n_u
+            albedo = counter.color(ob.asset.texture, "texture", p_t).to(dtype)
             seconds["texture"] = seconds.get("texture", 0.0) + time.perf_counter() - tic
         if "shading" not in effects:
             color[pix] = albedo

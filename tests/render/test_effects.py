@@ -1,5 +1,7 @@
 """Only what the scene calls for: evaluation counters per network and effect, shading, textures, shadows, AO."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -70,6 +72,23 @@ def test_without_normal_mapping_the_fine_level_is_never_evaluated():
     assert r.counter.total(network="f") == 0
     r = render(_asset(), scene.with_(effects=("shading", "normal_mapping")), camera=CAM)
     assert r.counter.total(network="f") == r.counter.total("normal_mapping") == int(r["hit"].sum())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_normal_mapping_reads_the_texture_at_the_mapped_levels_closest_point(dtype):
+    # channel 0 is the distance from the centre: traced on h1 (radius 0.52), mapped onto f (radius 0.5)
+    radial = analytic_texture(lambda p: torch.stack([p.norm(dim=1), 0 * p[:, 0], 0 * p[:, 0]], 1))
+    asset = nested_sphere_asset().with_texture(radial)
+    scene = Scene(effects=("texture",), channels=("color", "hit"), trace=TraceSettings(mode="fixed", iterations=(40, 0)))
+    traced = render(asset, scene, camera=CAM, dtype=dtype)
+    hit = traced["hit"]
+    np.testing.assert_allclose(traced["color"][hit][:, 0], 0.52, atol=1e-3)  # within the tracer's tolerance
+    mapped = render(asset, scene.with_(effects=("texture", "normal_mapping"), normal_level=1), camera=CAM, dtype=dtype)
+    np.testing.assert_allclose(mapped["color"][hit][:, 0], 0.5, atol=1e-4)
+    # a texture fitted to a band of δ moves its reads by δ at most
+    near = render(nested_sphere_asset().with_texture(replace(radial, delta=0.005)),
+                  scene.with_(effects=("texture", "normal_mapping"), normal_level=1), camera=CAM, dtype=dtype)
+    np.testing.assert_allclose(near["color"][hit][:, 0], traced["color"][hit][:, 0] - 0.005, atol=1e-5)
 
 
 def test_texture_colours_the_hits_only():
