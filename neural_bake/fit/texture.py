@@ -600,7 +600,9 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     Returns floats:
     - ``surface_mse``, ``surface_psnr``: against the texture at ``n`` surface samples (linear RGB, peak 1).
     - ``band_change``: mean |g(p ± t·n) − g(p)| (mean over channels) for t in {δ/4, δ/2, 3δ/4, δ}, both
-      signs, n = ∇f/|∇f| at p; ``band_change_at_delta``: the same for t = δ only.
+      signs, n = ∇f/|∇f| at p; ``band_change_at_delta``: the same for t = δ only; ``band_change_read``: the
+      same with g read where a bake reads it (``texture_at="surface"``), at the closest point of f = 0 of each
+      p ± t·n (|f| clamped to δ): what a coarse surface in the band shows.
     - ``render_mse``: mean over ``n_views`` ray-cast views of the ground-truth mesh of the per-view MSE
       between the texture colour at the hit points (hit triangle + barycentrics -> UV -> bilinear lookup)
       and g there, over hit pixels; ``render_mse_views``: the per-view list; ``render_mse_band``: the same
@@ -620,15 +622,22 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     _, grads = _sdf_eval(sdf, torch.as_tensor(p))
     normals, valid = unit_normals(grads)
     normals, valid = normals.numpy(), valid.numpy()
-    changes, at_delta = [], None
+    changes, projected, at_delta = [], [], None
     for t in (0.25 * delta, 0.5 * delta, 0.75 * delta, delta):
         for sign in (1.0, -1.0):
-            gt = _eval(texture_model, p + sign * t * normals)
-            c = np.abs(gt - g0).mean(axis=1)[valid]
-            changes.append(c)
+            q = p + sign * t * normals
+            gt = _eval(texture_model, q)
+            changes.append(np.abs(gt - g0).mean(axis=1)[valid])
+            # what a bake reads there: g at the closest point of f = 0, q − f(q)·∇f(q)/|∇f(q)|, |f| ≤ δ
+            fq, gq = _sdf_eval(sdf, torch.as_tensor(q))
+            nq, vq = unit_normals(gq)
+            step = torch.where(vq, fq.reshape(-1), torch.zeros_like(fq.reshape(-1))).clamp(-delta, delta)
+            back = _eval(texture_model, (torch.as_tensor(q) - step[:, None] * nq).numpy())
+            projected.append(np.abs(back - g0).mean(axis=1)[valid])
         if t == delta:
             at_delta = float(np.mean(np.concatenate(changes[-2:]))) if valid.any() else None
     band_change = float(np.mean(np.concatenate(changes))) if valid.any() else None
+    band_change_read = float(np.mean(np.concatenate(projected))) if valid.any() else None
 
     views = render_views(mesh, n_views, resolution)
     per_view, per_view_band = [], []
@@ -648,6 +657,7 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
         "surface_psnr": _psnr(mse),
         "band_change": band_change,
         "band_change_at_delta": at_delta,
+        "band_change_read": band_change_read,
         "render_mse": float(np.mean(per_view)) if per_view else None,
         "render_mse_views": per_view,
         "render_mse_band": float(np.mean(per_view_band)) if per_view_band else None,

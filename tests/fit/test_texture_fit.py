@@ -154,7 +154,7 @@ def test_metrics_of_a_constant_net_are_exact(sphere):
     expected = (0.0 + 0.25**2 + 0.5**2) / 3
     assert m["surface_mse"] == pytest.approx(expected, rel=1e-5)
     assert m["surface_psnr"] == pytest.approx(10 * math.log10(1 / expected), rel=1e-5)
-    assert m["band_change"] == 0.0 and m["band_change_at_delta"] == 0.0
+    assert m["band_change"] == 0.0 and m["band_change_at_delta"] == 0.0 and m["band_change_read"] == 0.0
     assert m["render_mse"] == pytest.approx(expected, rel=1e-5)
     assert m["render_mse_band"] == pytest.approx(expected, rel=1e-5)
     assert len(m["render_mse_views"]) == 3 and m["delta"] == 0.05
@@ -167,6 +167,12 @@ def test_band_change_of_the_identity_colour_is_analytic(sphere):
     m = texture_metrics(lambda x: x, sphere, sphere_sdf, delta=delta, n=20000, n_views=2, resolution=16)
     assert m["band_change_at_delta"] == pytest.approx(delta / 2, rel=0.02)
     assert m["band_change"] == pytest.approx(np.mean([0.25, 0.5, 0.75, 1.0]) * delta / 2, rel=0.02)
+    # read as a bake reads it, at the closest point of f = 0 (on the sphere: p's own direction at radius R),
+    # the band adds nothing: what is left is the distance of the mesh's flat facets from the sphere, in 7 of the
+    # 8 reads (the 8th, δ inside a facet point already inside the sphere, is clamped to δ: back to the point)
+    p = texture_targets(sphere, 20000)["points"].astype(np.float64)
+    facets = np.abs(R * p / np.linalg.norm(p, axis=1, keepdims=True) - p).mean()
+    assert m["band_change_read"] == pytest.approx(7 / 8 * facets, rel=0.02) and facets < 0.1 * m["band_change"]
 
 
 def test_render_views_hit_the_sphere_where_expected(sphere):
