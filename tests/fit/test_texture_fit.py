@@ -279,7 +279,7 @@ def test_sdf_model_file_gives_delta_and_frame(sphere, tmp_path):
         loss.backward()
         opt.step()
     path = save_model(sdf, tmp_path / "sphere.sdf", kind="sdf", frame=sphere.frame.to_dict(), delta=0.04)
-    fit = fit_texture(sphere, str(path), **dict(TINY, steps=30, pool=4000, batch=256))
+    fit = fit_texture(sphere, str(path), **dict(TINY, steps=30, pool=4000, batch=256, lam=1e-3))
     assert fit.delta == 0.04 and fit.history[-1]["orth"] >= 0
     # without δ in the file: the stated default
     path2 = save_model(sdf, tmp_path / "nodelta.sdf", kind="sdf", frame=sphere.frame.to_dict())
@@ -310,8 +310,10 @@ def test_presets_are_valid_and_applied(sphere):
         assert (a.model.width, a.model.depth) == (PRESETS[new]["width"], PRESETS[new]["depth"])
     with pytest.raises(FitError, match="unknown preset 'huge'.*fast, medium, fine are aliases"):
         fit_texture(sphere, sphere_sdf, preset="huge", steps=1)
-    # the orthogonality term is on by default
-    assert TextureFitConfig().lam > 0 and fit.lam == TextureFitConfig().lam and "orth" in fit.history[-1]
+    # the orthogonality term is off by default (bakes read g at the closest point of f = 0), on when asked
+    assert TextureFitConfig().lam == 0 and fit.lam == 0 and "orth" not in fit.history[-1]
+    on = fit_texture(sphere, sphere_sdf, preset="quick", lam=1e-3, steps=1, pool=2000, batch=64, minutes=None)
+    assert on.lam == 1e-3 and "orth" in on.history[-1]
 
 
 # ------------------------------------------------------------------------------------------- texture policies
@@ -415,7 +417,9 @@ def test_wrong_sdf_argument_and_empty_band_are_fit_errors(sphere):
         return torch.full((x.shape[0],), 5.0, dtype=x.dtype), torch.zeros_like(x)
 
     with pytest.raises(FitError, match="no band samples"):
-        fit_texture(sphere, far, **TINY)
+        fit_texture(sphere, far, **TINY, lam=0.1)
+    # without the orthogonality term the band is not drawn: nothing to refuse here (the bake checks the SDF)
+    assert fit_texture(sphere, far, **dict(TINY, steps=2)).steps == 2
 
 
 # ------------------------------------------------------------------------------------------- CLI
