@@ -1,7 +1,8 @@
 """neural_bake: neural normal and texture baking.
 
-Fit a fine SIREN SDF and a gradient-orthogonal texture MLP to a UV-textured mesh, make a coarse mesh, and
-bake the neural normals and colours onto it per vertex or per texel (normals in closed form with GEMMs).
+Fit a fine SIREN SDF and a texture MLP (optionally gradient-orthogonal) to a UV-textured mesh, make a coarse
+mesh, and bake the neural normals and colours onto it per vertex or per texel (normals in closed form with
+GEMMs, colours read at the closest points of f = 0).
 
 The public API is flat: ``neural_bake.load_mesh``, ``neural_bake.Siren``, ``neural_bake.gemm_gradient``, …
 Names are imported on first use, so ``import neural_bake`` stays fast and a CLI verb loads only what it needs.

@@ -1,8 +1,8 @@
 """The README's first command: the main job end to end on a bundled sample.
 
 samples -> fit a SIREN SDF -> distil a nested sequence (a coarse level, δ per level) -> fit a
-gradient-orthogonal texture MLP in the sequence's widest band -> coarse mesh -> unwrap -> bake the fine
-level's normals and the colours per texel -> GLB + maps + report, with the classical mesh-to-mesh bake
+texture MLP on the surface -> coarse mesh -> unwrap -> bake the fine level's normals and the colours at
+the fine level's closest points per texel -> GLB + maps + report, with the classical mesh-to-mesh bake
 measured on the same texels: the nested path of the README. Only library calls; the CLI verb
 `neural-bake demo` is a thin wrapper.
 """
@@ -116,8 +116,8 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     for i, info in enumerate(seq.levels_info):
         log(f"      level {i} ({info['width']}x{info['depth']}): δ = {info['delta']:.4f} ({info['delta_source']})")
 
-    log(f"[4/5] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget, λ > 0, band δ of "
-        f"level 0)")
+    log(f"[4/5] fitting the texture ({cfg.texture_preset}, {cfg.texture_minutes:g} min budget; the bake reads it at "
+        f"the closest points of f = 0, at most level 0's δ away)")
     tex = fit_texture(mesh, seq, preset=cfg.texture_preset, minutes=cfg.texture_minutes, seed=cfg.seed,
                       progress=cfg.progress, device=cfg.device or "cpu")
     tex_path = stage / "texture.safetensors"

@@ -133,7 +133,8 @@ class TextureFitConfig:
 #: and high).
 PRESETS: dict[str, dict] = {
     "quick": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048, "lr": 5e-4},
-    "default": {"width": 128, "depth": 2, "minutes": 4.0, "steps": 200_000, "batch": 4096, "lr": 5e-4},
+    "default": {"width": 192, "depth": 3, "omega_0": 60.0, "minutes": 4.0, "steps": 200_000, "batch": 4096,
+                "lr": 5e-4},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 
