@@ -19,7 +19,7 @@ __all__ = ["command"]
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every fit and metric.")
 @click.option("--delta", type=float, default=None, help="Band half-width δ (unit frame); default 0.03.")
 def command(quick, json_path, cases, presets, seed, delta):
-    """Gradient-orthogonal texture: surface PSNR, colour change across the band and render MSE vs time, λ vs λ=0."""
+    """Neural texture: surface PSNR, colour change across the band and render MSE vs time, the paper's λ vs λ=0."""
     from neural_bake.bench.texture import run
 
     result = run(quick=quick, cases=list(cases) or None, presets=list(presets) or None, seed=seed, delta=delta)

@@ -47,7 +47,7 @@ Examples:
               help="After fitting, print surface PSNR, colour change across the band and render-space MSE.")
 @verbosity_options
 def command(mesh, sdf_path, output, config, texture_path, uv_policy, metrics):
-    """Fit a colour MLP g to MESH's texture, constant along the normals of the SDF (λ·⟨∇g, ∇f⟩² in the δ-band).
+    """Fit a colour MLP g to MESH's texture; bakes read it at the SDF's closest points (--lam: λ·⟨∇g, ∇f⟩² in the δ-band).
 
     Every setting below is a field of the texture fit's config: a --config file sets them first, the
     options given override it."""

@@ -105,8 +105,8 @@ class TextureFitConfig:
     """How ⟨∇g_c, n⟩ is computed: "jacobian" (differentiable GEMM Jacobian) or "directional" (same values, ~2× cheaper)."""
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
-    pool: int = 200_000
-    """Surface samples drawn once and batched from (the band pool is built from the same points)."""
+    pool: int = 1_000_000
+    """Surface samples drawn once and batched from (the band pool is built from the same points); fewer overfit a detailed texture."""
     seed: int = 0
     """Seed of the initialisation, the samples and the batches (same seed, same run)."""
     checkpoint: str | None = None

@@ -107,7 +107,8 @@ def gemm_gradient(
         raise NeuralBakeError(f"gemm_gradient: mode must be one of {', '.join(MODES)}; got {mode!r}")
     if chunk_size is not None and (int(chunk_size) != chunk_size or chunk_size < 1):
         raise NeuralBakeError(f"gemm_gradient: chunk_size must be a positive integer, got {chunk_size!r}")
-    if not bool(torch.isfinite(points).all()):
+    # (not inside a compiled training step: the check reads a tensor, a graph break there, on points it drew)
+    if not torch.compiler.is_compiling() and not bool(torch.isfinite(points).all()):
         raise NeuralBakeError(f"gemm_gradient: points has {int((~torch.isfinite(points)).sum())} non-finite values")
 
     dtype, device = points.dtype, points.device

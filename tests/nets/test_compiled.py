@@ -113,3 +113,16 @@ def test_more_versions_than_torchs_default_limit_stay_compiled():
     assert len(graphs) == len(sizes) and fn.compiled is True
     assert torch._dynamo.config.recompile_limit == 8  # torch's own setting is left as it was
     torch._dynamo.reset()
+
+
+def test_the_float32_training_gradient_traces_in_one_graph():
+    """The polish's float32 loss calls gemm_gradient inside the compiled step: its input checks must not read a
+    tensor there (a graph break, and a warning on the user's console)."""
+    from neural_bake.nets.gemm import gemm_gradient
+    from neural_bake.nets.siren import Siren
+
+    model = Siren(16, 1, generator=torch.Generator().manual_seed(0))
+    torch._dynamo.reset()
+    out = torch._dynamo.explain(lambda p: gemm_gradient(model, p, "reverse", differentiable=True)[1].sum())(
+        torch.rand(64, 3))
+    assert out.graph_break_count == 0 and out.graph_count == 1
