@@ -173,7 +173,8 @@ def _row(name, label, fit, m, total_s, baseline):
             "baseline": baseline, "steps": fit.steps, "train_s": round(fit.seconds, 1),
             "total_s": round(total_s, 1), "psnr_db": m["surface_psnr"], "mse": m["surface_mse"],
             "band_change": m["band_change"], "band_change_at_delta": m["band_change_at_delta"],
-            "band_change_read": m["band_change_read"], "band_ratio": None, "render_mse": m["render_mse"], "render_mse_band": m["render_mse_band"]}
+            "band_change_read": m["band_change_read"], "band_ratio": None, "render_mse": m["render_mse"],
+            "render_mse_band": m["render_mse_band"]}
 
 
 def default_settings(quick: bool, presets=None, lam: float = PAPER_LAM) -> list[dict]:

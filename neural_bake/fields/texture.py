@@ -13,12 +13,13 @@ __all__ = ["TextureField", "ColorField"]
 
 
 class TextureField:
-    """A colour field g, fitted to be constant along the normal lines of an SDF in its band |f| ≤ δ.
+    """A colour field g, fitted on the surface of an SDF's mesh and read at the closest points of f = 0.
 
     - ``fn``: callable on (N, 3) tensors (a Siren with 3 or 4 outputs, or analytic).
     - ``frame``: the unit frame the field lives in (None = the mesh's).
     - ``name``: what messages and reports call it.
-    - ``delta``: half-width of the band |f| ≤ δ the colours were fitted to be constant across (or None).
+    - ``delta``: half-width of the band |f| ≤ δ the field was fitted for (or None): a bake moves a read at most δ
+      onto f = 0, and a field fitted with λ > 0 is constant across the band.
     - ``fitted_against``: what SDF it was fitted against: ``{"name", "kind" ("sdf" or "nested"),
       "delta"}`` (None when unknown).
     - ``metadata``: provenance, the file's JSON metadata (λ, training config…).

@@ -25,7 +25,8 @@ __all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_
 #: GFLOP-equivalents of one Adam step per preset (seconds per step × sgemm GFLOP/s of the machine it was
 #: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high", "WxD"), texture
 #: presets by "texture:NAME". Measured on a quiet machine (BENCHMARKS.md): 64x1, texture:default ((192,3),
-#: λ = 0: the median of the tea set, the cabinet and Spot) and texture:quick ((64,1), λ = 0: the tea set), quick
+#: λ = 0: the median of five fits of the tea set, the cabinet and Spot) and texture:quick ((64,1), λ = 0: the
+#: tea set), quick
 #: (192x3, uncompiled: the median of eight meshes, 52–101 ms a step), default (192x3, compiled: nefertiti,
 #: 5,862 steps in 5 minutes), high (256x4, compiled: nefertiti) and
 #: 256x3 (9,109–9,363 steps in the Adam part of 10 minutes on four meshes, float32 GEMMs on oneDNN). 128x2 and
@@ -41,7 +42,7 @@ STEP_WORK: dict[str, float] = {
     "256x2": 16.7,
     "256x3": 14.1,
     "texture:quick": 0.38,
-    "texture:default": 3.8,
+    "texture:default": 3.6,
     "texture:high": 7.4,
 }
 

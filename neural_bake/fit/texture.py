@@ -98,7 +98,7 @@ class TextureFitConfig:
     lr_schedule: str = "cosine"
     """"constant" or "cosine" decay over the steps or the time budget."""
     lam: float = 0.0
-    """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (0, the default: off; bakes read g at the closest point of f = 0; 1e-3: the paper's)."""
+    """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (0: off, bakes read g on f = 0; 1e-3: paper)."""
     delta: float | None = None
     """δ: band half-width in the unit frame; None: the SDF model file's "delta", else DEFAULT_DELTA."""
     orth_method: str = "jacobian"
@@ -106,7 +106,7 @@ class TextureFitConfig:
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 1_000_000
-    """Surface samples drawn once and batched from (the band pool is built from the same points); fewer overfit a detailed texture."""
+    """Surface samples drawn once and batched from (and the band pool's); fewer overfit a detailed texture."""
     seed: int = 0
     """Seed of the initialisation, the samples and the batches (same seed, same run)."""
     checkpoint: str | None = None

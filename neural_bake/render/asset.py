@@ -82,8 +82,8 @@ class TraceLevel:
 
 @dataclass
 class TextureSource:
-    """A colour field: points (N, 3), unit frame → linear RGB (N, 3). ``name`` for the counters; ``delta``: the
-    band it was fitted to be constant across (None: unknown), how far the renderer moves a read (normal mapping)."""
+    """A colour field: points (N, 3), unit frame → linear RGB (N, 3). ``name`` for the counters; ``delta``: its
+    band δ (None: unknown), how far the renderer moves a read onto f = 0 (normal mapping)."""
 
     name: str
     color: Values

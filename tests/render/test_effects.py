@@ -79,7 +79,8 @@ def test_normal_mapping_reads_the_texture_at_the_mapped_levels_closest_point(dty
     # channel 0 is the distance from the centre: traced on h1 (radius 0.52), mapped onto f (radius 0.5)
     radial = analytic_texture(lambda p: torch.stack([p.norm(dim=1), 0 * p[:, 0], 0 * p[:, 0]], 1))
     asset = nested_sphere_asset().with_texture(radial)
-    scene = Scene(effects=("texture",), channels=("color", "hit"), trace=TraceSettings(mode="fixed", iterations=(40, 0)))
+    scene = Scene(effects=("texture",), channels=("color", "hit"),
+                  trace=TraceSettings(mode="fixed", iterations=(40, 0)))
     traced = render(asset, scene, camera=CAM, dtype=dtype)
     hit = traced["hit"]
     np.testing.assert_allclose(traced["color"][hit][:, 0], 0.52, atol=1e-3)  # within the tracer's tolerance
