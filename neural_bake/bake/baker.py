@@ -217,10 +217,10 @@ def _evaluate(
     if sdf is not None:
         kw = _tensor_kwargs(sdf)
         values, normals, valid = np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool)
-        pts = _to_field_frame(points, mesh_frame, sdf.frame)
+        in_sdf = _to_field_frame(points, mesh_frame, sdf.frame)
         t0 = time.perf_counter()
         for s in range(0, m, chunk_size):
-            p = torch.as_tensor(pts[s : s + chunk_size], **kw)
+            p = torch.as_tensor(in_sdf[s : s + chunk_size], **kw)
             v, n, ok = sdf.value_and_normal(p)
             values[s : s + chunk_size] = v.double().cpu().numpy()
             normals[s : s + chunk_size] = n.double().cpu().numpy()
@@ -232,8 +232,7 @@ def _evaluate(
         at = points
         if texture_at == "surface" and sdf is not None:
             reach = texture.delta if texture.delta is not None else sdf.delta
-            q = _surface_points(_to_field_frame(points, mesh_frame, sdf.frame), out["values"], out["normals"],
-                                out["valid"], reach)
+            q = _surface_points(in_sdf, out["values"], out["normals"], out["valid"], reach)
             at = q if sdf.frame is None or sdf.frame == mesh_frame else mesh_frame.to_unit(sdf.frame.to_source(q))
         pts = _to_field_frame(at, mesh_frame, texture.frame)
         chunks = []
