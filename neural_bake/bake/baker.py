@@ -19,7 +19,7 @@ import torch
 
 from ..constants import ADAPTIVE_CHECK_SAMPLES, DIRECTION_EPS
 from ..errors import NeuralBakeError
-from ..fields import NestedSequence, SdfField, TextureField
+from ..fields import NestedSequence, SdfField, TextureField, closest_surface_points
 from ..geometry import area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
@@ -195,17 +195,6 @@ def _to_field_frame(points: np.ndarray, mesh_frame: Frame, field_frame: Frame | 
 TEXTURE_AT = ("surface", "point")
 
 
-def _surface_points(points_sdf: np.ndarray, values: np.ndarray, normals: np.ndarray, valid: np.ndarray,
-                    reach: float | None) -> np.ndarray:
-    """The closest points q = p − f(p)·∇f(p) of the SDF's zero set (§3 of the nested-neighbourhoods paper: the
-    point whose colour a neighbourhood point carries), in the SDF's frame; |f| clamped to ``reach`` (the
-    colour field's band), samples without a gradient left where they are."""
-    step = np.where(valid, values, 0.0)
-    if reach is not None:
-        step = np.clip(step, -reach, reach)
-    return points_sdf - step[:, None] * normals
-
-
 def _evaluate(
     points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: TextureField | None, chunk_size: int,
     texture_at: str = "point",
@@ -232,7 +221,8 @@ def _evaluate(
         at = points
         if texture_at == "surface" and sdf is not None:
             reach = texture.delta if texture.delta is not None else sdf.delta
-            q = _surface_points(in_sdf, out["values"], out["normals"], out["valid"], reach)
+            q = closest_surface_points(torch.from_numpy(np.asarray(in_sdf)), torch.from_numpy(values),
+                                       torch.from_numpy(normals), torch.from_numpy(valid), reach).numpy()
             at = q if sdf.frame is None or sdf.frame == mesh_frame else mesh_frame.to_unit(sdf.frame.to_source(q))
         pts = _to_field_frame(at, mesh_frame, texture.frame)
         chunks = []

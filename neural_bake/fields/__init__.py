@@ -6,7 +6,7 @@ Everything above (fit, bake, render, the CLI) reaches model files only through t
 from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_field, register_kind, save_field,
                     save_model, to_sdf_field)
 from .nested import NESTED_FORMAT, NestedSequence
-from .sdf import SdfField, unit_normals
+from .sdf import SdfField, closest_surface_points, unit_normals
 from .spacetime import SPACETIME_KIND, SpaceTimeField, time_mapping, time_to_tau
 from .texture import ColorField, TextureField
 
@@ -25,6 +25,7 @@ __all__ = [
     "KINDS",
     "BARE_NETWORK_HINT",
     "NESTED_FORMAT",
+    "closest_surface_points",
     "unit_normals",
     "SpaceTimeField",
     "SPACETIME_KIND",

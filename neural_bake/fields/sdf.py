@@ -15,7 +15,7 @@ from ..constants import GRAD_EPS
 from ..errors import ModelFileError
 from ..types import Frame
 
-__all__ = ["SdfField", "unit_normals"]
+__all__ = ["SdfField", "unit_normals", "closest_surface_points"]
 
 
 class SdfField:
@@ -146,6 +146,19 @@ class SdfField:
     def __repr__(self) -> str:
         arch = f"{self.model.width}x{self.model.depth}" if self.model is not None else "analytic"
         return f"SdfField({self.name!r}, {arch}, delta={self.delta})"
+
+
+def closest_surface_points(points: torch.Tensor, values: torch.Tensor, normals: torch.Tensor, valid: torch.Tensor,
+                           reach: float | None = None) -> torch.Tensor:
+    """The closest points q = p − f(p)·n(p) of an SDF's zero set (§3 of the nested-neighbourhoods paper: the
+    point whose attributes a neighbourhood point carries), in the points' frame and dtype: ``values`` (N,) f,
+    ``normals`` (N, 3) unit ∇f, ``valid`` (N,) bool; |f| clamped to ``reach`` (a colour field's band δ; None:
+    no clamp); points without a valid gradient stay where they are."""
+    step = torch.where(valid.reshape(-1), values.reshape(-1).to(points.dtype), torch.zeros((), dtype=points.dtype,
+                                                                                           device=points.device))
+    if reach is not None:
+        step = step.clamp(-reach, reach)
+    return points - step[:, None] * normals.to(points.dtype)
 
 
 def unit_normals(grads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -45,8 +45,8 @@ import torch
 
 from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
-from ..fields import (NestedSequence, SdfField, TextureField, load_sdf_field, save_model, to_sdf_field,
-                      unit_normals)
+from ..fields import (NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field, save_model,
+                      to_sdf_field, unit_normals)
 from ..geometry import frame_mismatch, raycasting_scene
 from ..io.colour import sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
@@ -637,10 +637,9 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
             gt = _eval(texture_model, q)
             changes.append(np.abs(gt - g0).mean(axis=1)[valid])
             # what a bake reads there: g at the closest point of f = 0, q − f(q)·∇f(q)/|∇f(q)|, |f| ≤ δ
-            fq, gq = _sdf_eval(sdf, torch.as_tensor(q))
-            nq, vq = unit_normals(gq)
-            step = torch.where(vq, fq.reshape(-1), torch.zeros_like(fq.reshape(-1))).clamp(-delta, delta)
-            back = _eval(texture_model, (torch.as_tensor(q) - step[:, None] * nq).numpy())
+            qt = torch.as_tensor(q)
+            fq, gq = _sdf_eval(sdf, qt)
+            back = _eval(texture_model, closest_surface_points(qt, fq, *unit_normals(gq), delta).numpy())
             projected.append(np.abs(back - g0).mean(axis=1)[valid])
         if t == delta:
             at_delta = float(np.mean(np.concatenate(changes[-2:]))) if valid.any() else None

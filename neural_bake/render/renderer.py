@@ -234,10 +234,9 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
             tic = time.perf_counter()
             p_t = p_u
             if v_nm is not None:  # the colour of the mapped level's closest point, p − f(p)·∇f(p) (§4.2)
-                reach = ob.asset.texture.delta
-                step = v_nm.reshape(-1).to(dtype)
-                step = step if reach is None else step.clamp(-reach, reach)
-                p_t = p_u - step[:, None] * n_u
+                from ..fields import closest_surface_points
+
+                p_t = closest_surface_points(p_u, v_nm, n_u, ok, ob.asset.texture.delta)
             albedo = counter.color(ob.asset.texture, "texture", p_t).to(dtype)
             seconds["texture"] = seconds.get("texture", 0.0) + time.perf_counter() - tic
         if "shading" not in effects:

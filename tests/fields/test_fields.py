@@ -85,3 +85,19 @@ def test_load_field_kinds_and_errors(tmp_path):
         load_sdf_field(tex_path)
     with pytest.raises(ModelFileError, match=r"missing\.sdf: no such model file"):
         load_field(tmp_path / "missing.sdf")
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_closest_surface_points_of_a_sphere(dtype):
+    from neural_bake.fields import closest_surface_points
+
+    p = torch.tensor([[0.0, 0.0, 1.3], [0.8, 0.0, 0.0], [0.0, 2.0, 0.0]], dtype=dtype)
+    r = p.norm(dim=1)
+    values, normals = r - 1.0, p / r[:, None]
+    valid = torch.tensor([True, True, False])
+    q = closest_surface_points(p, values, normals, valid)
+    assert q.dtype == dtype
+    torch.testing.assert_close(q[:2].norm(dim=1), torch.ones(2, dtype=dtype))  # onto the unit sphere
+    torch.testing.assert_close(q[2], p[2])  # no gradient: stays
+    q = closest_surface_points(p, values, normals, valid, reach=0.1)  # moved by 0.1 at most
+    torch.testing.assert_close(q[:2].norm(dim=1), torch.tensor([1.2, 0.9], dtype=dtype))
