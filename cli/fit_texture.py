@@ -73,7 +73,7 @@ def command(mesh, sdf_path, output, config, texture_path, uv_policy, metrics):
     say(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
         f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame)")
     if metrics:
-        q = texture_metrics(fit.model, m, sdf_path, delta=fit.delta, n=20000, n_views=4,
+        q = texture_metrics(fit.field(), m, sdf_path, delta=fit.delta, n=20000, n_views=4,
                             resolution=96)
         change = "n/a" if q["band_change"] is None else f"{q['band_change']:.4g}"
         render = "n/a" if q["render_mse"] is None else f"{q['render_mse']:.4g}"

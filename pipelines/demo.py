@@ -122,7 +122,7 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
                       progress=cfg.progress, device=cfg.device or "cpu")
     tex_path = stage / "texture.safetensors"
     tex.save(tex_path)
-    tex_q = texture_metrics(tex.model, mesh, seq, delta=tex.delta, n=50_000)
+    tex_q = texture_metrics(tex.field(), mesh, seq, delta=tex.delta, n=50_000)
     log(f"      {tex.steps} steps in {tex.seconds:.0f} s: surface PSNR {tex_q['surface_psnr']:.1f} dB")
 
     log(f"[5/5] baking the nested sequence onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")

@@ -240,7 +240,7 @@ def run(quick: bool = False, *, cases=None, settings=None, presets=None, seed: i
             def one(**over):
                 t0 = time.perf_counter()
                 fit = fit_texture(mesh, sdf, seed=seed, delta=delta, progress=progress, **dict(s, **over))
-                m = texture_metrics(fit.model, mesh, sdf, delta=delta, seed=seed + 1, **metric_opts)
+                m = texture_metrics(fit.field(), mesh, sdf, delta=delta, seed=seed + 1, **metric_opts)
                 return fit, m, time.perf_counter() - t0
 
             fit, m, t = one()

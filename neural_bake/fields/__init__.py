@@ -8,12 +8,14 @@ from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_fi
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, closest_surface_points, unit_normals
 from .spacetime import SPACETIME_KIND, SpaceTimeField, time_mapping, time_to_tau
-from .texture import ColorField, TextureField
+from .texture import ENCODINGS, ColorField, TextureField, decode_colors
 
 __all__ = [
     "SdfField",
     "TextureField",
     "ColorField",
+    "ENCODINGS",
+    "decode_colors",
     "NestedSequence",
     "load_field",
     "save_field",

@@ -22,7 +22,7 @@ from ..errors import ModelFileError
 from .header import check_delta, check_frame
 from .nested import NESTED_FORMAT, NESTED_FORMAT_VERSION, NestedSequence, nested_tensors, read_nested
 from .sdf import SdfField
-from .texture import TextureField
+from .texture import ENCODINGS, TextureField
 
 __all__ = ["load_field", "save_field", "save_model", "load_sdf_field", "to_sdf_field", "register_kind",
            "FieldKind", "KINDS", "BARE_NETWORK_HINT"]
@@ -158,10 +158,13 @@ def save_field(field, path: str | os.PathLike) -> Path:
         raise ModelFileError(f"{path}: {field.name} has no frame; give the frame the network was fitted in "
                              f"(from_model(model, frame=mesh.frame))")
     kind = "sdf" if isinstance(field, SdfField) else "texture"
-    meta = {k: v for k, v in field.metadata.items() if k not in ("kind", "frame", "delta", "fitted_against")}
+    meta = {k: v for k, v in field.metadata.items() if k not in ("kind", "frame", "delta", "fitted_against",
+                                                                   "encoding")}
     meta.update(kind=kind, frame=field.frame.to_dict(), delta=field.delta)
-    if kind == "texture" and field.fitted_against is not None:
-        meta["fitted_against"] = field.fitted_against
+    if kind == "texture":
+        meta["encoding"] = field.encoding
+        if field.fitted_against is not None:
+            meta["fitted_against"] = field.fitted_against
     return save_model(field.model, path, **meta)
 
 
@@ -199,9 +202,12 @@ def _read_texture(path: Path, header: dict, *, device=None, dtype=None) -> Textu
     against = meta.get("fitted_against")
     if against is not None and not isinstance(against, dict):
         raise ModelFileError(f"{path}: fitted_against = {against!r:.40} is not an object")
+    encoding = meta.get("encoding", "linear")  # files written before the encoding was recorded: linear
+    if encoding not in ENCODINGS:
+        raise ModelFileError(f"{path}: encoding = {encoding!r:.40} is not one of {', '.join(ENCODINGS)}")
     model = _read_network(path, header, device, dtype)
     return TextureField.from_model(model, frame=frame, delta=delta, name=path.name, fitted_against=against,
-                                   metadata=meta)
+                                   metadata=meta, encoding=encoding)
 
 
 def _register_defaults() -> None:

@@ -1,4 +1,8 @@
-"""A texture field g: unit-frame points (N, 3) -> linear RGB (N, 3) or RGBA (N, 4)."""
+"""A texture field g: unit-frame points (N, 3) -> linear RGB (N, 3) or RGBA (N, 4).
+
+A fitted network may hold its colours sRGB-encoded (``encoding="srgb"``, what an 8-bit colour map stores);
+:meth:`TextureField.color` decodes them, so every reader sees linear RGB.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +13,22 @@ import torch
 from ..errors import ModelFileError
 from ..types import Frame
 
-__all__ = ["TextureField", "ColorField"]
+__all__ = ["TextureField", "ColorField", "ENCODINGS", "decode_colors"]
+
+#: What a colour network's outputs hold: linear RGB, or sRGB-encoded values (IEC 61966-2-1).
+ENCODINGS = ("linear", "srgb")
+
+
+def decode_colors(out: torch.Tensor, encoding: str) -> torch.Tensor:
+    """Linear RGB(A) from a colour network's outputs: sRGB-encoded colour channels (the first three) are
+    clipped to [0, 1] and decoded; alpha and linear outputs are returned as they are."""
+    if encoding == "linear":
+        return out
+    if encoding != "srgb":
+        raise ValueError(f"colour encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
+    c = out[..., :3].clamp(0.0, 1.0)
+    lin = torch.where(c <= 0.04045, c / 12.92, ((c.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
+    return torch.cat([lin, out[..., 3:]], dim=-1)
 
 
 class TextureField:
@@ -25,12 +44,15 @@ class TextureField:
     - ``metadata``: provenance, the file's JSON metadata (λ, training config…).
     - ``model``: the Siren of a fitted field, None for an analytic one.
     - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
+    - ``encoding``: what ``fn`` outputs, "linear" or "srgb" (:data:`ENCODINGS`); :meth:`color` gives linear RGB.
     """
 
     def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None,
                  name: str = "analytic", delta: float | None = None, fitted_against: dict | None = None,
-                 metadata: dict | None = None):
-        self.fn, self.frame, self.name, self.delta = fn, frame, name, delta
+                 metadata: dict | None = None, encoding: str = "linear"):
+        if encoding not in ENCODINGS:
+            raise ModelFileError(f"{name}: colour encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
+        self.fn, self.frame, self.name, self.delta, self.encoding = fn, frame, name, delta, encoding
         self.fitted_against = fitted_against
         self.metadata = dict(metadata or {})
         self.model = fn if isinstance(fn, torch.nn.Module) else None
@@ -38,11 +60,13 @@ class TextureField:
 
     @classmethod
     def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren", delta: float | None = None,
-                   fitted_against: dict | None = None, metadata: dict | None = None) -> "TextureField":
-        """A Siren with 3 (RGB) or 4 (RGBA) outputs."""
+                   fitted_against: dict | None = None, metadata: dict | None = None,
+                   encoding: str = "linear") -> "TextureField":
+        """A Siren with 3 (RGB) or 4 (RGBA) outputs, holding ``encoding`` colours."""
         if getattr(model, "out_dim", 3) not in (3, 4):
             raise ModelFileError(f"{name}: a texture model must have 3 or 4 outputs, this one has {model.out_dim}")
-        return cls(model, frame=frame, name=name, delta=delta, fitted_against=fitted_against, metadata=metadata)
+        return cls(model, frame=frame, name=name, delta=delta, fitted_against=fitted_against, metadata=metadata,
+                   encoding=encoding)
 
     def with_precision(self, precision: str, *, measure=None, probe: torch.Tensor | None = None
                        ) -> tuple["TextureField", str, str]:
@@ -64,8 +88,9 @@ class TextureField:
         return out, resolved, reason
 
     def color(self, points: torch.Tensor) -> torch.Tensor:
-        """Linear RGB(A) (N, C) at ``points`` (N, 3); non-finite outputs become 0. A field with a
-        ``gemm_dtype`` runs its Siren through :func:`~neural_bake.nets.siren.siren_forward_inference` with it."""
+        """Linear RGB(A) (N, C) at ``points`` (N, 3) (sRGB outputs decoded); non-finite outputs become 0. A
+        field with a ``gemm_dtype`` runs its Siren through :func:`~neural_bake.nets.siren.siren_forward_inference`
+        with it."""
         with torch.no_grad():
             if self.gemm_dtype is not None:
                 from ..nets.siren import siren_forward_inference
@@ -74,10 +99,11 @@ class TextureField:
                 out = siren_forward_inference(layers, points, gemm_dtype=self.gemm_dtype)
             else:
                 out = self.fn(points)
-        return torch.nan_to_num(out.reshape(points.shape[0], -1), nan=0.0, posinf=0.0, neginf=0.0)
+        out = torch.nan_to_num(out.reshape(points.shape[0], -1), nan=0.0, posinf=0.0, neginf=0.0)
+        return decode_colors(out, self.encoding)
 
     def __repr__(self) -> str:
-        return f"TextureField({self.name!r}, delta={self.delta})"
+        return f"TextureField({self.name!r}, delta={self.delta}, encoding={self.encoding!r})"
 
 
 #: The name of earlier releases.

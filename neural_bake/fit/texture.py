@@ -1,10 +1,11 @@
 """Neural texture fitting with an optional gradient-orthogonality term (§4.2 of the nested-neighbourhoods paper).
 
-A colour SIREN ``g: R^3 -> RGB`` (linear RGB, unit frame) is trained with
+A colour SIREN ``g: R^3 -> RGB`` (unit frame) is trained with
 
     L(φ) = mean_surface (g − ĝ)²  +  λ · mean_band Σ_c ⟨∇g_c, n⟩²,
 
-where ĝ is the mesh's texture (bilinear lookup through the UVs, linear RGB), the band is ``|f| ≤ δ`` around
+where ĝ is the mesh's texture (bilinear lookup through the UVs, in linear RGB, then sRGB-encoded when the
+network holds sRGB colours: ``encoding``, below), the band is ``|f| ≤ δ`` around
 the zero set of a frozen SDF ``f`` and ``n = ∇f / |∇f|`` (GEMM normals, computed once under no_grad since f
 does not train). ``∇g`` is the differentiable GEMM Jacobian (3 × 3, out × in) of the colour network (default;
 ``orth_method="directional"`` computes the same ⟨∇g_c, n⟩ as one forward-mode GEMM stream along n, a
@@ -18,6 +19,12 @@ large ∇g along the surface, and a ∇f tilted by a degree turns part of it int
 (the tea set, 90 s of the default preset: λ = 1e-3 22.4 dB surface PSNR, λ = 0 30.3 dB; baked onto three
 coarse meshes 4.3–6.9 dB higher with λ = 0 read at the closest point; docs/findings.md). λ = 1e-3 is the
 paper's regulariser, for colour fields read off the surface where nothing projects (another renderer).
+
+Encoding: by default g holds sRGB-encoded colours (:func:`~neural_bake.fields.texture.decode_colors` turns
+them back to linear wherever the field is read), so the loss spreads the error as an 8-bit colour map does;
+in linear RGB the same error budget is spent on the bright texels and the dark ones read several dB worse
+once encoded (the cabinet, 90 s of the default preset, baked: 27.3 dB against 25.9 dB; docs/findings.md).
+HDR textures (values above 1) are fitted in linear RGB.
 
 Band samples: surface samples moved along their (mesh) normals by offsets uniform in [−δ, δ], plus uniform
 points of the unit cube kept where ``|f| ≤ δ`` (``band_uniform_fraction`` of each band batch).
@@ -45,10 +52,10 @@ import torch
 
 from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
-from ..fields import (NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field, save_model,
+from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field, save_model,
                       to_sdf_field, unit_normals)
 from ..geometry import frame_mismatch, raycasting_scene
-from ..io.colour import sample_texture, srgb_to_linear
+from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
@@ -61,6 +68,7 @@ __all__ = [
     "fit_texture",
     "texture_metrics",
     "texture_targets",
+    "texel_face_weights",
     "band_orthogonality",
     "render_views",
 ]
@@ -107,6 +115,13 @@ class TextureFitConfig:
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 1_000_000
     """Surface samples drawn once and batched from (and the band pool's); fewer overfit a detailed texture."""
+    texel_share: float = 0.5
+    """Part of the surface samples drawn by UV area (as densely as the texture's texels lie on the surface)
+    instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
+    edges) get many texels on little surface (0: all by area)."""
+    encoding: str = "auto"
+    """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
+    unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
     seed: int = 0
     """Seed of the initialisation, the samples and the batches (same seed, same run)."""
     checkpoint: str | None = None
@@ -143,7 +158,8 @@ PRESETS: dict[str, dict] = {
 class TextureFit:
     """The result of :func:`fit_texture`.
 
-    - ``model``: the colour :class:`Siren` (in 3, out 3), unit-frame points -> linear RGB.
+    - ``model``: the colour :class:`Siren` (in 3, out 3), unit-frame points -> RGB in ``encoding``.
+    - ``encoding``: "srgb" or "linear", what the network's outputs hold (:meth:`field` decodes them).
     - ``frame``: the mesh's frame (unit <-> source); the model works in the unit frame.
     - ``delta``, ``lam``: the band half-width and λ used.
     - ``config``: the full :class:`TextureFitConfig`.
@@ -169,10 +185,12 @@ class TextureFit:
     restarts: int = 0
     budget: dict | None = None
     fitted_against: dict | None = None
+    encoding: str = "linear"
 
     def metadata(self) -> dict:
         """The JSON metadata stored with the model file (with ``budget`` when the fit had a time budget)."""
-        meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps, self.fitted_against)
+        meta = _metadata(self.frame, self.delta, self.lam, self.config, self.steps, self.fitted_against,
+                         self.encoding)
         if self.budget is not None:
             meta["budget"] = self.budget
         # the loss curve (last 200 logged rows, finite ones: JSON has no NaN) for reports' accuracy-vs-time plots
@@ -184,7 +202,8 @@ class TextureFit:
     def field(self) -> TextureField:
         """The fitted colour network as a :class:`~neural_bake.fields.TextureField`."""
         return TextureField.from_model(self.model, frame=self.frame, delta=self.delta, name="texture fit",
-                                       fitted_against=self.fitted_against, metadata=self.metadata())
+                                       fitted_against=self.fitted_against, metadata=self.metadata(),
+                                       encoding=self.encoding)
 
     def save(self, path) -> Path:
         """Write the model file (safetensors + metadata kind="texture", frame, delta, lam, config, the SDF it
@@ -194,10 +213,10 @@ class TextureFit:
 
 
 def _metadata(frame: Frame, delta: float, lam: float, config: TextureFitConfig, steps: int,
-              fitted_against: dict | None = None) -> dict:
+              fitted_against: dict | None = None, encoding: str = "linear") -> dict:
     cfg = asdict(config)
     out = {"kind": "texture", "frame": frame.to_dict(), "delta": float(delta), "lam": float(lam),
-           "config": cfg, "steps": int(steps)}
+           "encoding": encoding, "config": cfg, "steps": int(steps)}
     if fitted_against is not None:
         out["fitted_against"] = fitted_against
     return out
@@ -237,6 +256,13 @@ def _texture_rgb(mesh: Mesh, texture: np.ndarray | None) -> np.ndarray:
         bad = int((~np.isfinite(tex)).any(axis=2).sum())
         raise ImageError(f"{mesh.name}: texture has {bad} texels with NaN or infinite values")
     return tex
+
+
+def _resolve_encoding(encoding: str, rgb: np.ndarray) -> str:
+    """The colour encoding a fit's network holds: ``encoding`` ("auto": sRGB unless ``rgb`` holds HDR values)."""
+    if encoding == "auto":
+        return "linear" if float(np.max(rgb, initial=0.0)) > 1.0 else "srgb"
+    return encoding
 
 
 def _as_sdf_field(sdf_model) -> SdfField:
@@ -283,8 +309,23 @@ def _gemm_gradient(model, points, *, differentiable=False):
 # samples
 
 
-def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None) -> dict:
-    """Area-uniform surface samples of ``mesh`` with their texture colours.
+def texel_face_weights(mesh: Mesh, share: float) -> np.ndarray | None:
+    """(F,) probabilities of drawing each face: ``1 − share`` of them by surface area, ``share`` by UV area
+    (the texels a face covers in the texture); None for ``share`` 0 or a mesh without UVs or without UV area."""
+    if share <= 0 or mesh.uv is None:
+        return None
+    d1, d2 = mesh.uv[:, 1] - mesh.uv[:, 0], mesh.uv[:, 2] - mesh.uv[:, 0]
+    uv_area = np.nan_to_num(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]), nan=0.0, posinf=0.0)
+    area = np.nan_to_num(np.asarray(mesh.face_areas, dtype=np.float64), nan=0.0, posinf=0.0)
+    if uv_area.sum() <= 0 or area.sum() <= 0:
+        return None
+    return (1.0 - share) * area / area.sum() + share * uv_area / uv_area.sum()
+
+
+def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None,
+                    texel_share: float = 0.0) -> dict:
+    """Surface samples of ``mesh`` with their texture colours: uniform by area, or with ``texel_share`` of
+    them by UV area (:func:`texel_face_weights`: as densely as the texture's texels lie; 1: texel-uniform).
 
     Returns float32 numpy arrays, unit frame: ``points`` (n, 3), ``normals`` (n, 3) unit outward mesh
     normals, ``uv`` (n, 2), ``colors`` (n, 3) linear RGB (bilinear lookup, ``mesh.uv_policy`` for UVs outside
@@ -293,7 +334,7 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     rgb = _texture_rgb(mesh, texture)
     from .sampling import sample_surface
 
-    s = sample_surface(mesh, int(n), seed=seed)
+    s = sample_surface(mesh, int(n), seed=seed, face_weights=texel_face_weights(mesh, texel_share))
     colors = sample_texture(rgb, np.asarray(s.uv, dtype=np.float64), mesh.uv_policy).astype(np.float32)
     return {
         "points": np.asarray(s.points, dtype=np.float32),
@@ -401,6 +442,8 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"delta: must be in (0, 1] (unit frame), got {c.delta!r}")
     if c.minutes is not None and not (math.isfinite(c.minutes) and c.minutes > 0):
         raise FitError(f"minutes: must be a positive number, got {c.minutes!r}")
+    if not (isinstance(c.texel_share, (int, float)) and 0 <= c.texel_share <= 1):
+        raise FitError(f"texel_share: must be in [0, 1], got {c.texel_share!r}")
     if not 0 <= c.band_uniform_fraction <= 1:
         raise FitError(f"band_uniform_fraction: must be in [0, 1], got {c.band_uniform_fraction!r}")
     if c.dtype not in ("float32", "float64"):
@@ -411,6 +454,8 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {c.orth_method!r}")
     if c.lr_schedule not in ("constant", "cosine"):
         raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
+    if c.encoding not in ("auto", *ENCODINGS):
+        raise FitError(f"encoding: must be 'auto', 'srgb' or 'linear', got {c.encoding!r}")
 
 
 def _resolve_delta(config: TextureFitConfig, sdf: SdfField) -> float:
@@ -478,10 +523,12 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     model = Siren(config.width, config.depth, 3, 3, config.omega_0, config.hidden_omega, generator=init_gen)
     model = model.to(device, dtype)
 
-    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb)
+    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share)
     pts = torch.as_tensor(samples["points"], dtype=torch.float64)
     nrm = torch.as_tensor(samples["normals"], dtype=torch.float64)
-    col = torch.as_tensor(samples["colors"]).to(device, dtype)
+    encoding = _resolve_encoding(config.encoding, rgb)
+    colors = samples["colors"] if encoding == "linear" else linear_to_srgb(samples["colors"])
+    col = torch.as_tensor(colors).to(device, dtype)
     pool_gen = torch.Generator().manual_seed(int(config.seed) + 1)
     if config.lam > 0:
         band_off, band_off_n, band_uni, band_uni_n = _band_pool(pts, nrm, sdf, delta, config.pool, pool_gen)
@@ -519,9 +566,10 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     )
     fingerprint = json.dumps({"kind": "texture", "mesh": mesh.name, "faces": mesh.n_faces,
                               "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
-                              "pool": config.pool, "seed": config.seed}, sort_keys=True)
+                              "pool": config.pool, "seed": config.seed, "encoding": encoding,
+                              "texel_share": config.texel_share}, sort_keys=True)
     result = train(model, step_fn, loop, fingerprint=fingerprint,
-                   metadata=_metadata(mesh.frame, delta, lam, config, 0), on_log=callback,
+                   metadata=_metadata(mesh.frame, delta, lam, config, 0, encoding=encoding), on_log=callback,
                    **({} if clock is None else {"clock": clock}))
     model.eval()
     from .budget import fit_budget
@@ -535,7 +583,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
                       stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget,
-                      fitted_against=_fitted_against(sdf, delta))
+                      fitted_against=_fitted_against(sdf, delta), encoding=encoding)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -544,13 +592,18 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
 
 @torch.no_grad()
 def _eval(model, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
-    """(N, 3) float64 colours of a Siren (its dtype and device) or a callable (float64 CPU tensors)."""
-    p = next(model.parameters()) if isinstance(model, torch.nn.Module) else None
+    """(N, 3) float64 linear colours of a Siren (its dtype and device), a :class:`TextureField` (sRGB outputs
+    decoded) or a callable (float64 CPU tensors)."""
+    if isinstance(model, TextureField):
+        net, fn = model.model, model.color
+    else:
+        net, fn = model, model
+    p = next(net.parameters()) if isinstance(net, torch.nn.Module) else None
     dtype, device = (p.dtype, p.device) if p is not None else (torch.float64, torch.device("cpu"))
     out = []
     for i in range(0, len(points), chunk):
         x = torch.as_tensor(np.asarray(points[i:i + chunk]), dtype=dtype, device=device)
-        out.append(torch.as_tensor(model(x)).reshape(-1, 3).to(torch.float64).cpu().numpy())
+        out.append(torch.as_tensor(fn(x))[:, :3].reshape(-1, 3).to(torch.float64).cpu().numpy())
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
@@ -601,12 +654,16 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
                     texture: np.ndarray | None = None) -> dict:
     """Quality of a colour net ``texture_model`` (unit frame -> linear RGB) against ``mesh``'s texture.
 
-    - ``texture_model``: a colour :class:`Siren` (in 3, out 3), or a callable (N, 3) float64 tensor -> (N, 3).
+    - ``texture_model``: a :class:`TextureField` (:meth:`TextureFit.field`: its encoding is decoded), a colour
+      :class:`Siren` (in 3, out 3) holding linear RGB, or a callable (N, 3) float64 tensor -> (N, 3).
     - ``sdf_model``: the SDF whose unit ∇f gives the normal lines (Siren, model path or callable, as in
       :func:`fit_texture`); ``delta``: band half-width (default: the SDF file's, else DEFAULT_DELTA).
 
     Returns floats:
     - ``surface_mse``, ``surface_psnr``: against the texture at ``n`` surface samples (linear RGB, peak 1).
+    - ``texel_mse``, ``texel_psnr``: the same at ``n`` samples drawn by UV area (each texel of the texture
+      counts once, as in a bake onto the mesh's own UVs); ``texel_psnr_srgb``: that PSNR with both sides
+      sRGB-encoded, what an 8-bit colour map shows.
     - ``band_change``: mean |g(p ± t·n) − g(p)| (mean over channels) for t in {δ/4, δ/2, 3δ/4, δ}, both
       signs, n = ∇f/|∇f| at p; ``band_change_at_delta``: the same for t = δ only; ``band_change_read``: the
       same with g read where a bake reads it (``texture_at="surface"``), at the closest point of f = 0 of each
@@ -625,6 +682,10 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     s = texture_targets(mesh, n, seed=seed, texture=rgb)
     g0 = _eval(texture_model, s["points"])
     mse = float(np.mean((g0 - s["colors"]) ** 2))
+    st = texture_targets(mesh, n, seed=seed + 1, texture=rgb, texel_share=1.0)
+    gt_texel = _eval(texture_model, st["points"])
+    texel_mse = float(np.mean((gt_texel - st["colors"]) ** 2))
+    texel_mse_srgb = float(np.mean((linear_to_srgb(gt_texel) - linear_to_srgb(st["colors"])) ** 2))
 
     p = s["points"].astype(np.float64)
     _, grads = _sdf_eval(sdf, torch.as_tensor(p))
@@ -662,6 +723,9 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     return {
         "surface_mse": mse,
         "surface_psnr": _psnr(mse),
+        "texel_mse": texel_mse,
+        "texel_psnr": _psnr(texel_mse),
+        "texel_psnr_srgb": _psnr(texel_mse_srgb),
         "band_change": band_change,
         "band_change_at_delta": at_delta,
         "band_change_read": band_change_read,

@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 import torch
 
 from ..errors import NeuralBakeError
+from ..fields.texture import ENCODINGS, decode_colors
 from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren, siren_forward_inference
 from ..types import Frame
@@ -224,9 +225,12 @@ def _lipschitz_bound(value: Values, lip: float) -> Bound:
 
 
 def siren_texture(model: Siren, *, name: str | None = None, time: float | None = None,
-                  precision: str = "fp32", delta: float | None = None) -> TextureSource:
+                  precision: str = "fp32", delta: float | None = None, encoding: str = "linear") -> TextureSource:
     """A texture from a SIREN with 3 (RGB) or 4 (RGBA: alpha dropped) outputs; non-finite colours become 0.
-    ``precision`` as :func:`siren_level`."""
+    ``precision`` as :func:`siren_level`; ``encoding``: what the network outputs, "linear" or "srgb" (decoded
+    to linear, :func:`~neural_bake.fields.texture.decode_colors`)."""
+    if encoding not in ENCODINGS:
+        raise RenderError(f"texture: colour encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
     low = _gemm_dtype(precision, model)
     if int(model.out_dim) not in (3, 4):
         raise RenderError(f"texture: the network must have 3 or 4 outputs, this one has {model.out_dim}")
@@ -241,7 +245,7 @@ def siren_texture(model: Siren, *, name: str | None = None, time: float | None =
         x = points if time is None else torch.cat([points, points.new_full((len(points), 1), float(time))], 1)
         with torch.no_grad():
             out = siren_forward_inference(layers[key], x, gemm_dtype=low)[:, :3]
-        return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+        return decode_colors(torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0), encoding)
 
     return TextureSource(name or f"texture {_arch_name(model)}", color, model, delta)
 
@@ -325,7 +329,7 @@ def _as_texture(tex, precision: str = "fp32") -> TextureSource:
     model = getattr(tex, "model", None)
     delta = getattr(tex, "delta", None)
     if isinstance(model, Siren) and int(model.out_dim) in (3, 4):
-        return siren_texture(model, precision=precision, delta=delta)
+        return siren_texture(model, precision=precision, delta=delta, encoding=getattr(tex, "encoding", "linear"))
     if hasattr(tex, "color"):
         return replace(analytic_texture(tex.color, name=str(getattr(tex, "name", "texture"))), delta=delta)
     raise RenderError(f"texture: cannot use a {type(tex).__name__} (expected a texture field or a Siren)")

@@ -65,8 +65,7 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
         raise RenderError(f"deltas: {len(ds)} values for the {len(nets)} levels of {path}")
     in_dims = {int(m.in_dim) for m in nets}
     if in_dims == {3}:
-        return as_render_asset(nets, deltas=ds, texture=tex.model if tex is not None else None, frame=frame,
-                               precision=precision)
+        return as_render_asset(nets, deltas=ds, texture=tex, frame=frame, precision=precision)
     if in_dims != {4}:
         raise RenderError(f"MODEL {path}: networks take {sorted(in_dims)} inputs; expected 3 (x, y, z) or 4 "
                           "(x, y, z, t)")
@@ -85,7 +84,8 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
                   for i, (m, d, n) in enumerate(zip(nets, ds, names))]
         tx = None
         if tex_model is not None:
-            tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None, precision=precision)
+            tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None, precision=precision,
+                               encoding=getattr(tex, "encoding", "linear"))
         return RenderAsset(levels, frame or Frame(), tx)
 
     return SpaceTimeAsset(at, time_range)

@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 import torch
 from safetensors.torch import save_file
@@ -11,6 +12,7 @@ from neural_bake.errors import ModelFileError
 from neural_bake.fields import (KINDS, NestedSequence, SdfField, TextureField, load_field, load_sdf_field,
                                 register_kind, save_field, save_model, to_sdf_field)
 from neural_bake.fields.nested import NESTED_FORMAT
+from neural_bake.io.colour import srgb_to_linear
 from neural_bake.nets.model_io import MODEL_FORMAT
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
@@ -44,7 +46,17 @@ def test_sdf_and_texture_fields_round_trip(tmp_path):
     g = TextureField.from_model(_net(out=3), frame=FRAME, delta=0.05, fitted_against=against)
     back = load_field(save_field(g, tmp_path / "g.tex"))
     assert isinstance(back, TextureField) and back.fitted_against == against and back.delta == 0.05
-    assert _same(back.model, g.model)
+    assert _same(back.model, g.model) and back.encoding == "linear"
+    # a network of sRGB-encoded colours: the file says so and the field decodes them, in float32 and float64
+    h = TextureField.from_model(_net(out=3), frame=FRAME, delta=0.05, encoding="srgb")
+    back = load_field(save_field(h, tmp_path / "h.tex"))
+    assert back.encoding == "srgb" and back.metadata["encoding"] == "srgb"
+    for dtype in (torch.float32, torch.float64):
+        x = torch.rand(64, 3, dtype=dtype) * 2 - 1
+        with torch.no_grad():
+            raw = back.model.to(dtype)(x).clamp(0, 1).double().numpy()
+        assert np.allclose(back.color(x).double().numpy(), srgb_to_linear(raw), atol=1e-6 if dtype == torch.float64
+                           else 1e-5)
 
 
 def test_nested_sequence_round_trip_and_views(tmp_path):
@@ -76,6 +88,10 @@ def test_files_of_the_first_release_load(tmp_path):
     sdf = load_field(save_model(_net(), tmp_path / "old.sdf", kind="sdf", frame=FRAME.to_dict(), config={"steps": 3}))
     tex = load_field(save_model(_net(out=3), tmp_path / "old.tex", kind="texture", frame=FRAME.to_dict(), delta=0.03))
     assert isinstance(sdf, SdfField) and sdf.delta is None and isinstance(tex, TextureField) and tex.delta == 0.03
+    assert tex.encoding == "linear"  # written before the encoding was recorded: linear colours
+    with pytest.raises(ModelFileError, match=r"bad\.tex: encoding = 'gamma' is not one of linear, srgb"):
+        load_field(save_model(_net(out=3), tmp_path / "bad.tex", kind="texture", frame=FRAME.to_dict(),
+                              encoding="gamma"))
 
 
 def test_bare_network_says_how_to_save_a_fit(tmp_path):

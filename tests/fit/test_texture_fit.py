@@ -21,11 +21,12 @@ from neural_bake.fit.texture import (
     band_orthogonality,
     fit_texture,
     render_views,
+    texel_face_weights,
     texture_metrics,
     texture_targets,
 )
 from neural_bake.io.colour import linear_to_srgb
-from neural_bake.fields import save_model
+from neural_bake.fields import load_field, save_model
 from neural_bake.nets.model_io import load_model
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame, Mesh
@@ -154,6 +155,10 @@ def test_metrics_of_a_constant_net_are_exact(sphere):
     expected = (0.0 + 0.25**2 + 0.5**2) / 3
     assert m["surface_mse"] == pytest.approx(expected, rel=1e-5)
     assert m["surface_psnr"] == pytest.approx(10 * math.log10(1 / expected), rel=1e-5)
+    assert m["texel_mse"] == pytest.approx(expected, rel=1e-5)
+    enc = linear_to_srgb(np.array([0.25, 0.5, 0.75]))
+    srgb_mse = float(np.mean((enc - enc[0]) ** 2))
+    assert m["texel_psnr_srgb"] == pytest.approx(10 * math.log10(1 / srgb_mse), rel=1e-5)
     assert m["band_change"] == 0.0 and m["band_change_at_delta"] == 0.0 and m["band_change_read"] == 0.0
     assert m["render_mse"] == pytest.approx(expected, rel=1e-5)
     assert m["render_mse_band"] == pytest.approx(expected, rel=1e-5)
@@ -196,13 +201,13 @@ def test_smooth_sphere_texture_reaches_a_quality_floor(sphere, fits):
     assert fit.steps == TINY["steps"] and fit.delta == 0.03 and fit.lam == 0.1
     assert fit.history[-1]["colour"] < fit.history[0]["colour"] / 5
     assert "orth" in fit.history[-1]
-    m = texture_metrics(fit.model, sphere, sphere_sdf, delta=0.03, n=5000, n_views=3, resolution=48)
+    m = texture_metrics(fit.field(), sphere, sphere_sdf, delta=0.03, n=5000, n_views=3, resolution=48)
     assert m["surface_psnr"] > 28.0
     assert m["render_mse"] < 2e-3
 
 
 def test_orthogonality_term_reduces_colour_change_across_the_band(sphere, fits):
-    m = {lam: texture_metrics(f.model, sphere, sphere_sdf, delta=0.03, n=5000, n_views=2, resolution=32)
+    m = {lam: texture_metrics(f.field(), sphere, sphere_sdf, delta=0.03, n=5000, n_views=2, resolution=32)
          for lam, f in fits.items()}
     assert "orth" not in fits[0.0].history[-1]
     assert m[0.1]["band_change"] < 0.5 * m[0.0]["band_change"]
@@ -337,6 +342,56 @@ def test_16_bit_textures_are_decoded_from_srgb_and_float_textures_kept(sphere):
     assert np.allclose(c, 4 * b, rtol=1e-5) and c.max() > 1.0
 
 
+def test_the_network_holds_srgb_colours_and_its_field_reads_linear(sphere, fits, tmp_path):
+    # the default ("auto") fits an 8-bit-range texture sRGB-encoded; the field, the file and the metrics
+    # decode it, so every reader sees linear RGB
+    fit = fits[0.0]
+    assert fit.encoding == "srgb" and fit.metadata()["encoding"] == "srgb"
+    s = texture_targets(sphere, 2000, seed=5)
+    x = torch.as_tensor(s["points"])
+    with torch.no_grad():
+        raw = fit.model(x).numpy()
+    lin = fit.field().color(x).numpy()
+    assert np.abs(raw - linear_to_srgb(s["colors"])).mean() < 0.02  # the network: sRGB
+    assert np.abs(lin - s["colors"]).mean() < 0.02  # its field: linear
+    back = load_field(fit.save(tmp_path / "g.tex"))
+    assert back.encoding == "srgb" and torch.allclose(back.color(x), fit.field().color(x))
+    m = texture_metrics(fit.field(), sphere, sphere_sdf, delta=0.03, n=3000, n_views=2, resolution=32)
+    t = texture_targets(sphere, 3000, seed=0)  # the metrics' samples
+    mse = np.mean((fit.field().color(torch.as_tensor(t["points"])).double().numpy() - t["colors"]) ** 2)
+    assert m["surface_mse"] == pytest.approx(float(mse), rel=1e-4)
+
+
+def test_hdr_textures_and_an_explicit_linear_encoding_fit_linear_colours(sphere):
+    hdr = fit_texture(sphere, sphere_sdf, texture=sphere.texture * 4.0, **dict(TINY, steps=2))
+    assert hdr.encoding == "linear"
+    lin = fit_texture(sphere, sphere_sdf, encoding="linear", **dict(TINY, steps=2))
+    x = torch.rand(50, 3) * 2 - 1
+    with torch.no_grad():
+        assert lin.encoding == "linear" and torch.equal(lin.field().color(x), lin.model(x))
+
+
+def test_texel_share_draws_samples_as_densely_as_the_texels_lie(sphere):
+    # the UV sphere's texels are uniform in (φ, θ): drawn by UV area, θ is about uniform and E|z| ≈ R·2/π;
+    # drawn by surface area, z is about uniform and E|z| ≈ R/2. Exactly, on the faceted mesh (no face crosses
+    # z = 0, so a face's mean |z| is its centroid's): Σ_f w_f |z_f| with w the area or the UV-area shares
+    z = {share: np.abs(texture_targets(sphere, 60000, seed=4, texel_share=share)["points"][:, 2]).mean()
+         for share in (0.0, 0.5, 1.0)}
+    zc = np.abs(sphere.vertices[sphere.faces][:, :, 2].mean(axis=1))
+    d1, d2 = sphere.uv[:, 1] - sphere.uv[:, 0], sphere.uv[:, 2] - sphere.uv[:, 0]
+    by_area = sphere.face_areas / sphere.face_areas.sum()
+    by_uv = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    by_uv = by_uv / by_uv.sum()
+    for share, w in ((0.0, by_area), (1.0, by_uv), (0.5, (by_area + by_uv) / 2)):
+        assert z[share] == pytest.approx(float((w * zc).sum()), rel=0.01)
+    assert z[0.0] == pytest.approx(R / 2, rel=0.05) and z[1.0] == pytest.approx(R * 2 / math.pi, rel=0.05)
+    # no UVs, or UVs of no area: by surface area alone
+    assert texel_face_weights(replace(sphere, uv=None), 0.5) is None
+    assert texel_face_weights(replace(sphere, uv=np.zeros_like(sphere.uv)), 1.0) is None
+    w = texel_face_weights(sphere, 0.5)
+    assert w.shape == (sphere.n_faces,) and w.sum() == pytest.approx(1.0) and (w > 0).all()
+
+
 def test_uvs_outside_unit_square_follow_the_mesh_policy(sphere):
     shifted = replace(sphere, uv=sphere.uv + np.array([1.0, -2.0]))
     a = texture_targets(shifted, 1000, seed=4)["colors"]
@@ -401,6 +456,8 @@ def test_bad_textures_are_clear_errors(sphere):
     ({"dtype": "float16"}, "dtype: must be 'float32' or 'float64'"),
     ({"lr_schedule": "step"}, "lr_schedule: must be 'constant' or 'cosine'"),
     ({"orth_method": "autograd"}, "orth_method: must be 'jacobian' or 'directional'"),
+    ({"encoding": "gamma"}, "encoding: must be 'auto', 'srgb' or 'linear'"),
+    ({"texel_share": 1.5}, r"texel_share: must be in \[0, 1\]"),
     ({"preset": "huge"}, "unknown preset 'huge'"),
     ({"colour_weight": 2}, "unknown option 'colour_weight'"),
 ])
