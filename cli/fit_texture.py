@@ -71,12 +71,13 @@ def command(mesh, sdf_path, output, config, texture_path, uv_policy, metrics):
     if b is not None and b["expected_steps"]:
         how += f"; this machine makes ~{b['expected_steps']} in the budget"
     say(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
-        f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame)")
+        f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame), {fit.encoding} colours")
     if metrics:
         q = texture_metrics(fit.field(), m, sdf_path, delta=fit.delta, n=20000, n_views=4,
                             resolution=96)
         change = "n/a" if q["band_change"] is None else f"{q['band_change']:.4g}"
         render = "n/a" if q["render_mse"] is None else f"{q['render_mse']:.4g}"
-        say(f"surface PSNR {q['surface_psnr']:.2f} dB (MSE {q['surface_mse']:.3g}), colour change across "
-            f"the band {change}, render MSE {render} (linear RGB)")
+        say(f"surface PSNR {q['surface_psnr']:.2f} dB (MSE {q['surface_mse']:.3g}), per texel "
+            f"{q['texel_psnr']:.2f} dB ({q['texel_psnr_srgb']:.2f} dB sRGB), colour change across the band "
+            f"{change}, render MSE {render} (linear RGB)")
     say(f"wrote {output}")

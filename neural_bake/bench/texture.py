@@ -172,6 +172,7 @@ def _row(name, label, fit, m, total_s, baseline):
     return {"case": name, "setting": label, "net": f"({fit.config.width},{fit.config.depth})", "lam": fit.lam,
             "baseline": baseline, "steps": fit.steps, "train_s": round(fit.seconds, 1),
             "total_s": round(total_s, 1), "psnr_db": m["surface_psnr"], "mse": m["surface_mse"],
+            "texel_psnr_db": m["texel_psnr"], "texel_psnr_srgb_db": m["texel_psnr_srgb"],
             "band_change": m["band_change"], "band_change_at_delta": m["band_change_at_delta"],
             "band_change_read": m["band_change_read"], "band_ratio": None, "render_mse": m["render_mse"],
             "render_mse_band": m["render_mse_band"]}
@@ -255,7 +256,8 @@ def run(quick: bool = False, *, cases=None, settings=None, presets=None, seed: i
                     fit1, m1, t1 = one(lam=0.0)
                     rows.append(_row(name, label, fit1, m1, t1, "λ=0 equal time"))
     notes += [
-        "psnr_db / mse: surface samples vs the texture (linear RGB, peak 1); band_change: mean |g(p±t·n) − g(p)| "
+        "psnr_db / mse: surface samples vs the texture (linear RGB, peak 1); texel_psnr_db (_srgb_db): at samples "
+        "drawn by UV area, each texel once (sRGB-encoded: what an 8-bit map shows); band_change: mean |g(p±t·n) − g(p)| "
         f"for t in δ/4..δ, δ = {delta:g} (unit frame); band_change_read: the same read where a bake reads g, at "
         "the closest point of f = 0 (the presets: λ = 0, read there); band_ratio: band change of the λ=0 run "
         "with the same steps (same seed, network, this run) / this row's. Target: ≥ 2 at about equal psnr_db.",

@@ -40,7 +40,12 @@ def test_unknown_environment_value_is_one_line_naming_the_variable():
 def test_measurement_reads_both_routes_against_float64():
     m = measure_route(32, repeats=2)
     assert m["speedup"] > 0
-    assert 0 <= m["blas_error"] < 1e-5 and 0 <= m["onednn_error"] < 1e-4
+    assert 0 <= m["blas_error"] < 1e-5
+    # oneDNN is float32-accurate, or (CPUs with bf16 matrix units) rounds the operands to bfloat16 on the
+    # way: ~1e-3, which the decision refuses even when forced
+    assert 0 <= m["onednn_error"] < 1e-2
+    if m["onednn_error"] >= 1e-4:
+        assert decide_route(32, measure=lambda w: m, env="onednn")[0] == "blas"
 
 
 @needs_setting
@@ -99,5 +104,7 @@ def test_training_runs_on_the_decided_route_and_restores_it(monkeypatch):
 
     before = torch.backends.mkldnn.matmul.fp32_precision
     train(model, step_fn, LoopConfig(steps=3, lr=1e-4, seed=0, progress=False))
-    assert seen == ["onednn"] * 3
+    # oneDNN when it passes the accuracy check on this CPU, else the BLAS (the measured decision)
+    expected = decide_route(32, env="onednn")[0]
+    assert seen == [expected] * 3
     assert torch.backends.mkldnn.matmul.fp32_precision == before

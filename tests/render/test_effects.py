@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.render.asset import RenderAsset, RenderError, analytic_texture
+from neural_bake.render.asset import RenderAsset, RenderError, analytic_texture, as_render_asset
 from neural_bake.render.camera import Camera
 from neural_bake.render.renderer import render
 from neural_bake.render.scene import Scene, Transform, SceneObject
@@ -96,6 +96,24 @@ def test_texture_colours_the_hits_only():
     r = render(_asset(), Scene(effects=("texture",), channels=("color", "hit")), camera=CAM)
     np.testing.assert_allclose(r["color"][r["hit"]], np.tile([0.9, 0.1, 0.1], (int(r["hit"].sum()), 1)), atol=1e-6)
     np.testing.assert_allclose(r["color"][~r["hit"]], 1.0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_texture_network_of_srgb_colours_renders_linear_ones(dtype):
+    # a constant network that outputs sRGB (0.5, 0.25, 1.0): the renderer shows their linear values
+    from neural_bake.fields import TextureField
+    from neural_bake.io.colour import srgb_to_linear
+    from neural_bake.nets.siren import Siren
+
+    net = Siren(8, 0, 3, 3)
+    with torch.no_grad():
+        net.layers[-1].weight.zero_()
+        net.layers[-1].bias.copy_(torch.tensor([0.5, 0.25, 1.0]))
+    scene = Scene(effects=("texture",), channels=("color", "hit"))
+    for encoding, expected in (("srgb", srgb_to_linear(np.array([0.5, 0.25, 1.0]))), ("linear", [0.5, 0.25, 1.0])):
+        field = TextureField.from_model(net, encoding=encoding)
+        r = render(as_render_asset(nested_sphere_asset(), texture=field), scene, camera=CAM, dtype=dtype)
+        np.testing.assert_allclose(r["color"][r["hit"]], np.tile(expected, (int(r["hit"].sum()), 1)), atol=1e-5)
 
 
 def test_shading_follows_the_analytic_normal():
