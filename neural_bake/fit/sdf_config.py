@@ -181,13 +181,17 @@ class SdfFitConfig:
 #: The training settings of the multi-layer presets (how they were chosen: docs/findings.md).
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
+#: What the 2-minute preset adds for the shading a map shows: no hard-example mining (every sample uniform, so
+#: the median normal is fitted everywhere), a stronger normal term and ω0 = 45 (docs/findings.md).
+_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "omega_0": 45.0}
+
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
 #: fewer steps of larger networks) and the architecture presets ``"WxD"`` (the shared names: :mod:`.presets`).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
-    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER},
+    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
