@@ -52,8 +52,8 @@ import torch
 
 from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
-from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field, save_model,
-                      to_sdf_field, unit_normals)
+from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field,
+                      save_model, to_sdf_field, unit_normals)
 from ..geometry import frame_mismatch, raycasting_scene
 from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
 from ..nets.gemm import sin_cos
