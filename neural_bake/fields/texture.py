@@ -11,6 +11,7 @@ from typing import Callable
 import torch
 
 from ..errors import ModelFileError
+from ..io.colour import srgb_to_linear
 from ..types import Frame
 
 __all__ = ["TextureField", "ColorField", "ENCODINGS", "decode_colors"]
@@ -26,9 +27,7 @@ def decode_colors(out: torch.Tensor, encoding: str) -> torch.Tensor:
         return out
     if encoding != "srgb":
         raise ValueError(f"colour encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
-    c = out[..., :3].clamp(0.0, 1.0)
-    lin = torch.where(c <= 0.04045, c / 12.92, ((c.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
-    return torch.cat([lin, out[..., 3:]], dim=-1)
+    return torch.cat([srgb_to_linear(out[..., :3]), out[..., 3:]], dim=-1)
 
 
 class TextureField:

@@ -1,8 +1,9 @@
 """Colour spaces and texture lookup.
 
-Convention (docs/design.md, "Colour"): fit and compute in *linear* RGB. 8-bit and 16-bit colour images are taken as
+Convention (docs/design.md, "Colour"): compute in *linear* RGB. 8-bit and 16-bit colour images are taken as
 sRGB-encoded and decoded to linear on read; colour maps are sRGB-encoded on write; normal maps, masks and
-float (EXR) images are data and never converted.
+float (EXR) images are data and never converted. A colour network may hold sRGB-encoded values, decoded on
+read with :func:`srgb_to_linear` (numpy arrays and torch tensors alike).
 """
 
 from __future__ import annotations
@@ -14,8 +15,12 @@ from ..constants import UV_POLICIES
 __all__ = ["srgb_to_linear", "linear_to_srgb", "sample_texture"]
 
 
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (any shape); same dtype (float32 for ints)."""
+def srgb_to_linear(c):
+    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (any shape); same dtype (float32 for ints). A torch
+    tensor is decoded as a tensor (same device and dtype), its values clipped to [0, 1] first."""
+    if not isinstance(c, np.ndarray) and hasattr(c, "clamp"):
+        x = c.clamp(0.0, 1.0)
+        return (x / 12.92).where(x <= 0.04045, ((x.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
     c = np.asarray(c)
     c = c.astype(np.float32) if not np.issubdtype(c.dtype, np.floating) else c
     return np.where(c <= 0.04045, c / 12.92, ((np.clip(c, 0.04045, None) + 0.055) / 1.055) ** 2.4).astype(c.dtype)
