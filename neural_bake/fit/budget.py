@@ -1,10 +1,14 @@
 """Honest time budgets: the steps a time-budgeted fit made beside the steps its preset makes on this machine.
 
-A preset's cost per step is stored as machine-independent work: :data:`STEP_WORK` (GFLOP-equivalents, the
-step's seconds on a reference machine times that machine's sgemm rate). At the start of a budgeted fit
-:func:`probe_gflops` times 30 512³ float32 GEMMs and takes the best of them and of the best rate this machine
-(CPU model, thread count) has shown before (kept in a small cache file): the machine's speed, not its current
-share of it, which a busy machine cuts. :func:`expected_steps` = budget seconds × rate / work. A fit that made fewer than
+A preset's cost per step is stored as machine-independent work: :data:`STEP_COST`, in reference steps (a
+preset step's seconds over the seconds of :func:`reference_step`, a small Siren's training step through the
+same loss, measured on the same machine). A fit step is not GEMM-bound: its sines, element-wise products and
+autograd bookkeeping take as much time as its products, and how the two compare differs between CPUs (a
+bare-GEMM probe read one CPU 1.8× faster than another where the fits ran 1.1× faster), so the probe times a
+step of the same kind. At the start of a budgeted fit :func:`probe_rate` times the reference step and takes
+the best of its readings and of the best rate this machine (CPU model, thread count) has shown before (kept
+in a small cache file): the machine's speed, not its current share of it, which a busy machine cuts.
+:func:`expected_steps` = budget seconds × rate / cost. A fit that made fewer than
 :data:`~neural_bake.constants.BUDGET_WARN_FRACTION` of them was slowed by something else (other processes,
 a throttled machine): :func:`budget_record` says so in one line, and the fitters record both figures in the
 model file.
@@ -20,37 +24,63 @@ import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
-__all__ = ["STEP_WORK", "probe_gflops", "expected_steps", "budget_record", "fit_budget", "stop_note", "cache_file"]
+__all__ = ["STEP_COST", "REFERENCE_STEP", "reference_step", "probe_rate", "expected_steps", "budget_record",
+           "fit_budget", "stop_note", "cache_file"]
 
-#: GFLOP-equivalents of one Adam step per preset (seconds per step × sgemm GFLOP/s of the machine it was
-#: measured on; BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high", "WxD"), texture
-#: presets by "texture:NAME". Measured on a quiet machine (BENCHMARKS.md): 64x1, texture:default ((192,3),
-#: λ = 0: the median of five fits of the tea set, the cabinet and Spot) and texture:quick ((64,1), λ = 0: the
-#: tea set), quick
-#: (192x3, uncompiled: the median of eight meshes, 52–101 ms a step), default (192x3, compiled: nefertiti,
-#: 5,862 steps in 5 minutes), high (256x4, compiled: nefertiti) and
-#: 256x3 (9,109–9,363 steps in the Adam part of 10 minutes on four meshes, float32 GEMMs on oneDNN). 128x2 and
-#: 256x2 are estimates between the measured compiled and uncompiled costs (the loss is compiled for budgets of
-#: five minutes or more); texture:high is its cost with the orthogonality term divided by what the term cost
-#: (128,2) on Spot (1.74×).
-STEP_WORK: dict[str, float] = {
-    "quick": 12.3,
-    "default": 11.2,
-    "high": 21.4,
-    "64x1": 1.76,
-    "128x2": 4.2,
-    "256x2": 16.7,
-    "256x3": 14.1,
-    "texture:quick": 0.38,
-    "texture:default": 3.6,
-    "texture:high": 7.4,
+#: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
+REFERENCE_STEP = (128, 2, 4096)
+
+#: Reference steps (:func:`reference_step`) in one Adam step per preset (a step's seconds × the reference
+#: rate, both on one quiet machine: BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high",
+#: "WxD"), texture presets by "texture:NAME". Measured: quick (192x3, loss not compiled: nefertiti, the tea set
+#: and Spot in 2 minutes), default (192x3, compiled: the tea set and Spot in 5 minutes), high (256x4, compiled:
+#: nefertiti in 10 minutes), texture:quick and texture:default (the tea set). 64x1, 128x2, 256x3 and
+#: texture:high keep the ratios to quick, default and texture:default measured on another machine; 256x2 is an
+#: estimate, 0.8 × 256x3.
+STEP_COST: dict[str, float] = {
+    "quick": 5.15,
+    "default": 3.90,
+    "high": 8.3,
+    "64x1": 0.74,
+    "128x2": 1.46,
+    "256x2": 3.93,
+    "256x3": 4.91,
+    "texture:quick": 0.173,
+    "texture:default": 1.68,
+    "texture:high": 3.45,
 }
 
 
+def reference_step(generator: torch.Generator | None = None) -> Callable[[], None]:
+    """One training step of the reference network (:data:`REFERENCE_STEP`) through the SDF loss, as a
+    closure (its network as ``.model``): forward with the closed-form gradient, the loss, one backward (no
+    optimiser). Its inputs are made once, so a call is the step's own work."""
+    from ..nets.siren import Siren
+    from .sdf_config import SdfFitConfig
+    from .sdf_loss import sdf_loss_terms
+
+    width, depth, n = REFERENCE_STEP
+    g = generator or torch.Generator().manual_seed(0)
+    model = Siren(width, depth, generator=g)
+    surf = torch.rand(n // 2, 3, generator=g) * 2 - 1
+    normals = torch.nn.functional.normalize(torch.randn(n // 2, 3, generator=g), dim=1)
+    vol = torch.rand(n - n // 2, 3, generator=g) * 2 - 1
+    dist = torch.rand(n - n // 2, generator=g) * 0.1
+    cfg = SdfFitConfig()
+
+    def step() -> None:
+        model.zero_grad(set_to_none=True)
+        sdf_loss_terms(model, surf, normals, vol, dist, cfg)["loss"].backward()
+
+    step.model = model
+    return step
+
+
 @functools.lru_cache(maxsize=None)
-def _probe_cached(size: int, repeat: int, threads: int) -> float:
-    rate = _probe(size, repeat, time.perf_counter)
-    return _best_seen(f"{_cpu_name()}|{threads}|{size}", rate)
+def _probe_cached(repeat: int, threads: int) -> float:
+    rate = _probe(repeat, time.perf_counter)
+    width, depth, n = REFERENCE_STEP
+    return _best_seen(f"{_cpu_name()}|{threads}|siren {width}x{depth} {n}", rate)
 
 
 def _cpu_name() -> str:
@@ -67,14 +97,14 @@ def _cpu_name() -> str:
 
 
 def cache_file():
-    """The file keeping the best sgemm rate seen per machine: ``$NEURAL_BAKE_CACHE_DIR/gflops.json`` (default
-    ``$XDG_CACHE_HOME/neural_bake`` or ``~/.cache/neural_bake``)."""
+    """The file keeping the best reference-step rate seen per machine: ``$NEURAL_BAKE_CACHE_DIR/step_rate.json``
+    (default ``$XDG_CACHE_HOME/neural_bake`` or ``~/.cache/neural_bake``)."""
     import os
     from pathlib import Path
 
     base = os.environ.get("NEURAL_BAKE_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "neural_bake")
-    return Path(base) / "gflops.json"
+    return Path(base) / "step_rate.json"
 
 
 def _best_seen(key: str, rate: float) -> float:
@@ -101,43 +131,43 @@ def _best_seen(key: str, rate: float) -> float:
     return max(rate, best)
 
 
-def _probe(size: int, repeat: int, clock: Callable[[], float]) -> float:
-    g = torch.Generator().manual_seed(0)
-    a = torch.rand(size, size, generator=g)
-    b = torch.rand(size, size, generator=g)
-    torch.mm(a, b)  # warm-up: first-call costs are not the machine's speed
+def _probe(repeat: int, clock: Callable[[], float]) -> float:
+    step = reference_step()
+    for _ in range(3):  # warm-up: first-call costs and a cold cache are not the machine's speed
+        step()
     best = float("inf")
     for _ in range(repeat):
         t0 = clock()
-        torch.mm(a, b)
+        step()
         best = min(best, clock() - t0)
-    return 2.0 * size**3 / max(best, MIN_SECONDS) / 1e9
+    return 1.0 / max(best, MIN_SECONDS)
 
 
-def probe_gflops(size: int = 512, repeat: int = 30, *, clock: Callable[[], float] | None = None) -> float:
-    """The sgemm rate of this machine in GFLOP/s: the best of ``repeat`` ``size``³ float32 products on torch's
-    current threads and of the best rate recorded for this CPU model and thread count (:func:`cache_file`).
-    Measured once per process (per size, repeat and thread count); with ``clock`` measured each call, with
-    that clock, and neither read nor recorded."""
+def probe_rate(repeat: int = 30, *, clock: Callable[[], float] | None = None) -> float:
+    """This machine's speed in reference steps (:func:`reference_step`) per second: the best of ``repeat``
+    timed steps on torch's current threads and of the best rate recorded for this CPU model and thread count
+    (:func:`cache_file`). Measured once per process (per repeat and thread count); with ``clock`` measured
+    each call, with that clock, and neither read nor recorded."""
     if clock is not None:
-        return _probe(size, repeat, clock)
-    return _probe_cached(int(size), int(repeat), torch.get_num_threads())
+        return _probe(int(repeat), clock)
+    return _probe_cached(int(repeat), torch.get_num_threads())
 
 
-def expected_steps(preset: str | None, seconds: float | None, gflops: float | None = None) -> int | None:
-    """Adam steps ``preset`` (a :data:`STEP_WORK` key) makes in ``seconds`` on a machine of ``gflops``
-    (default: :func:`probe_gflops`); None for a preset without a reference or a run without a budget."""
-    if preset not in STEP_WORK or not seconds or seconds <= 0:
+def expected_steps(preset: str | None, seconds: float | None, rate: float | None = None) -> int | None:
+    """Adam steps ``preset`` (a :data:`STEP_COST` key) makes in ``seconds`` on a machine making ``rate``
+    reference steps a second (default: :func:`probe_rate`); None for a preset without a reference or a run
+    without a budget."""
+    if preset not in STEP_COST or not seconds or seconds <= 0:
         return None
-    rate = probe_gflops() if gflops is None else float(gflops)
-    return int(seconds * rate / STEP_WORK[preset])
+    rate = probe_rate() if rate is None else float(rate)
+    return int(seconds * rate / STEP_COST[preset])
 
 
 def budget_record(steps: int, expected: int | None, *, preset: str | None = None, seconds: float | None = None,
-                  gflops: float | None = None, stopped_reason: str | None = None,
+                  rate: float | None = None, stopped_reason: str | None = None,
                   sampling_share: float | None = None) -> dict:
     """The budget's account, JSON-ready: ``steps`` made, ``expected`` (None: no reference), their ``ratio``,
-    the ``gflops`` probe, ``sampling_share`` (the part of the fit's time spent drawing training samples, or
+    the probe's ``reference_rate`` (reference steps a second), ``sampling_share`` (the part of the fit's time spent drawing training samples, or
     None when not measured), and ``warning``: one line when fewer than half the expected steps were
     made (None otherwise), naming the sampling as the cause when it took at least
     :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the budget, else a busy or slowed machine. A run
@@ -152,7 +182,7 @@ def budget_record(steps: int, expected: int | None, *, preset: str | None = None
         warning = (f"{preset or 'fit'}: made {steps} steps of the ~{expected} this machine makes in "
                    f"{seconds or 0:.0f} s ({100 * ratio:.0f} %): {why}; the fit is weaker than the preset's")
     return {"preset": preset, "steps": int(steps), "expected_steps": expected, "ratio": ratio,
-            "budget_seconds": seconds, "gflops": gflops, "sampling_share": share, "warning": warning}
+            "budget_seconds": seconds, "reference_rate": rate, "sampling_share": share, "warning": warning}
 
 
 def stop_note(stopped_reason: str, steps: int, seconds: float, minutes: float | None, step_cap: int) -> str:
@@ -180,8 +210,8 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
     from ..errors import NeuralBakeWarning
 
     span = 60.0 * minutes if budget_seconds is None else budget_seconds
-    gflops = probe_gflops() if preset in STEP_WORK else None
-    rec = budget_record(steps, expected_steps(preset, span, gflops), preset=preset, seconds=span, gflops=gflops,
+    rate = probe_rate() if preset in STEP_COST else None
+    rec = budget_record(steps, expected_steps(preset, span, rate), preset=preset, seconds=span, rate=rate,
                         stopped_reason=stopped_reason, sampling_share=sampling_share)
     rec["stopped"] = stop_note(stopped_reason, steps, seconds, minutes, step_cap)
     if rec["warning"]:

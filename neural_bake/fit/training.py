@@ -8,8 +8,11 @@ One function, :func:`train`, runs an optimiser over a ``torch.nn.Module`` with:
 - progress (tqdm) showing the losses, and a history (one dict per logged step: step, seconds, lr, losses);
 - checkpoints (one safetensors file: model weights, optimiser state, JSON metadata; no pickle) written
   atomically every ``checkpoint_every`` steps and at the end, and ``resume`` from such a file;
-- divergence detection: a non-finite loss, gradient or weight, or a loss above ``blowup`` times the first
-  loss, restores the last good in-memory snapshot, halves the learning rate and says so
+- divergence detection: a non-finite loss, gradient or weight, a loss above ``blowup`` times the first
+  loss, or a collapse (the median loss of the last steps ``collapse`` times its best: a network that after
+  a spike fell back to about its first loss, a constant, say, which the first-loss test misses) restores
+  the last good in-memory snapshot (snapshots are taken only while the loss is near that best), halves the
+  learning rate and says so
   (:class:`~neural_bake.errors.NeuralBakeWarning`); after ``max_restarts`` tries it raises
   :class:`~neural_bake.errors.FitError`. The returned model never holds NaN weights;
 - optional "keep the best": an ``evaluate()`` callback run every ``eval_every`` steps whose smallest value
@@ -30,9 +33,11 @@ detached. Example::
 
 from __future__ import annotations
 
+import collections
 import copy
 import json
 import math
+import statistics
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -85,6 +90,13 @@ class LoopConfig:
     """Divergence recoveries (each halves the learning rate) before giving up with FitError."""
     blowup: float = 1e3
     """A loss above ``blowup`` × the first finite loss counts as divergence."""
+    collapse: float = 100.0
+    """The median loss of the last ``collapse_window`` steps above ``collapse`` × the smallest such median of
+    the run counts as divergence (a spike shorter than half the window does not move a median); 0 turns the
+    test off. Snapshots are taken only while both the median and the step's loss are within √``collapse`` ×
+    that best. A resumed run starts its window afresh."""
+    collapse_window: int = 50
+    """Steps whose median loss the collapse test watches."""
     eval_every: int = 0
     """Steps between ``evaluate()`` calls when keeping the best weights (0: only at the end)."""
     desc: str = "fit"
@@ -154,7 +166,9 @@ def _validate(cfg: LoopConfig) -> None:
         raise FitError(f"{cfg.desc}: lr_min_factor must be in (0, 1], got {cfg.lr_min_factor!r}")
     if cfg.resume and not cfg.checkpoint:
         raise FitError(f"{cfg.desc}: resume needs a checkpoint path")
-    for name in ("checkpoint_every", "log_every", "snapshot_every"):
+    if not (math.isfinite(cfg.collapse) and (cfg.collapse == 0 or cfg.collapse > 1)):
+        raise FitError(f"{cfg.desc}: collapse must be 0 (off) or above 1, got {cfg.collapse!r}")
+    for name in ("checkpoint_every", "log_every", "snapshot_every", "collapse_window"):
         if int(getattr(cfg, name)) < 1:
             raise FitError(f"{cfg.desc}: {name} must be >= 1, got {getattr(cfg, name)!r}")
 
@@ -310,6 +324,8 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
 
     snapshot = _snapshot(model, opt)
     snapshot_step = step
+    recent: collections.deque = collections.deque(maxlen=int(cfg.collapse_window))  # the collapse test's losses
+    best_median = math.inf
     t_start = clock() - spent
     try:
         while step < cfg.steps:
@@ -330,6 +346,13 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
                 problem = "non-finite loss"
             elif first_loss is not None and loss_value > cfg.blowup * max(first_loss, BLOWUP_LOSS_FLOOR):
                 problem = f"loss {loss_value:.3g} exploded (first loss {first_loss:.3g})"
+            else:
+                recent.append(loss_value)
+                median = statistics.median(recent)
+                best_median = min(best_median, median)
+                if cfg.collapse and median > cfg.collapse * max(best_median, BLOWUP_LOSS_FLOOR):
+                    problem = (f"loss collapsed: its median over {len(recent)} steps {median:.3g} is "
+                               f"{median / max(best_median, BLOWUP_LOSS_FLOOR):.0f}× its best {best_median:.3g}")
             if problem is None:
                 if loss.requires_grad:
                     loss.backward()
@@ -356,6 +379,7 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
                               f"{snapshot_step} and halved the learning rate to {base_lr:.3g}",
                               NeuralBakeWarning, stacklevel=2)
                 step = snapshot_step
+                recent.clear()
                 if bar is not None and cfg.minutes is None:
                     bar.n = step
                     bar.refresh()
@@ -364,7 +388,9 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
                 first_loss = loss_value
             step += 1
             spent = clock() - t_start
-            if step % cfg.snapshot_every == 0:
+            near = math.sqrt(cfg.collapse) * max(best_median, BLOWUP_LOSS_FLOOR)
+            healthy = not cfg.collapse or max(median, loss_value) <= near
+            if step % cfg.snapshot_every == 0 and healthy:
                 snapshot, snapshot_step = _snapshot(model, opt), step
             if step % cfg.log_every == 0 or step == cfg.steps or step == 1:
                 entry = {"step": step, "seconds": round(spent, 3), "lr": lr}

@@ -1,4 +1,4 @@
-"""Honest budgets: the GEMM-rate probe, the expected steps, the one-line warning, and a fit on a slow clock."""
+"""Honest budgets: the reference-step probe, the expected steps, the one-line warning, and a fit on a slow clock."""
 
 import math
 
@@ -7,23 +7,41 @@ import pytest
 import torch
 
 from neural_bake.errors import NeuralBakeWarning
-from neural_bake.fit.budget import STEP_WORK, budget_record, expected_steps, probe_gflops, stop_note
+from neural_bake.fit.budget import STEP_COST, budget_record, expected_steps, probe_rate, reference_step, stop_note
 from neural_bake.fit.training import LoopConfig, train
 
 
-def test_probe_measures_the_best_product_with_the_clock(ticker):
-    # each product is timed by two consecutive calls: one tick
-    g = probe_gflops(size=64, repeat=3, clock=ticker(1e-3))
-    assert math.isclose(g, 2 * 64**3 / 1e-3 / 1e9)
-    real = probe_gflops(size=64, repeat=3)
-    assert real > 0 and probe_gflops(size=64, repeat=3) == real  # measured once per process
+def test_probe_times_the_best_reference_step_with_the_clock(ticker):
+    # each step is timed by two consecutive calls: one tick
+    assert math.isclose(probe_rate(repeat=3, clock=ticker(0.02)), 1 / 0.02)
+    real = probe_rate(repeat=3)
+    assert real > 0 and probe_rate(repeat=3) == real  # measured once per process
+
+
+def test_reference_step_trains_the_reference_network():
+    """A call is one whole backward of the SDF loss: every parameter gets a finite, non-zero gradient, and
+    the same again on the next call (gradients are reset, not summed)."""
+    step = reference_step(torch.Generator().manual_seed(3))
+    step()
+    model = step.model
+    first = [p.grad.clone() for p in model.parameters()]
+    assert all(torch.isfinite(g).all() and g.abs().sum() > 0 for g in first)
+    step()
+    for g, p in zip(first, model.parameters()):
+        torch.testing.assert_close(p.grad, g)
 
 
 def test_expected_steps_scale_with_rate_and_time():
-    assert expected_steps("64x1", 90.0, gflops=200.0) == int(90 * 200 / STEP_WORK["64x1"])
-    assert expected_steps("64x1", 90.0, gflops=100.0) == int(90 * 100 / STEP_WORK["64x1"])
-    assert expected_steps("9x9", 90.0, gflops=200.0) is None and expected_steps("64x1", None, gflops=1.0) is None
-    assert set(STEP_WORK) >= {"64x1", "128x2", "256x2", "256x3", "texture:quick", "texture:default", "texture:high"}
+    assert expected_steps("64x1", 90.0, rate=20.0) == int(90 * 20 / STEP_COST["64x1"])
+    assert expected_steps("64x1", 90.0, rate=10.0) == int(90 * 10 / STEP_COST["64x1"])
+    assert expected_steps("9x9", 90.0, rate=20.0) is None and expected_steps("64x1", None, rate=1.0) is None
+    presets = {"quick", "default", "high", "64x1", "128x2", "256x2", "256x3", "texture:quick", "texture:default",
+               "texture:high"}
+    assert set(STEP_COST) == presets and all(c > 0 for c in STEP_COST.values())
+    # larger networks cost more a step; the compiled 5-minute preset less than the eager 2-minute one
+    assert STEP_COST["64x1"] < STEP_COST["128x2"] < STEP_COST["256x3"] < STEP_COST["high"]
+    assert STEP_COST["texture:quick"] < STEP_COST["texture:default"] < STEP_COST["texture:high"]
+    assert STEP_COST["default"] < STEP_COST["quick"]
 
 
 def test_budget_record_warns_below_half():
@@ -90,7 +108,7 @@ def test_slow_texture_fit_warns_and_records(tmp_path, ticker):
         fit = fit_texture(mesh, sphere_sdf, preset="quick", pool=2000, clock=ticker(10.0))
     b = fit.budget
     assert b["steps"] == fit.steps == 3 and b["expected_steps"] > 6 and b["ratio"] < 0.5
-    assert b["stopped"] == "time budget (60 s) used" and b["gflops"] > 0
+    assert b["stopped"] == "time budget (60 s) used" and b["reference_rate"] > 0
     fit.save(tmp_path / "t.tex")
     _, meta = load_model(tmp_path / "t.tex")
     assert meta["budget"]["steps"] == 3 and meta["budget"]["expected_steps"] == b["expected_steps"]
@@ -112,11 +130,12 @@ def test_best_rate_is_recorded_and_kept(tmp_path, monkeypatch):
     from neural_bake.fit import budget
 
     monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path))
-    assert budget.cache_file() == tmp_path / "gflops.json"
-    assert budget._best_seen("cpu|2|512", 150.0) == 150.0
-    assert budget._best_seen("cpu|2|512", 20.0) == 150.0  # busy: the record stands
-    assert budget._best_seen("cpu|2|512", 180.0) == 180.0
-    assert json.loads((tmp_path / "gflops.json").read_text()) == {"cpu|2|512": 180.0}
-    (tmp_path / "gflops.json").write_text("{not json")
-    assert budget._best_seen("cpu|2|512", 30.0) == 30.0
-    assert json.loads((tmp_path / "gflops.json").read_text()) == {"cpu|2|512": 30.0}
+    path = tmp_path / "step_rate.json"
+    assert budget.cache_file() == path
+    assert budget._best_seen("cpu|2|ref", 150.0) == 150.0
+    assert budget._best_seen("cpu|2|ref", 20.0) == 150.0  # busy: the record stands
+    assert budget._best_seen("cpu|2|ref", 180.0) == 180.0
+    assert json.loads(path.read_text()) == {"cpu|2|ref": 180.0}
+    path.write_text("{not json")
+    assert budget._best_seen("cpu|2|ref", 30.0) == 30.0
+    assert json.loads(path.read_text()) == {"cpu|2|ref": 30.0}

@@ -153,6 +153,81 @@ def test_persistent_divergence_raises_and_leaves_finite_weights():
     assert torch.isfinite(_weights(m)).all()
 
 
+def _linear_problem():
+    """A ReLU network fitting a linear map with noise 0.03: its loss settles near 1e-3, a thousandth of the
+    first one."""
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(3, 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
+    w = torch.tensor([[1.0, -2.0, 0.5]])
+
+    def step_fn(step, gen):
+        x = torch.randn(256, 3, generator=gen)
+        y = x @ w.t() + 0.03 * torch.randn(256, 1, generator=gen)
+        mse = ((model(x) - y) ** 2).mean()
+        return {"loss": mse, "mse": mse}
+
+    return model, step_fn
+
+
+def test_collapse_back_to_the_first_loss_restores_and_halves_lr():
+    """A network that collapses at step 150 (every ReLU dead: a constant, for good) falls back to about its
+    first loss, which the first-loss test misses; its median loss becomes thousands of times its best: the
+    loop restores the last snapshot, halves the learning rate, says so, and ends near the loss it had."""
+    m, f = _linear_problem()
+    state = {"fired": False}
+
+    def collapsing(step, gen):
+        if step == 150 and not state["fired"]:
+            state["fired"] = True
+            with torch.no_grad():
+                m[0].bias.fill_(-1e3)
+        return f(step, gen)
+
+    with pytest.warns(NeuralBakeWarning, match=r"diverged at step 1[78]\d \(loss collapsed: its median over 50 "
+                                               r"steps \S+ is \d+× its best \S+\); restored step 100 and halved the "
+                                               r"learning rate to 0.01"):
+        res = train(m, collapsing, LoopConfig(steps=300, lr=0.02, progress=False, lr_schedule="constant",
+                                              log_every=10))
+    assert res.restarts == 1 and res.steps == 300 and res.history[-1]["mse"] < 3e-3
+    # without the test the same run ends as a constant
+    m, f = _linear_problem()
+    state["fired"] = False
+    res = train(m, collapsing, LoopConfig(steps=300, lr=0.02, progress=False, lr_schedule="constant",
+                                          collapse=0, log_every=10))
+    assert res.restarts == 0 and res.history[-1]["mse"] > 1.0
+
+
+def test_no_snapshot_while_collapsing_and_a_short_spike_passes():
+    """Snapshots are taken only near the best smoothed loss: a collapse that starts five steps before a
+    snapshot step restores the snapshot before it. A five-step spike of 1,000× does not count."""
+    m, f = _linear_problem()
+    seen = {"max": -1, "restored": False}
+
+    def scaled(factor_at):
+        def step_fn(step, gen):
+            seen["restored"] |= step <= seen["max"]
+            seen["max"] = max(seen["max"], step)
+            out = f(step, gen)
+            k = factor_at(step, seen["restored"])
+            # the loss reads k times higher; its gradient is the step's own
+            return {"loss": out["loss"] + (k - 1.0) * out["loss"].detach(), "mse": out["mse"]}
+        return step_fn
+
+    with pytest.warns(NeuralBakeWarning, match=r"loss collapsed.*restored step 100 and halved"):
+        res = train(m, scaled(lambda step, restored: 300.0 if step >= 195 and not restored else 1.0),
+                    LoopConfig(steps=260, lr=0.02, progress=False, lr_schedule="constant"))
+    assert res.restarts == 1
+    m, f = _linear_problem()
+    seen.update(max=-1, restored=False)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        res = train(m, scaled(lambda step, restored: 1000.0 if 195 <= step < 200 else 1.0),
+                    LoopConfig(steps=260, lr=0.02, progress=False, lr_schedule="constant"))
+    assert res.restarts == 0
+
+
 def test_keep_best_restores_best_weights():
     m, f = _problem()
     values = iter([3.0, 1.0, 2.0, 5.0])
@@ -174,7 +249,8 @@ def test_keep_best_restores_best_weights():
     ({"minutes": -2.0}, "minutes must be positive"), ({"lr_schedule": "step"}, "lr_schedule"),
     ({"resume": True}, "resume needs a checkpoint"), ({"log_every": 0}, "log_every must be"),
     ({"lr_min_factor": 0.0}, r"lr_min_factor must be in \(0, 1\]"), ({"lr_min_factor": 1.5}, "lr_min_factor"),
-    ({"lr_min_factor": math.nan}, "lr_min_factor"),
+    ({"lr_min_factor": math.nan}, "lr_min_factor"), ({"collapse": 0.5}, "collapse must be 0 .off. or above 1"),
+    ({"collapse": math.inf}, "collapse must be"), ({"collapse_window": 0}, "collapse_window must be"),
 ])
 def test_bad_config(kw, msg):
     m, f = _problem()
