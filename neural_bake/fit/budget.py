@@ -24,7 +24,7 @@ import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
-__all__ = ["STEP_COST", "REFERENCE_STEP", "reference_step", "probe_rate", "expected_steps", "budget_record",
+__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "reference_step", "probe_rate", "expected_steps", "budget_record",
            "fit_budget", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
@@ -51,29 +51,34 @@ STEP_COST: dict[str, float] = {
 }
 
 
-def reference_step(generator: torch.Generator | None = None) -> Callable[[], None]:
-    """One training step of the reference network (:data:`REFERENCE_STEP`) through the SDF loss, as a
-    closure (its network as ``.model``): forward with the closed-form gradient, the loss, one backward (no
-    optimiser). Its inputs are made once, so a call is the step's own work."""
-    from ..nets.siren import Siren
-    from .sdf_config import SdfFitConfig
-    from .sdf_loss import sdf_loss_terms
+class ReferenceStep:
+    """One training step of the reference network (:data:`REFERENCE_STEP`) through the SDF loss, called as
+    ``step()``: forward with the closed-form gradient, the loss, one backward (no optimiser). Its network
+    (``model``) and inputs are made once, so a call is the step's own work."""
 
-    width, depth, n = REFERENCE_STEP
-    g = generator or torch.Generator().manual_seed(0)
-    model = Siren(width, depth, generator=g)
-    surf = torch.rand(n // 2, 3, generator=g) * 2 - 1
-    normals = torch.nn.functional.normalize(torch.randn(n // 2, 3, generator=g), dim=1)
-    vol = torch.rand(n - n // 2, 3, generator=g) * 2 - 1
-    dist = torch.rand(n - n // 2, generator=g) * 0.1
-    cfg = SdfFitConfig()
+    def __init__(self, generator: torch.Generator | None = None):
+        from ..nets.siren import Siren
+        from .sdf_config import SdfFitConfig
 
-    def step() -> None:
-        model.zero_grad(set_to_none=True)
-        sdf_loss_terms(model, surf, normals, vol, dist, cfg)["loss"].backward()
+        width, depth, n = REFERENCE_STEP
+        g = generator or torch.Generator().manual_seed(0)
+        self.model = Siren(width, depth, generator=g)
+        self._surf = torch.rand(n // 2, 3, generator=g) * 2 - 1
+        self._normals = torch.nn.functional.normalize(torch.randn(n // 2, 3, generator=g), dim=1)
+        self._vol = torch.rand(n - n // 2, 3, generator=g) * 2 - 1
+        self._dist = torch.rand(n - n // 2, generator=g) * 0.1
+        self._cfg = SdfFitConfig()
 
-    step.model = model
-    return step
+    def __call__(self) -> None:
+        from .sdf_loss import sdf_loss_terms
+
+        self.model.zero_grad(set_to_none=True)
+        sdf_loss_terms(self.model, self._surf, self._normals, self._vol, self._dist, self._cfg)["loss"].backward()
+
+
+def reference_step(generator: torch.Generator | None = None) -> ReferenceStep:
+    """A :class:`ReferenceStep` (seeded by ``generator``; default seed 0)."""
+    return ReferenceStep(generator)
 
 
 @functools.lru_cache(maxsize=None)
