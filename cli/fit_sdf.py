@@ -6,6 +6,8 @@ import json
 
 import click
 
+from neural_bake.constants import POOL_REFRESH_MAX_SHARE
+
 from .config_options import ConfigCommand, ConfigSpec
 from .options import lock_outputs, output_option, refuse_nonpositive, say, verbosity, verbosity_options
 
@@ -65,6 +67,10 @@ def command(mesh, output, config, preset, metrics):
     how = (fit.stopped_reason if b is None else b["stopped"]) + ("; loss compiled" if fit.config.compile == "on" else "")
     if b is not None and b["expected_steps"]:
         how += f"; this machine makes ~{b['expected_steps']} Adam steps in {b['budget_seconds']:.0f} s"
+    skipped = ((b or {}).get("pool_refreshes") or {}).get("skipped")
+    if skipped:
+        how += (f"; {skipped} pool refresh(es) skipped (building them would have taken over "
+                f"{100 * POOL_REFRESH_MAX_SHARE:.0f} % of the time)")
     say(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
         f"final loss {last.get('loss', float('nan')):.4g}"
         + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))

@@ -287,6 +287,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     adam_real = time.perf_counter() - t_adam
     budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None,
                      sampling["seconds"] / adam_real if adam_real > 0 else None)
+    if budget is not None:  # a budgeted run may have skipped pool refreshes (sdf_pools): the account says so
+        budget["pool_refreshes"] = pools.record()
     polish = None
     seconds = res.seconds
     if cfg.polish_evals:

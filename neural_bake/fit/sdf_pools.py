@@ -25,7 +25,8 @@ class _Pools:
 
     ``max_share`` (time-budgeted runs): a refresh is skipped, keeping the current pools, while the time of
     the builds so far plus the last build's (the next one's estimate) would exceed this share of the time
-    since the first build began, as ``clock`` measures it; ``skipped`` holds the refresh indices skipped."""
+    since the first build began, as ``clock`` measures it; ``skipped`` holds the refresh indices skipped,
+    ``built`` counts the builds (:meth:`record`)."""
 
     def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype, *, max_share: float | None = None,
                  clock: Callable[[], float] = time.perf_counter):
@@ -36,6 +37,12 @@ class _Pools:
         self.started: float | None = None
         self.build_seconds = self.last_build = 0.0
         self.skipped: set[int] = set()
+        self.built = 0
+
+    def record(self) -> dict:
+        """The pools' account, JSON-ready: ``built`` (pool builds, the first one included), ``skipped``
+        (refreshes skipped to keep within the time share), ``build_seconds``."""
+        return {"built": self.built, "skipped": len(self.skipped), "build_seconds": round(self.build_seconds, 3)}
 
     def get(self, step: int):
         idx = step // self.cfg.refresh_every if self.cfg.refresh_every else 0
@@ -49,6 +56,7 @@ class _Pools:
             self._build(idx)
             self.last_build = self.clock() - t0
             self.build_seconds += self.last_build
+            self.built += 1
             self.started = t0 if self.started is None else self.started
         return self.data
 

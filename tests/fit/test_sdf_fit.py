@@ -167,6 +167,7 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
     b = fit.budget
     assert fit.steps == b["steps"] == 6 and b["expected_steps"] > 12 and b["budget_seconds"] == 120.0
     assert b["stopped"] == "time budget (120 s) used" and b["preset"] == "64x1"
+    assert b["pool_refreshes"]["built"] == 1 and b["pool_refreshes"]["skipped"] == 0
     fit.save(tmp_path / "s.sdf")
     assert load_sdf(tmp_path / "s.sdf").budget == b
     # another batch is another step cost: no expectation, no warning
@@ -869,8 +870,10 @@ def test_budgeted_pools_skip_refreshes_that_would_eat_the_budget():
     first = pools.get(0)
     now["t"] = 30.0  # 20 s of steps after a 10-s build: another build would make 20 of 40 s
     assert pools.get(100) is first and pools.skipped == {1}
+    assert pools.record() == {"built": 1, "skipped": 1, "build_seconds": 10.0}
     now["t"] = 90.0  # 20 of 100 s: within the share
     assert pools.get(150) is not first and pools.index == 1 and pools.build_seconds == 20.0
+    assert pools.record() == {"built": 2, "skipped": 1, "build_seconds": 20.0}
     # without a share (a run with a step count) every refresh index is built, as the seed reproduces
     plain = _Pools(sphere(sub=1), cfg, torch.device("cpu"), torch.float32)
     plain.get(0)
