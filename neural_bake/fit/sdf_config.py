@@ -185,6 +185,10 @@ _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 1
 #: the median normal is fitted everywhere), a stronger normal term and ω0 = 45 (docs/findings.md).
 _SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "omega_0": 45.0}
 
+#: What the 10-minute preset takes of them: no mining and the stronger normal term, at half the learning rate
+#: (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with that term; docs/findings.md).
+_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "lr": 1.5e-4}
+
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
 #: fewer steps of larger networks) and the architecture presets ``"WxD"`` (the shared names: :mod:`.presets`).
@@ -193,7 +197,7 @@ _SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "omega_0": 45.0}
 PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER},
-    "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER},
+    "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},
