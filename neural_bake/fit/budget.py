@@ -40,7 +40,7 @@ REFERENCE_STEP = (128, 2, 4096)
 STEP_COST: dict[str, float] = {
     "quick": 5.15,
     "default": 3.90,
-    "high": 8.3,
+    "high": 7.0,
     "64x1": 0.74,
     "128x2": 1.46,
     "256x2": 3.93,
