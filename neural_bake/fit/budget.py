@@ -24,8 +24,8 @@ import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
-__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "reference_step", "probe_rate", "expected_steps", "budget_record",
-           "fit_budget", "stop_note", "cache_file"]
+__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "reference_step", "probe_rate", "expected_steps",
+           "budget_record", "fit_budget", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
 REFERENCE_STEP = (128, 2, 4096)
@@ -172,8 +172,9 @@ def budget_record(steps: int, expected: int | None, *, preset: str | None = None
                   rate: float | None = None, stopped_reason: str | None = None,
                   sampling_share: float | None = None) -> dict:
     """The budget's account, JSON-ready: ``steps`` made, ``expected`` (None: no reference), their ``ratio``,
-    the probe's ``reference_rate`` (reference steps a second), ``sampling_share`` (the part of the fit's time spent drawing training samples, or
-    None when not measured), and ``warning``: one line when fewer than half the expected steps were
+    the probe's ``reference_rate`` (reference steps a second), ``sampling_share`` (the part of the fit's time
+    spent drawing training samples, or None when not measured), and ``warning``: one line when fewer than
+    half the expected steps were
     made (None otherwise), naming the sampling as the cause when it took at least
     :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the budget, else a busy or slowed machine. A run
     that stopped at its step cap is not short of time and gets no warning."""
