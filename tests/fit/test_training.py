@@ -198,8 +198,9 @@ def test_collapse_back_to_the_first_loss_restores_and_halves_lr():
 
 
 def test_no_snapshot_while_collapsing_and_a_short_spike_passes():
-    """Snapshots are taken only near the best smoothed loss: a collapse that starts five steps before a
-    snapshot step restores the snapshot before it. A five-step spike of 1,000× does not count."""
+    """Snapshots are taken only near the best median loss: a collapse that starts five steps before a
+    snapshot step restores the snapshot before it. A five-step spike of the reported loss, 1,000×, does not
+    count."""
     m, f = _linear_problem()
     seen = {"max": -1, "restored": False}
 
