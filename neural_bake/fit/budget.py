@@ -1,7 +1,7 @@
 """Honest time budgets: the steps a time-budgeted fit made beside the steps its preset makes on this machine.
 
 A preset's cost per step is stored as machine-independent work: :data:`STEP_COST`, in reference steps (a
-preset step's seconds over the seconds of :func:`reference_step`, a small Siren's training step through the
+preset step's seconds over the seconds of :class:`ReferenceStep`, a small Siren's training step through the
 same loss, measured on the same machine). A fit step is not GEMM-bound: its sines, element-wise products and
 autograd bookkeeping take as much time as its products, and how the two compare differs between CPUs (a
 bare-GEMM probe read one CPU 1.8× faster than another where the fits ran 1.1× faster), so the probe times a
@@ -24,13 +24,13 @@ import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
-__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "reference_step", "probe_rate", "expected_steps",
+__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps",
            "budget_record", "fit_budget", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
 REFERENCE_STEP = (128, 2, 4096)
 
-#: Reference steps (:func:`reference_step`) in one Adam step per preset (a step's seconds × the reference
+#: Reference steps (:class:`ReferenceStep`) in one Adam step per preset (a step's seconds × the reference
 #: rate, both on one quiet machine: BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high",
 #: "WxD"), texture presets by "texture:NAME". Measured: quick (192x3, loss not compiled: nefertiti, the tea set
 #: and Spot in 2 minutes), default (192x3, compiled: the tea set and Spot in 5 minutes), high (256x4, compiled:
@@ -59,7 +59,9 @@ class ReferenceStep:
     def __init__(self, generator: torch.Generator | None = None):
         from ..nets.siren import Siren
         from .sdf_config import SdfFitConfig
+        from .sdf_loss import sdf_loss_terms
 
+        self._loss = sdf_loss_terms
         width, depth, n = REFERENCE_STEP
         g = generator or torch.Generator().manual_seed(0)
         self.model = Siren(width, depth, generator=g)
@@ -70,15 +72,8 @@ class ReferenceStep:
         self._cfg = SdfFitConfig()
 
     def __call__(self) -> None:
-        from .sdf_loss import sdf_loss_terms
-
         self.model.zero_grad(set_to_none=True)
-        sdf_loss_terms(self.model, self._surf, self._normals, self._vol, self._dist, self._cfg)["loss"].backward()
-
-
-def reference_step(generator: torch.Generator | None = None) -> ReferenceStep:
-    """A :class:`ReferenceStep` (seeded by ``generator``; default seed 0)."""
-    return ReferenceStep(generator)
+        self._loss(self.model, self._surf, self._normals, self._vol, self._dist, self._cfg)["loss"].backward()
 
 
 @functools.lru_cache(maxsize=None)
@@ -137,7 +132,7 @@ def _best_seen(key: str, rate: float) -> float:
 
 
 def _probe(repeat: int, clock: Callable[[], float]) -> float:
-    step = reference_step()
+    step = ReferenceStep()
     for _ in range(3):  # warm-up: first-call costs and a cold cache are not the machine's speed
         step()
     best = float("inf")
@@ -149,7 +144,7 @@ def _probe(repeat: int, clock: Callable[[], float]) -> float:
 
 
 def probe_rate(repeat: int = 30, *, clock: Callable[[], float] | None = None) -> float:
-    """This machine's speed in reference steps (:func:`reference_step`) per second: the best of ``repeat``
+    """This machine's speed in reference steps (:class:`ReferenceStep`) per second: the best of ``repeat``
     timed steps on torch's current threads and of the best rate recorded for this CPU model and thread count
     (:func:`cache_file`). Measured once per process (per repeat and thread count); with ``clock`` measured
     each call, with that clock, and neither read nor recorded."""

@@ -388,9 +388,9 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
                 first_loss = loss_value
             step += 1
             spent = clock() - t_start
-            near = math.sqrt(cfg.collapse) * max(best_median, BLOWUP_LOSS_FLOOR)
-            healthy = not cfg.collapse or max(median, loss_value) <= near
-            if step % cfg.snapshot_every == 0 and healthy:
+            if step % cfg.snapshot_every == 0 and (  # never a snapshot of a collapsing run
+                    not cfg.collapse
+                    or max(median, loss_value) <= math.sqrt(cfg.collapse) * max(best_median, BLOWUP_LOSS_FLOOR)):
                 snapshot, snapshot_step = _snapshot(model, opt), step
             if step % cfg.log_every == 0 or step == cfg.steps or step == 1:
                 entry = {"step": step, "seconds": round(spent, 3), "lr": lr}

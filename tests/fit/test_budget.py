@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neural_bake.errors import NeuralBakeWarning
-from neural_bake.fit.budget import STEP_COST, budget_record, expected_steps, probe_rate, reference_step, stop_note
+from neural_bake.fit.budget import STEP_COST, budget_record, expected_steps, probe_rate, ReferenceStep, stop_note
 from neural_bake.fit.training import LoopConfig, train
 
 
@@ -21,7 +21,7 @@ def test_probe_times_the_best_reference_step_with_the_clock(ticker):
 def test_reference_step_trains_the_reference_network():
     """A call is one whole backward of the SDF loss: every parameter gets a finite, non-zero gradient, and
     the same again on the next call (gradients are reset, not summed)."""
-    step = reference_step(torch.Generator().manual_seed(3))
+    step = ReferenceStep(torch.Generator().manual_seed(3))
     step()
     model = step.model
     first = [p.grad.clone() for p in model.parameters()]
