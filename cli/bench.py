@@ -20,6 +20,7 @@ BENCHES = {
     "fidelity": ("neural_bake.cli.bench_fidelity", "command"),
     "view": ("neural_bake.cli.bench_view", "command"),
     "batch": ("neural_bake.cli.bench_batch", "command"),
+    "budget": ("neural_bake.cli.bench_budget", "command"),
 }
 
 

@@ -1,0 +1,127 @@
+"""`neural-bake bench budget`: each preset's cost per Adam step on this machine against :data:`STEP_COST`.
+
+A time-budgeted fit expects ``budget seconds × reference rate / STEP_COST[preset]`` steps
+(:mod:`neural_bake.fit.budget`). This benchmark checks that table where it runs: for every preset it fits
+the bundled bumpy sphere for a short budget, exactly as the preset fits (its network, batch, bf16 share of
+the time and compiled loss as at its own budget), reads the seconds per step from the fit's history once it
+is warm (after the first logged window: compiling, the micro-batch tuning's first trials), and measures
+the reference rate (:func:`~neural_bake.fit.budget.probe_rate`, best of 30, not cached) before and after
+the fits. Each row gives the measured cost in reference steps beside the table's, their ratio, and the
+steps each predicts for the preset's whole budget. A ratio far from 1 on a quiet machine means the table is
+off for that preset on this kind of CPU (the expected steps and the under-budget warning with it).
+
+The texture presets are fitted against the 64x1 preset's SDF of the same run.
+"""
+
+from __future__ import annotations
+
+import time
+
+from ..errors import NeuralBakeError
+from .common import load_note, machine_info
+
+__all__ = ["run", "COLUMNS", "warm_seconds_per_step"]
+
+#: Table columns, in order.
+COLUMNS = ["preset", "net", "compiled", "steps", "ms / step", "cost (reference steps)", "table cost",
+           "measured ÷ table", "budget s", "steps in budget (measured)", "steps in budget (table)"]
+
+
+def warm_seconds_per_step(history: list[dict], skip: int = 1) -> float | None:
+    """Seconds per step from a fit's history (entries with ``step`` and ``seconds``), past its first ``skip``
+    entries (the warm-up: a compile, first-call costs): the slope between the first kept entry and the last.
+    None when fewer than two entries are left or no step or time passed between them."""
+    kept = [e for e in history if "step" in e and "seconds" in e][skip:]
+    if len(kept) < 2:
+        return None
+    steps = kept[-1]["step"] - kept[0]["step"]
+    seconds = kept[-1]["seconds"] - kept[0]["seconds"]
+    return seconds / steps if steps > 0 and seconds > 0 else None
+
+
+def _presets(presets) -> list[str]:
+    from ..fit.budget import STEP_COST
+
+    names = list(presets or STEP_COST)
+    bad = [p for p in names if p not in STEP_COST]
+    if bad:
+        raise NeuralBakeError(f"bench budget: no step cost for preset(s) {', '.join(bad)}; choose among "
+                              f"{', '.join(STEP_COST)}")
+    # the texture presets need an SDF: the 64x1 fit of this run
+    return sorted(names, key=lambda p: p.startswith("texture:"))
+
+
+def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_every: int = 25,
+        sdf_overrides: dict | None = None, texture_overrides: dict | None = None, log=None) -> dict:
+    """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
+
+    - ``presets``: keys of :data:`~neural_bake.fit.budget.STEP_COST` (default all; ``"texture:NAME"`` for a
+      texture preset).
+    - ``seconds``: each fit's budget (default 30; quick 8).
+    - ``log_every``: steps between the history entries the step time is read from.
+    - ``sdf_overrides``, ``texture_overrides``: more settings for every SDF or texture fit (tests shrink the
+      pools with them; a changed network or batch changes the step's cost).
+    """
+    from ..fit.budget import STEP_COST, probe_rate
+    from ..fit.sdf import fit_sdf
+    from ..fit.sdf_config import PRESETS as SDF_PRESETS
+    from ..fit.texture import PRESETS as TEXTURE_PRESETS
+    from ..fit.texture import fit_texture
+    from ..io.mesh_io import load_mesh
+    from ..nets.compiled import long_run
+    from ..samples.generate import sample_path
+
+    say = log or (lambda s: None)
+    names = _presets(presets)
+    seconds = float(seconds if seconds is not None else (8.0 if quick else 30.0))
+    if not seconds > 0:
+        raise NeuralBakeError(f"bench budget: seconds must be positive, got {seconds!r}")
+    sdf_over, tex_over = dict(sdf_overrides or {}), dict(texture_overrides or {})
+    mesh = load_mesh(sample_path("bumpy_sphere"))
+    rates = [probe_rate(clock=time.perf_counter)]
+    rows, notes, sdf_for_texture = [], [], None
+    if any(p.startswith("texture:") for p in names):
+        say("64x1: the SDF the texture presets are fitted against")
+        sdf_for_texture = fit_sdf(mesh, preset="64x1", minutes=seconds / 60.0, progress=False,
+                                  **sdf_over).model
+    for name in names:
+        say(f"{name}: fitting for {seconds:.0f} s")
+        texture = name.startswith("texture:")
+        preset = name.partition(":")[2] if texture else name
+        full = (TEXTURE_PRESETS if texture else SDF_PRESETS)[preset]
+        if texture:
+            fit = fit_texture(mesh, sdf_for_texture, preset=preset, minutes=seconds / 60.0, log_every=log_every,
+                              **tex_over)
+            compiled = False
+        else:
+            # compiled as at the preset's own budget, which a short run would not repay by itself
+            compiled = long_run(int(full.get("steps", 5000)), full.get("minutes"))
+            fit = fit_sdf(mesh, preset=preset, minutes=seconds / 60.0, progress=False, log_every=log_every,
+                          compile="on" if compiled else "off", **sdf_over)
+            compiled = fit.config.compile == "on"
+        per_step = warm_seconds_per_step(fit.history)
+        rows.append({"preset": name, "net": f"{fit.config.width}x{fit.config.depth}", "compiled": compiled,
+                     "steps": fit.steps, "ms / step": None if per_step is None else 1000.0 * per_step,
+                     "_seconds_per_step": per_step, "table cost": STEP_COST[name],
+                     "budget s": 60.0 * float(full["minutes"]) if full.get("minutes") else None})
+        if per_step is None:
+            notes.append(f"{name}: too few steps in {seconds:.0f} s to read a warm step time; give more seconds")
+    rates.append(probe_rate(clock=time.perf_counter))
+    rate = max(rates)
+    for r in rows:
+        per_step = r.pop("_seconds_per_step")
+        if per_step is None:
+            continue
+        cost = per_step * rate
+        r["cost (reference steps)"] = cost
+        r["measured ÷ table"] = cost / r["table cost"]
+        if r["budget s"]:
+            r["steps in budget (measured)"] = int(r["budget s"] / per_step)
+            r["steps in budget (table)"] = int(r["budget s"] * rate / r["table cost"])
+    notes.append(f"reference rate {rate:.1f} steps/s (best of 30 before and after the fits: "
+                 f"{', '.join(f'{x:.1f}' for x in rates)}); a busy machine reads every cost high")
+    notes.append(f"each fit: {seconds:.0f} s on the bumpy sphere sample, step time after its first "
+                 f"{log_every}-step window; SDF presets with a budget of 5 minutes or more compiled, as they run")
+    notes.append(load_note())
+    return {"name": "budget", "title": "step cost per preset (reference steps) against fit.budget.STEP_COST",
+            "machine": machine_info(), "quick": quick, "reference_rate": rate, "rows": rows, "notes": notes}
