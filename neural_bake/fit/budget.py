@@ -34,9 +34,9 @@ REFERENCE_STEP = (128, 2, 4096)
 #: rate, both on one quiet machine: BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high",
 #: "WxD"), texture presets by "texture:NAME". Measured: quick (192x3, loss not compiled: nefertiti, the tea set
 #: and Spot in 2 minutes), default (192x3, compiled: the tea set and Spot in 5 minutes), high (256x4, compiled:
-#: nefertiti in 10 minutes), texture:quick and texture:default (the tea set). 64x1, 128x2, 256x3 and
-#: texture:high keep the ratios to quick, default and texture:default measured on another machine; 256x2 is an
-#: estimate, 0.8 × 256x3.
+#: nefertiti in 10 minutes), texture:quick and texture:default (the tea set). 64x1, 128x2, 256x3 and 256x2
+#: keep ratios to quick and default measured elsewhere; texture:high its ratio to texture:default in
+#: ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
 STEP_COST: dict[str, float] = {
     "quick": 5.15,
     "default": 3.90,
@@ -47,7 +47,7 @@ STEP_COST: dict[str, float] = {
     "256x3": 4.91,
     "texture:quick": 0.173,
     "texture:default": 1.68,
-    "texture:high": 3.45,
+    "texture:high": 1.41,
 }
 
 
