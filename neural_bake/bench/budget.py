@@ -22,7 +22,7 @@ import warnings
 from ..errors import NeuralBakeError, NeuralBakeWarning
 from .common import load_note, machine_info
 
-__all__ = ["run", "COLUMNS", "warm_seconds_per_step"]
+__all__ = ["run", "COLUMNS", "QUICK_PRESETS", "warm_seconds_per_step"]
 
 #: Table columns, in order.
 COLUMNS = ["preset", "net", "compiled", "steps", "ms / step", "cost (reference steps)", "table cost",
@@ -41,10 +41,14 @@ def warm_seconds_per_step(history: list[dict], skip: int = 1) -> float | None:
     return seconds / steps if steps > 0 and seconds > 0 else None
 
 
-def _presets(presets) -> list[str]:
+#: The presets of ``--quick`` (none compiled: the run stays under two minutes).
+QUICK_PRESETS = ("quick", "64x1", "texture:quick")
+
+
+def _presets(presets, quick: bool) -> list[str]:
     from ..fit.budget import STEP_COST
 
-    names = list(presets or STEP_COST)
+    names = list(presets or (QUICK_PRESETS if quick else STEP_COST))
     bad = [p for p in names if p not in STEP_COST]
     if bad:
         raise NeuralBakeError(f"bench budget: no step cost for preset(s) {', '.join(bad)}; choose among "
@@ -57,8 +61,8 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
         sdf_overrides: dict | None = None, texture_overrides: dict | None = None, log=None) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
-    - ``presets``: keys of :data:`~neural_bake.fit.budget.STEP_COST` (default all; ``"texture:NAME"`` for a
-      texture preset).
+    - ``presets``: keys of :data:`~neural_bake.fit.budget.STEP_COST` (default all; quick :data:`QUICK_PRESETS`;
+      ``"texture:NAME"`` for a texture preset).
     - ``seconds``: each fit's budget (default 30; quick 8).
     - ``log_every``: steps between the history entries the step time is read from.
     - ``sdf_overrides``, ``texture_overrides``: more settings for every SDF or texture fit (tests shrink the
@@ -74,7 +78,7 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
     from ..samples.generate import sample_path
 
     say = log or (lambda s: None)
-    names = _presets(presets)
+    names = _presets(presets, quick)
     seconds = float(seconds if seconds is not None else (8.0 if quick else 30.0))
     if not seconds > 0:
         raise NeuralBakeError(f"bench budget: seconds must be positive, got {seconds!r}")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from neural_bake.bench.budget import COLUMNS, run, warm_seconds_per_step
+from neural_bake.bench.budget import COLUMNS, QUICK_PRESETS, _presets, run, warm_seconds_per_step
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fit.budget import STEP_COST
 
@@ -41,6 +41,13 @@ def test_shrunken_run_measures_costs_against_the_table():
     assert rows[0]["net"] == "64x1" and rows[0]["budget s"] == 120.0
     assert rows[1]["budget s"] == 60.0
     assert any("reference rate" in n for n in res["notes"])
+
+
+def test_preset_choice_puts_textures_after_the_sdf_they_need():
+    assert _presets(None, quick=True) == list(QUICK_PRESETS)  # nothing compiled: under two minutes
+    full = _presets(None, quick=False)
+    assert sorted(full) == sorted(STEP_COST)
+    assert [p.startswith("texture:") for p in full] == sorted(p.startswith("texture:") for p in full)
 
 
 def test_errors():
