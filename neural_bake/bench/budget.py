@@ -11,7 +11,8 @@ the fits. Each row gives the measured cost in reference steps beside the table's
 steps each predicts for the preset's whole budget. A ratio far from 1 on a quiet machine means the table is
 off for that preset on this kind of CPU (the expected steps and the under-budget warning with it).
 
-The texture presets are fitted against the 64x1 preset's SDF of the same run.
+The texture presets are fitted against the 64x1 preset's SDF of the same run (fitted for them when 64x1 is
+not measured).
 """
 
 from __future__ import annotations
@@ -85,18 +86,18 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
     sdf_over, tex_over = dict(sdf_overrides or {}), dict(texture_overrides or {})
     mesh = load_mesh(sample_path("bumpy_sphere"))
     rates = [probe_rate(clock=time.perf_counter)]
-    rows, notes, sdf_for_texture = [], [], None
-    if any(p.startswith("texture:") for p in names):
-        say("64x1: the SDF the texture presets are fitted against")
-        sdf_for_texture = fit_sdf(mesh, preset="64x1", minutes=seconds / 60.0, progress=False,
-                                  **sdf_over).model
+    rows, notes, sdf_models = [], [], {}  # the fitted SDFs by preset: the texture presets use 64x1's
 
     def measure(name: str) -> dict:
         texture = name.startswith("texture:")
         preset = name.partition(":")[2] if texture else name
         full = (TEXTURE_PRESETS if texture else SDF_PRESETS)[preset]
         if texture:
-            fit = fit_texture(mesh, sdf_for_texture, preset=preset, minutes=seconds / 60.0, log_every=log_every,
+            if "64x1" not in sdf_models:  # the SDF presets ran first (_presets); 64x1 was not among them
+                say("64x1: the SDF the texture presets are fitted against")
+                sdf_models["64x1"] = fit_sdf(mesh, preset="64x1", minutes=seconds / 60.0, progress=False,
+                                             **sdf_over).model
+            fit = fit_texture(mesh, sdf_models["64x1"], preset=preset, minutes=seconds / 60.0, log_every=log_every,
                               **tex_over)
             compiled = False
         else:
@@ -108,6 +109,7 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
                 fit = fit_sdf(mesh, preset=preset, minutes=seconds / 60.0, progress=False, log_every=log_every,
                               compile="on" if compiled else "off", **sdf_over)
             compiled = fit.config.compile == "on"
+            sdf_models[preset] = fit.model
         per_step = warm_seconds_per_step(fit.history)
         if per_step is None:
             notes.append(f"{name}: too few steps in {seconds:.0f} s to read a warm step time; give more seconds")

@@ -43,6 +43,14 @@ def test_shrunken_run_measures_costs_against_the_table():
     assert any("reference rate" in n for n in res["notes"])
 
 
+def test_texture_alone_fits_its_sdf_first():
+    said = []
+    res = run(quick=True, presets=["texture:quick"], seconds=2.0, log_every=5, sdf_overrides=SMALL_SDF,
+              texture_overrides={"pool": 20_000}, log=said.append)
+    assert [r["preset"] for r in res["rows"]] == ["texture:quick"] and res["rows"][0]["steps"] > 0
+    assert said[0].startswith("texture:quick") and any("64x1: the SDF" in s for s in said)
+
+
 def test_preset_choice_puts_textures_after_the_sdf_they_need():
     assert _presets(None, quick=True) == list(QUICK_PRESETS)  # nothing compiled: under two minutes
     full = _presets(None, quick=False)
