@@ -249,6 +249,10 @@ TBN_DET_REL_EPS = 1e-8
 #: term, never NaN.
 LOSS_GRAD_FLOOR = 1e-6
 
+#: ε of the training loss's angle term √(2(1 − cos θ) + ε²) − ε (radians, about 0.06°): below it
+#: the term is quadratic, so its gradient stays bounded (1 / ε) where ∇f meets the target normal.
+NORMAL_ANGLE_EPS = 1e-3
+
 #: A mined point of the network's zero set is kept when its |f| after the Newton projection is at most this.
 MINED_ZERO_SET_TOL = 1e-3
 

@@ -45,7 +45,14 @@ class SdfFitConfig:
     w_surface: float = 3000.0
     """Weight of mean f² on surface samples."""
     w_normal: float = 100.0
-    """Weight of mean (1 − <∇f/|∇f|, n>) on surface samples (cosine form: bounded, |∇f| is left to eikonal)."""
+    """Weight of the normal term, mean (1 − cos θ) over the surface samples, θ the angle between ∇f and the
+    target normal (about θ²/2: large angles, at creases and noise, pull hardest; |∇f| is left to the
+    eikonal term)."""
+    w_angle: float = 0.0
+    """Weight of the angle term, mean (√(2(1 − cos θ) + ε²) − ε) over the surface samples: the chord
+    2 sin(θ/2) ≈ θ in radians, smoothed below ε = :data:`~neural_bake.constants.NORMAL_ANGLE_EPS`. Every
+    angle pulls alike, so the many small angles that set a map's median get a larger share of each step
+    than under the normal term's θ²/2 (docs/findings.md)."""
     w_eikonal: float = 50.0
     """Weight of mean (1 − |∇f|)² on every point of the step."""
     w_sdf: float = 3000.0
@@ -182,12 +189,13 @@ class SdfFitConfig:
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
 #: What the 2-minute preset adds for the shading a map shows: no hard-example mining (every sample uniform, so
-#: the median normal is fitted everywhere), a stronger normal term and ω0 = 45 (docs/findings.md).
-_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "omega_0": 45.0}
+#: the median normal is fitted everywhere), a stronger normal term, the angle term beside it and ω0 = 45
+#: (docs/findings.md).
+_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "omega_0": 45.0}
 
-#: What the 10-minute preset takes of them: no mining and the stronger normal term, at half the learning rate
+#: What the 10-minute preset takes of them: no mining, the stronger normal term and the angle term, at half the learning rate
 #: (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with that term; docs/findings.md).
-_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "lr": 1.5e-4}
+_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr": 1.5e-4}
 
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
@@ -251,7 +259,7 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
     if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):
         raise FitError(f"fit_sdf: omega_0 must be positive, got {cfg.omega_0!r}")
-    for name in ("w_surface", "w_normal", "w_eikonal", "w_sdf", "focus_tau"):
+    for name in ("w_surface", "w_normal", "w_angle", "w_eikonal", "w_sdf", "focus_tau"):
         v = getattr(cfg, name)
         if not (math.isfinite(v) and v >= 0):
             raise FitError(f"fit_sdf: {name} must be a non-negative number, got {v!r}")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR
+from ..constants import LOSS_GRAD_FLOOR, NORMAL_ANGLE_EPS
 from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from .sdf_config import SdfFitConfig
@@ -53,7 +53,7 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         model: the Siren being trained.
         surf_p, surf_n: (S, 3) surface points and unit outward normals (unit frame).
         vol_p, vol_d: (V, 3) off-surface points and (V,) their ground-truth signed distances.
-        cfg: weights ``w_surface``, ``w_normal``, ``w_eikonal``, ``w_sdf`` and the focus ``focus_tau``.
+        cfg: weights ``w_surface``, ``w_normal``, ``w_angle``, ``w_eikonal``, ``w_sdf`` and the focus ``focus_tau``.
         low_precision: hidden GEMMs in bfloat16 (:func:`mixed_gradient`) instead of float32.
         totals: (S, V) of the whole step when these points are one micro-batch of it: each term is a sum
             over these points divided by the step's sizes, so the micro-batches' terms add up to the step's
@@ -76,14 +76,19 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
     gnorm = torch.linalg.vector_norm(grads, dim=1)
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
+    miss = 1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(LOSS_GRAD_FLOOR)
     terms = {
         "surface": sq_surf.sum() / max(n_s, 1),
-        "normal": (1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(LOSS_GRAD_FLOOR)).sum() / max(n_s, 1),
+        "normal": miss.sum() / max(n_s, 1),
         "eikonal": ((1.0 - gnorm) ** 2).sum() / max(n_s + n_v, 1),
     }
     terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_p.shape[0] else f.new_zeros(())
     terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
                      + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
+    if cfg.w_angle > 0:
+        eps = NORMAL_ANGLE_EPS
+        terms["angle"] = (torch.sqrt(2.0 * miss.clamp_min(0.0) + eps * eps) - eps).sum() / max(n_s, 1)
+        terms["loss"] = terms["loss"] + cfg.w_angle * terms["angle"]
     if power_weight > 0:
         r = f[:s] / (gnorm[:s].clamp_min(FIRST_ORDER_MIN_SLOPE) * power_scale)
         terms["power"] = r.abs().pow(cfg.polish_max_p).sum() / max(n_s, 1)

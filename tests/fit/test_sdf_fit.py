@@ -12,6 +12,7 @@ from neural_bake.cli.main import main
 from neural_bake.errors import FitError, ModelFileError, NeuralBakeWarning
 from neural_bake.fit.sdf import PRESETS, SdfFit, SdfFitConfig, fit_sdf, load_sdf
 from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.nets.gemm import gemm_gradient
 from neural_bake.nets.compiled import compiler_available
 
 R = 0.8
@@ -202,6 +203,7 @@ def test_slow_sdf_fit_warns_and_records(tmp_path):
     ({"focus_tau": -0.01}, "focus_tau must be a non-negative number"),
     ({"focus_tau": math.inf}, "focus_tau must be a non-negative number"),
     ({"surface_normals": "smooth"}, "surface_normals must be 'face' or 'vertex'"),
+    ({"w_angle": -1.0}, "w_angle must be a non-negative number"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -335,6 +337,47 @@ def test_focused_squares_weights_and_cap(dtype):
     (grad,) = torch.autograd.grad(out.sum(), r)
     w = 1 + torch.clamp((r.detach() / tau) ** 2, max=FOCUS_CAP)
     assert torch.allclose(grad, 2 * r.detach() * w, rtol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_angle_term_is_the_angle_and_stays_finite_where_it_vanishes(dtype):
+    """The angle term is the mean chord 2 sin(θ/2) ≈ θ of the angle between ∇f and the target (to ε), its
+    gradient finite where ∇f meets the target exactly and where ∇f vanishes; it adds to the other terms,
+    unchanged."""
+    from neural_bake.constants import NORMAL_ANGLE_EPS
+    from neural_bake.fit.sdf import sdf_loss_terms
+    from neural_bake.nets.siren import Siren
+
+    g = torch.Generator().manual_seed(5)
+    model = Siren(16, 1, generator=g).to(dtype)
+    sp = torch.rand(64, 3, generator=g, dtype=dtype)
+    with torch.no_grad():
+        _, grads = gemm_gradient(model, sp, "reverse")
+    unit = torch.nn.functional.normalize(grads, dim=1)
+    axis = torch.nn.functional.normalize(torch.linalg.cross(unit, torch.randn(64, 3, generator=g, dtype=dtype)), dim=1)
+    theta = torch.linspace(0.0, 1.0, 64, dtype=dtype)  # radians, the first exactly 0
+    sn = unit * torch.cos(theta)[:, None] + axis * torch.sin(theta)[:, None]
+    vp, vd = sp[:0], sp.new_zeros(0)
+    cosine = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig())
+    angle = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig(w_angle=7.0))
+    tol = 1e-3 if dtype == torch.float32 else 1e-9
+    assert "angle" not in cosine
+    assert float(cosine["normal"]) == pytest.approx(float((1 - torch.cos(theta)).mean()), abs=tol)
+    chord = 2 * torch.sin(theta / 2)  # √(2(1 − cos θ)): θ to within θ³/24
+    assert float(angle["angle"]) == pytest.approx(float(chord.mean()), abs=NORMAL_ANGLE_EPS + tol)
+    for key in ("surface", "normal", "eikonal"):
+        assert float(angle[key]) == float(cosine[key])
+    assert float(angle["loss"]) == pytest.approx(float(cosine["loss"]) + 7.0 * float(angle["angle"]), rel=1e-5)
+    model.zero_grad()
+    angle["loss"].backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters())
+    with torch.no_grad():  # a network whose gradient vanishes everywhere
+        for p in model.parameters():
+            p.zero_()
+    model.zero_grad()
+    flat = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig(w_angle=7.0))
+    flat["loss"].backward()
+    assert torch.isfinite(flat["loss"]) and all(torch.isfinite(p.grad).all() for p in model.parameters())
 
 
 def test_focus_weights_the_worst_residuals_and_micro_batches_still_add_up():
