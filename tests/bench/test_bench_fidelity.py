@@ -104,3 +104,15 @@ def test_bad_sampling_and_steps_are_refused(tmp_path, capsys):
     for args, hint in ((["--sampling", "uniform,curvy"], "--sampling"), (["--steps", "10,x"], "--steps")):
         assert main(["bench", "fidelity", "--quick", *args]) == 2
         assert f"Invalid value for {hint}" in capsys.readouterr().err
+
+
+def test_targets_are_marked_met_or_not_by_the_map_median():
+    from neural_bake.bench.fidelity import target_text
+
+    assert target_text("nefertiti", 10.0, 0.52) == "map ≤ 1.0°: met; halving 1.19°: met, 0.44×"
+    assert target_text("nefertiti", 10.0, 0.71) == "map ≤ 1.0°: met; halving 1.19°: NOT met, 0.60×"
+    assert target_text("nefertiti", 2.0, 1.5) == "map ≤ 1.4°: NOT met; halving 2.64°: NOT met, 0.57×"
+    assert target_text("ogre", 2.0, 1.69) == "halving 4.88°: met, 0.35×"
+    assert target_text("nefertiti", 10.0, None) == "map ≤ 1.0°: NOT met; halving 1.19°: NOT met"
+    assert target_text("nefertiti", 10.0, float("nan")).startswith("map ≤ 1.0°: NOT met")
+    assert target_text("nefertiti", 5.0, 0.5) is None and target_text("spot", 2.0, 0.5) is None
