@@ -43,7 +43,7 @@ from pathlib import Path
 
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR
+from ..constants import LOSS_GRAD_FLOOR, NORMAL_ANGLE_EPS
 from .common import data_folder, load_note, machine_info, timeit_interleaved
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
@@ -66,9 +66,12 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     gn = torch.linalg.vector_norm(g, dim=1)
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
-    loss = (cfg.w_surface * sq_surf.mean()
-            + cfg.w_normal * (1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(LOSS_GRAD_FLOOR)).mean()
+    miss = 1.0 - (g[:s] * surf_n).sum(1) / gn[:s].clamp_min(LOSS_GRAD_FLOOR)
+    loss = (cfg.w_surface * sq_surf.mean() + cfg.w_normal * miss.mean()
             + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * sq_vol.mean())
+    if cfg.w_angle > 0:
+        eps = NORMAL_ANGLE_EPS
+        loss = loss + cfg.w_angle * (torch.sqrt(2.0 * miss.clamp_min(0.0) + eps * eps) - eps).mean()
     return {"loss": loss}
 
 

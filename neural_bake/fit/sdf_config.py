@@ -193,8 +193,9 @@ _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 1
 #: (docs/findings.md).
 _SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "omega_0": 45.0}
 
-#: What the 10-minute preset takes of them: no mining, the stronger normal term and the angle term, at half the learning rate
-#: (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with that term; docs/findings.md).
+#: What the 10-minute preset takes of them: no mining, the stronger normal term and the angle term, at half the
+#: learning rate (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with the stronger normal
+#: term; docs/findings.md).
 _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr": 1.5e-4}
 
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``

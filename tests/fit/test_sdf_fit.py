@@ -301,8 +301,8 @@ def test_bench_step_timing_parts():
         assert r["compiled_over_roofline"] == pytest.approx(r["compiled_s"] / r["roofline_s"])
 
 
-@pytest.mark.parametrize("focus_tau", [0.0, 0.05, 0.5])
-def test_bench_baseline_loss_equals_ours(focus_tau):
+@pytest.mark.parametrize("focus_tau, w_angle", [(0.0, 0.0), (0.05, 0.0), (0.5, 0.0), (0.0, 300.0)])
+def test_bench_baseline_loss_equals_ours(focus_tau, w_angle):
     # the benchmark's double-backward baseline computes exactly our loss (so the timing compares like with like)
     from neural_bake.bench.fit import _autograd_terms
     from neural_bake.fit.sdf import sdf_loss_terms
@@ -313,7 +313,7 @@ def test_bench_baseline_loss_equals_ours(focus_tau):
     sp, vp = torch.rand(50, 3, generator=g, dtype=torch.float64), torch.rand(30, 3, generator=g, dtype=torch.float64)
     sn = torch.nn.functional.normalize(torch.randn(50, 3, generator=g, dtype=torch.float64), dim=1)
     vd = torch.rand(30, generator=g, dtype=torch.float64)
-    cfg = SdfFitConfig(focus_tau=focus_tau)
+    cfg = SdfFitConfig(focus_tau=focus_tau, w_angle=w_angle)
     ours = sdf_loss_terms(model, sp, sn, vp, vd, cfg)["loss"]
     ref = _autograd_terms(model, sp, sn, vp, vd, cfg)["loss"]
     assert float(ours.detach()) == pytest.approx(float(ref.detach()), rel=1e-10)
