@@ -43,7 +43,7 @@ from pathlib import Path
 
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR, NORMAL_ANGLE_EPS
+from ..constants import LOSS_GRAD_FLOOR
 from .common import data_folder, load_note, machine_info, timeit_interleaved
 
 __all__ = ["run", "step_timing", "DATA_DIR"]
@@ -57,6 +57,7 @@ TARGETS = {"256x3": {"hausdorff": 0.005, "normal_median_deg": 3.0}, "64x1": {"ha
 def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     """The baseline: the same losses with ∇f by autograd (create_graph=True → double-backward)."""
     from ..fit.sdf import focused_squares
+    from ..fit.sdf_loss import smooth_angle
 
     s = surf_p.shape[0]
     pts = torch.cat([surf_p, vol_p]).requires_grad_(True)
@@ -70,8 +71,7 @@ def _autograd_terms(model, surf_p, surf_n, vol_p, vol_d, cfg) -> dict:
     loss = (cfg.w_surface * sq_surf.mean() + cfg.w_normal * miss.mean()
             + cfg.w_eikonal * ((1.0 - gn) ** 2).mean() + cfg.w_sdf * sq_vol.mean())
     if cfg.w_angle > 0:
-        eps = NORMAL_ANGLE_EPS
-        loss = loss + cfg.w_angle * (torch.sqrt(2.0 * miss.clamp_min(0.0) + eps * eps) - eps).mean()
+        loss = loss + cfg.w_angle * smooth_angle(miss).mean()
     return {"loss": loss}
 
 

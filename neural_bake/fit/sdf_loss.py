@@ -14,8 +14,8 @@ from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from .sdf_config import SdfFitConfig
 
-__all__ = ["mixed_gradient", "sdf_loss_terms", "first_order_distance", "focused_squares", "sdf_step_backward",
-           "FIRST_ORDER_MIN_SLOPE", "FOCUS_CAP"]
+__all__ = ["mixed_gradient", "sdf_loss_terms", "smooth_angle", "first_order_distance", "focused_squares",
+           "sdf_step_backward", "FIRST_ORDER_MIN_SLOPE", "FOCUS_CAP"]
 
 
 def mixed_gradient(model: Siren, points: torch.Tensor, gemm_dtype: torch.dtype = torch.bfloat16):
@@ -86,14 +86,20 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
     terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
                      + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
     if cfg.w_angle > 0:
-        eps = NORMAL_ANGLE_EPS
-        terms["angle"] = (torch.sqrt(2.0 * miss.clamp_min(0.0) + eps * eps) - eps).sum() / max(n_s, 1)
+        terms["angle"] = smooth_angle(miss).sum() / max(n_s, 1)
         terms["loss"] = terms["loss"] + cfg.w_angle * terms["angle"]
     if power_weight > 0:
         r = f[:s] / (gnorm[:s].clamp_min(FIRST_ORDER_MIN_SLOPE) * power_scale)
         terms["power"] = r.abs().pow(cfg.polish_max_p).sum() / max(n_s, 1)
         terms["loss"] = terms["loss"] + power_weight * terms["power"]
     return terms
+
+
+def smooth_angle(miss: torch.Tensor) -> torch.Tensor:
+    """The angle term's √(2 ``miss`` + ε²) − ε of ``miss`` = 1 − cos θ: the chord 2 sin(θ/2) ≈ θ, smoothed
+    below ε = :data:`~neural_bake.constants.NORMAL_ANGLE_EPS` (``SdfFitConfig.w_angle``)."""
+    eps = NORMAL_ANGLE_EPS
+    return torch.sqrt(2.0 * miss.clamp_min(0.0) + eps * eps) - eps
 
 
 #: The slope below which :func:`first_order_distance` stops dividing (|∇f| of a trained SDF is ~1 on its
