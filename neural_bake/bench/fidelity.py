@@ -52,9 +52,10 @@ SAMPLINGS: dict[str, dict] = {
 TARGETS = {("nefertiti", 2.0): 1.4, ("nefertiti", 10.0): 1.0}
 
 #: The median baked normal errors the issue's "halve at every preset" starts from, by the fit's budget in
-#: minutes: the detailed scans with the 2- and 10-minute presets of that time (64x1 and 256x3, face normals;
-#: BENCHMARKS.md, "Previous presets").
-HALVE_FROM = {("nefertiti", 2.0): 2.64, ("ogre", 2.0): 4.88, ("nefertiti", 10.0): 1.19, ("ogre", 10.0): 2.57}
+#: minutes: the detailed scans with the 2-, 5- and 10-minute presets of that time (64x1, 128x2 and 256x3;
+#: BENCHMARKS.md, "Previous presets" and the 5-minute rows).
+HALVE_FROM = {("nefertiti", 2.0): 2.64, ("ogre", 2.0): 4.88, ("nefertiti", 5.0): 1.25, ("ogre", 5.0): 2.95,
+              ("nefertiti", 10.0): 1.19, ("ogre", 10.0): 2.57}
 
 
 def target_text(name: str, minutes: float | None, median: float | None) -> str | None:

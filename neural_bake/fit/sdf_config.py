@@ -188,9 +188,9 @@ class SdfFitConfig:
 #: The training settings of the multi-layer presets (how they were chosen: docs/findings.md).
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
-#: What the 2-minute preset adds for the shading a map shows: no hard-example mining (every sample uniform, so
-#: the median normal is fitted everywhere), a stronger normal term, the angle term beside it and ω0 = 45
-#: (docs/findings.md).
+#: What the 2- and 5-minute presets add for the shading a map shows: no hard-example mining (every sample
+#: uniform, so the median normal is fitted everywhere), a stronger normal term, the angle term beside it and
+#: ω0 = 45 (docs/findings.md).
 _SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "omega_0": 45.0}
 
 #: What the 10-minute preset takes of them: no mining, the stronger normal term and the angle term, at half the
@@ -205,7 +205,7 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr"
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING},
-    "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER},
+    "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,

@@ -115,4 +115,6 @@ def test_targets_are_marked_met_or_not_by_the_map_median():
     assert target_text("ogre", 2.0, 1.69) == "halving 4.88°: met, 0.35×"
     assert target_text("nefertiti", 10.0, None) == "map ≤ 1.0°: NOT met; halving 1.19°: NOT met"
     assert target_text("nefertiti", 10.0, float("nan")).startswith("map ≤ 1.0°: NOT met")
-    assert target_text("nefertiti", 5.0, 0.5) is None and target_text("spot", 2.0, 0.5) is None
+    assert target_text("nefertiti", 5.0, 0.52) == "halving 1.25°: met, 0.42×"
+    assert target_text("ogre", 5.0, 1.5) == "halving 2.95°: NOT met, 0.51×"
+    assert target_text("nefertiti", 8.0, 0.5) is None and target_text("spot", 2.0, 0.5) is None

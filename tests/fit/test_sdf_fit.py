@@ -145,9 +145,9 @@ def test_presets_and_config():
     # quick, default and high: the best networks found for 2, 5 and 10 minutes
     q, d, h = config_from(preset="quick"), config_from(preset="default"), config_from(preset="high")
     assert (q.width, q.depth, q.minutes) == (192, 3, 2.0) and q != config_from(preset="64x1")
-    assert (q.hard_fraction, q.w_normal, q.omega_0) == (0.0, 300.0, 45.0)  # aimed at the map's shading
-    assert (d.hard_fraction, d.w_normal, d.omega_0) == (0.25, 100.0, 30.0)
-    assert (h.hard_fraction, h.w_normal, h.omega_0, h.lr) == (0.0, 300.0, 30.0, 1.5e-4)
+    for c in (q, d):  # aimed at the map's shading
+        assert (c.hard_fraction, c.w_normal, c.w_angle, c.omega_0, c.lr) == (0.0, 300.0, 300.0, 45.0, 3e-4)
+    assert (h.hard_fraction, h.w_normal, h.w_angle, h.omega_0, h.lr) == (0.0, 300.0, 300.0, 30.0, 1.5e-4)
     assert (d.width, d.depth, d.minutes) == (192, 3, 5.0) and d != config_from(preset="128x2")
     assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
 
