@@ -148,6 +148,7 @@ def test_presets_and_config():
     for c in (q, d):  # aimed at the map's shading
         assert (c.hard_fraction, c.w_normal, c.w_angle, c.omega_0, c.lr) == (0.0, 300.0, 300.0, 45.0, 3e-4)
     assert (h.hard_fraction, h.w_normal, h.w_angle, h.omega_0, h.lr) == (0.0, 300.0, 300.0, 30.0, 1.5e-4)
+    assert (q.zero_fraction, d.zero_fraction, h.zero_fraction) == (0.0, 0.1, 0.0)  # default's stray pieces
     assert (d.width, d.depth, d.minutes) == (192, 3, 5.0) and d != config_from(preset="128x2")
     assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
 
