@@ -584,11 +584,12 @@ def test_zero_set_samples_take_the_head_of_the_near_batch():
     assert (vp0[:, 0] >= 0).all()
 
 
-def test_fit_with_zero_set_mining_reproduces_and_stays_finite():
-    kw = dict(TINY, zero_fraction=0.25, zero_candidates=2000, hard_every=10)
+@pytest.mark.parametrize("hard_fraction", [0.25, 0.0])  # 0: the default preset's mining of the zero set alone
+def test_fit_with_zero_set_mining_reproduces_and_stays_finite(hard_fraction):
+    kw = dict(TINY, zero_fraction=0.25, zero_candidates=2000, hard_every=10, hard_fraction=hard_fraction)
     a = fit_sdf(sphere(), steps=30, seed=0, **kw)
     b = fit_sdf(sphere(), steps=30, seed=0, **kw)
-    off = fit_sdf(sphere(), steps=30, seed=0, **TINY)
+    off = fit_sdf(sphere(), steps=30, seed=0, **dict(TINY, hard_fraction=hard_fraction))
     assert torch.isfinite(weights(a.model)).all() and torch.equal(weights(a.model), weights(b.model))
     assert not torch.equal(weights(a.model), weights(off.model))
     assert a.config.zero_fraction == 0.25
