@@ -15,13 +15,17 @@ from .bench import bench_options, report
               help="A (256,3) SDF model of the anchor mesh (Spot when the reference data is there, else the bumpy "
                    "sphere) for the 'against the anchor' table; default a randomly initialised one.")
 @click.option("--no-anchor", is_flag=True, help="Skip the 'against the anchor' table.")
+@click.option("--blender-python", type=click.Path(dir_okay=False), default=None,
+              help="The Python interpreter with bpy for the Blender rows (default $NEURAL_BAKE_BLENDER_PYTHON, else "
+                   ".cache/blender-venv/bin/python, which `make setup-blender` makes).")
 def command(quick: bool, json_path: str | None, sdf_model: str | None, anchor_model: str | None,
-            no_anchor: bool) -> None:
+            no_anchor: bool, blender_python: str | None) -> None:
     """Texels per second of tangent-space normal maps from a (256, 3) SIREN (GEMM vs autograd normals), and
     the error of baked normals against time as map size and coarse face count vary on the bumpy sphere,
     beside the classical mesh-to-mesh bake; and our bake (full or adaptive, float32 or auto precision) of 2048²
-    and 4096² maps (quick: 256², 512²) against the open3d baseline and Blender's Cycles bake (when bpy is
-    installed), every map scored by the same decoder."""
+    and 4096² maps (quick: 256², 512²) against the open3d baseline and Blender's Cycles bake (run in its own
+    process when its interpreter is set up: `make setup-blender`), every map scored by the same decoder."""
     from neural_bake.bench.bake import run
 
-    report(run(quick=quick, sdf_model=sdf_model, anchor=not no_anchor, anchor_model=anchor_model), json_path)
+    report(run(quick=quick, sdf_model=sdf_model, anchor=not no_anchor, anchor_model=anchor_model,
+               blender_python=blender_python), json_path)
