@@ -134,6 +134,13 @@ BF16_MIN_SPEEDUP = 1.3
 
 #: precision "auto" in a bake also keeps float32 when bfloat16 normals measured a median angle above this (degrees)
 #: off float32 ones at a probe of the bake's own points: half the bake's budget against a full float32 evaluation.
+#: Hybrid bake decided on the adaptive lattice: this share of the interpolated samples it leaves undecided
+#: (a seeded uniform choice, per band at least HYBRID_CHECK_MIN) is decided in full, to count what it missed.
+HYBRID_CHECK_FRACTION = 1.0 / 1024
+
+#: Least number of undecided samples per band that a lattice-decided hybrid bake checks in full.
+HYBRID_CHECK_MIN = 256
+
 BF16_MAX_MEDIAN_DEG = 0.05
 
 #: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.

@@ -68,6 +68,8 @@ class BakeAssetConfig:
     """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
+    hybrid_decide: str = "lattice"
+    """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
     """Evaluate the fields on a coarse lattice per chart, refined where interpolation would exceed the tolerance."""
     tolerance_deg: float = ADAPTIVE_TOLERANCE_DEG
@@ -95,7 +97,7 @@ def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
 
     cfg = preset_config(BakeAssetConfig, PRESETS, preset, overrides, what="bake")
     for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
-                          ("bits", (8, 16))):
+                          ("bits", (8, 16)), ("hybrid_decide", ("lattice", "all"))):
         if getattr(cfg, name) not in allowed:
             raise NeuralBakeError(f"{name} {getattr(cfg, name)!r}: must be one of {', '.join(map(str, allowed))}",
                                   parameter=name)
@@ -219,7 +221,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                 from neural_bake.bake.hybrid import HybridFallback
 
                 hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
-                                        keep_baseline=baseline and baker.cache)
+                                        keep_baseline=baseline and baker.cache, decide=cfg.hybrid_decide)
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
                              hybrid=hybrid, adaptive=adaptive, precision=cfg.precision,
                              texture_at="point" if keep else "surface")
@@ -238,6 +240,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                     f"against a full evaluation at {control['samples']} sampled: median "
                     f"{control['angle_deg']['median'] or 0:.4f}°, max {control['angle_deg']['max'] or 0:.4f}°")
             t0 = time.perf_counter()
+                hs = hybrid.summary()
+                if hs["lattice_check"] is not None and hs["decided_fraction"] < 1:
+                    c = hs["lattice_check"]
+                    log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "
+                        f"around the unfaithful); a full decision at {c['samples']} others sampled found "
+                        f"{c['missed']} more")
             nbits = int(bits)
             if "normal" in maps:
                 write_image(stage / "normal.png", res.normal_map, colour="data", bits=nbits)

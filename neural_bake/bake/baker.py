@@ -542,8 +542,9 @@ class Baker:
         without replacement (seeded by ``seed``, independent of the banding) with their values, for the
         quality report (0: none). Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and
         are counted. ``hybrid``: a :class:`~neural_bake.bake.hybrid.HybridFallback` (or any callable
-        ``(mesh, texels, normals, valid) -> (normals, replaced mask)``) run on each band before encoding:
-        the samples it replaces are flagged in ``result.hybrid`` and counted.
+        ``(mesh, texels, normals, valid, evaluated) -> (normals, replaced mask)``, ``evaluated`` the band's
+        (M,) mask of the samples the fields were evaluated at) run on each band before encoding: the samples
+        it replaces are flagged in ``result.hybrid`` and counted.
 
         ``adaptive``: an :class:`~neural_bake.bake.adaptive.AdaptiveOptions` evaluates f, ∇f and g on a coarse
         lattice per chart, refined where interpolation would exceed its tolerances, and interpolates the
@@ -622,7 +623,7 @@ class Baker:
             if hybrid is not None:
                 t1 = time.perf_counter()
                 neural = normals
-                normals, replaced = hybrid(self.mesh, tx, neural, valid)
+                normals, replaced = hybrid(self.mesh, tx, neural, valid, ev["evaluated"])
                 replaced = np.asarray(replaced, dtype=bool)
                 secs["hybrid"] += time.perf_counter() - t1
             if self.normal_space == "tangent":

@@ -6,6 +6,14 @@ disagrees with the source mesh's normal there by more than ``angle_deg``, or whe
 Such samples take the classical bake's normal (:func:`~neural_bake.bake.baseline.baseline_bake`), so no
 texel of the map is further than ``angle_deg`` from the source mesh's normal.
 
+Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
+sample, a second bake's cost), or on the adaptive lattice ("lattice", the default): at the samples the bake
+evaluated its fields at (the lattice nodes, borders, seams), and at the interpolated samples within
+``reach`` sample-grid positions of a node found unfaithful (every sample of an interpolation cell lies that
+close to its nodes). The other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded
+uniform subsample of them is decided in full as a check (``summary()["lattice_check"]``: how many of those
+the lattice rule would have missed; they are replaced too).
+
 :class:`HybridFallback` is what :meth:`neural_bake.bake.baker.Baker.bake` calls per band of texel samples.
 """
 
@@ -13,11 +21,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import HYBRID_ANGLE_DEG, HYBRID_SDF_TOL
+from types import SimpleNamespace
+
+from ..constants import ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN, HYBRID_SDF_TOL
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
-__all__ = ["HybridFallback", "unfaithful"]
+__all__ = ["HybridFallback", "unfaithful", "HYBRID_DECISIONS"]
+
+#: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
+HYBRID_DECISIONS = ("lattice", "all")
 
 
 def unfaithful(f_surface: np.ndarray, neural: np.ndarray, source: np.ndarray, valid: np.ndarray, *,
@@ -47,30 +60,45 @@ class HybridFallback:
     - ``sdf_tol``, ``angle_deg``: the two thresholds (:data:`~neural_bake.constants.HYBRID_SDF_TOL`,
       :data:`~neural_bake.constants.HYBRID_ANGLE_DEG`).
     - ``cage``: the classical bake's ray distance (unit frame; None: its default).
-    - ``keep_baseline``: keep each band's classical bake (``self.baselines``), e.g. for the quality report
-      of a bake whose texels are cached, so it is not cast twice.
+    - ``keep_baseline``: keep each band's classical bake over every sample (``self.baselines``), e.g. for
+      the quality report of a bake whose texels are cached, so it is not cast twice (every sample is then
+      ray-cast, f still only where the decision needs it).
+    - ``decide``: "lattice" (default) or "all" (:data:`HYBRID_DECISIONS`, module docstring); ``reach``:
+      the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side).
+    - ``seed``: of the lattice rule's check subsample.
 
-    Called as ``fallback(coarse, texels, normals, valid)`` with the coarse mesh the texels lie on, a
-    :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f and (M,) valid mask; returns
-    ``(normals (M, 3) with the unfaithful samples replaced, mask (M,) bool of the replaced samples)``.
-    ``self.counts`` sums the samples per reason over the calls; ``self.f_abs`` keeps |f| at the source points.
+    Called as ``fallback(coarse, texels, normals, valid, evaluated)`` with the coarse mesh the texels lie on,
+    a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask and (M,) mask of
+    the samples the fields were evaluated at (None: all of them); returns ``(normals (M, 3) with the
+    unfaithful samples replaced, mask (M,) bool of the replaced samples)``. ``self.counts`` sums the samples
+    per reason over the calls; ``self.f_abs`` keeps |f| at the source points of the decided samples.
     """
 
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
-                 cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16):
+                 cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
+                 decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
-            raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}")
+            raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
-            raise NeuralBakeError(f"hybrid angle_deg must be in (0, 180] degrees, got {angle_deg!r}")
+            raise NeuralBakeError(f"hybrid angle_deg must be in (0, 180] degrees, got {angle_deg!r}",
+                                  parameter="angle_deg")
+        if decide not in HYBRID_DECISIONS:
+            raise NeuralBakeError(f"hybrid decide must be one of {', '.join(HYBRID_DECISIONS)}, got {decide!r}",
+                                  parameter="decide")
+        if isinstance(reach, bool) or int(reach) != reach or reach < 1:
+            raise NeuralBakeError(f"hybrid reach must be a positive integer, got {reach!r}", parameter="reach")
         from .baseline import raycasting_scene
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
         self.cage, self.keep_baseline, self.chunk_size = cage, bool(keep_baseline), int(chunk_size)
+        self.decide, self.reach, self.seed = decide, int(reach), int(seed)
         self.scene = raycasting_scene(fine)
         self.baselines: list[dict] = []
-        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0}
+        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0}
+        self.check = {"samples": 0, "missed": 0}
         self.f_abs: list[np.ndarray] = []
         self.seconds = 0.0
+        self._seen = 0
 
     def field_values(self, points: np.ndarray) -> np.ndarray:
         """f (M,) at ``points`` (M, 3) in the fine mesh's unit frame (converted to the field's frame): the
@@ -86,34 +114,113 @@ class HybridFallback:
             out[s: s + self.chunk_size] = self.sdf.value(torch.as_tensor(pts[s: s + self.chunk_size], **kw)).double().cpu().numpy()
         return out
 
-    def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray):
+    def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
+                base: dict | None) -> tuple[dict, dict]:
+        """(reasons, classical bake) of the samples ``idx``: rays cast unless ``base`` holds the band's."""
+        from .baseline import baseline_bake
+
+        if base is None:
+            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx])
+            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
+        else:
+            b = {"normals": base["normals"][idx], "points": base["points"][idx]}
+        f_surf = self.field_values(b["points"]) if len(idx) else np.zeros(0)
+        self.f_abs.append(np.abs(f_surf))
+        why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
+        return why, b
+
+    def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Which ``candidates`` (indices) lie within ``reach`` sample-grid positions of a ``seeds`` sample."""
+        if not len(seeds) or not len(candidates):
+            return np.zeros(len(candidates), dtype=bool)
+        from scipy.ndimage import maximum_filter
+
+        pix = np.asarray(texels.pixel)
+        r0 = int(pix[:, 0].min())
+        h = int(pix[:, 0].max()) - r0 + 1
+        w = int(texels.size[1])
+        image = np.zeros((h, w), dtype=bool)
+        image[pix[seeds, 0] - r0, pix[seeds, 1]] = True
+        reach_texels = -(-self.reach // max(1, int(getattr(texels, "supersample", 1)))) + 1
+        image = maximum_filter(image, size=2 * reach_texels + 1, mode="constant", cval=False)
+        return image[pix[candidates, 0] - r0, pix[candidates, 1]]
+
+    def _check_pick(self, n: int, candidates: np.ndarray) -> np.ndarray:
+        """A seeded uniform choice among ``candidates`` (indices into a band of ``n`` samples)."""
+        from .baker import sample_keys
+
+        if not len(candidates):
+            return candidates
+        keys = sample_keys(self._seen + candidates, self.seed + 1).astype(np.float64) / 2.0**64
+        frac = max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates)))
+        return candidates[keys < frac]
+
+    def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None):
         import time
 
         from .baseline import baseline_bake
 
         t0 = time.perf_counter()
-        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene)
-        f_surf = self.field_values(base["points"]) if len(base["points"]) else np.zeros(0)
-        why = unfaithful(f_surf, normals, base["normals"], valid, sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
-        mask = why["mask"]
-        out = np.array(normals, dtype=np.float64, copy=True)
-        out[mask] = base["normals"][mask]
-        self.counts["samples"] += len(mask)
+        normals = np.asarray(normals, dtype=np.float64)
+        valid = np.asarray(valid, dtype=bool)
+        m = len(normals)
+        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene) if self.keep_baseline \
+            else None
+        if self.decide == "all" or evaluated is None:
+            first = np.arange(m)
+        else:
+            first = np.flatnonzero(np.asarray(evaluated, dtype=bool) | ~valid)
+        mask = np.zeros(m, dtype=bool)
+        classical = np.zeros((m, 3))
+        reasons = {k: np.zeros(m, dtype=bool) for k in ("sdf", "angle", "invalid")}
+        decided = np.zeros(m, dtype=bool)
+
+        def take(idx, why, b):
+            decided[idx] = True
+            mask[idx] = why["mask"]
+            classical[idx] = b["normals"]
+            for k in reasons:
+                reasons[k][idx] = why[k]
+
+        why, b = self._decide(coarse, texels, first, normals, valid, base)
+        take(first, why, b)
+        rest = np.flatnonzero(~decided)
+        if len(rest):
+            near = self._near(texels, first[why["mask"]], rest)
+            ring = rest[near]
+            if len(ring):
+                take(ring, *self._decide(coarse, texels, ring, normals, valid, base))
+            check = self._check_pick(m, rest[~near])
+            if len(check):
+                why, b = self._decide(coarse, texels, check, normals, valid, base)
+                take(check, why, b)
+                self.check["samples"] += len(check)
+                self.check["missed"] += int(why["mask"].sum())
+        self._seen += m
+        out = normals.copy()
+        out[mask] = classical[mask]
+        self.counts["samples"] += m
+        self.counts["decided"] += int(decided.sum())
         self.counts["replaced"] += int(mask.sum())
         for k in ("sdf", "angle", "invalid"):
-            self.counts[k] += int(why[k].sum())
-        self.f_abs.append(np.abs(f_surf))
+            self.counts[k] += int(reasons[k].sum())
         if self.keep_baseline:
             self.baselines.append(base)
         self.seconds += time.perf_counter() - t0
         return out, mask
 
     def summary(self) -> dict:
-        """JSON-ready totals: thresholds, counts per reason, share of samples replaced, |f| at the source."""
+        """JSON-ready totals: thresholds, where it decided, counts per reason, share of samples replaced, |f| at
+        the source (of the decided samples) and the lattice rule's check."""
         f = np.concatenate(self.f_abs) if self.f_abs else np.zeros(0)
         n = max(1, self.counts["samples"])
-        return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, **self.counts,
+        c = self.check
+        return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, "decide": self.decide, **self.counts,
                 "sample_fraction": self.counts["replaced"] / n,
+                "decided_fraction": self.counts["decided"] / n,
+                "lattice_check": None if self.decide == "all" else {
+                    "samples": c["samples"], "missed": c["missed"],
+                    "missed_fraction": c["missed"] / c["samples"] if c["samples"] else None},
                 "f_at_source": {"median": float(np.median(f)) if f.size else None,
                                 "p95": float(np.percentile(f, 95)) if f.size else None,
                                 "max": float(f.max()) if f.size else None},

@@ -117,3 +117,76 @@ def test_field_frame_is_honoured():
     hybrid = HybridFallback(ico(5), field)
     Baker(coarse, 32).bake(field, hybrid=hybrid)
     assert hybrid.counts["replaced"] == 0 and hybrid.summary()["f_at_source"]["max"] < 4e-3
+
+
+def bumped_sphere_field(radius=R, centre=(0.0, 0.0, R), height=0.06, width=0.2):
+    """A sphere SDF with a bump of ``height`` over a cap of about ``width`` around ``centre``: off the true
+    sphere (|f| at its surface up to ``height``) there, exact elsewhere."""
+    import torch
+
+    c = torch.tensor(centre, dtype=torch.float64)
+
+    def f(p):
+        return p.norm(dim=1) - radius - height * torch.exp(-((p - c.to(p.dtype)) ** 2).sum(dim=1) / width**2)
+
+    return SdfField(f)
+
+
+@pytest.mark.parametrize("supersample", [1, 2])
+def test_lattice_decision_matches_deciding_every_sample(supersample):
+    """On an adaptive bake, deciding on the lattice (evaluated samples, then the ring around unfaithful ones)
+    replaces exactly the samples that deciding every sample replaces, at a fraction of the decisions."""
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256 // supersample, supersample=supersample)
+    full = HybridFallback(ico(5), field, decide="all")
+    lattice = HybridFallback(ico(5), field)
+    a = baker.bake(field, hybrid=full, adaptive=AdaptiveOptions())
+    b = baker.bake(field, hybrid=lattice, adaptive=AdaptiveOptions())
+    assert a.replaced.sum() > 200  # the bump is off the sphere by more than the tolerance over a cap
+    np.testing.assert_array_equal(a.replaced, b.replaced)
+    np.testing.assert_array_equal(a.normal_map, b.normal_map)
+    s_full, s_lat = full.summary(), lattice.summary()
+    assert s_full["decided"] == s_full["samples"] and s_full["lattice_check"] is None
+    assert s_lat["decided"] < 0.7 * s_lat["samples"]  # the lattice rule decides a fraction of the samples
+    check = s_lat["lattice_check"]
+    assert check["samples"] > 0 and check["missed"] == 0 and check["missed_fraction"] == 0.0
+
+
+def test_lattice_decision_without_adaptive_decides_every_sample():
+    """A bake that evaluates every sample (no adaptive lattice) decides every sample: nothing left to check."""
+    coarse = unwrap(ico(2), resolution=128)
+    field = bumped_sphere_field()
+    hybrid = HybridFallback(ico(5), field)
+    Baker(coarse, 48).bake(field, hybrid=hybrid)
+    s = hybrid.summary()
+    assert s["decided"] == s["samples"] > 0 and s["lattice_check"]["samples"] == 0 and s["replaced"] > 0
+
+
+def test_lattice_check_counts_what_the_rule_missed():
+    """Where the evaluated samples miss an unfaithful region (here: none of them lies on the bump's cap), the
+    lattice rule leaves it undecided; the seeded check decides a share of the undecided samples in full,
+    replaces the unfaithful ones it finds, and counts them as missed."""
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256)
+    tx = baker.texels
+    normals, valid = np.asarray(tx.normal, dtype=np.float64), np.ones(tx.n_samples, dtype=bool)
+    evaluated = np.asarray(tx.points)[:, 2] < 0  # the cap is around +Z
+    _, every = HybridFallback(ico(5), field, decide="all")(baker.mesh, tx, normals, valid, evaluated)
+    hybrid = HybridFallback(ico(5), field)
+    _, lattice = hybrid(baker.mesh, tx, normals, valid, evaluated)
+    assert every.sum() > 500 and 0 < lattice.sum() < every.sum()
+    assert not (lattice & ~every).any()  # it never replaces a faithful sample
+    c = hybrid.summary()["lattice_check"]
+    assert c["missed"] == lattice.sum() and c["samples"] >= 256 and c["missed_fraction"] == c["missed"] / c["samples"]
+    assert hybrid.summary()["decided"] == evaluated.sum() + c["samples"]
+
+
+@pytest.mark.parametrize("kwargs, message", [({"decide": "some"}, "decide"), ({"reach": 0}, "reach"),
+                                             ({"reach": 2.5}, "reach")])
+def test_bad_decision_settings_raise(kwargs, message):
+    with pytest.raises(NeuralBakeError, match=message):
+        HybridFallback(ico(1), sphere_field(), **kwargs)
