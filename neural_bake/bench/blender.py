@@ -168,6 +168,8 @@ def cycles_bake(
             raise BlenderError(f"Blender's bake wrote no readable result ({type(exc).__name__}: {_one_line(str(exc))})")
     if normal_map.shape != (size, size, 3):
         raise BlenderError(f"Blender's map is {normal_map.shape}, expected {(size, size, 3)}")
+    if frames is not None and frames.shape != (coarse.n_faces, 3, 7):
+        raise BlenderError(f"Blender's frames are {frames.shape}, expected {(coarse.n_faces, 3, 7)}")
     timings["process"] = process
     timings["whole"] = process - float(timings.get("frames", 0.0))
     return CyclesBake(normal_map=normal_map, normal_space=normal_space, frames=frames, timings=timings)

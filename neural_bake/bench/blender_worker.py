@@ -58,7 +58,6 @@ def _object(bpy, name, vertices, faces, uv=None, normals=None):
         layer.data.foreach_set("uv", np.asarray(uv, dtype=np.float32).reshape(-1))
     if normals is not None:
         data.normals_split_custom_set_from_vertices(np.asarray(normals, dtype=np.float64).tolist())
-    data.validate(clean_customdata=False)
     data.update()
     obj = bpy.data.objects.new(name, data)
     bpy.context.scene.collection.objects.link(obj)
