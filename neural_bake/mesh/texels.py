@@ -500,9 +500,11 @@ def rasterize_texels(
     split at UV seams if the mesh is not split). For maps above ~2048² use :func:`iter_texels`.
     Raises :class:`MeshError` if the mesh has no UVs, :class:`NeuralBakeError` for a bad size.
     """
-    parts = list(
-        iter_texels(mesh, size, supersample=supersample, tangents=tangents, conservative=conservative)
-    )
+    h, w = _parse_size(size)
+    s = int(supersample) if isinstance(supersample, (int, np.integer)) and supersample >= 1 else 1
+    # one band of every sample position: the candidate work is chunked inside, and no band is concatenated
+    parts = list(iter_texels(mesh, size, supersample=supersample, tangents=tangents, conservative=conservative,
+                             max_samples=h * w * s * s))
     if len(parts) == 1:
         return parts[0]
     cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
