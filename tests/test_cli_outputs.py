@@ -269,3 +269,140 @@ def test_fit_sdf_killed_between_checkpoint_and_model_then_resumed(files, tmp_pat
     assert r.returncode == 0, r.stderr
     assert model.read_bytes() != old and "resumed finished run" in r.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.sdf", "m.sdf.ckpt"]  # leftovers removed
+
+
+# -------------------------------------------------------------------------------- outputs through a symlink
+def linked(target: Path) -> Path:
+    """A symlink ``links/out`` beside ``target`` pointing to it (relatively)."""
+    links = target.parent / "links"
+    links.mkdir(exist_ok=True)
+    link = links / "out"
+    link.symlink_to(Path("..") / target.name)
+    return link
+
+
+def test_bake_through_a_symlink_replaces_the_targets_set_and_keeps_the_link(files, old_set):
+    """-o naming a symlink to an earlier bake: the new set is committed at the link's target (nothing of the
+    old set left, nothing else deleted) and the link stays a link to it."""
+    out, old = old_set
+    link = linked(out)
+    r = bake(files, link, NEW_MAPS)
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink() and os.readlink(link) == "../out"
+    assert which_set(out, old) == "new" and "vertex.glb" not in snapshot(out)
+    assert f"wrote {link}/:" in r.stdout and ".stage-" not in r.stdout + r.stderr
+    assert leftovers(out.parent) == [] and sorted(p.name for p in link.parent.iterdir()) == ["out"]
+
+
+@pytest.mark.parametrize("two_renames", [False, True], ids=["exchange", "two-renames"])
+@pytest.mark.parametrize("step, expected", KILL_POINTS, ids=[s for s, _ in KILL_POINTS])
+def test_sigkill_at_every_step_through_a_symlink_keeps_one_whole_set_and_the_link(old_samples, step, expected,
+                                                                                  two_renames):
+    if step == "moved-old" and not two_renames:
+        pytest.skip("the exchange has no step between two renames")
+    out, old = old_samples
+    link = linked(out)
+    r = samples(link, "sphere", fault=f"{step}:KILL", two_renames=two_renames)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    assert link.is_symlink() and os.readlink(link) == "../out"
+    if step != "moved-old":
+        assert which_set(out, old) == expected
+    with OutputLock(link):  # what every next run through the link does first
+        pass
+    assert which_set(out, old) == expected and link.is_symlink()
+    assert leftovers(out.parent) == [] and sorted(p.name for p in link.parent.iterdir()) == ["out"]
+
+
+@pytest.mark.parametrize("fault, code, expected", [("staged:KILL", -signal.SIGKILL, "old"),
+                                                   ("removing-old:KILL", -signal.SIGKILL, "new")])
+def test_bake_through_a_symlink_killed_around_its_commit(files, old_set, fault, code, expected):
+    out, old = old_set
+    link = linked(out)
+    r = bake(files, link, NEW_MAPS, fault=fault)
+    assert r.returncode == code, r.stderr
+    assert which_set(out, old) == expected and link.is_symlink()
+    r = bake(files, link, NEW_MAPS)  # the next real run through the link removes what the killed one left
+    assert r.returncode == 0, r.stderr
+    assert which_set(out, old) == "new" and link.is_symlink() and leftovers(out.parent) == []
+
+
+def test_symlinked_outputs_that_lead_nowhere(tmp_path):
+    """A dangling link: its target is created (its folder exists) or one line, exit 2; a loop: one line, exit 2."""
+    made = tmp_path / "made"
+    link = tmp_path / "dangling"
+    link.symlink_to("made")
+    r = samples(link, "sphere")
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink() and (made / "sphere.obj").is_file()
+    nowhere = tmp_path / "nowhere"
+    nowhere.symlink_to("missing/made")
+    (tmp_path / "loop1").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop1")
+    for path, problem in ((nowhere, f"a symlink to {tmp_path / 'missing' / 'made'}, whose folder does not exist"),
+                          (tmp_path / "loop1", "a symlink loop (the link never reaches a file or folder)")):
+        r = samples(path, "sphere")
+        assert r.returncode == 2 and r.stderr == f"neural-bake: error: {path}: {problem}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling", "loop1", "loop2", "made", "nowhere"]
+
+
+def test_fit_sdf_through_a_symlinked_model_file(files, tmp_path):
+    """A model file -o that is a symlink: the new model is written at its target and the link stays; killed
+    before the rename, the target holds the old model."""
+    models = tmp_path / "models"
+    models.mkdir()
+    target, link = models / "m.sdf", tmp_path / "m.sdf"
+    shutil.copy(files["sdf"], target)
+    link.symlink_to("models/m.sdf")
+    old = target.read_bytes()
+    args = ["fit", "sdf", files["obj"], "-o", link, "--checkpoint", tmp_path / "c.ckpt", *FIT]
+    r = cli(*args, fault="file-temp#2:KILL")
+    assert r.returncode == -signal.SIGKILL
+    assert link.is_symlink() and target.read_bytes() == old
+    r = cli(*args)
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink() and os.readlink(link) == "models/m.sdf" and target.read_bytes() != old
+    assert sorted(p.name for p in models.iterdir()) == ["m.sdf"]  # the killed run's temporary file removed
+
+
+BATCH = ["--set", "sdf.width=16", "--set", "sdf.depth=1", "--set", "sdf.steps=3", "--set", "sdf.minutes=none",
+         "--set", "sdf.pool_surface=2000", "--set", "sdf.pool_near=2000", "--set", "sdf.pool_uniform=500",
+         "--set", "sdf.batch=256", "--set", "sdf.batch_near=256", "--set", "sdf.batch_uniform=64",
+         "--set", "sdf.polish_evals=0", "--set", "sdf.compile=off", "--set", "sdf.micro_batches=1",
+         "--set", "nested.levels=none", "--set", "texture.width=16", "--set", "texture.depth=1",
+         "--set", "texture.steps=3", "--set", "texture.minutes=none", "--set", "texture.pool=2000",
+         "--set", "coarse.spec=decimate:200", "--set", "bake.size=16", "--set", "bake.baseline=false",
+         "--set", "bake.force=true", "--workers", "1", "-q"]
+
+
+def test_concurrent_batches_into_one_folder(files, tmp_path):
+    """A batch held at its lock: a second batch into the same folder fails at once naming it and changes
+    nothing; the first killed there, the next batch takes the folder and keeps the earlier batch's asset."""
+    one, other = tmp_path / "one.csv", tmp_path / "other.csv"
+    one.write_text(f"mesh,name\n{files['obj']},ball\n")
+    other.write_text(f"mesh,name\n{files['obj']},ball2\n")
+    out = tmp_path / "out"
+    r = cli("batch", one, "-o", out, *BATCH)
+    assert r.returncode == 0, r.stderr
+    summary = (out / "batch.json").read_bytes()
+    # the same batch again (every stage cached: no worker) stops holding the lock
+    first = subprocess.Popen([str(EXE), "batch", str(one), "-o", str(out), *BATCH], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env={**os.environ, "NEURAL_BAKE_FAULT": "locked:STOP"})
+    try:
+        lock = tmp_path / ".out.lock"
+        deadline = time.monotonic() + 120
+        while not lock.exists() or lock.read_text().strip() != str(first.pid):
+            assert time.monotonic() < deadline and first.poll() is None
+            time.sleep(0.01)
+        second = cli("batch", other, "-o", out, *BATCH)
+        assert second.returncode == 1
+        assert second.stderr == (f"neural-bake: error: {out}: another neural-bake run (pid {first.pid}) is writing "
+                                 f"it; wait for it to finish or choose another output\n")
+        assert (out / "batch.json").read_bytes() == summary and not (out / "ball2").exists()
+    finally:
+        first.kill()
+        first.communicate(timeout=60)
+    r = cli("batch", other, "-o", out, *BATCH)
+    assert r.returncode == 0, r.stderr
+    merged = json.loads((out / "batch.json").read_text())
+    assert {n: (a["status"], a["run"]) for n, a in merged["assets"].items()} == {"ball": ("ok", 1), "ball2": ("ok", 2)}
+    assert leftovers(tmp_path) == []

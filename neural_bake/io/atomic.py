@@ -6,6 +6,8 @@ the temporary file is removed and the destination — an earlier good file, if a
 The temporary file is named ``.<name>.<pid>.<random>.tmp<suffix>``: a run killed before its rename leaves it,
 and the next run that locks the output (:mod:`neural_bake.io.outdir`) removes it once its pid is gone.
 An OSError (or a safetensors I/O error) names the destination, never the temporary file.
+A destination that is a symlink is followed (:func:`link_target`): the new content is written at the file it
+points to and the link stays a link.
 """
 
 from __future__ import annotations
@@ -18,9 +20,34 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from ..errors import OutputError
 from .faults import fault_point
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "replacement_mode"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "link_target", "replacement_mode"]
+
+
+def link_target(path: str | os.PathLike) -> Path:
+    """Where a write to ``path`` goes: ``path`` itself, or for a symlink the path its chain of links ends at.
+
+    Writers commit at the target so that a link stays a link to the new content, and never replace or delete
+    the link itself. A dangling link's target may be created (its folder must exist). Raises
+    :class:`~neural_bake.errors.OutputError` (naming ``path``) for a symlink loop or a link whose target's
+    folder does not exist.
+    """
+    p = Path(path)
+    if not os.path.islink(p):
+        return p
+    try:
+        os.stat(p)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(f"{p}: a symlink loop (the link never reaches a file or folder)") from None
+        if exc.errno not in (errno.ENOENT, errno.ENOTDIR):
+            raise OSError(exc.errno, exc.strerror, str(p)) from None
+    target = Path(os.path.realpath(p))
+    if not target.parent.is_dir():
+        raise OutputError(f"{p}: a symlink to {target}, whose folder does not exist")
+    return target
 
 
 @contextlib.contextmanager
@@ -36,11 +63,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     The destination's folder must exist. On an exception the temporary file is deleted and re-raised.
     """
     dest = Path(path)
-    folder = dest.parent if str(dest.parent) else Path(".")
+    target = link_target(dest)  # a symlink stays one: the content goes where it points
+    folder = target.parent if str(target.parent) else Path(".")
     if suffix is None:
         suffix = "".join(dest.suffixes[-1:])
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}.", suffix=f".tmp{suffix}", dir=folder)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=f".tmp{suffix}", dir=folder)
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror, str(dest)) from None
     os.close(fd)
@@ -52,9 +80,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         # mkstemp makes the file private (0600): give it the replaced file's mode, else the umask default
-        os.chmod(tmp, replacement_mode(dest))
+        os.chmod(tmp, replacement_mode(target))
         fault_point("file-temp")
-        os.replace(tmp, dest)
+        os.replace(tmp, target)
         fault_point("file-renamed")
     except BaseException as exc:
         with contextlib.suppress(OSError):

@@ -18,6 +18,11 @@ file or a folder), which names the holder's pid; a second run fails at once nami
 leftovers of runs that died (staging folders, old sets, atomic temporary files, all named with the pid that
 made them) are removed once their pid is gone — and, since only the lock holder writes, any other pid's.
 
+An output that is a symlink is followed (:func:`~neural_bake.io.atomic.link_target`): the lock, the staging
+folder and the leftovers live beside the link's target, the commit happens at the target, and the link stays a
+link to the new set; messages name the user's path. Nothing here follows a symlink into a tree to delete it: a
+link found among the files to remove is unlinked, never walked.
+
 Each step of the commit calls :func:`~neural_bake.io.faults.fault_point` with a name from
 :data:`COMMIT_STEPS`, so the fault-injection tests can kill the process at any of them.
 """
@@ -33,13 +38,14 @@ import os
 import re
 import shutil
 import signal
+import stat
 import sys
 import tempfile
 from pathlib import Path
 from typing import Iterator
 
 from ..errors import OutputBusyError, OutputError, WriteError, os_error
-from .atomic import atomic_write_text, replacement_mode
+from .atomic import atomic_write_text, link_target, replacement_mode
 from .faults import fault_point
 
 __all__ = ["OutputFolder", "OutputLock", "locked_outputs", "record_in_set", "MANIFEST", "COMMIT_STEPS", "NO_EXCHANGE_ENV"]
@@ -86,6 +92,14 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _is_real_dir(path: Path) -> bool:
+    """A folder and not a symlink to one (a link is an entry to unlink, never a tree to walk)."""
+    try:
+        return stat.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
 def _fsync_dir(path: Path) -> None:
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
@@ -125,12 +139,14 @@ class OutputLock:
     ``with OutputLock(path):`` takes the lock without waiting — :class:`OutputBusyError` naming the holder's
     pid if another process has it — then removes the leftovers of dead runs for ``path`` (and, for a folder
     committed with two renames, moves an old set back into place). The lock file is removed on release.
+    A symlink ``path`` is locked at its target (``target``), so every path to one output takes one lock.
     """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self.parent = self.path.parent if str(self.path.parent) else Path(".")
-        self.lock_path = self.parent / f".{self.path.name}.lock"
+        self.target = link_target(self.path)
+        self.parent = self.target.parent if str(self.target.parent) else Path(".")
+        self.lock_path = self.parent / f".{self.target.name}.lock"
         self._fd: int | None = None
 
     def __enter__(self) -> "OutputLock":
@@ -182,7 +198,7 @@ class OutputLock:
     # ------------------------------------------------------------------------------------------ leftovers
     def _leftovers(self) -> list[tuple[str, int, Path]]:
         """(kind, pid, path) of every staging folder, old set and temporary file of this output."""
-        name = re.escape(self.path.name)
+        name = re.escape(self.target.name)
         pattern = re.compile(rf"^\.{name}\.(?:(stage|old)-(\d+)-[^/]+|(\d+)\.[^.]+\.tmp.*)$")
         found = []
         try:
@@ -204,14 +220,15 @@ class OutputLock:
         """
         me = os.getpid()
         found = [f for f in self._leftovers() if f[1] != me and not _pid_alive(f[1])]
-        olds = sorted((p for kind, _, p in found if kind == "old"), key=lambda p: p.stat().st_mtime)
-        if olds and not os.path.lexists(self.path):
+        olds = sorted((p for kind, _, p in found if kind == "old" and _is_real_dir(p)),
+                      key=lambda p: p.lstat().st_mtime)
+        if olds and not os.path.lexists(self.target):
             # OUT missing beside an old set: a two-rename commit cut between its renames; the old set goes back
-            os.rename(olds[-1], self.path)
+            os.rename(olds[-1], self.target)
             _fsync_dir(self.parent)
         for _, _, p in found:
-            if p.is_dir() and not p.is_symlink():
-                shutil.rmtree(p, ignore_errors=True)
+            if _is_real_dir(p):
+                shutil.rmtree(p, ignore_errors=True)  # unlinks the symlinks inside, never follows them
             else:
                 with contextlib.suppress(FileNotFoundError):
                     p.unlink()
@@ -244,6 +261,9 @@ class OutputFolder:
     one :class:`~neural_bake.errors.WriteError` line naming ``out`` (never the staging folder); a
     NeuralBakeError whose message names a staging path is re-worded to name the output instead.
 
+    A symlink ``out`` is followed: the set is committed at the folder it points to (``target``), which a
+    dangling link's target becomes; the link stays.
+
     ``out``: the folder (str or path). ``stage``: a :class:`pathlib.Path`, empty on entry.
     """
 
@@ -251,6 +271,7 @@ class OutputFolder:
         self.out = Path(out)
         self.stage: Path | None = None
         self._lock = OutputLock(self.out)
+        self.target = self._lock.target
 
     # ---------------------------------------------------------------------------------------- entering
     def __enter__(self) -> Path:
@@ -263,8 +284,10 @@ class OutputFolder:
         try:
             self._check_foreign()
             try:
-                self.stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.stage-{os.getpid()}-", dir=self._lock.parent))
-                os.chmod(self.stage, replacement_mode(out, 0o777))  # mkdtemp's 0700 would become the output's mode
+                self.stage = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.stage-{os.getpid()}-",
+                                                   dir=self._lock.parent))
+                # mkdtemp's 0700 would become the output's mode
+                os.chmod(self.stage, replacement_mode(self.target, 0o777))
             except OSError as exc:
                 raise os_error(exc, out) from None
         except BaseException:
@@ -274,16 +297,16 @@ class OutputFolder:
 
     def _check_foreign(self) -> None:
         """Refuse an existing folder holding anything that is not a committed set's file."""
-        if not self.out.is_dir():
+        if not self.target.is_dir():
             return
         try:
-            names = set(os.listdir(self.out))
+            names = set(os.listdir(self.target))
         except OSError as exc:
             raise os_error(exc, self.out) from None
         listed: set[str] = set()
         if MANIFEST in names:
             try:
-                listed = set(json.loads((self.out / MANIFEST).read_text(encoding="utf-8"))["files"])
+                listed = set(json.loads((self.target / MANIFEST).read_text(encoding="utf-8"))["files"])
             except (OSError, ValueError, KeyError, TypeError):
                 listed = set()
         foreign = sorted(names - listed - {MANIFEST})
@@ -332,7 +355,7 @@ class OutputFolder:
             exc.args = (str(exc).replace(os.fspath(stage), str(self.out)),)
 
     def _commit(self, stage: Path) -> None:
-        out, old, committed = self.out, None, False
+        out, old, committed = self.target, None, False
         try:
             files = sorted(os.listdir(stage))
             atomic_write_text(stage / MANIFEST, json.dumps({"format": MANIFEST_FORMAT, "files": files,
@@ -358,7 +381,7 @@ class OutputFolder:
 
     def _swap(self, stage: Path, out: Path) -> Path | None:
         """Put ``stage`` at ``out``; return where the old set now is (None: there was none)."""
-        if not out.exists():
+        if not os.path.lexists(out):
             if not _renameat2(stage, out, _RENAME_NOREPLACE):
                 os.rename(stage, out)
             return None
@@ -375,10 +398,16 @@ class OutputFolder:
         return old
 
     def _remove_old(self, old: Path) -> None:
-        """Remove the replaced set file by file (a kill in between leaves a leftover the next run removes)."""
+        """Remove the replaced set file by file (a kill in between leaves a leftover the next run removes).
+
+        Symlinks are unlinked, never followed: only the entries of ``old`` itself go."""
+        if not _is_real_dir(old):
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(old)
+            return
         first = True
-        for root, dirs, files in os.walk(old, topdown=False):
-            for f in files:
+        for root, dirs, files in os.walk(old, topdown=False, followlinks=False):
+            for f in files + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(os.path.join(root, f))
                 if first:

@@ -91,3 +91,25 @@ def test_missing_folder_raises_and_writes_nothing(tmp_path):
     with pytest.raises(FileNotFoundError):
         atomic_write_bytes(tmp_path / "no" / "a.bin", b"1")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_symlinked_destination_is_written_at_its_target_and_stays_a_link(tmp_path):
+    from neural_bake.errors import OutputError
+
+    target = tmp_path / "models" / "m.sdf"
+    target.parent.mkdir()
+    target.write_bytes(b"old")
+    link = tmp_path / "m.sdf"
+    link.symlink_to("models/m.sdf")
+    atomic_write_bytes(link, b"new")
+    assert link.is_symlink() and os.readlink(link) == "models/m.sdf" and target.read_bytes() == b"new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.sdf", "models"]
+    assert sorted(p.name for p in target.parent.iterdir()) == ["m.sdf"]
+    dangling = tmp_path / "d.sdf"
+    dangling.symlink_to("models/made.sdf")
+    atomic_write_bytes(dangling, b"made")
+    assert dangling.is_symlink() and (target.parent / "made.sdf").read_bytes() == b"made"
+    (tmp_path / "l1").symlink_to("l2")
+    (tmp_path / "l2").symlink_to("l1")
+    with pytest.raises(OutputError, match="l1: a symlink loop"):
+        atomic_write_bytes(tmp_path / "l1", b"x")

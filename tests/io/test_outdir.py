@@ -185,3 +185,61 @@ def test_os_errors_name_the_output_never_the_stage(tmp_path):
         with OutputFolder(out) as stage:
             raise NeuralBakeError(f"{stage / 'asset.glb'}: cannot write image")
     assert str(e.value) == f"{out}/asset.glb: cannot write image"
+
+
+# ----------------------------------------------------------------------------------------------- symlinks
+@pytest.mark.usefixtures("commit_way")
+def test_a_symlinked_output_commits_at_its_target_and_stays_a_link(tmp_path):
+    real, links = tmp_path / "real", tmp_path / "links"
+    links.mkdir()
+    write_set(real, {"a.txt": "old", "b.txt": "old"})
+    link = links / "out"
+    link.symlink_to("../real")
+    write_set(link, {"a.txt": "new"})
+    assert link.is_symlink() and os.readlink(link) == "../real"
+    assert files_of(real) == {"a.txt": "new", MANIFEST: files_of(real)[MANIFEST]}
+    assert sorted(p.name for p in links.iterdir()) == ["out"]  # no staging, lock or old set beside the link
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["links", "real"]
+
+
+def test_a_dangling_symlink_output_creates_its_target_a_loop_is_refused(tmp_path):
+    link = tmp_path / "out"
+    link.symlink_to("made")
+    write_set(link, {"a.txt": "1"})
+    assert link.is_symlink() and (tmp_path / "made" / "a.txt").read_text() == "1"
+    nowhere = tmp_path / "nowhere"
+    nowhere.symlink_to("missing/made")
+    with pytest.raises(OutputError, match=rf"^{nowhere}: a symlink to {tmp_path / 'missing' / 'made'}, whose "
+                                          rf"folder does not exist$"):
+        write_set(nowhere, {"a.txt": "1"})
+    (tmp_path / "loop1").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop1")
+    with pytest.raises(OutputError, match=r"loop1: a symlink loop"):
+        write_set(tmp_path / "loop1", {"a.txt": "1"})
+    with pytest.raises(OutputError, match=r"loop1: a symlink loop"):
+        with locked_outputs(tmp_path / "loop1"):
+            pass
+    assert not (tmp_path / "missing").exists()
+
+
+def test_removing_the_old_set_or_leftovers_never_follows_a_symlink(tmp_path):
+    """Symlinks inside a replaced set or among a dead run's leftovers are unlinked; what they point to stays."""
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "keep.txt").write_text("keep")
+    out = tmp_path / "out"
+    write_set(out, {"a.txt": "1"})
+    (out / "sub").symlink_to(precious)  # a link inside the old set (as a later step could add)
+    (out / "f").symlink_to(precious / "keep.txt")
+    record_in_set(out, "sub", "f")
+    dead_stage = tmp_path / f".out.stage-{DEAD_PID}-x1"  # a leftover that is a link to someone's folder
+    dead_stage.symlink_to(precious)
+    write_set(out, {"a.txt": "2"})
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "a.txt"]
+    assert not os.path.lexists(dead_stage)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "precious"]  # the old set went, links and all
+    old_as_link = tmp_path / f".out.stage-{os.getpid()}-x2"  # an old set that is a link is unlinked, not walked
+    old_as_link.symlink_to(precious)
+    OutputFolder(out)._remove_old(old_as_link)
+    assert not os.path.lexists(old_as_link)
+    assert sorted(p.name for p in precious.iterdir()) == ["keep.txt"] and (precious / "keep.txt").read_text() == "keep"
