@@ -9,6 +9,8 @@ goes through the library, :func:`neural_bake.bake.frames.bake_frames`). (`neural
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from .options import say, verbosity_options
@@ -29,8 +31,10 @@ Example:
               help="Frame file format (positions and neural normals).")
 @click.option("--texture", type=click.Path(dir_okay=False), default=None,
               help="Texture model: per-vertex colours evaluated on the surface at each t.")
+@click.option("--force", is_flag=True,
+              help="Use a texture fitted in another frame than MODEL (with a warning).")
 @verbosity_options
-def command(model, times, out, resolution, fmt, texture):
+def command(model, times, out, resolution, fmt, texture, force):
     """Bake a space-time SDF (fit morph / fit sequence output, or its nested sequence) frame by frame."""
     from neural_bake.bake.frames import bake_frames
     from neural_bake.errors import ModelFileError
@@ -46,6 +50,10 @@ def command(model, times, out, resolution, fmt, texture):
     _, time_input = mapping
     nets = [field.model] if isinstance(field, SpaceTimeField) else list(field.levels)
     tex = None if texture is None else _texture(texture)
+    if tex is not None:
+        from neural_bake.fields import check_texture_matches_sdf
+
+        check_texture_matches_sdf(tex, field, force=force, option="--force", sdf_name=Path(model).name)
     res = bake_frames(lambda t: fix_last_input(nets[0], time_input(t)), lambda t: fix_last_input(nets[-1], time_input(t)),
                       field.frame, ts, out, resolution=resolution, fmt=fmt, texture=tex)
     total = sum(s["march_s"] + s["normals_s"] + s["colours_s"] + s["write_s"] for s in res.stats)

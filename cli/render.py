@@ -45,7 +45,9 @@ def _size(text: str | None):
         parts = parts * 2
     if len(parts) != 2 or min(parts) < 1:
         raise SceneError(f"--size: expected N or WxH pixels ≥ 1, got {text!r}")
-    return parts[0], parts[1]
+    from neural_bake.limits import check_image_size
+
+    return check_image_size(parts[0], parts[1], error=SceneError)
 
 
 @click.command(epilog="""\b
@@ -93,10 +95,12 @@ Examples:
               help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
 @click.option("--precision", type=click.Choice(["fp32", "auto"]), default="fp32", show_default=True,
               help="Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU).")
+@click.option("--force", is_flag=True,
+              help="Render a texture fitted in another frame or on another surface than MODEL (with a warning).")
 @verbosity_options
 def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects,
             channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, times, fps,
-            stats_path, precision):
+            stats_path, precision, force):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
 
@@ -109,7 +113,16 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
     scene = load_scene(scene_path) if scene_path else Scene()
     obj = scene.objects[0] if scene.objects else None
     tex = texture_path or (obj.texture if obj else None)
-    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=precision)
+    wh = _size(size)
+    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=precision,
+                       force=force, force_option="--force")
+    if not isinstance(asset, SpaceTimeAsset):
+        ctx = click.get_current_context()
+        given = [opt for name, opt in (("times", "--t"), ("time_range", "--time-range"), ("frames", "--frames"))
+                 if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE]
+        if given:
+            raise SceneError(f"{given[0]}: MODEL {model} is a static SDF and has no time (it takes x, y, z); "
+                             f"times are for a space-time model")
     if len(scene.objects) > 1:
         raise SceneError(f"{scene_path}: the render verb draws MODEL as the scene's one object; the scene has "
                          f"{len(scene.objects)} (render several objects from Python with render([...], scene))")
@@ -137,7 +150,6 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
     scene = scene.with_(**changes) if changes else scene
 
     first = asset.at(asset.time_range[0]) if isinstance(asset, SpaceTimeAsset) else asset
-    wh = _size(size)
     pos, target = _vec3(camera_pos, "--camera"), _vec3(look_at, "--look-at")
     if scene.camera is not None or pos is not None or target is not None:
         from neural_bake.render.renderer import object_bounds

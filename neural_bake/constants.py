@@ -69,6 +69,47 @@ MAX_NESTED_LEVELS = 16
 #: Deepest JSON nesting ([ and {) a model file's header may have; deeper is refused before parsing.
 MAX_HEADER_DEPTH = 32
 
+#: Largest magnitude a space-time header's time range ends and time extent may have, and a time may have: the
+#: network's time input τ (in [-time_extent, time_extent]) and every time stay finite float32 numbers.
+MAX_TIME_MAGNITUDE = 1e30
+
+#: Most surface points a texture model file may record of the mesh it was fitted on.
+MAX_TEXTURE_SURFACE_POINTS = 4096
+
+# --- sizes a user can ask for: refused in one line before anything is allocated ------------------------------
+#: Widest or tallest image (pixels) a render may ask for.
+MAX_IMAGE_SIDE = 16384
+
+#: Most pixels (width × height) a render may ask for: its per-pixel ray and output buffers stay within memory.
+MAX_IMAGE_PIXELS = 1 << 24
+
+#: Most frames (frame times) a space-time render, a per-frame bake or a sequence fit may ask for.
+MAX_FRAMES = 10_000
+
+#: Largest map side × supersampling (samples per side) a bake may ask for: the texel samples of the map.
+MAX_MAP_SAMPLES_SIDE = 16384
+
+#: Most marching-cubes cells per axis a per-frame bake may ask for.
+MAX_MARCH_RESOLUTION = 1024
+
+#: Most iterations per level a scene's sphere tracing may ask for.
+MAX_TRACE_ITERATIONS = 100_000
+
+#: Most rays per batch a scene's sphere tracing may ask for (each batch's buffers are allocated at once).
+MAX_TRACE_CHUNK = 1 << 22
+
+#: Most lights a scene may hold (every light shades, and shadows cast a ray, per pixel).
+MAX_SCENE_LIGHTS = 64
+
+#: Most objects a scene may hold.
+MAX_SCENE_OBJECTS = 256
+
+#: Most batch workers (assets at once) a batch may ask for.
+MAX_BATCH_WORKERS = 1024
+
+#: Most torch threads per batch worker a batch may ask for.
+MAX_BATCH_THREADS = 1024
+
 # --- bake: does the SDF describe the mesh? ---------------------------------------------------------------------
 #: Frames (centre and scale) of an SDF and the mesh it bakes onto may differ by this much, relative to the
 #: unit frame (centre offset × scale, |scale ratio − 1|), before the bake refuses the SDF.
@@ -80,6 +121,10 @@ SDF_MISMATCH_MEDIAN = 0.02
 
 #: Surface samples of the fine mesh at which the bake measures the SDF's median |f|.
 SDF_CHECK_SAMPLES = 4096
+
+#: Surface points of its mesh (unit frame) a texture fit records in the texture model file: a later SDF whose
+#: median |f| there exceeds ``SDF_MISMATCH_MEDIAN`` describes another surface than the texture's.
+TEXTURE_SURFACE_SAMPLES = 256
 
 #: Hybrid bake: a texel whose source-surface point (where the classical bake's ray lands) has |f| above this
 #: (unit frame) is one the neural field does not represent; it takes the classical mesh-to-mesh normal.

@@ -96,6 +96,9 @@ def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
     from neural_bake.errors import NeuralBakeError
 
     cfg = preset_config(BakeAssetConfig, PRESETS, preset, overrides, what="bake")
+    from neural_bake.limits import check_map_samples
+
+    check_map_samples(cfg.size, cfg.supersample)  # before any texel is allocated
     for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
                           ("bits", (8, 16)), ("hybrid_decide", ("lattice", "all"))):
         if getattr(cfg, name) not in allowed:
@@ -130,6 +133,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
     from neural_bake.io.outdir import OutputFolder
+    from neural_bake.limits import check_map_samples
 
     cfg = config or BakeAssetConfig()
     coarse, size, texture, normal_space, directx = cfg.coarse, cfg.size, cfg.texture, cfg.normal_space, cfg.directx
@@ -144,6 +148,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     parse_coarse(coarse)
     if size < 1 or size > 16384:
         raise NeuralBakeError(f"--size {size}: must be between 1 and 16384")
+    check_map_samples(size, supersample)
     if "albedo" in maps and tex_path is None:
         raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
     if delta is not None and not delta > 0:
@@ -198,6 +203,11 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         if not sdf_check["passed"]:
             log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
                 f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
+        if tex is not None:  # a texture model of another object is refused like an SDF of another mesh
+            from neural_bake.fields import check_texture_matches_sdf
+
+            sdf_check["texture"] = check_texture_matches_sdf(tex, sdf_file, force=cfg.force, option="--force",
+                                                             sdf_name=Path(sdf_path).name)
         coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
                                  else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
         timings["coarse"] = coarse_info["seconds"]

@@ -118,7 +118,13 @@ def batch_config(table: dict | None = None, *, where: str = "config", **override
                                   f"stage tables: {', '.join(STAGE_NAMES)})")
     for stage, opts in (overrides.pop("stages", None) or {}).items():
         stages.setdefault(stage, {}).update(opts)
-    return BatchConfig(**{**values, **overrides, "stages": stages})
+    cfg = BatchConfig(**{**values, **overrides, "stages": stages})
+    from neural_bake.constants import MAX_BATCH_THREADS, MAX_BATCH_WORKERS
+    from neural_bake.limits import check_count
+
+    check_count(cfg.workers, "workers", MAX_BATCH_WORKERS, minimum=0, what="0: auto")
+    check_count(cfg.threads, "threads", MAX_BATCH_THREADS, minimum=0, what="0: auto")
+    return cfg
 
 
 def resolved_config(cfg: BatchConfig) -> tuple[dict, dict]:

@@ -224,3 +224,197 @@ def test_full_disk_is_one_line_naming_the_users_output(files, full_disk, verb):
     line = one_line(r.stderr)
     assert line.startswith(str(out)) and line.endswith("No space left on device"), line
     assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]  # no staging, temporary or lock file
+
+
+# ---------------------------------------------------------------- every size a user can type is capped
+@pytest.fixture(scope="module")
+def timed(files):
+    """A space-time SDF (kind spacetime_sdf, times [0, 1]) and one whose header's time extent is 1e308."""
+    from neural_bake.fields import SpaceTimeField
+    from neural_bake.types import Frame
+
+    d = files["dir"]
+    net = Siren(8, 1, in_dim=4, generator=torch.Generator().manual_seed(0))
+    st = SpaceTimeField(net, frame=Frame(), time_range=(0.0, 1.0), time_extent=1.0).save(d / "st.sdf")
+    huge = save_model(net, d / "huge-extent.sdf", kind="spacetime_sdf", frame=Frame().to_dict(),
+                      time_range=[0.0, 1.0], time_extent=1e308)
+    return {"st": str(st), "huge": str(huge)}
+
+
+SCENE_CAPS = {
+    "camera width": ("[camera]\nwidth = 100000\nheight = 8\n",
+                     "camera: camera width 100000: must be a whole number in 1..16384"),
+    "camera pixels": ("[camera]\nwidth = 16384\nheight = 16384\n", "camera: camera 16384x16384: 268435456 pixels"),
+    "trace iterations": ("[trace]\niterations = [1000000000]\n", "trace: trace iterations: at most 100000 per level"),
+    "trace chunk": ("[trace]\nchunk = 1000000000000\n", "trace: trace chunk: expected a whole number in 1..4194304"),
+    "ambient occlusion samples": ("[ambient_occlusion]\nsamples = 1000000\n",
+                                  "ambient_occlusion: ambient_occlusion samples"),
+    "lights": ("[[lights]]\ndirection = [0, 0, -1]\n" * 65, "lights: at most 64, got 65"),
+    "skip depth": ("skip_depth = 40\n", "skip_depth: expected a whole number in 1..8"),
+}
+
+
+@pytest.mark.parametrize("case", ["size", "size pixels", "t count", "frames", "time range", "time outside",
+                                  "header time extent", "bake supersample", "bake supersample alone",
+                                  "batch workers", "batch threads", "bake-frames t", "bake-frames resolution",
+                                  *(f"scene {k}" for k in SCENE_CAPS)])
+def test_cap(files, timed, tmp_path, capsys, monkeypatch, case):
+    """Each size a user can type beyond its cap (neural_bake.constants) is one line, exit 2, naming the option
+    or file, before anything of that size is allocated."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    png, gif = str(tmp_path / "x.png"), str(tmp_path / "x.gif")
+    if case.startswith("scene "):
+        text, want = SCENE_CAPS[case[len("scene "):]]
+        scene = tmp_path / "scene.toml"
+        scene.write_text(text)
+        argv, want = ["render", files["sdf"], "-o", png, "--scene", str(scene)], f"{scene}: {want}"
+    else:
+        bake = ["bake", files["obj"], "--sdf", files["sdf"], "-o", str(tmp_path / "o"), "--no-baseline", "--force"]
+        argv, want = {
+            "size": (["render", files["sdf"], "-o", png, "--size", "100000"],
+                     "--size 100000: must be a whole number in 1..16384"),
+            "size pixels": (["render", files["sdf"], "-o", png, "--size", "8192x4096"],
+                            "--size 8192x4096: 33554432 pixels, more than the 16777216"),
+            "t count": (["render", timed["st"], "-o", gif, "--t", "0:1:1000000000"],
+                        "--t: '0:1:1000000000' asks for 1000000000 times, more than 10000"),
+            "frames": (["render", timed["st"], "-o", gif, "--frames", "1000000000"],
+                       "--frames 1000000000: must be a whole number in 1..10000"),
+            "time range": (["render", timed["st"], "-o", gif, "--time-range", "0,1e300"],
+                           "--time-range 1e+300: must be a finite number within ±1e+30"),
+            "time outside": (["render", timed["st"], "-o", gif, "--time-range", "0,5", "--frames", "3"],
+                             "t = 2.5 is outside the fitted time range [0, 1]"),
+            "header time extent": (["render", timed["huge"], "-o", gif],
+                                   f"{timed['huge']}: time_extent = 1e+308 is larger than 1e+30"),
+            "bake supersample": ([*bake, "--size", "8192", "--supersample", "4"],
+                                 "--supersample 4: a 8192x8192 map with 4x4 samples per texel has 32768 samples"),
+            "bake supersample alone": ([*bake, "--size", "16", "--supersample", "100000"],
+                                       "--supersample 100000: must be a whole number in 1..16384"),
+            "batch workers": (["batch", files["obj"], "-o", str(tmp_path / "b"), "--workers", "100000"],
+                              "--workers 100000: must be a whole number in 0..1024 (0: auto)"),
+            "batch threads": (["batch", files["obj"], "-o", str(tmp_path / "b"), "--threads", "100000"],
+                              "--threads 100000: must be a whole number in 0..1024 (0: auto)"),
+            "bake-frames t": (["bake-frames", timed["st"], "--t", "0:1:1000000000", "-o", str(tmp_path / "f")],
+                              "--t: '0:1:1000000000' asks for 1000000000 times, more than 10000"),
+            "bake-frames resolution": (["bake-frames", timed["st"], "--t", "0:1:2", "--resolution", "100000",
+                                        "-o", str(tmp_path / "f")],
+                                       "--resolution 100000: must be a whole number in 2..1024"),
+        }[case]
+    assert main(argv) == 2
+    assert one_line(capsys.readouterr().err).startswith(want)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name not in ("cache", "scene.toml")) == []
+
+
+def test_times_on_a_static_model_are_refused(files, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    for option, value in (("--t", "0:1:3"), ("--time-range", "0,1"), ("--frames", "3")):
+        assert main(["render", files["sdf"], "-o", str(tmp_path / "x.png"), option, value]) == 2
+        assert one_line(capsys.readouterr().err) == (
+            f"{option}: MODEL {files['sdf']} is a static SDF and has no time (it takes x, y, z); times are for a "
+            f"space-time model")
+    assert not (tmp_path / "x.png").exists()
+
+
+# ------------------------------------------------------- a texture model of another object is refused
+@pytest.fixture(scope="module")
+def textured(tmp_path_factory, fit_sphere_siren):
+    """The sphere and torus samples (one frame: both centred, longest side 1.8), a fitted SDF of the sphere,
+    texture models fitted (briefly) on the sphere and on the torus, and the sphere's moved to another frame."""
+    from neural_bake.fields import load_field, save_field
+    from neural_bake.samples.generate import write_sample
+    from neural_bake.types import Frame
+
+    d = tmp_path_factory.mktemp("textured")
+    obj = {n: write_sample(get_sample(n).mesh(resolution=1000, texture_size=16), d, n) for n in ("sphere", "torus")}
+    sdf = save_model(fit_sphere_siren(r=0.9, width=32, steps=250), d / "sphere.sdf", kind="sdf",
+                     frame=load_mesh(obj["sphere"]).frame.to_dict())
+    tiny = ["--steps", "2", "--width", "16", "--depth", "0", "--no-progress", "--no-metrics"]
+    for n in ("sphere", "torus"):
+        assert main(["fit", "texture", str(obj[n]), "--sdf", str(sdf), "-o", str(d / f"{n}.tex"), *tiny]) == 0
+    moved = load_field(d / "sphere.tex")
+    moved.frame = Frame((0.0, 0.0, 0.0), 1.5)
+    save_field(moved, d / "moved.tex")
+    return {"obj": str(obj["sphere"]), "sdf": str(sdf), "dir": d,
+            **{n: str(d / f"{n}.tex") for n in ("sphere", "torus", "moved")}}
+
+
+def test_texture_records_the_surface_it_was_fitted_on(textured):
+    import numpy as np
+
+    from neural_bake.constants import TEXTURE_SURFACE_SAMPLES
+    from neural_bake.fields import load_field
+
+    surface = np.asarray(load_field(textured["torus"]).fitted_against["surface"])
+    assert surface.shape == (TEXTURE_SURFACE_SAMPLES, 3)
+    torus = get_sample("torus")
+    rho = np.hypot(surface[:, 0], surface[:, 1])  # on the torus: (ρ − R)² + z² = r²
+    np.testing.assert_allclose(np.hypot(rho - torus.major, surface[:, 2]), torus.minor, atol=0.02)
+
+
+BAKE_TINY = ["--coarse", "decimate:100", "--size", "16", "--maps", "normal,albedo", "--no-baseline"]
+
+
+@pytest.mark.parametrize("verb", ["bake", "render"])
+@pytest.mark.parametrize("texture,problem", [("torus", "fitted on another surface than sphere.sdf: median |f| at "
+                                                         "the texture's 256 surface points is "),
+                                             ("moved", "fitted in another frame than sphere.sdf: the frames differ by")])
+def test_a_texture_of_another_object_is_refused(textured, tmp_path, capsys, monkeypatch, verb, texture, problem):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    out = tmp_path / ("o" if verb == "bake" else "x.png")
+    if verb == "bake":
+        argv = ["bake", textured["obj"], "--sdf", textured["sdf"], "--texture-model", textured[texture], *BAKE_TINY]
+    else:
+        argv = ["render", textured["sdf"], "--texture", textured[texture], "--size", "16"]
+    assert main([*argv, "-o", str(out)]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith(f"{texture}.tex: {problem}") and line.endswith(
+        "; give the texture model fitted with this SDF, or --force uses it anyway"), line
+    assert not out.exists()
+    from neural_bake.errors import NeuralBakeWarning
+
+    with pytest.warns(NeuralBakeWarning) as caught:  # forced: made, with a warning
+        assert main([*argv, "-o", str(out), "--force"]) == 0, capsys.readouterr().err
+    said = [str(w.message) for w in caught if str(w.message).startswith(f"{texture}.tex: ")]
+    assert len(said) == 1 and said[0].startswith(f"{texture}.tex: {problem}"), said
+    assert said[0].endswith("used anyway (--force)")
+    assert out.exists()
+
+
+def test_the_right_texture_bakes_and_renders(textured, tmp_path, capsys, monkeypatch):
+    import json
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert main(["bake", textured["obj"], "--sdf", textured["sdf"], "--texture-model", textured["sphere"], *BAKE_TINY,
+                 "-o", str(tmp_path / "o")]) == 0
+    check = json.loads((tmp_path / "o" / "report.json").read_text())["sdf_check"]["texture"]
+    assert check["passed"] and check["frame_mismatch"] == 0 and check["median_abs_f"] < 0.02
+    assert main(["render", textured["sdf"], "--texture", textured["sphere"], "--size", "16",
+                 "-o", str(tmp_path / "x.png")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_bake_frames_refuses_a_texture_of_another_frame(textured, timed, tmp_path, capsys):
+    out = tmp_path / "f"
+    assert main(["bake-frames", timed["st"], "--t", "0:1:2", "--resolution", "8", "--texture", textured["moved"],
+                 "-o", str(out)]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith("moved.tex: fitted in another frame than st.sdf: the frames differ by 0.5"), line
+    assert not out.exists()
+
+
+# ---------------------------------------------- a file's kind fixes its networks' inputs, for every verb
+@pytest.mark.parametrize("verb", ["fit nested", "fit texture", "render", "bake", "bake-frames"])
+def test_a_four_input_network_labelled_static_is_refused_by_every_verb(files, tmp_path, capsys, monkeypatch, verb):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    bad = save_model(Siren(8, 1, in_dim=4, generator=torch.Generator().manual_seed(0)), tmp_path / "st4.sdf",
+                     kind="sdf", frame=load_mesh(files["obj"]).frame.to_dict())
+    out = tmp_path / "out"
+    argv = {"fit nested": ["fit", "nested", bad, "-o", out, "--steps", "2"],
+            "fit texture": ["fit", "texture", files["obj"], "--sdf", bad, "-o", out, "--steps", "2"],
+            "render": ["render", bad, "-o", tmp_path / "out.gif", "--size", "8", "--frames", "2"],
+            "bake": ["bake", files["obj"], "--sdf", bad, *TINY_BAKE, "-o", out],
+            "bake-frames": ["bake-frames", bad, "--t", "0:1:2", "--resolution", "8", "-o", out]}[verb]
+    assert main([str(a) for a in argv]) == 2
+    assert one_line(capsys.readouterr().err) == (
+        f"{bad}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps R^4 to R^1 (a space-time "
+        f"SDF is kind 'spacetime_sdf', with its time range)")
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "cache") == ["st4.sdf"]

@@ -18,9 +18,11 @@ from typing import Callable, Union
 import numpy as np
 import torch
 
+from ..constants import MAX_FRAMES, MAX_MARCH_RESOLUTION
 from ..errors import NeuralBakeError
 from ..fields.texture import TextureField
 from ..io.outdir import OutputFolder
+from ..limits import check_count
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..nets.siren import Siren
 from ..types import Frame
@@ -78,8 +80,9 @@ def bake_frames(
         A :class:`FrameBake`.
 
     Raises:
-        NeuralBakeError: an unknown format, no times, an output folder whose parent does not exist, a frame
-            whose coarse level has no surface; TimeRangeError for a time outside the range (before anything
+        NeuralBakeError: an unknown format, no times or more than ``MAX_FRAMES``, a resolution beyond
+            ``MAX_MARCH_RESOLUTION``, an output folder whose parent does not exist, a frame whose coarse level
+            has no surface; TimeRangeError for a time outside the range (before anything
             is written).
     """
     from ..mesh.marching import march
@@ -87,9 +90,11 @@ def bake_frames(
 
     if fmt not in FRAME_FORMATS:
         raise NeuralBakeError(f"fmt: expected one of {', '.join(FRAME_FORMATS)}, got {fmt!r}")
+    check_count(resolution, "resolution", MAX_MARCH_RESOLUTION, minimum=2, what="marching-cubes cells per axis")
     times = [float(t) for t in np.atleast_1d(np.asarray(times, dtype=np.float64))]
     if not times:
         raise NeuralBakeError("times: give at least one frame time")
+    check_count(len(times), "times", MAX_FRAMES, what="frames")
     out_dir = Path(out_dir)
     parent = out_dir.parent if str(out_dir.parent) else Path(".")
     if not parent.is_dir():

@@ -8,7 +8,8 @@ from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_fi
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, closest_surface_points, unit_normals
 from .spacetime import SPACETIME_KIND, SpaceTimeField, time_mapping, time_to_tau
-from .texture import ENCODINGS, ColorField, TextureField, decode_colors
+from .texture import (ENCODINGS, ColorField, TextureField, check_texture_matches_sdf, decode_colors,
+                      texture_agreement)
 
 __all__ = [
     "SdfField",
@@ -16,6 +17,8 @@ __all__ = [
     "ColorField",
     "ENCODINGS",
     "decode_colors",
+    "texture_agreement",
+    "check_texture_matches_sdf",
     "NestedSequence",
     "load_field",
     "save_field",

@@ -5,10 +5,12 @@ Two containers exist, both safetensors with a JSON header (no pickle; loading ne
 ``neural_bake.model`` (one network, :mod:`neural_bake.nets.model_io`; ``metadata.kind`` says what it is) and
 ``neural_bake.nested`` (a nested sequence, :mod:`neural_bake.fields.nested`). A reader is registered per
 ``kind`` (:func:`register_kind`): ``"sdf"`` → :class:`SdfField`, ``"texture"`` → :class:`TextureField`,
-``"nested"`` → :class:`NestedSequence`. A space-time SDF (``in_dim`` 4: x, y, z, t) loads as an ``"sdf"``
-with ``SdfField.in_dim == 4``; a field of another nature registers its own kind and callers of
-:func:`load_field` do not change. Every header value is checked before anything
-is allocated: one-line :class:`ModelFileError` naming the file and the field.
+``"nested"`` → :class:`NestedSequence`. A kind fixes the networks' inputs, for every reader of the file: an
+``"sdf"`` takes (x, y, z); a space-time SDF (x, y, z, t) is kind ``"spacetime_sdf"``
+(:mod:`neural_bake.fields.spacetime`) with its time range, and a nested sequence of 4-input levels carries the
+same time mapping. A field of another nature registers its own kind and callers of :func:`load_field` do not
+change. Every header value is checked before anything is allocated: one-line :class:`ModelFileError` naming
+the file and the field.
 """
 
 from __future__ import annotations
@@ -183,9 +185,10 @@ def _read_network(path: Path, header: dict, device, dtype):
 
 def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
     arch, meta = header["architecture"], header["metadata"]
-    if arch["in_dim"] not in (3, 4) or arch["out_dim"] != 1:  # (x, y, z), or (x, y, z, t): space-time
-        raise ModelFileError(f"{path}: an SDF maps R^3 (or R^4 with time) to R, this network maps "
-                             f"R^{arch['in_dim']} to R^{arch['out_dim']}")
+    if arch["in_dim"] != 3 or arch["out_dim"] != 1:
+        st = " (a space-time SDF is kind 'spacetime_sdf', with its time range)" if arch["in_dim"] == 4 else ""
+        raise ModelFileError(f"{path}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps "
+                             f"R^{arch['in_dim']} to R^{arch['out_dim']}{st}")
     frame = check_frame(meta.get("frame"), path)
     delta = check_delta(meta.get("delta"), path)
     model = _read_network(path, header, device, dtype)
@@ -202,12 +205,28 @@ def _read_texture(path: Path, header: dict, *, device=None, dtype=None) -> Textu
     against = meta.get("fitted_against")
     if against is not None and not isinstance(against, dict):
         raise ModelFileError(f"{path}: fitted_against = {against!r:.40} is not an object")
+    if against is not None and against.get("surface") is not None:
+        _check_surface(against["surface"], path)
     encoding = meta.get("encoding", "linear")  # files written before the encoding was recorded: linear
     if encoding not in ENCODINGS:
         raise ModelFileError(f"{path}: encoding = {encoding!r:.40} is not one of {', '.join(ENCODINGS)}")
     model = _read_network(path, header, device, dtype)
     return TextureField.from_model(model, frame=frame, delta=delta, name=path.name, fitted_against=against,
                                    metadata=meta, encoding=encoding)
+
+
+def _check_surface(surface, path: Path) -> None:
+    """A texture's recorded surface points: a list of at most MAX_TEXTURE_SURFACE_POINTS finite 3-vectors."""
+    import math
+
+    from ..constants import MAX_TEXTURE_SURFACE_POINTS
+
+    ok = isinstance(surface, list) and len(surface) <= MAX_TEXTURE_SURFACE_POINTS and all(
+        isinstance(p, list) and len(p) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                                    and math.isfinite(c) for c in p) for p in surface)
+    if not ok:
+        raise ModelFileError(f"{path}: fitted_against.surface is not a list of at most {MAX_TEXTURE_SURFACE_POINTS} "
+                             f"finite points [x, y, z]")
 
 
 def _register_defaults() -> None:

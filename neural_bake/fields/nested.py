@@ -167,6 +167,17 @@ def read_nested(path: Path, header: dict, *, device=None, dtype=None) -> NestedS
     metadata = header.get("metadata", {})
     if not isinstance(stability, list) or not isinstance(metadata, dict):
         raise ModelFileError(f"{path}: stability must be a list and metadata an object")
+    if archs[-1]["in_dim"] == 4:  # space-time levels: the file must say how t maps onto their time input
+        from .spacetime import check_time_mapping
+
+        st = metadata.get("spacetime")
+        if not isinstance(st, dict):
+            raise ModelFileError(f"{path}: levels of 4 inputs (x, y, z, t) but no time mapping "
+                                 f"(metadata.spacetime with time_range and time_extent)")
+        check_time_mapping(st, f"{path}: metadata.spacetime")
+    elif archs[-1]["in_dim"] != 3:
+        raise ModelFileError(f"{path}: levels of {archs[-1]['in_dim']} inputs; a nested sequence's levels take "
+                             f"3 (x, y, z) or 4 (x, y, z, t)")
     expected = {}
     for i, a in enumerate(archs):
         expected.update(expected_shapes(a, f"levels.{i}."))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import TIME_RANGE_TOL
+from ..constants import MAX_TIME_MAGNITUDE, TIME_RANGE_TOL
 from ..errors import ModelFileError, TimeRangeError
 from ..types import Frame
 from .files import register_kind
@@ -55,7 +55,8 @@ def time_to_tau(t, time_range: tuple[float, float], extent: float, *, name: str 
 
 
 def check_time_mapping(meta: dict, path) -> tuple[tuple[float, float], float]:
-    """``(time_range, time_extent)`` of a header; ModelFileError (one line naming ``path`` and the field)."""
+    """``(time_range, time_extent)`` of a header: finite, t0 ≤ t1, 0 < time_extent, every value within
+    ±:data:`~neural_bake.constants.MAX_TIME_MAGNITUDE`; ModelFileError (one line naming ``path`` and the field)."""
     tr = meta.get("time_range")
     try:
         t0, t1 = (float(v) for v in tr)
@@ -64,9 +65,14 @@ def check_time_mapping(meta: dict, path) -> tuple[tuple[float, float], float]:
         ok = False
     if not ok:
         raise ModelFileError(f"{path}: time_range = {tr!r:.40} is not two finite times t0 <= t1")
+    if max(abs(t0), abs(t1)) > MAX_TIME_MAGNITUDE:
+        raise ModelFileError(f"{path}: time_range = {tr!r:.40} has an end beyond ±{MAX_TIME_MAGNITUDE:g}")
     extent = meta.get("time_extent")
     if not isinstance(extent, (int, float)) or isinstance(extent, bool) or not (math.isfinite(extent) and extent > 0):
         raise ModelFileError(f"{path}: time_extent = {extent!r:.40} is not a positive number")
+    if extent > MAX_TIME_MAGNITUDE:
+        raise ModelFileError(f"{path}: time_extent = {extent!r:.40} is larger than {MAX_TIME_MAGNITUDE:g} (the "
+                             f"network's time input would not be a finite float32)")
     return (t0, t1), float(extent)
 
 

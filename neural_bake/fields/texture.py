@@ -14,7 +14,8 @@ from ..errors import ModelFileError
 from ..io.colour import srgb_to_linear
 from ..types import Frame
 
-__all__ = ["TextureField", "ColorField", "ENCODINGS", "decode_colors"]
+__all__ = ["TextureField", "ColorField", "ENCODINGS", "decode_colors", "texture_agreement",
+           "check_texture_matches_sdf"]
 
 #: What a colour network's outputs hold: linear RGB, or sRGB-encoded values (IEC 61966-2-1).
 ENCODINGS = ("linear", "srgb")
@@ -39,7 +40,9 @@ class TextureField:
     - ``delta``: half-width of the band |f| ≤ δ the field was fitted for (or None): a bake moves a read at most δ
       onto f = 0, and a field fitted with λ > 0 is constant across the band.
     - ``fitted_against``: what SDF it was fitted against: ``{"name", "kind" ("sdf" or "nested"),
-      "delta"}`` (None when unknown).
+      "delta", "surface"}`` (None when unknown); ``surface``, when recorded, is a list of
+      :data:`~neural_bake.constants.TEXTURE_SURFACE_SAMPLES` points [x, y, z] of the fitted mesh's surface
+      (unit frame), where :func:`check_texture_matches_sdf` reads another SDF.
     - ``metadata``: provenance, the file's JSON metadata (λ, training config…).
     - ``model``: the Siren of a fitted field, None for an analytic one.
     - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
@@ -107,3 +110,72 @@ class TextureField:
 
 #: The name of earlier releases.
 ColorField = TextureField
+
+
+def texture_agreement(texture: TextureField, sdf) -> dict:
+    """``{"frame_mismatch", "median_abs_f", "samples"}`` of ``texture`` against ``sdf``: how far apart their
+    frames are (:func:`~neural_bake.geometry.frame_mismatch`; 0 when either has none) and the median |f| of
+    ``sdf`` at the surface points the texture recorded (``fitted_against["surface"]``, moved into the SDF's
+    unit frame), None when it recorded none or ``sdf`` is not a static SDF field (a space-time one: frames only).
+
+    ``sdf``: an :class:`~neural_bake.fields.sdf.SdfField`, a nested sequence (its fine f) or any field with a
+    ``frame`` (a space-time SDF)."""
+    import numpy as np
+
+    from ..geometry import frame_mismatch
+    from .sdf import SdfField
+
+    tf, sf = texture.frame, getattr(sdf, "frame", None)
+    out: dict = {"frame_mismatch": 0.0 if tf is None or sf is None else frame_mismatch(tf, sf),
+                 "median_abs_f": None, "samples": 0}
+    if hasattr(sdf, "finest") and getattr(sdf, "in_dim", 3) == 3:
+        sdf = sdf.finest
+    surface = (texture.fitted_against or {}).get("surface")
+    if not isinstance(sdf, SdfField) or sdf.in_dim != 3 or not surface:
+        return out
+    pts = np.asarray(surface, dtype=np.float64).reshape(-1, 3)
+    if tf is not None and sf is not None and tf != sf:
+        pts = sf.to_unit(tf.to_source(pts))
+    p = next(sdf.model.parameters()) if sdf.model is not None else None
+    x = torch.as_tensor(pts, dtype=p.dtype if p is not None else torch.float64,
+                        device=p.device if p is not None else "cpu")
+    f = sdf.value(x).double().abs().cpu().numpy()
+    f = np.where(np.isfinite(f), f, np.inf)
+    out.update(median_abs_f=float(np.median(f)), samples=int(len(pts)))
+    return out
+
+
+def check_texture_matches_sdf(texture: TextureField, sdf, *, force: bool = False, option: str = "force=True",
+                              sdf_name: str | None = None) -> dict:
+    """:func:`texture_agreement`, raising :class:`~neural_bake.errors.NeuralBakeError` (one line naming the
+    texture and the mismatch) when the frames differ beyond ``FRAME_MISMATCH_TOL`` or the SDF's median |f| at
+    the texture's recorded surface points exceeds ``SDF_MISMATCH_MEDIAN`` (the texture was fitted on another
+    surface), unless ``force`` (then a :class:`~neural_bake.errors.NeuralBakeWarning` says it). ``option`` is
+    how the messages name the override, ``sdf_name`` the SDF (default its ``name``). Returns the figures with
+    ``"passed"``."""
+    from ..constants import FRAME_MISMATCH_TOL, SDF_MISMATCH_MEDIAN
+    from ..errors import NeuralBakeError
+
+    a = texture_agreement(texture, sdf)
+    name = sdf_name or getattr(sdf, "name", "the SDF")
+    problem = None
+    if a["frame_mismatch"] > FRAME_MISMATCH_TOL:
+        tf, sf = texture.frame, sdf.frame
+        problem = (f"fitted in another frame than {name}: the frames differ by {a['frame_mismatch']:.3g} "
+                   f"(tolerance {FRAME_MISMATCH_TOL:g}): texture centre {[round(c, 6) for c in tf.center]} scale "
+                   f"{tf.scale:.6g}, SDF centre {[round(c, 6) for c in sf.center]} scale {sf.scale:.6g}")
+    elif a["median_abs_f"] is not None and a["median_abs_f"] > SDF_MISMATCH_MEDIAN:
+        problem = (f"fitted on another surface than {name}: median |f| at the texture's {a['samples']} surface "
+                   f"points is {a['median_abs_f']:.4g} (unit frame; threshold {SDF_MISMATCH_MEDIAN:g})")
+    a["passed"] = problem is None
+    if problem and not force:
+        raise NeuralBakeError(f"{texture.name}: {problem}; give the texture model fitted with this SDF, or "
+                              f"{option} uses it anyway")
+    if problem:
+        import warnings
+
+        from ..errors import NeuralBakeWarning
+
+        warnings.warn(f"{texture.name}: {problem}; used anyway ({option})", NeuralBakeWarning, stacklevel=2)
+    return a
+

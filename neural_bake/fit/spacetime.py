@@ -183,7 +183,10 @@ def _config_from(config: SpaceTimeFitConfig | None, fn: str, methods=MORPH_METHO
 # ----------------------------------------------------------------------------------------------- time
 def parse_times(text: str, *, name: str = "times") -> list[float]:
     """Times from a spec: ``"a:b:n"`` (n evenly spaced times from a to b, both included; n = 1 gives a) or a
-    comma-separated list ``"0,0.25,1"``. NeuralBakeError (one line naming ``name``) for anything else."""
+    comma-separated list ``"0,0.25,1"``. NeuralBakeError (one line naming ``name``) for anything else, for
+    more than :data:`~neural_bake.constants.MAX_FRAMES` times (refused before they are made) and for times
+    beyond ±:data:`~neural_bake.constants.MAX_TIME_MAGNITUDE`."""
+    from ..constants import MAX_FRAMES, MAX_TIME_MAGNITUDE
     from ..errors import NeuralBakeError
 
     text = str(text).strip()
@@ -193,14 +196,22 @@ def parse_times(text: str, *, name: str = "times") -> list[float]:
             a, b, n = float(a), float(b), int(n)
             if n < 1:
                 raise ValueError
-            out = np.linspace(a, b, n).tolist() if n > 1 else [a]
+            out = None
         else:
             out = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise NeuralBakeError(f"{name}: {text!r:.60} is not START:STOP:COUNT (e.g. 0:1:60) or a comma-separated "
                               f"list of times") from None
+    if out is None:
+        if n > MAX_FRAMES:
+            raise NeuralBakeError(f"{name}: {text!r:.60} asks for {n} times, more than {MAX_FRAMES}")
+        out = np.linspace(a, b, n).tolist() if n > 1 else [a]
+    if len(out) > MAX_FRAMES:
+        raise NeuralBakeError(f"{name}: {text!r:.60} gives {len(out)} times, more than {MAX_FRAMES}")
     if not out or not all(math.isfinite(v) for v in out):
         raise NeuralBakeError(f"{name}: {text!r:.60} gives no finite times")
+    if any(abs(v) > MAX_TIME_MAGNITUDE for v in out):
+        raise NeuralBakeError(f"{name}: {text!r:.60} has a time beyond ±{MAX_TIME_MAGNITUDE:g}")
     return [float(v) for v in out]
 
 

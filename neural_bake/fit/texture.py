@@ -164,7 +164,7 @@ class TextureFit:
     - ``delta``, ``lam``: the band half-width and λ used.
     - ``config``: the full :class:`TextureFitConfig`.
     - ``fitted_against``: the SDF the band came from: ``{"name", "kind" ("sdf", "nested", "analytic"),
-      "delta"}``.
+      "delta", "surface"}`` (``surface``: seeded points of the mesh's surface, unit frame).
     - ``history``: one dict per logged step: step, seconds, lr, loss, colour (MSE), orth (mean Σ_c ⟨∇g_c,n⟩²;
       absent when λ = 0).
     - ``steps``, ``seconds``: steps done and wall time; ``stopped_reason``: "steps" or "time budget";
@@ -479,10 +479,16 @@ def _check_frames(mesh: Mesh, sdf: SdfField) -> None:
                        f"{list(mesh.frame.center)}); fit the SDF on this mesh")
 
 
-def _fitted_against(sdf: SdfField, delta: float) -> dict:
-    """What a texture fit records about its SDF (stored with the texture file)."""
+def _fitted_against(sdf: SdfField, delta: float, mesh: Mesh) -> dict:
+    """What a texture fit records about its SDF (stored with the texture file): its name, kind and δ, and
+    TEXTURE_SURFACE_SAMPLES seeded surface points of ``mesh`` (unit frame), where a later SDF is checked to
+    describe the same surface (:func:`~neural_bake.fields.texture.check_texture_matches_sdf`)."""
+    from ..constants import TEXTURE_SURFACE_SAMPLES
+    from .sampling import sample_surface
+
+    surface = np.round(np.asarray(sample_surface(mesh, TEXTURE_SURFACE_SAMPLES, seed=0).points, np.float64), 6)
     return {"name": sdf.name, "kind": sdf.metadata.get("kind", "analytic" if sdf.model is None else "sdf"),
-            "delta": float(delta)}
+            "delta": float(delta), "surface": surface.tolist()}
 
 
 def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *,
@@ -583,7 +589,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
                       stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget,
-                      fitted_against=_fitted_against(sdf, delta), encoding=encoding)
+                      fitted_against=_fitted_against(sdf, delta, mesh), encoding=encoding)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ import torch
 
 from ..constants import CAMERA_PARALLEL_EPS, MIN_SPAN
 from ..errors import NeuralBakeError
+from ..limits import check_image_size
 from ..types import Frame
 from .checks import finite_numbers
 
@@ -39,7 +40,8 @@ class Camera:
     - ``up``: the world direction that appears up in the image (default +Y); it need not be orthogonal
       to the view direction, only not parallel to it.
     - ``fov_deg``: vertical field of view in degrees, in (0, 180).
-    - ``width``, ``height``: image size in pixels (≥ 1). Pixels are square; the horizontal field of view
+    - ``width``, ``height``: image size in pixels (1 to ``MAX_IMAGE_SIDE`` each, at most ``MAX_IMAGE_PIXELS``
+      in all, :mod:`neural_bake.constants`). Pixels are square; the horizontal field of view
       follows from the aspect ratio.
     """
 
@@ -72,6 +74,7 @@ class Camera:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise CameraError(f"camera {name}: expected a whole number of pixels ≥ 1, got {value!r}")
             object.__setattr__(self, name, int(value))
+        check_image_size(self.width, self.height, "camera", error=CameraError)
         self.basis()  # refuse a camera without a basis now, not at render time
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -40,14 +40,16 @@ def _networks(field) -> list[Siren]:
     return [model]
 
 
-def load_asset(path, *, texture=None, deltas=None, device=None, precision: str = "fp32"
-               ) -> RenderAsset | SpaceTimeAsset:
+def load_asset(path, *, texture=None, deltas=None, device=None, precision: str = "fp32", force: bool = False,
+               force_option: str = "force=True") -> RenderAsset | SpaceTimeAsset:
     """A RenderAsset (or a SpaceTimeAsset for 4-input networks) from a model file, with the texture file
     ``texture`` and δ overrides ``deltas`` (coarse to fine; the file's otherwise). ``precision``: "fp32",
     "bf16" or "auto" for the networks' hidden GEMMs (:func:`~neural_bake.nets.precision.resolve_precision`).
 
     Raises ModelFileError for unreadable files, RenderError for a texture given as MODEL or a texture file
-    that is an SDF.
+    that is an SDF, NeuralBakeError for a texture fitted in another frame or on another surface than the
+    model's (:func:`~neural_bake.fields.check_texture_matches_sdf`; ``force`` renders it anyway with a
+    warning, ``force_option`` is how the message names that).
     """
     field = read_field(path, device=device)
     if _is_texture(field):
@@ -58,6 +60,9 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
         tex = read_field(texture, argument="texture", device=device)
         if not _is_texture(tex):
             raise RenderError(f"texture {texture}: not a texture field (3 or 4 outputs)")
+        from ..fields import check_texture_matches_sdf
+
+        check_texture_matches_sdf(tex, field, force=force, option=force_option, sdf_name=Path(path).name)
     nets = _networks(field)
     frame = getattr(field, "frame", None)
     ds = list(deltas) if deltas is not None else list(getattr(field, "deltas", None) or [0.0] * len(nets))

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..constants import GRAD_EPS, UNIT_FRAME_EXTENT
+from ..limits import check_image_size
 from .asset import RenderAsset, RenderError
 from .camera import Camera
 from .guaranteed import cast_guaranteed
@@ -144,6 +145,8 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
     iteration counts that do not match the levels, a normal level out of range…).
     """
     scene = scene or Scene()
+    if size is not None and camera is None:
+        check_image_size(*size, error=RenderError)
     assets = [assets] if isinstance(assets, RenderAsset) else list(assets)
     if not assets:
         raise RenderError("render: no object to draw")
@@ -319,6 +322,8 @@ def scene_camera(assets, scene: Scene, *, size: tuple[int, int] | None = None, f
     None), of ``size`` (default 256²) and ``fov_deg`` (default 40°)."""
     if scene.camera is not None:
         return scene.camera
+    if size is not None:
+        check_image_size(*size, error=RenderError)
     transforms = [o.transform for o in scene.objects] if scene.objects else [None] * len(assets)
     if grids is None:
         grids = [_grid(a, scene, EvalCounter(), dtype, device, cache_dir)[0] for a in assets]

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import SHADOW_BIAS
+from ..constants import MAX_SCENE_LIGHTS, MAX_SCENE_OBJECTS, SHADOW_BIAS
 from ..errors import NeuralBakeError
 from .camera import Camera
 from .checks import finite_numbers
@@ -209,6 +209,9 @@ class Scene:
         b = self.shadow_bias
         if isinstance(b, bool) or not isinstance(b, (int, float)) or not math.isfinite(b) or b < 0:
             raise SceneError(f"shadow_bias: expected a finite number ≥ 0, got {b!r}")
+        for name, items, cap in (("lights", self.lights, MAX_SCENE_LIGHTS), ("objects", self.objects, MAX_SCENE_OBJECTS)):
+            if len(items) > cap:
+                raise SceneError(f"{name}: at most {cap}, got {len(items)}")
         for light in self.lights:
             if not isinstance(light, (DirectionalLight, PointLight)):
                 raise SceneError(f"lights: expected DirectionalLight or PointLight, got {type(light).__name__}")

@@ -1,16 +1,14 @@
 """Dynamic previews: a space-time field f(x, t) rendered frame by frame into numbered PNGs and a GIF or MP4.
 
 Frame i of n renders f(·, t_i) with t_i spread evenly over the time range (both ends included). The PNG frames
-go to a folder that is committed as a unit (written into a temporary folder beside it, then renamed into
-place: a reader sees the whole old set or the whole new set); the animation is written atomically with
+go to a folder that is committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
+whole old set or the whole new set, one writer at a time); the animation is written atomically with
 imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships).
 """
 
 from __future__ import annotations
 
 import math
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -20,6 +18,7 @@ import numpy as np
 from ..io.atomic import atomic_path
 from ..io.colour import linear_to_srgb
 from ..io.images import write_image
+from ..io.outdir import OutputFolder
 from .asset import RenderError, SpaceTimeAsset
 from .renderer import default_camera, render
 from .scene import Scene
@@ -97,8 +96,7 @@ def render_sequence(
     scene = scene.with_(camera=camera)
     counter = EvalCounter()
     per_frame, images = [], []
-    tmp = Path(tempfile.mkdtemp(prefix=f".{frames_dir.name}.", dir=parent))
-    try:
+    with OutputFolder(frames_dir) as tmp:  # committed as a unit, one writer, a symlink followed
         paths = []
         for i, t in enumerate(times):
             res = render(asset.at(t), scene, device=device)
@@ -113,16 +111,6 @@ def render_sequence(
             per_frame.append({"time": t, "seconds": res.stats["seconds"]["total"], "hit": res.stats["pixels"]["hit"]})
             if progress is not None:
                 progress(i + 1, len(times), res.stats["seconds"]["total"])
-        if frames_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{frames_dir.name}.old.", dir=parent))
-            frames_dir.rename(old / frames_dir.name)
-            tmp.rename(frames_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(frames_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     if anim is not None:
         _write_animation(anim, images, fps)
     stats = {"frames": per_frame, "evaluations": counter.to_dict(), "camera": camera.to_dict(),

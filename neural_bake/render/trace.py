@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import torch
 
-from ..constants import FLOAT32_FLOOR, TRACE_BOUND, TRACE_EPSILON, TRACE_HIT_TOLERANCE, TRACE_STILL_STEP
+from ..constants import (FLOAT32_FLOOR, MAX_TRACE_CHUNK, MAX_TRACE_ITERATIONS, TRACE_BOUND, TRACE_EPSILON,
+                         TRACE_HIT_TOLERANCE, TRACE_STILL_STEP)
 from .asset import RenderError, TraceLevel
 from .stats import EvalCounter
 
@@ -76,13 +77,16 @@ class TraceSettings:
                 raise RenderError(f"trace iterations: expected whole numbers ≥ 0 per level, got {self.iterations!r}")
             if sum(its) == 0:
                 raise RenderError("trace iterations: at least one level needs iterations > 0")
+            if max(its) > MAX_TRACE_ITERATIONS:
+                raise RenderError(f"trace iterations: at most {MAX_TRACE_ITERATIONS} per level, got {max(its)}")
             object.__setattr__(self, "iterations", tuple(int(i) for i in its))
         for name in ("epsilon", "hit_tolerance", "bound"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RenderError(f"trace {name}: expected a finite number > 0, got {v!r}")
-        if isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or self.chunk < 1:
-            raise RenderError(f"trace chunk: expected a whole number ≥ 1, got {self.chunk!r}")
+        if isinstance(self.chunk, bool) or int(self.chunk) != self.chunk or not 1 <= self.chunk <= MAX_TRACE_CHUNK:
+            raise RenderError(f"trace chunk: expected a whole number in 1..{MAX_TRACE_CHUNK} (rays per batch), "
+                              f"got {self.chunk!r}")
         if self.lod is not None:
             lo, hi = (float(v) for v in self.lod)
             if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):

@@ -134,14 +134,35 @@ def test_a_space_time_kind_slots_in_without_changing_callers(tmp_path):
         KINDS.pop("sdf4d")
 
 
-def test_space_time_sdf_carries_its_input_dimension(tmp_path):
-    f = load_field(save_model(_net(in_dim=4), tmp_path / "st.sdf", kind="sdf", frame=FRAME.to_dict()))
-    assert f.in_dim == 4 and f.value_and_gradient(torch.rand(5, 4))[1].shape == (5, 4)
-    with pytest.raises(ModelFileError, match=r"st\.sdf: a space-time SDF \(4 inputs\); a static one"):
-        load_sdf_field(tmp_path / "st.sdf")  # what bake and fit texture read
-    with pytest.raises(ModelFileError, match=r"five\.sdf: an SDF maps R\^3 \(or R\^4 with time\) to R, this network "
-                                             r"maps R\^5 to R\^1"):
+def test_a_kind_fixes_the_networks_inputs(tmp_path):
+    """kind "sdf" is static (x, y, z): a 4-input network labelled so is refused on load, by every reader."""
+    save_model(_net(in_dim=4), tmp_path / "st.sdf", kind="sdf", frame=FRAME.to_dict())
+    for read in (load_field, load_sdf_field):
+        with pytest.raises(ModelFileError, match=r"st\.sdf: kind 'sdf' is a static SDF mapping R\^3 \(x, y, z\) to R, "
+                                                 r"this network maps R\^4 to R\^1 \(a space-time SDF is kind "
+                                                 r"'spacetime_sdf', with its time range\)$"):
+            read(tmp_path / "st.sdf")
+    with pytest.raises(ModelFileError, match=r"five\.sdf: kind 'sdf' is a static SDF mapping R\^3 \(x, y, z\) to R, "
+                                             r"this network maps R\^5 to R\^1$"):
         load_field(save_model(_net(in_dim=5), tmp_path / "five.sdf", kind="sdf", frame=FRAME.to_dict()))
+
+
+def test_a_nested_sequence_of_space_time_levels_needs_its_time_mapping(tmp_path):
+    from neural_bake.fields import NestedSequence, time_mapping
+
+    levels = [_net(in_dim=4), _net(in_dim=4)]
+    info = [{"delta": 0.05}, {"delta": 0.001}]
+    NestedSequence(levels=levels, frame=FRAME, levels_info=info).save(tmp_path / "bare.nested")
+    with pytest.raises(ModelFileError, match=r"bare\.nested: levels of 4 inputs \(x, y, z, t\) but no time mapping"):
+        load_field(tmp_path / "bare.nested")
+    huge = {"spacetime": {"time_range": [0.0, 1.0], "time_extent": 1e308}}
+    NestedSequence(levels=levels, frame=FRAME, levels_info=info, metadata=huge).save(tmp_path / "huge.nested")
+    with pytest.raises(ModelFileError, match=r"huge\.nested: metadata\.spacetime: time_extent = 1e\+308 is larger "
+                                             r"than 1e\+30"):
+        load_field(tmp_path / "huge.nested")
+    ok = {"spacetime": {"time_range": [2.0, 3.0], "time_extent": 1.0}}
+    NestedSequence(levels=levels, frame=FRAME, levels_info=info, metadata=ok).save(tmp_path / "ok.nested")
+    assert time_mapping(load_field(tmp_path / "ok.nested"))[0] == (2.0, 3.0)
 
 
 def test_save_field_errors(tmp_path):

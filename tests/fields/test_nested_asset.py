@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from neural_bake.cli.main import main
+from neural_bake.constants import TEXTURE_SURFACE_SAMPLES
 from neural_bake.fields import NestedSequence, SdfField, TextureField, load_field
 from neural_bake.fit.sampling import sample_surface
 from neural_bake.fit.sdf import DISTANCE_ERROR_SOURCE, SdfFit, fit_sdf, load_sdf, sampled_distance_error
@@ -51,8 +52,9 @@ def test_fit_texture_takes_a_nested_file(files, sphere, capsys):
     assert isinstance(tex, TextureField)
     # the band is the sequence's widest one (level 0's δ), normals from its fine level
     assert tex.delta == pytest.approx(seq.deltas[0]) and f"δ = {seq.deltas[0]:g}" in capsys.readouterr().out
-    assert tex.fitted_against == {"name": "f.nested (f, band of level 0)", "kind": "nested",
-                                  "delta": pytest.approx(seq.deltas[0])}
+    against = dict(tex.fitted_against)
+    assert len(against.pop("surface")) == TEXTURE_SURFACE_SAMPLES  # the sphere's points the texture was fitted on
+    assert against == {"name": "f.nested (f, band of level 0)", "kind": "nested", "delta": pytest.approx(seq.deltas[0])}
     # a fit sdf file gives its sampled distance error as the band
     assert main(["fit", "texture", str(sample_path("sphere")), "--sdf", str(files / "f.sdf"), "-o",
                  str(files / "t2.tex"), "--steps", "2", "--width", "16", "--depth", "0", "--no-progress",

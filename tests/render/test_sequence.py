@@ -7,6 +7,7 @@ import torch
 
 from neural_bake.cli.main import main
 from neural_bake.io.images import read_image
+from neural_bake.io.outdir import MANIFEST
 from neural_bake.nets.siren import Siren
 from neural_bake.render.asset import RenderAsset, RenderError, SpaceTimeAsset, analytic_level
 from neural_bake.render.camera import Camera
@@ -75,6 +76,17 @@ def test_a_failed_sequence_leaves_the_old_frames(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["frames"]  # no temporary folder left
 
 
+def test_frames_through_a_symlinked_folder_replace_its_targets_frames_and_keep_the_link(tmp_path):
+    target, link = tmp_path / "frames", tmp_path / "latest"
+    render_sequence(morph(), Scene(camera=CAM, skip=False), target, frames=3)
+    link.symlink_to("frames")
+    res = render_sequence(morph(), Scene(camera=CAM, skip=False), link, frames=2)
+    assert link.is_symlink() and res.frames == [link / "frame_0000.png", link / "frame_0001.png"]
+    assert sorted(p.name for p in target.iterdir() if not p.name.startswith(".")) == ["frame_0000.png",
+                                                                                      "frame_0001.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "latest"]  # no staging or old set left
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(frames=0), "frames"),
     (dict(animation="a.avi"), "unknown animation format"),
@@ -97,13 +109,15 @@ def test_cli_renders_a_space_time_network(tmp_path, capsys, monkeypatch):
     from neural_bake.fields import NestedSequence
 
     nets = [Siren(w, 1, in_dim=4, omega_0=5.0, generator=torch.Generator().manual_seed(w)) for w in (8, 16)]
-    path = tmp_path / "st.nested"  # a space-time nested sequence: any 4-input networks animate
-    NestedSequence(levels=nets, frame=Frame(), levels_info=[{"delta": 0.05}, {"delta": 0.001}]).save(path)
+    path = tmp_path / "st.nested"  # a space-time nested sequence: 4-input networks with their time mapping animate
+    NestedSequence(levels=nets, frame=Frame(), levels_info=[{"delta": 0.05}, {"delta": 0.001}],
+                   metadata={"spacetime": {"time_range": [0.0, 1.0], "time_extent": 1.0}}).save(path)
     code = main(["render", str(path), "-o", str(tmp_path / "a.gif"), "--frames", "3", "--size", "16",
                  "--time-range", "0,0.5", "--stats", str(tmp_path / "a.json")])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    assert sorted(p.name for p in (tmp_path / "a_frames").iterdir()) == [f"frame_{i:04d}.png" for i in range(3)]
+    assert sorted(p.name for p in (tmp_path / "a_frames").iterdir() if p.name != MANIFEST) == [
+        f"frame_{i:04d}.png" for i in range(3)]
     assert iio.imread(tmp_path / "a.gif", index=None).shape[0] == 3
     assert "frame 3/3" in captured.err
     code = main(["render", str(path), "-o", str(tmp_path / "a.png")])
