@@ -15,10 +15,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..constants import MAX_FRAMES, MAX_TIME_MAGNITUDE
 from ..io.atomic import atomic_path
 from ..io.colour import linear_to_srgb
 from ..io.images import write_image
 from ..io.outdir import OutputFolder
+from ..fields.spacetime import time_to_tau
+from ..limits import check_count, check_image_size, check_magnitude
 from .asset import RenderError, SpaceTimeAsset
 from .renderer import default_camera, render
 from .scene import Scene
@@ -43,8 +46,7 @@ class SequenceResult:
 
 def frame_times(n: int, time_range: tuple[float, float]) -> list[float]:
     """``n`` times evenly over [t0, t1], ends included (one frame: t0)."""
-    if isinstance(n, bool) or int(n) != n or n < 1:
-        raise RenderError(f"frames: expected a whole number ≥ 1, got {n!r}")
+    n = check_count(n, "frames", MAX_FRAMES, error=RenderError)
     t0, t1 = time_range
     return [float(t0)] if n == 1 else [float(v) for v in np.linspace(t0, t1, int(n))]
 
@@ -74,12 +76,17 @@ def render_sequence(
         raise RenderError(f"render_sequence: expected a space-time asset, got {type(asset).__name__}")
     tr = time_range or asset.time_range
     if times is None:
+        tr = tuple(check_magnitude(t, "time_range", MAX_TIME_MAGNITUDE, error=RenderError) for t in tr)
         times = frame_times(frames, tr)
     else:
+        check_count(len(times), "times", MAX_FRAMES, error=RenderError, what="frames")
         times = [float(t) for t in times]
         if not times or not all(math.isfinite(t) for t in times):
             raise RenderError(f"times: expected finite times, got {times!r:.80}")
         tr = (min(times), max(times))
+    time_to_tau(times, asset.time_range, 1.0, name="t")  # every time inside the asset's range, before any frame
+    if size is not None and scene.camera is None:
+        check_image_size(*size, error=RenderError)
     if not (isinstance(fps, (int, float)) and 0 < fps <= 120):
         raise RenderError(f"fps: expected a number in (0, 120], got {fps!r}")
     anim = Path(animation) if animation is not None else None
