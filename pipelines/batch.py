@@ -6,6 +6,12 @@ that asset alone), runs the assets and writes OUT/batch.json: every asset with i
 stage, its headline metrics and, for a failure, the one-line reason. The summary is rewritten after each
 asset, so a batch that dies keeps the record of what it finished; a re-run skips every unchanged stage.
 
+One batch per folder: a batch holds OUT's :class:`~neural_bake.io.outdir.OutputLock` from the manifest's
+check to the index page, so a second batch (or any other verb) writing OUT fails at once naming the first.
+The summary is merged: the assets an earlier batch recorded in OUT/batch.json and this manifest does not name
+stay in it, each record's ``run`` says which batch produced it (``runs`` lists them, numbered from 1), and
+the counts ``ok``, ``failed`` and ``pending`` are this batch's (``earlier``: the assets kept from before).
+
 Execution. ``executor="local"`` (default): each asset runs in its own fresh process (spawned), at most
 ``workers`` at a time, each limited to ``threads`` torch threads with workers × threads ≤ the cores this
 process may use. A worker that dies (killed, out of memory) fails its asset only; the others go on.
@@ -245,24 +251,44 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
     assets = read_manifest(manifest)
     out = Path(out)
     _check_out(out)
+    from neural_bake.io.outdir import OutputLock
+
+    with OutputLock(out):  # one batch per folder; the summary below merges what earlier batches left
+        return _run_locked(manifest, out, cfg, assets, log, on_event)
+
+
+def _run_locked(manifest, out: Path, cfg: BatchConfig, assets: list[AssetSpec], log: Callable[[str], None],
+                on_event: Callable[..., None] | None) -> dict:
+    """:func:`run_batch`'s work, under OUT's lock."""
     workers, threads = plan_workers(cfg.workers, cfg.threads, len(assets))
     tasks, refused = _tasks(assets, out, cfg, threads)
     t0 = time.perf_counter()
+    earlier = _earlier_summary(out)
+    runs = list(earlier.get("runs") or [])
+    run = max((int(r.get("run", 0)) for r in runs), default=0) + 1
+    runs.append({"run": run, "manifest": os.fspath(manifest), "preset": cfg.preset, "assets": len(assets)})
+    mine = [a.name for a in assets]
+    merged: dict[str, dict | None] = {}
+    for name, rec in (earlier.get("assets") or {}).items():  # earlier batches' assets, this manifest's replaced
+        merged[name] = None if name in mine else {**(rec or _not_finished(name, "interrupted")), "run": _rec_run(rec)}
+    merged.update({name: None for name in mine if name not in merged})
     summary = {"format": SUMMARY_FORMAT, "manifest": os.fspath(manifest), "out": str(out.resolve()),
                "config": asdict(cfg), "executor": cfg.executor, "workers": workers, "threads": threads,
-               "assets": {a.name: None for a in assets}}
+               "run": run, "runs": runs, "assets": merged}
     for r in refused:
-        summary["assets"][r["name"]] = r
+        summary["assets"][r["name"]] = {**r, "run": run}
         log(f"[{r['name']}] failed: {r['reason']}")
 
     def record(rec: dict) -> None:
-        summary["assets"][rec["name"]] = rec
+        summary["assets"][rec["name"]] = {**rec, "run": run}
         _write_summary(out, summary, time.perf_counter() - t0)
         if on_event:
             on_event("end", rec["name"], record=rec)
 
+    kept = len(merged) - len(mine)
     log(f"batch: {len(assets)} assets ({len(refused)} refused), preset {cfg.preset}, {cfg.executor} executor, "
-        f"{workers} worker(s) x {threads} thread(s)")
+        f"{workers} worker(s) x {threads} thread(s)"
+        + (f"; the summary keeps {kept} asset(s) of earlier batches in {out}" if kept else ""))
     try:
         tasks = _skip_cached(tasks, record, log if not cfg.quiet else lambda m: None)
         if cfg.executor == "local":
@@ -270,9 +296,9 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
         else:
             _run_ray(tasks, cfg, workers, threads, record, on_event)
     except KeyboardInterrupt:
-        for name, rec in summary["assets"].items():
-            if rec is None:
-                summary["assets"][name] = _not_finished(name, "interrupted")
+        for name in mine:
+            if summary["assets"][name] is None:
+                summary["assets"][name] = {**_not_finished(name, "interrupted"), "run": run}
         _write_summary(out, summary, time.perf_counter() - t0)
         raise
     summary = _write_summary(out, summary, time.perf_counter() - t0)
@@ -280,6 +306,33 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
         log(line)
     _write_index(out, summary, log)
     return summary
+
+
+def _rec_run(rec: dict | None) -> int:
+    """The run that produced an earlier summary's record (1: a summary written before runs were numbered)."""
+    run = (rec or {}).get("run")
+    return int(run) if isinstance(run, int) and not isinstance(run, bool) else 1
+
+
+def _earlier_summary(out: Path) -> dict:
+    """OUT/batch.json of the batches run into OUT before ({} when there is none or it is not a summary); an
+    asset without a record (its batch stopped) comes back as None."""
+    import json
+
+    try:
+        earlier = json.loads((out / SUMMARY_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(earlier, dict) or earlier.get("format") != SUMMARY_FORMAT:
+        return {}
+    assets = earlier.get("assets")
+    runs = earlier.get("runs")
+    if not isinstance(assets, dict):
+        return {}
+    assets = {str(k): v if isinstance(v, dict) else None for k, v in assets.items()}
+    if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+        runs = [{"run": 1, "manifest": earlier.get("manifest")}]
+    return {"assets": assets, "runs": runs}
 
 
 def _skip_cached(tasks: list[dict], record: Callable[[dict], None], log: Callable[[str], None]) -> list[dict]:
@@ -309,12 +362,19 @@ def _write_index(out: Path, summary: dict, log: Callable[[str], None]) -> None:
     names = list(summary["assets"])
     reasons = [(r or {}).get("reason") if (r or {}).get("status") != "ok" else None
                for r in summary["assets"].values()]
+    extra = [_index_columns(r) for r in summary["assets"].values()]
     try:
-        page = write_batch_index([out / n / "bake" for n in names], out / INDEX_NAME, names=names, reasons=reasons)
+        page = write_batch_index([out / n / "bake" for n in names], out / INDEX_NAME, names=names, reasons=reasons,
+                                 extra=extra)
     except (NeuralBakeError, OSError) as exc:
         log(f"batch: no index page ({exc})")
         return
     log(f"batch: index {page}")
+
+
+def _index_columns(rec: dict | None) -> dict:
+    """The index page's batch columns of an asset: the batch run that produced it."""
+    return {"run": (rec or {}).get("run")}
 
 
 def _not_finished(name: str, status: str) -> dict:
@@ -326,19 +386,29 @@ def _write_summary(out: Path, summary: dict, seconds: float) -> dict:
     from neural_bake.io.atomic import atomic_write_text
     from neural_bake.io.jsonio import dumps
 
-    recs = [r for r in summary["assets"].values() if r is not None]
+    mine = [r for r in summary["assets"].values() if _this_run(summary, r)]  # the counts are this batch's
+    recs = [r for r in mine if r is not None]
     summary["seconds"] = seconds
     summary["ok"] = sum(r["status"] == "ok" for r in recs)
     summary["failed"] = sum(r["status"] == "failed" for r in recs)
-    summary["pending"] = len(summary["assets"]) - summary["ok"] - summary["failed"]
+    summary["pending"] = len(mine) - summary["ok"] - summary["failed"]
+    summary["earlier"] = len(summary["assets"]) - len(mine)
     atomic_write_text(out / SUMMARY_NAME, dumps(summary))
     return summary
 
 
+def _this_run(summary: dict, rec: dict | None) -> bool:
+    """Whether an asset's record (None: not finished yet) belongs to the batch that wrote ``summary``."""
+    return rec is None or rec.get("run", summary.get("run")) == summary.get("run")
+
+
 def summary_lines(summary: dict) -> list[str]:
-    """The terminal table: one line per asset (status, seconds per stage, headline metric or reason)."""
+    """The terminal table: one line per asset of this batch (status, seconds per stage, headline metric or
+    reason), then the count of earlier batches' assets the summary keeps."""
     lines = [f"{'asset':<24} {'status':<11} " + " ".join(f"{s:>8}" for s in STAGE_NAMES) + "  result"]
     for name, r in summary["assets"].items():
+        if not _this_run(summary, r):
+            continue
         r = r or _not_finished(name, "pending")
         cells = []
         for s in STAGE_NAMES:
@@ -360,7 +430,8 @@ def summary_lines(summary: dict) -> list[str]:
         lines.append(f"{name[:24]:<24} {r['status']:<11} " + " ".join(cells) + f"  {result}")
     lines.append(f"batch: {summary['ok']} ok, {summary['failed']} failed"
                  + (f", {summary['pending']} not finished" if summary.get("pending") else "")
-                 + f" in {summary['seconds']:.0f} s; summary in {Path(summary['out']) / SUMMARY_NAME}")
+                 + f" in {summary['seconds']:.0f} s; summary in {Path(summary['out']) / SUMMARY_NAME}"
+                 + (f" (with {summary['earlier']} asset(s) of earlier batches)" if summary.get("earlier") else ""))
     return lines
 
 

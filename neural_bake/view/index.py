@@ -85,11 +85,14 @@ def _cell(v, nd=2) -> str:
     return html.escape(str(v))
 
 
-def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, reasons=None) -> Path:
+def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, reasons=None,
+                      extra=None) -> Path:
     """Write ``out_html`` (its folder must exist) indexing the bake output ``folders``; return its path.
 
     ``names`` (one per folder) name the rows instead of the folders' own names; ``reasons`` (one per folder,
     None where none) are failures known to the caller (a batch's one-line reasons): such a row is failed.
+    ``extra`` (one dict per folder, ``{column: value}``) adds columns before the failure's, in the order the
+    keys first appear, and the same keys to each row of the JSON index.
 
     One row per folder, in the order given: thumbnail (the report's first view, else a fresh render of the
     GLB), status, normal error against the truth (median, p95, and the classical bake's median), colour
@@ -106,9 +109,10 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
         raise ViewError("batch index: no output folders given")
     thumbs = out_html.parent / "thumbs"
     thumbs.mkdir(exist_ok=True)
-    for given, what in ((names, "names"), (reasons, "reasons")):
+    for given, what in ((names, "names"), (reasons, "reasons"), (extra, "extra")):
         if given is not None and len(given) != len(folders):
             raise ViewError(f"batch index: {len(given)} {what} for {len(folders)} folders")
+    columns = list(dict.fromkeys(c for e in (extra or []) for c in (e or {})))
     rows, summaries = [], []
     for k, folder in enumerate(folders):
         s = asset_summary(folder)
@@ -116,6 +120,8 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
             s["name"] = str(names[k])
         if reasons is not None and reasons[k]:
             s.update(status="failed", reason=str(reasons[k]))
+        more = (extra[k] or {}) if extra is not None else {}
+        s.update({c: more.get(c) for c in columns})
         summaries.append(s)
         thumb = ""
         if s["status"] == "ok" and _thumbnail(folder, thumbs / f"{k:04d}.png", thumb_size):
@@ -128,7 +134,8 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
             f"<td>{s['status']}</td><td>{_cell(s.get('normal_median_deg'))}</td><td>{_cell(s.get('normal_p95_deg'))}</td>"
             f"<td>{_cell(s.get('baseline_median_deg'))}</td><td>{_cell(s.get('color_psnr_db'), 1)}</td>"
             f"<td>{_cell(s.get('render_psnr_db'), 1)}</td><td>{_cell(s.get('coverage'), 3)}</td>"
-            f"<td>{_cell(s.get('seconds'), 1)}</td><td>{_cell(s.get('reason'))}</td></tr>")
+            f"<td>{_cell(s.get('seconds'), 1)}</td>" + "".join(f"<td>{_cell(more.get(c))}</td>" for c in columns)
+            + f"<td>{_cell(s.get('reason'))}</td></tr>")
     ok = sum(s["status"] == "ok" for s in summaries)
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>neural-bake batch</title><style>"
             "body{font-family:system-ui,sans-serif;margin:1.5em} table{border-collapse:collapse}"
@@ -136,7 +143,8 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
             "</style></head><body>"
             f"<h1>Batch: {ok} of {len(summaries)} assets baked</h1><table><tr><th></th><th>asset</th><th>status</th>"
             "<th>normal error median °</th><th>p95 °</th><th>classical median °</th><th>colour PSNR dB</th>"
-            "<th>render PSNR dB</th><th>coverage</th><th>seconds</th><th>failure</th></tr>"
+            "<th>render PSNR dB</th><th>coverage</th><th>seconds</th>"
+            + "".join(f"<th>{html.escape(c)}</th>" for c in columns) + "<th>failure</th></tr>"
             + "\n".join(rows) + "</table></body></html>")
     atomic_write_text(out_html, page)
     atomic_write_text(out_html.with_suffix(".json"), json.dumps(summaries, indent=2, default=float))

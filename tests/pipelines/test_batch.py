@@ -1,5 +1,6 @@
 """The batch pipeline end to end on small generated samples with tiny networks: stage caching and resume,
-isolated failures, a worker killed mid-asset, Ctrl-C then a re-run, a read-only output folder."""
+isolated failures, a worker killed mid-asset, Ctrl-C then a re-run, two batches into one folder, a read-only
+output folder."""
 
 import json
 import os
@@ -175,6 +176,51 @@ def test_ctrl_c_then_rerun(tmp_path, samples, cli_tiny):
     assert statuses(summary, "sphere")["sdf"] == "cached" and statuses(summary, "sphere")["bake"] == "done"
     assert statuses(summary, "torus")["sdf"] == "done"
     assert "batch: 2 ok, 0 failed" in text
+
+
+def test_two_batches_into_one_folder_one_writer_then_merged_summary(tmp_path, samples, cli_tiny):
+    """A second batch into a folder a batch is writing fails at once naming it (exit 1, nothing written); run
+    after it, it keeps the first's asset in the summary; the first's manifest again fits nothing."""
+    one, other = tmp_path / "one.txt", tmp_path / "other.txt"
+    one.write_text(f"{samples['sphere']}\n")
+    other.write_text(f"{samples['torus']}\n")
+    out, lock = tmp_path / "out", tmp_path / ".out.lock"
+    first = _cli([str(one), "-o", str(out), *cli_tiny, "-q"])
+    try:
+        deadline = time.monotonic() + 120
+        while not (lock.is_file() and lock.read_text().strip() == str(first.pid)):
+            assert time.monotonic() < deadline and first.poll() is None
+            time.sleep(0.01)
+        os.kill(first.pid, signal.SIGSTOP)  # still writing when the second starts, however slow the machine
+        second = _cli([str(other), "-o", str(out), *cli_tiny])
+        _, err = second.communicate(timeout=120)
+        assert second.returncode == 1, err
+        assert err == (f"neural-bake: error: {out}: another neural-bake run (pid {first.pid}) is writing it; wait "
+                       f"for it to finish or choose another output\n")
+        assert not (out / "torus").exists()
+    finally:
+        os.kill(first.pid, signal.SIGCONT)
+        _, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    second = _cli([str(other), "-o", str(out), *cli_tiny, "-q"])
+    text, err = second.communicate(timeout=600)
+    assert second.returncode == 0, err
+    assert "batch: 1 ok, 0 failed" in text and "with 1 asset(s) of earlier batches" in text
+    summary = json.loads((out / "batch.json").read_text())
+    assert list(summary["assets"]) == ["sphere", "torus"]
+    assert [(r["status"], r["run"]) for r in summary["assets"].values()] == [("ok", 1), ("ok", 2)]
+    assert [(r["run"], r["manifest"]) for r in summary["runs"]] == [(1, str(one)), (2, str(other))]
+    assert (summary["run"], summary["ok"], summary["failed"], summary["earlier"]) == (2, 1, 0, 1)
+    rows = json.loads((out / "index.json").read_text())
+    assert [(r["name"], r["status"], r["run"]) for r in rows] == [("sphere", "ok", 1), ("torus", "ok", 2)]
+    # the first manifest again, same settings: every stage cached, nothing fitted; the torus stays listed
+    again = _cli([str(one), "-o", str(out), *cli_tiny, "-q"])
+    _, err = again.communicate(timeout=600)
+    assert again.returncode == 0, err
+    summary = json.loads((out / "batch.json").read_text())
+    assert statuses(summary, "sphere") == dict.fromkeys(("sdf", "nested", "texture", "coarse", "bake"), "cached")
+    assert summary["assets"]["sphere"]["run"] == 3 and summary["assets"]["torus"]["run"] == 2
+    assert list(summary["assets"]) == ["sphere", "torus"] and not lock.exists()
 
 
 def _without_root_file_access():
