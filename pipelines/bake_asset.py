@@ -240,6 +240,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             if hybrid is not None:
                 log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
                     f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
+                hs = hybrid.summary()
+                if hs["lattice_check"] is not None and hs["decided_fraction"] < 1:
+                    c = hs["lattice_check"]
+                    log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "
+                        f"around the unfaithful); a full decision at {c['samples']} others sampled found "
+                        f"{c['missed']} more")
             log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
                        f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
             prec = res.stats["precision"]
@@ -250,12 +256,6 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                     f"against a full evaluation at {control['samples']} sampled: median "
                     f"{control['angle_deg']['median'] or 0:.4f}°, max {control['angle_deg']['max'] or 0:.4f}°")
             t0 = time.perf_counter()
-                hs = hybrid.summary()
-                if hs["lattice_check"] is not None and hs["decided_fraction"] < 1:
-                    c = hs["lattice_check"]
-                    log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "
-                        f"around the unfaithful); a full decision at {c['samples']} others sampled found "
-                        f"{c['missed']} more")
             nbits = int(bits)
             if "normal" in maps:
                 write_image(stage / "normal.png", res.normal_map, colour="data", bits=nbits)
