@@ -17,6 +17,18 @@ def _stage_option(ctx, param, values):
         out.setdefault(stage, {})[name] = value
     return out
 
+def _check_set(stages: dict[str, dict]) -> None:
+    """Every ``--set STAGE.FIELD=VALUE`` names a setting of its stage: one line (exit 2) otherwise, before any work."""
+    from neural_bake.errors import NeuralBakeError
+    from neural_bake.pipelines.stages import unknown_setting
+
+    for stage, opts in stages.items():
+        for name, value in opts.items():
+            problem = unknown_setting(stage, name)
+            if problem:
+                raise NeuralBakeError(f"--set {stage}.{name}={value}: {problem}")
+
+
 @click.command(epilog="""\b
 Example:
   neural-bake samples -o meshes/
@@ -63,6 +75,7 @@ def command(manifest, config_path, print_config, out, preset, stages, workers, t
     given = {k: v for k, v in dict(preset=preset, stages=stages, workers=workers, threads=threads, executor=executor,
                                    address=address, seed=seed, device=device, quiet=quiet, verbose=verbose).items()
              if ctx.get_parameter_source(k) == click.core.ParameterSource.COMMANDLINE}
+    _check_set(stages)
     table = read_toml(config_path) if config_path else {}
     cfg = batch_config(table, where=config_path or "config", **given)
     if print_config:

@@ -236,9 +236,10 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
 
     ``on_event(kind, name, **info)`` is called in this process: ``("start", name, pid=…)`` when a worker
     starts an asset (pid: the local worker's process id, None under Ray) and ``("end", name, record=…)``.
-    Raises NeuralBakeError (nothing run) for a manifest that cannot run (:mod:`.manifest`), a bad preset,
-    executor or worker count, and an output folder that cannot be written; returns normally when assets
-    failed (see the summary's ``failed`` count).
+    Raises NeuralBakeError (nothing run, nothing written) for a manifest that cannot run (:mod:`.manifest`), a
+    bad preset, executor, worker count or stage option of ``config`` (a manifest row's bad value fails that
+    asset alone), and an output folder that cannot be written (or another batch writing it: OutputBusyError);
+    returns normally when assets failed (see the summary's ``failed`` count).
     """
     cfg = config or BatchConfig()
     if cfg.preset not in PRESETS:
@@ -249,6 +250,9 @@ def run_batch(manifest, out, config: BatchConfig | None = None, *, log: Callable
     if bad:
         raise NeuralBakeError(f"stage {bad[0]!r}: unknown (stages: {', '.join(STAGE_NAMES)})")
     assets = read_manifest(manifest)
+    from .stages import resolve_stages
+
+    resolve_stages(_batch_options(cfg))  # the batch's own stage options, before any work: bad ones fail every asset
     out = Path(out)
     _check_out(out)
     from neural_bake.io.outdir import OutputLock

@@ -13,7 +13,8 @@ A manifest is one of:
 Relative paths in a file are relative to the manifest's folder. The output name of an asset defaults to the
 mesh file's stem; names are relative paths checked by :func:`neural_bake.io.paths.check_relative_name`.
 Refused with one :class:`ManifestError` line (exit 2, before any work): an unreadable or empty manifest, an
-unknown column or key, a row without a mesh, the same mesh (with the same texture and options) twice, and two
+unknown column or key (also a ``STAGE.FIELD`` that is no setting of its stage, naming the close match if
+any), a row without a mesh, the same mesh (with the same texture and options) twice, and two
 assets with the same output name. A mesh file that does not exist is *not* refused here: that asset fails on
 its own in the batch and the others run.
 """
@@ -108,7 +109,7 @@ def _csv_rows(raw: str, name: str) -> list[tuple[str, dict]]:
     if "mesh" not in header:
         raise ManifestError(f"{name}: the CSV header has no 'mesh' column (found: {', '.join(header)})")
     for h in header:
-        _check_key(h, f"{name}: column")
+        _check_key(h, f"{name}:{reader.line_num}: column")
     rows = []
     for row in reader:
         i = reader.line_num  # blank lines are skipped by the reader but counted here
@@ -170,6 +171,11 @@ def _check_key(key: str, what: str) -> None:
     if not dot or stage not in STAGE_NAMES or not fld:
         raise ManifestError(f"{what} {key!r}: unknown (expected {', '.join(BASE_KEYS)} or STAGE.FIELD with "
                             f"STAGE one of {', '.join(STAGE_NAMES)})")
+    from .stages import unknown_setting
+
+    problem = unknown_setting(stage, fld)
+    if problem:
+        raise ManifestError(f"{what} {key!r}: {problem}")
 
 
 def _asset(where: str, row: dict, base: Path) -> AssetSpec:

@@ -35,7 +35,7 @@ from neural_bake.fit.nested import NestedFitConfig
 
 from .manifest import STAGE_NAMES
 
-__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "stage_key_config", "run_asset", "cached_record",
+__all__ = ["NestedStageConfig", "CoarseStageConfig", "resolve_stages", "unknown_setting", "stage_key_config", "run_asset", "cached_record",
            "STAGE_FILES", "RECORD_NAME", "RECORD_FORMAT", "set_threads"]
 
 #: The per-asset record of done stages (JSON), in the asset's folder.
@@ -101,13 +101,12 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
         hints = typing.get_type_hints(cls)
         given = dict(options.get(stage, {}))
         values = {}
+        for k in given:
+            problem = unknown_setting(stage, k)
+            if problem:
+                raise NeuralBakeError(f"{prefix}{stage}.{k}: {problem}")
         preset = given.pop("preset", None)
-        if preset is not None and stage == "coarse":
-            raise NeuralBakeError(f"{prefix}{stage}.preset: the coarse stage has no presets (the bake's set it)")
         for k, v in given.items():
-            if k not in hints or k == "coarse" and stage == "bake":
-                hint = " (the coarse mesh is set by coarse.spec)" if k == "coarse" else ""
-                raise NeuralBakeError(f"{prefix}{stage}.{k}: unknown setting{hint}")
             values[k] = _coerce(v, hints[k], f"{prefix}{stage}.{k}")
         try:
             if stage == "sdf":
@@ -126,6 +125,28 @@ def resolve_stages(options: dict[str, dict], *, where: str = "") -> dict:
             raise NeuralBakeError(f"{prefix}{stage}: {exc}") from None
     _check_values(out, prefix)
     return out
+
+
+def unknown_setting(stage: str, name: str) -> str | None:
+    """Why ``STAGE.NAME`` is not a stage setting, as one phrase naming the close match if there is one
+    ("unknown setting (did you mean sdf.steps?)"); None when it is one (``preset`` is one of every stage
+    but the coarse mesh's)."""
+    import difflib
+
+    classes = _stage_classes()
+    if stage not in classes:
+        close = difflib.get_close_matches(stage, STAGE_NAMES, n=1)
+        return (f"unknown stage {stage!r}" + (f" (did you mean {close[0]}?)" if close else "")
+                + f"; stages: {', '.join(STAGE_NAMES)}")
+    if stage == "coarse" and name == "preset":
+        return "the coarse stage has no presets (the bake's set it)"
+    if stage == "bake" and name == "coarse":
+        return "unknown setting (the coarse mesh is set by coarse.spec)"
+    names = [f.name for f in dataclasses.fields(classes[stage])] + ([] if stage == "coarse" else ["preset"])
+    if name in names:
+        return None
+    close = difflib.get_close_matches(name, [n for n in names if not (stage == "bake" and n == "coarse")], n=1)
+    return "unknown setting" + (f" (did you mean {stage}.{close[0]}?)" if close else "")
 
 
 def _check_values(cfg: dict, prefix: str) -> None:

@@ -276,7 +276,7 @@ def test_stage_options_are_checked_before_work():
         resolve_stages({"sdf": {"preset": "huge"}})
     with pytest.raises(NeuralBakeError, match=r"texture: preset: unknown preset 'slow'"):
         resolve_stages({"texture": {"preset": "slow"}})
-    with pytest.raises(NeuralBakeError, match=r"bake.size 0: must be an integer"):
+    with pytest.raises(NeuralBakeError, match=r"bake: size 0: must be a whole number"):
         resolve_stages({"bake": {"size": "0"}})
     with pytest.raises(NeuralBakeError, match=r"texture: lr: must be a positive number"):
         resolve_stages({"texture": {"lr": "-1"}})
@@ -318,6 +318,28 @@ def test_cli_bad_set_and_preset(tmp_path, samples):
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--set", "size"]) == 2
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--set", "render.size=3"]) == 2
     assert main(["batch", str(tmp_path / "m.txt"), "-o", str(tmp_path / "o"), "--preset", "huge"]) == 2
+
+
+@pytest.mark.parametrize("args,manifest,message", [
+    (["--set", "sdf.nosuch=1"], None, "--set sdf.nosuch=1: unknown setting"),
+    (["--set", "sdf.stepz=9"], None, r"--set sdf.stepz=9: unknown setting \(did you mean sdf.steps\?\)"),
+    (["--set", "textur.steps=9"], None, r"--set textur.steps=9: unknown stage 'textur' \(did you mean texture\?\)"),
+    (["--set", "sdf.steps=abc"], None, "sdf.steps='abc': expected int"),
+    ([], "mesh,name,sdf.minuts\n{mesh},a,3\n", r"m.csv:1: column 'sdf.minuts': unknown setting \(did you mean "
+                                                 r"sdf.minutes\?\)"),
+])
+def test_unknown_stage_fields_are_command_line_errors(tmp_path, samples, capsys, args, manifest, message):
+    """A mistyped --set or manifest column: one line naming it (and the close match), exit 2, nothing written."""
+    import re
+
+    from neural_bake.cli.main import main
+
+    path = tmp_path / ("m.csv" if manifest else "m.txt")
+    path.write_text(manifest.format(mesh=samples["sphere"]) if manifest else f"{samples['sphere']}\n")
+    assert main(["batch", str(path), "-o", str(tmp_path / "out"), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("neural-bake: error: ") and re.search(message, err), err
+    assert not (tmp_path / "out").exists()
 
 
 def test_config_file_then_flags_and_print_config_round_trip(tmp_path, capsys):

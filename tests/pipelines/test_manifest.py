@@ -59,6 +59,11 @@ def test_text_file_and_glob(meshes, monkeypatch):
     ("col.csv", "path\nx.obj\n", "no 'mesh' column"),
     ("unk.csv", "mesh,size\na.obj,3\n", "column 'size': unknown"),
     ("stage.csv", "mesh,render.size\na.obj,3\n", "column 'render.size': unknown"),
+    ("field.csv", "mesh,sdf.minuts\na.obj,3\n", r"field.csv:1: column 'sdf.minuts': unknown setting \(did you mean "
+                                                 r"sdf.minutes\?\)$"),
+    ("field.json", '[{"mesh": "a.obj", "bake": {"nosuch": 1}}]', r"field.json\[0\]: key 'bake.nosuch': unknown "
+                                                                  r"setting$"),
+    ("preset.csv", "mesh,coarse.preset\na.obj,quick\n", "column 'coarse.preset': the coarse stage has no presets"),
     ("nomesh.json", '[{"name": "x"}]', "no mesh path"),
     ("wide.csv", "mesh\na.obj,b.obj\n", "more cells than header columns"),
 ])
