@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import os
 import signal
 import sys
 import warnings
@@ -73,7 +74,10 @@ COMMANDS = {
 
 @click.group(cls=LazyGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="neural-bake")
-def cli():
+@click.option("--threads", metavar="N|auto", default=None,
+              help="CPU threads of fits, bakes and renders: auto (default) times the work with 1 … cores threads "
+                   "and keeps the fastest, following the machine's load; N fixes it (also NEURAL_BAKE_THREADS).")
+def cli(threads):
     """Neural normal and texture baking: fit neural fields to a mesh, bake them onto a coarse mesh.
 
     \b
@@ -83,6 +87,15 @@ def cli():
       neural-bake fit sdf samples/bumpy_sphere.obj -o bumpy.sdf
       neural-bake bake samples/bumpy_sphere.obj --sdf bumpy.sdf --coarse decimate:2000 -o out/
     """
+    if threads is not None:
+        from neural_bake.errors import NeuralBakeError
+        from neural_bake.nets.threads import ENV_THREADS, fixed_threads
+
+        try:
+            fixed_threads(threads)
+        except NeuralBakeError:
+            raise NeuralBakeError(f"--threads {threads!r}: must be auto or a thread count from 1 to 4096") from None
+        os.environ[ENV_THREADS] = threads.strip().lower()  # child processes (batch workers) follow it too
 
 
 def _format_warning(message, category, filename, lineno, line=None):

@@ -134,6 +134,13 @@ HYBRID_SDF_TOL = 0.01
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
 
+#: Hybrid bake decided on the adaptive lattice: this share of the interpolated samples it leaves undecided
+#: (a seeded uniform choice, per band at least HYBRID_CHECK_MIN) is decided in full, to count what it missed.
+HYBRID_CHECK_FRACTION = 1.0 / 1024
+
+#: Least number of undecided samples per band that a lattice-decided hybrid bake checks in full.
+HYBRID_CHECK_MIN = 256
+
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
 #: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
 #: the normals at its edge midpoints and centre lie within ADAPTIVE_SAFETY times this of what its corners
@@ -179,13 +186,6 @@ BF16_MIN_SPEEDUP = 1.3
 
 #: precision "auto" in a bake also keeps float32 when bfloat16 normals measured a median angle above this (degrees)
 #: off float32 ones at a probe of the bake's own points: half the bake's budget against a full float32 evaluation.
-#: Hybrid bake decided on the adaptive lattice: this share of the interpolated samples it leaves undecided
-#: (a seeded uniform choice, per band at least HYBRID_CHECK_MIN) is decided in full, to count what it missed.
-HYBRID_CHECK_FRACTION = 1.0 / 1024
-
-#: Least number of undecided samples per band that a lattice-decided hybrid bake checks in full.
-HYBRID_CHECK_MIN = 256
-
 BF16_MAX_MEDIAN_DEG = 0.05
 
 #: Points of a bake at which precision "auto" compares bfloat16 with float32 before choosing.
@@ -334,3 +334,26 @@ MIN_SECONDS = 1e-9
 #: The certificate of a nesting bound refines boxes until their bound is below the target, never a target
 #: below this (unit frame).
 CERTIFY_MIN_TARGET = 1e-9
+
+# --- CPU threads (neural_bake.nets.threads) -------------------------------------------------------------------
+#: Steps a thread probe times per candidate count (after one warm-up step that is not counted).
+THREAD_TRIAL_STEPS = 3
+
+#: Step times whose median a loop watches for drift after a thread choice.
+THREAD_WINDOW = 20
+
+#: A median step time this many times slower (or faster) than at the last choice starts a new probe.
+THREAD_DRIFT = 1.5
+
+#: Least seconds between two drift-started probes (a probe runs slower counts too: it has a cost).
+THREAD_PROBE_INTERVAL_S = 10.0
+
+#: Seconds after which a loop running fewer threads than cores probes again (a neighbour may have stopped).
+THREAD_REPROBE_S = 60.0
+
+#: A candidate count whose first (warm-up) step in a probe is this many times slower than the best count so
+#: far is not tried further.
+THREAD_ABORT_FACTOR = 3.0
+
+#: Largest share of a loop's time its periodic thread probes may cost (a costly probe waits longer).
+THREAD_PROBE_SHARE = 0.05

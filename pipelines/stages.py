@@ -179,8 +179,9 @@ def stage_key_config(config) -> dict:
 
 
 def set_threads(threads: int) -> None:
-    """Limit this process's torch (and BLAS/OpenMP) threads; called first in each worker."""
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    """Limit this process's torch (and BLAS/OpenMP) threads; called first in each worker. The fits and bakes
+    of the worker then choose their count by measurement up to this cap (:mod:`neural_bake.nets.threads`)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NEURAL_BAKE_MAX_THREADS"):
         os.environ[var] = str(threads)
     import torch
 

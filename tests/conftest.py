@@ -19,6 +19,7 @@ from hypothesis import settings
 from neural_bake.nets.siren import Siren
 
 torch.set_num_threads(1)
+os.environ.setdefault("NEURAL_BAKE_THREADS", "1")  # fits and bakes keep that one thread (no thread probes)
 
 # a test run started in the background of a non-interactive shell inherits SIGINT ignored, and every CLI it
 # starts would too (an ignored signal stays ignored across exec): the Ctrl-C tests need SIGINT to act

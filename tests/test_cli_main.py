@@ -108,3 +108,22 @@ def test_library_errors_name_parameters_and_the_cli_names_its_options(monkeypatc
     model.write_bytes(b"")
     assert main(["fit", "nested", str(model), "-o", str(tmp_path / "o"), "--levels", "8by0"]) == 2
     assert "neural-bake: error: --levels: '8by0' is not WIDTHxDEPTH" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "many", "-2"])
+def test_bad_threads_is_one_line(capsys, monkeypatch, value):
+    monkeypatch.setenv("NEURAL_BAKE_THREADS", "1")
+    assert main(["--threads", value, "inspect", "nosuch.obj"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--threads" in err and value in err
+
+
+def test_threads_option_fixes_the_count_for_the_run(capsys, monkeypatch, tmp_path):
+    """--threads N reaches the library (and child processes) through NEURAL_BAKE_THREADS."""
+    import os
+
+    from neural_bake.nets.threads import fixed_threads
+
+    monkeypatch.setenv("NEURAL_BAKE_THREADS", "auto")
+    assert main(["--threads", "2", "inspect", str(tmp_path / "nosuch.obj")]) == 2  # the verb's own error
+    assert os.environ["NEURAL_BAKE_THREADS"] == "2" and fixed_threads() == 2

@@ -146,7 +146,8 @@ class BakeResult:
     - ``encoded``: (M, 3) float64 the per-sample vector stored in the map (tangent or object space, before
       the (x + 1)/2 encoding).
     - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
-    - ``stats``: counts and seconds per stage (JSON-ready).
+    - ``stats``: counts and seconds per stage, and the CPU threads the evaluations ran with (``threads``:
+      :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
@@ -577,7 +578,12 @@ class Baker:
             raise NeuralBakeError(f"check_samples must be a non-negative integer, got {check_samples!r}")
         if adaptive is not None and not isinstance(adaptive, AdaptiveOptions):
             raise NeuralBakeError(f"adaptive must be AdaptiveOptions or None, got {type(adaptive).__name__}")
-        probe = self._probe(sdf) if precision == "auto" else None
+        from ..nets.threads import choose_threads
+
+        # the threads the bake's evaluations run fastest with on the machine as it is (nets.threads)
+        points = self._probe(sdf)
+        threads = choose_threads(lambda: sdf.value_and_normal(points), device=points.device)
+        probe = points if precision == "auto" else None
         fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
             if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")
         fast_tex, tex_prec, tex_why = (None, None, None) if texture is None else (
@@ -717,6 +723,7 @@ class Baker:
                 "rasterize": float(self.timings.get("rasterize", 0.0) + secs["rasterize"]),
             },
             "texels_per_second": float(n_texels / secs["bake"]) if secs["bake"] > 0 else None,
+            "threads": threads.as_dict(),
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

@@ -197,6 +197,22 @@ def stop_note(stopped_reason: str, steps: int, seconds: float, minutes: float | 
     return stopped_reason
 
 
+def _full_rate() -> float:
+    """:func:`probe_rate` with every usable thread (the count a quiet machine runs), whatever count the fit
+    chose under load: the expected steps are the machine's, not its busy share's. Threads restored after."""
+    from ..nets.threads import thread_candidates
+
+    before = torch.get_num_threads()
+    full = thread_candidates()[0]
+    if full == before:
+        return probe_rate()
+    torch.set_num_threads(full)
+    try:
+        return probe_rate()
+    finally:
+        torch.set_num_threads(before)
+
+
 def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float | None, step_cap: int,
                stopped_reason: str, budget_seconds: float | None = None,
                sampling_share: float | None = None) -> dict | None:
@@ -211,7 +227,7 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
     from ..errors import NeuralBakeWarning
 
     span = 60.0 * minutes if budget_seconds is None else budget_seconds
-    rate = probe_rate() if preset in STEP_COST else None
+    rate = _full_rate() if preset in STEP_COST else None
     rec = budget_record(steps, expected_steps(preset, span, rate), preset=preset, seconds=span, rate=rate,
                         stopped_reason=stopped_reason, sampling_share=sampling_share)
     rec["stopped"] = stop_note(stopped_reason, steps, seconds, minutes, step_cap)

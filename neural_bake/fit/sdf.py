@@ -84,6 +84,9 @@ class SdfFit:
     budget: dict | None = None
     """A time-budgeted run's account (:func:`neural_bake.fit.budget.fit_budget`): Adam steps made beside the
     steps the preset makes on this machine in Adam's part of the budget, why it stopped, the warning if any."""
+    threads: dict | None = None
+    """The CPU threads Adam's steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`: the
+    count in force, every count that ran, each measured decision); None when not recorded."""
     sampling_seconds: float | None = None
     """Wall time of this run's Adam part spent building pools, re-ranking them and drawing batches (the
     sampling's share of the step cost); None when not recorded (a loaded file)."""
@@ -105,7 +108,7 @@ class SdfFit:
             training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
                       "restarts": self.restarts, "final": summary, "history": self.history[-200:],
                       "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None,
-                      "budget": self.budget},
+                      "budget": self.budget, "threads": self.threads},
             package_version=__version__, **delta,
         )
 
@@ -138,6 +141,7 @@ def load_sdf(path, *, device=None) -> SdfFit:
                       config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
                       restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
                       micro_batch_tuning=training.get("micro_batch_tuning"), budget=training.get("budget"),
+                      threads=training.get("threads") if isinstance(training.get("threads"), dict) else None,
                       distance_error=field.delta)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}: unreadable training record ({exc})") from None
@@ -304,7 +308,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     model.eval()
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
-                  micro_batch_tuning=tuner.history if tuner else None, budget=budget,
+                  micro_batch_tuning=tuner.history if tuner else None, budget=budget, threads=res.threads,
                   sampling_seconds=sampling["seconds"], distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 

@@ -171,6 +171,7 @@ class TextureFit:
       ``restarts``: divergence recoveries (each halved the learning rate).
     - ``budget``: a time-budgeted fit's account (:func:`neural_bake.fit.budget.fit_budget`: steps made
       beside the steps its preset makes on this machine, why it stopped, the warning if any); else None.
+    - ``threads``: the CPU threads the steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`).
     """
 
     model: Siren
@@ -186,6 +187,7 @@ class TextureFit:
     budget: dict | None = None
     fitted_against: dict | None = None
     encoding: str = "linear"
+    threads: dict | None = None
 
     def metadata(self) -> dict:
         """The JSON metadata stored with the model file (with ``budget`` when the fit had a time budget)."""
@@ -196,7 +198,8 @@ class TextureFit:
         # the loss curve (last 200 logged rows, finite ones: JSON has no NaN) for reports' accuracy-vs-time plots
         rows = [h for h in self.history[-200:]
                 if all(math.isfinite(v) for v in h.values() if isinstance(v, float))]
-        meta["training"] = {"steps": int(self.steps), "seconds": round(float(self.seconds), 3), "history": rows}
+        meta["training"] = {"steps": int(self.steps), "seconds": round(float(self.seconds), 3), "history": rows,
+                            "threads": self.threads}
         return meta
 
     def field(self) -> TextureField:
@@ -589,7 +592,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
                       stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget,
-                      fitted_against=_fitted_against(sdf, delta, mesh), encoding=encoding)
+                      fitted_against=_fitted_against(sdf, delta, mesh), encoding=encoding, threads=result.threads)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -8,6 +8,8 @@ One function, :func:`train`, runs an optimiser over a ``torch.nn.Module`` with:
 - progress (tqdm) showing the losses, and a history (one dict per logged step: step, seconds, lr, losses);
 - checkpoints (one safetensors file: model weights, optimiser state, JSON metadata; no pickle) written
   atomically every ``checkpoint_every`` steps and at the end, and ``resume`` from such a file;
+- its CPU thread count chosen from its own steps and followed as the machine's load changes
+  (:class:`~neural_bake.nets.threads.ThreadTuner`; ``LoopResult.threads`` says what ran);
 - divergence detection: a non-finite loss, gradient or weight, a loss above ``blowup`` times the first
   loss, or a collapse (the median loss of the last steps ``collapse`` times its best: a network that after
   a spike fell back to about its first loss, a constant, say, which the first-loss test misses) restores
@@ -49,7 +51,8 @@ import torch
 from ..constants import BLOWUP_LOSS_FLOOR
 from ..errors import FitError, NeuralBakeWarning, TrainingDivergedError
 from ..io.atomic import atomic_path
-from ..nets.cpu_gemm import gemm_route, model_width
+from ..nets.cpu_gemm import gemm_route, model_width, reroute
+from ..nets.threads import ThreadTuner
 from ..nets.heap import keep_freed_memory
 
 __all__ = ["LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
@@ -125,6 +128,8 @@ class LoopResult:
     """``evaluate()`` at ``best_step``."""
     evaluations: list[dict] = field(default_factory=list)
     """Every ``evaluate()`` call: ``{"step", "value"}``."""
+    threads: dict = field(default_factory=dict)
+    """The CPU threads the steps ran with: :meth:`~neural_bake.nets.threads.ThreadTuner.summary`."""
 
 
 def step_generator(seed: int, step: int, device: torch.device | str = "cpu") -> torch.Generator:
@@ -326,6 +331,8 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
     snapshot_step = step
     recent: collections.deque = collections.deque(maxlen=int(cfg.collapse_window))  # the collapse test's losses
     best_median = math.inf
+    width = model_width(model)
+    tuner = ThreadTuner(device=device, clock=clock, on_change=lambda n: reroute(width, device))
     t_start = clock() - spent
     try:
         while step < cfg.steps:
@@ -337,6 +344,7 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
             for g in opt.param_groups:
                 g["lr"] = lr
             gen = step_generator(cfg.seed, step, device if device.type != "mps" else "cpu")
+            tuner.before_step()
             opt.zero_grad(set_to_none=True)
             losses = step_fn(step, gen)
             loss = losses["loss"]
@@ -388,6 +396,7 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
                 first_loss = loss_value
             step += 1
             spent = clock() - t_start
+            tuner.after_step(spent - elapsed)  # the step's seconds, from the two reads the loop makes anyway
             if step % cfg.snapshot_every == 0 and (  # never a snapshot of a collapsing run
                     not cfg.collapse
                     or max(median, loss_value) <= math.sqrt(cfg.collapse) * max(best_median, BLOWUP_LOSS_FLOOR)):
@@ -422,4 +431,5 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
     if cfg.checkpoint and result.stopped_reason != "resumed finished run":
         _save_checkpoint(cfg.checkpoint, model, opt, checkpoint_meta())
     result.steps, result.seconds, result.lr = step, spent, base_lr
+    result.threads = tuner.summary()
     return result

@@ -30,7 +30,8 @@ import torch
 from ..constants import FP32_GEMM_REL_TOL, ONEDNN_MIN_SPEEDUP
 from ..errors import NeuralBakeError
 
-__all__ = ["ROUTES", "ENV_ROUTE", "measure_route", "decide_route", "gemm_route", "model_width", "route_in_use"]
+__all__ = ["ROUTES", "ENV_ROUTE", "measure_route", "decide_route", "gemm_route", "model_width", "route_in_use",
+           "reroute"]
 
 #: Values of ``NEURAL_BAKE_CPU_GEMM``.
 ROUTES = ("auto", "blas", "onednn")
@@ -99,7 +100,7 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     """``(route, reason)`` for float32 CPU GEMMs of a ``width``-wide network: "blas" or "onednn".
 
     ``measure(width)`` returns :func:`measure_route`'s dict (default: that function; decisions are cached per
-    setting and width unless a ``measure`` is given). ``env``: the override (default: ``NEURAL_BAKE_CPU_GEMM``); an
+    setting, width and thread count unless a ``measure`` is given). ``env``: the override (default: ``NEURAL_BAKE_CPU_GEMM``); an
     unknown value raises :class:`NeuralBakeError` naming the variable.
     """
     value = (os.environ.get(ENV_ROUTE, "") if env is None else env).strip().lower() or "auto"
@@ -110,8 +111,9 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     if not _onednn_setting_exists():
         return "blas", "this torch cannot send float32 GEMMs to oneDNN"
     width = int(width)
-    if measure is None and (value, width) in _decided:  # gemm_route asks at every call: measure once
-        return _decided[(value, width)]
+    key = (value, width, torch.get_num_threads())  # the route is measured with the threads that will run it
+    if measure is None and key in _decided:  # gemm_route asks at every call: measure once
+        return _decided[key]
     m = (measure or measure_route)(width)
     if m["onednn_error"] > FP32_GEMM_REL_TOL:
         out = ("blas", f"oneDNN's float32 GEMM was not float32-accurate here (relative error "
@@ -124,7 +126,7 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
         out = ("blas", f"oneDNN's float32 GEMM measured {m['speedup']:.2f}× (< {ONEDNN_MIN_SPEEDUP}×) the "
                        f"BLAS's here (width {width})")
     if measure is None:
-        _decided[(value, width)] = out
+        _decided[key] = out
     return out
 
 
@@ -136,6 +138,18 @@ def model_width(model) -> int | None:
         return int(width)
     dims = [max(p.shape) for p in getattr(model, "parameters", lambda: [])() if p.dim() == 2]
     return max(dims) if dims else None
+
+
+def reroute(width: int | None, device: torch.device | str = "cpu") -> str:
+    """Inside :func:`gemm_route`, after the thread count changed: set the route :func:`decide_route` picks for
+    ``width`` with the threads now in force (the enclosing context restores torch's setting at its end)."""
+    if torch.device(device).type != "cpu" or not width or not _onednn_setting_exists():
+        return "blas" if torch.device(device).type == "cpu" else torch.device(device).type
+    route, _ = decide_route(int(width))
+    matmul = _matmul_setting()
+    if matmul is not None:
+        matmul.fp32_precision = "bf16" if route == "onednn" else "none"
+    return route
 
 
 @contextlib.contextmanager

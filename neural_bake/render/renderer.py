@@ -161,6 +161,7 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
     t_start = time.perf_counter()
     o_w, d_w = cam.rays(device=device, dtype=dtype)
     n = o_w.shape[0]
+    threads = _choose_threads(assets, o_w)
     pixel_angle = 2 * math.tan(math.radians(cam.fov_deg) / 2) / cam.height
     objs = [_Object(a, t, o_w, d_w) for a, t in zip(assets, transforms)]
     settings = scene.trace
@@ -311,8 +312,21 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
         "channels": list(scene.channels),
         "camera": cam.to_dict(),
         "mode": "guaranteed" if scene.guaranteed else settings.mode,
+        "threads": threads.as_dict(),
     }
     return RenderResult(channels, stats, cam, counter)
+
+
+def _choose_threads(assets, origins: torch.Tensor):
+    """The CPU threads the render's evaluations run fastest with on the machine as it is
+    (:func:`~neural_bake.nets.threads.choose_threads`), probed on the finest level's values and gradients at
+    points spread over the unit cube (not counted as the render's evaluations)."""
+    from ..nets.threads import choose_threads
+
+    gen = torch.Generator().manual_seed(0)
+    points = (torch.rand(2048, 3, generator=gen) * 1.8 - 0.9).to(device=origins.device, dtype=origins.dtype)
+    finest = assets[0].levels[-1]
+    return choose_threads(lambda: finest.value_and_gradient(points), device=origins.device)
 
 
 def scene_camera(assets, scene: Scene, *, size: tuple[int, int] | None = None, fov_deg: float | None = None,
