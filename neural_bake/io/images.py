@@ -111,7 +111,9 @@ def write_image(
       [0, 1] and rounded to the nearest level.
 
     Raises :class:`ImageError` naming the file for an unknown format, an unsupported bit depth, alpha in a
-    JPEG or a missing folder, and ``ValueError`` for a bad array shape or non-finite values.
+    JPEG or a missing folder, ``ValueError`` for a bad array shape or non-finite values, and an ``OSError``
+    naming the file and its cause (no space left, a quota, a file-size limit) when the system refuses the
+    write.
     """
     _check_colour(colour, "write_image")
     p = Path(path)
@@ -165,13 +167,45 @@ def write_image(
             spec.attribute("compression", "zip")
         try:
             ok = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
+            # some writers (PNG) report a short write only through geterror(), not through their return value;
+            # read before close(), whose own messages (TIFF's Exif directory) are not failures
+            reason = " ".join(str(out.geterror() or "").split())
         finally:
-            out.close()
-        if not ok:
-            raise ImageError(f"{p}: cannot write image ({_oiio_error(oiio)})")
+            closed = out.close()
+        if not (ok and closed) or reason:
+            cause = _write_failure_cause(tmp.parent)
+            if cause is not None:
+                raise OSError(cause, os.strerror(cause), str(p))
+            raise ImageError(f"{p}: cannot write image ({reason or _oiio_error(oiio)})")
     return p
 
 
 def _oiio_error(oiio) -> str:
     msg = " ".join(str(oiio.geterror() or "").split())
     return msg or "OpenImageIO gave no reason"
+
+
+#: Bytes the probe of :func:`_write_failure_cause` writes: more than a file system keeps in reserve per write.
+_PROBE_BYTES = 1 << 16
+
+
+def _write_failure_cause(folder: Path) -> int | None:
+    """The errno behind a write OpenImageIO could not finish in ``folder`` (it reports none): ENOSPC when the
+    file system has no free block, else the errno of a small probe write there (ENOSPC, EDQUOT, EFBIG, EIO…),
+    else None (the writer failed for a reason of its own)."""
+    import errno
+    import tempfile
+
+    try:
+        if os.statvfs(folder).f_bavail == 0:
+            return errno.ENOSPC
+    except OSError as exc:
+        return exc.errno
+    try:
+        with tempfile.TemporaryFile(dir=folder) as fh:
+            fh.write(b"\0" * _PROBE_BYTES)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        return exc.errno
+    return None

@@ -177,8 +177,14 @@ class OutputLock:
             if same:
                 break
             os.close(fd)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError as exc:  # a full disk, say: the lock file goes, the error names the output
+            with contextlib.suppress(OSError):
+                os.unlink(self.lock_path)
+            os.close(fd)
+            raise os_error(exc, self.path) from None
         self._fd = fd
         try:
             self._recover()
