@@ -21,7 +21,7 @@ import click
 from neural_bake import __version__
 from neural_bake.errors import NeuralBakeError, NeuralBakeWarning, os_error
 
-__all__ = ["main", "LazyGroup", "cli_message", "OPTIONS"]
+__all__ = ["main", "LazyGroup", "cli_message", "usage_message", "OPTIONS"]
 
 #: The CLI option of a library parameter whose option is not ``--`` and the name with dashes (``max_boxes`` →
 #: ``--max-boxes``); errors about a parameter's value name the option instead of the parameter.
@@ -135,8 +135,11 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Abort:
         click.echo("neural-bake: aborted", err=True)
         return 130
-    except click.exceptions.ClickException as exc:  # usage errors: click's own message, exit 2
-        exc.show()
+    except click.exceptions.ClickException as exc:  # usage errors: click's message on one line, exit 2
+        if isinstance(exc, getattr(click.exceptions, "NoArgsIsHelpError", ())):  # a bare group: its help
+            exc.show()
+            return exc.exit_code
+        click.echo(f"neural-bake: error: {usage_message(exc)}", err=True)
         return exc.exit_code
     except click.exceptions.Exit as exc:
         return exc.exit_code
@@ -162,6 +165,12 @@ def cli_message(exc: NeuralBakeError) -> str:
     if not name or not message.startswith(name):
         return message
     return OPTIONS.get(name, "--" + name.replace("_", "-")) + message[len(name):]
+
+
+def usage_message(exc: click.exceptions.ClickException) -> str:
+    """Click's message for a usage error, on one line, without click's closing full stop."""
+    message = " ".join(exc.format_message().split())
+    return message[:-1] if message.endswith(".") and not message.endswith("..") else message
 
 
 def entry() -> None:  # pragma: no cover - console script wrapper

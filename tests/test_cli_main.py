@@ -43,6 +43,19 @@ def test_unknown_verb_and_missing_argument(capsys):
     assert "No such option '--bogus'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv, problem", [
+    (["bake"], "missing MESH, --sdf, --output (needed unless --print-config)"),
+    (["inspect"], "Missing argument 'MESH'"),
+    (["inspect", "--bogus", "x.obj"], "No such option '--bogus'"),
+    (["frobnicate"], "No such command 'frobnicate'"),
+    (["samples", "--resolution", "many"], "Invalid value for '--resolution': 'many' is not a valid integer"),
+])
+def test_usage_errors_are_one_line_exit_2(capsys, argv, problem):
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    assert captured.err == f"neural-bake: error: {problem}\n" and captured.out == ""
+
+
 def test_verb_help(capsys):
     assert main(["inspect", "--help"]) == 0
     out = capsys.readouterr().out
