@@ -21,6 +21,7 @@ BENCHES = {
     "view": ("neural_bake.cli.bench_view", "command"),
     "batch": ("neural_bake.cli.bench_batch", "command"),
     "budget": ("neural_bake.cli.bench_budget", "command"),
+    "contention": ("neural_bake.cli.bench_contention", "command"),
 }
 
 
