@@ -377,8 +377,13 @@ def _write_index(out: Path, summary: dict, log: Callable[[str], None]) -> None:
 
 
 def _index_columns(rec: dict | None) -> dict:
-    """The index page's batch columns of an asset: the batch run that produced it."""
-    return {"run": (rec or {}).get("run")}
+    """The index page's batch columns of an asset: the batch run that produced it, and per time-budgeted fit
+    stage the steps made of the steps expected in its budget (marked "!" below half)."""
+    cells = []
+    for stage, b in ((rec or {}).get("budget") or {}).items():
+        expected = "?" if b.get("expected_steps") is None else f"~{b['expected_steps']}"
+        cells.append(f"{stage} {b.get('steps')} of {expected}" + (" !" if b.get("warning") else ""))
+    return {"run": (rec or {}).get("run"), "steps made of expected": ", ".join(cells) or None}
 
 
 def _not_finished(name: str, status: str) -> dict:

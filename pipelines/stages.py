@@ -202,8 +202,11 @@ def run_asset(task: dict) -> dict:
     ``task``: ``name``, ``mesh``, ``texture`` (or None), ``folder`` (the asset's output folder, absolute),
     ``options`` (``{stage: {field: value}}``, already merged), ``threads``, ``quiet``.
     Returns ``{"name", "mesh", "status": "ok" | "failed", "reason", "stages": {stage: {"status", "seconds"}},
-    "metrics": {...}, "warnings": [...], "seconds"}``; a stage's status is "done", "cached", "skipped", "failed"
-    or "not run"; ``warnings`` holds the toolkit's one-line warnings (each also logged).
+    "metrics": {...}, "warnings": [...], "budget": {...}, "seconds"}``; a stage's status is "done", "cached",
+    "skipped", "failed" or "not run"; ``warnings`` holds the toolkit's one-line warnings (each also logged);
+    ``budget`` has per time-budgeted fit stage the steps made, the ``expected_steps`` this machine makes in
+    the budget (None: no reference) and the ``warning`` when fewer than half were made (also in its metrics
+    and in the model file).
     """
     t_start = time.perf_counter()
     if task.get("threads"):
@@ -324,7 +327,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
     def save_record():
         atomic_write_text(folder / RECORD_NAME, dumps(record))
 
-    def stage(name: str, inputs: list[str], key_config: dict, run: Callable[[Path], dict] | None) -> None:
+    def stage(name: str, inputs: list[str], key_config: dict, run: Callable[[Path, str], dict] | None) -> None:
         """Run ``run(output_path) -> metrics`` unless the stage's key and output match the record."""
         out = folder / STAGE_FILES[name]
         key = json_digest({"stage": name, "config": key_config, "inputs": {i: digests[i] for i in inputs}})
@@ -354,18 +357,21 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         log(f"{name}: done in {seconds:.1f} s {_short_metrics(metrics)}")
 
     sdf_cfg = cfg["sdf"]
+    presets = {s: (task.get("options") or {}).get(s, {}).get("preset") for s in ("sdf", "texture")}
 
     def run_sdf(out: Path, key: str) -> dict:
         from neural_bake.fit.sdf import fit_sdf
 
         ckpt = folder / f".sdf-{key[:16]}.ckpt"
         _remove_stale(folder, ".sdf-*.ckpt", keep=ckpt)
-        fit = fit_sdf(mesh, dataclasses.replace(sdf_cfg, progress=False, checkpoint=str(ckpt), resume=True))
+        # the preset again, as `fit sdf` does: the time budget is accounted against its step cost
+        fit = fit_sdf(mesh, preset=presets["sdf"], **dataclasses.asdict(
+            dataclasses.replace(sdf_cfg, progress=False, checkpoint=str(ckpt), resume=True)))
         fit.save(out)
         ckpt.unlink(missing_ok=True)
         last = fit.history[-1] if fit.history else {}
         return {"steps": fit.steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
-                "stopped": fit.stopped_reason}
+                "stopped": fit.stopped_reason, **_budget_metrics([fit.budget])}
 
     stage("sdf", ["mesh"], stage_key_config(sdf_cfg), run_sdf)
     sdf_path = folder / STAGE_FILES["sdf"]
@@ -381,7 +387,8 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
                          band=n.band, eps=n.eps, certify=n.certify, certify_max_boxes=n.max_boxes, progress=False,
                          stability_samples=())
         seq.save(out)
-        return {"deltas": [round(d, 6) for d in seq.deltas]}
+        return {"deltas": [round(d, 6) for d in seq.deltas], "steps": sum(seq.iterations[:-1]),
+                **_budget_metrics([info.get("budget") for info in seq.levels_info[:-1]])}
 
     stage("nested", ["sdf"], stage_key_config(nested_cfg), run_nested if _nested_levels(nested_cfg) else None)
 
@@ -392,13 +399,13 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
 
         ckpt = folder / f".texture-{key[:16]}.ckpt"
         _remove_stale(folder, ".texture-*.ckpt", keep=ckpt)
-        fit = fit_texture(mesh, str(field_path), dataclasses.replace(tex_cfg, progress=False, checkpoint=str(ckpt),
-                                                                   resume=True))
+        fit = fit_texture(mesh, str(field_path), None, preset=presets["texture"], **dataclasses.asdict(
+            dataclasses.replace(tex_cfg, progress=False, checkpoint=str(ckpt), resume=True)))
         fit.save(out)
         ckpt.unlink(missing_ok=True)
         last = fit.history[-1] if fit.history else {}
         return {"steps": fit.steps, "fit_seconds": round(fit.seconds, 3), "colour_mse": last.get("colour"),
-                "delta": fit.delta}
+                "delta": fit.delta, **_budget_metrics([fit.budget])}
 
     # the nested sequence, when there is one, is the asset the texture fit and the bake use (its δ is the band)
     field_key = "nested" if digests["nested"] else "sdf"
@@ -435,8 +442,25 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         return _bake_metrics(report)
 
     stage("bake", ["mesh", field_key, "texture", "coarse"], stage_key_config(bake_cfg), run_bake)
+    result["budget"] = {s: {"steps": m.get("steps"), "expected_steps": m["expected_steps"],
+                            "warning": m.get("budget_warning")}
+                        for s, m in result["metrics"].items() if isinstance(m, dict) and "expected_steps" in m}
     if not dry:
         save_record()
+
+
+def _budget_metrics(budgets: list[dict | None]) -> dict:
+    """A fit stage's budget metrics from its time-budgeted fits' accounts (:func:`neural_bake.fit.budget.fit_budget`;
+    one per nested level): ``expected_steps`` (their sum; None when one has no reference), ``budget_seconds``
+    and ``budget_warning`` (their warnings, joined); {} for a stage without a time budget."""
+    budgets = [b for b in budgets if b]
+    if not budgets:
+        return {}
+    expected = [b.get("expected_steps") for b in budgets]
+    warned = [b["warning"] for b in budgets if b.get("warning")]
+    return {"expected_steps": None if None in expected else sum(expected),
+            "budget_seconds": sum(float(b.get("budget_seconds") or 0.0) for b in budgets),
+            "budget_warning": "; ".join(warned) or None}
 
 
 def _remove_stale(folder: Path, pattern: str = ".*.tmp*", keep: Path | None = None) -> None:

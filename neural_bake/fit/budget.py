@@ -24,7 +24,7 @@ import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
-__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps",
+__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps", "step_cost",
            "budget_record", "fit_budget", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
@@ -153,6 +153,26 @@ def probe_rate(repeat: int = 30, *, clock: Callable[[], float] | None = None) ->
     return _probe_cached(int(repeat), torch.get_num_threads())
 
 
+def step_cost(step: Callable[[], None], repeat: int = 5, *, clock: Callable[[], float] | None = None) -> float:
+    """Reference steps (:class:`ReferenceStep`) in one call of ``step``, for a fit without a :data:`STEP_COST`
+    entry: the best of ``repeat`` timed calls over the best of as many reference steps, the two interleaved so
+    that whatever else the machine runs slows both alike (``clock``: default ``time.perf_counter``)."""
+    clock = clock or time.perf_counter
+    ref = ReferenceStep()
+    for _ in range(2):  # warm-up of both
+        step()
+        ref()
+    best_step = best_ref = float("inf")
+    for _ in range(max(1, int(repeat))):
+        t0 = clock()
+        step()
+        t1 = clock()
+        ref()
+        t2 = clock()
+        best_step, best_ref = min(best_step, t1 - t0), min(best_ref, t2 - t1)
+    return max(best_step, MIN_SECONDS) / max(best_ref, MIN_SECONDS)
+
+
 def expected_steps(preset: str | None, seconds: float | None, rate: float | None = None) -> int | None:
     """Adam steps ``preset`` (a :data:`STEP_COST` key) makes in ``seconds`` on a machine making ``rate``
     reference steps a second (default: :func:`probe_rate`); None for a preset without a reference or a run
@@ -165,14 +185,15 @@ def expected_steps(preset: str | None, seconds: float | None, rate: float | None
 
 def budget_record(steps: int, expected: int | None, *, preset: str | None = None, seconds: float | None = None,
                   rate: float | None = None, stopped_reason: str | None = None,
-                  sampling_share: float | None = None) -> dict:
+                  sampling_share: float | None = None, what: str | None = None) -> dict:
     """The budget's account, JSON-ready: ``steps`` made, ``expected`` (None: no reference), their ``ratio``,
     the probe's ``reference_rate`` (reference steps a second), ``sampling_share`` (the part of the fit's time
     spent drawing training samples, or None when not measured), and ``warning``: one line when fewer than
     half the expected steps were
     made (None otherwise), naming the sampling as the cause when it took at least
     :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the budget, else a busy or slowed machine. A run
-    that stopped at its step cap is not short of time and gets no warning."""
+    that stopped at its step cap is not short of time and gets no warning. ``what``: the fit the warning names
+    (default: the preset)."""
     ratio = None if not expected else steps / expected
     share = None if sampling_share is None else float(sampling_share)
     warning = None
@@ -180,7 +201,7 @@ def budget_record(steps: int, expected: int | None, *, preset: str | None = None
         why = (f"drawing training samples took {100 * share:.0f} % of its time (an open mesh's winding "
                "numbers are costly)" if share is not None and share >= BUDGET_SAMPLING_SHARE
                else "the machine was busy or slowed")
-        warning = (f"{preset or 'fit'}: made {steps} steps of the ~{expected} this machine makes in "
+        warning = (f"{what or preset or 'fit'}: made {steps} steps of the ~{expected} this machine makes in "
                    f"{seconds or 0:.0f} s ({100 * ratio:.0f} %): {why}; the fit is weaker than the preset's")
     return {"preset": preset, "steps": int(steps), "expected_steps": expected, "ratio": ratio,
             "budget_seconds": seconds, "reference_rate": rate, "sampling_share": share, "warning": warning}

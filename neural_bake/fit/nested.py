@@ -273,12 +273,49 @@ def _distill(student: Siren, teacher, *, steps, minutes, lr, seed, band, batch, 
         mask = (yv.abs() < band) | (hv.abs() < band)
         return float((hv - yv)[mask].abs().max()) if bool(mask.any()) else float("inf")
 
+    cost = _distill_cost(student, x, y, batch, seed) if minutes else None
     cfg = LoopConfig(steps=steps, minutes=minutes, lr=lr, seed=seed, progress=progress, eval_every=eval_every,
                      log_every=max(1, min(100, steps // 10 or 1)), desc=desc)
     res = train(student, step_fn, cfg, evaluate=evaluate)
+    budget = None if cost is None else _level_budget(res, cost, minutes, steps, desc)
     return {"steps": res.steps, "best_step": res.best_step, "best_eval_sup": res.best_value,
             "seconds": round(res.seconds, 3), "stopped_reason": res.stopped_reason, "restarts": res.restarts,
-            "final_mse": res.history[-1]["mse"] if res.history else None}, res
+            "final_mse": res.history[-1]["mse"] if res.history else None, "budget": budget}, res
+
+
+def _distill_cost(student: Siren, x: torch.Tensor, y: torch.Tensor, batch: int, seed: int) -> float:
+    """Reference steps in one distillation step of ``student`` (forward and backward of a batch;
+    :func:`~neural_bake.fit.budget.step_cost`); the student's weights are left as they are."""
+    from .budget import step_cost
+
+    gen = torch.Generator().manual_seed(seed * 31 + 5)
+
+    def step() -> None:
+        student.zero_grad(set_to_none=True)
+        idx = torch.randint(0, x.shape[0], (batch,), generator=gen).to(x.device)
+        d = student(x[idx])[:, 0] - y[idx]
+        (d * d).mean().backward()
+
+    try:
+        return step_cost(step)
+    finally:
+        student.zero_grad(set_to_none=True)
+
+
+def _level_budget(res, cost: float, minutes: float, step_cap: int, desc: str) -> dict:
+    """The budget account of one level's time-budgeted distillation (as
+    :func:`~neural_bake.fit.budget.fit_budget` keeps a preset's, with the step cost measured here); its
+    warning issued as a NeuralBakeWarning when fewer than half the expected steps were made."""
+    from .budget import _full_rate, budget_record, stop_note
+
+    span = 60.0 * minutes
+    rate = _full_rate()  # the machine's speed at its full thread count, as fit_budget takes it
+    rec = budget_record(res.steps, int(span * rate / cost), seconds=span, rate=rate,
+                        stopped_reason=res.stopped_reason, what=desc)
+    rec.update(step_cost=cost, stopped=stop_note(res.stopped_reason, res.steps, res.seconds, minutes, step_cap))
+    if rec["warning"]:
+        warnings.warn(rec["warning"], NeuralBakeWarning, stacklevel=3)
+    return rec
 
 
 def fit_nested(
@@ -315,7 +352,9 @@ def fit_nested(
         levels: coarse levels as (W, D), coarse to fine, e.g. ``[(64, 1), (256, 1)]``.
         mesh: optional source mesh; its surface samples join the training points and its frame is used.
         frame: the frame to store (default: the SdfFit's or the mesh's, else identity).
-        steps: training steps per level. minutes: wall-clock budget per level (None: none).
+        steps: training steps per level. minutes: wall-clock budget per level (None: none); a budgeted level's
+            info holds its account (``budget``: steps made beside the steps this machine makes in the budget,
+            and a warning below half of them).
         seed: seeds initial weights, samples and per-step draws.
         lr, batch, pool: Adam learning rate, points per step, training points per level.
         band: Δ of the sup-norm (unit frame). eps: ε of Prop. 1.

@@ -141,3 +141,20 @@ def test_best_rate_is_recorded_and_kept(tmp_path, monkeypatch):
     path.write_text("{not json")
     assert budget._best_seen("cpu|2|ref", 30.0) == 30.0
     assert json.loads(path.read_text()) == {"cpu|2|ref": 30.0}
+
+
+def test_step_cost_is_the_step_over_the_reference_step_on_one_clock():
+    """A fit without a step-cost entry measures its own: with a clock on which each of its steps takes 0.5 s
+    more than a reference step, and every reading 0.1 s, the cost is 0.6 / 0.1 reference steps."""
+    from neural_bake.fit.budget import step_cost
+
+    now = [0.0]
+
+    def clock():
+        now[0] += 0.1
+        return now[0]
+
+    def step():
+        now[0] += 0.5
+
+    assert math.isclose(step_cost(step, 3, clock=clock), 6.0)

@@ -223,6 +223,48 @@ def test_two_batches_into_one_folder_one_writer_then_merged_summary(tmp_path, sa
     assert list(summary["assets"]) == ["sphere", "torus"] and not lock.exists()
 
 
+def test_budgeted_stages_record_expected_and_made_steps_and_warn(tmp_path, samples, tiny, monkeypatch):
+    """Each time-budgeted fit stage records the steps it made and the steps this machine makes in its budget
+    (model file, batch.json, index page) and warns below half. The machine's speed is injected: the step-rate
+    cache holds a reference rate far above what any run here reaches, so every fit falls short."""
+    from neural_bake.fields import load_field
+    from neural_bake.fit.budget import REFERENCE_STEP, _cpu_name
+
+    width, depth, n = REFERENCE_STEP
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "step_rate.json").write_text(json.dumps(
+        {f"{_cpu_name()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))  # the workers inherit it
+    stages = tiny(nested={"steps": 10_000_000, "minutes": 0.01})
+    # the presets' own networks and batches (their step costs are known), short budgets, small pools
+    stages["sdf"] = {"preset": "64x1", "minutes": 0.01, "pool_surface": 8000, "pool_near": 8000, "pool_uniform": 2000,
+                     "polish_evals": 0, "compile": "off", "gemm_dtype": "float32", "micro_batches": 1}
+    stages["texture"] = {"preset": "quick", "minutes": 0.01, "pool": 4000}
+    manifest = tmp_path / "m.csv"
+    manifest.write_text(f"mesh,name\n{samples['sphere']},ball\n")
+    out = tmp_path / "out"
+    summary = run_batch(manifest, out, BatchConfig(stages=stages, workers=1, quiet=True), log=lambda m: None)
+    rec = json.loads((out / "batch.json").read_text())["assets"]["ball"]
+    assert rec["status"] == "ok", rec["reason"]
+    assert set(rec["budget"]) == {"sdf", "nested", "texture"}
+    files = {s: load_field(out / "ball" / f"{s}.safetensors").metadata for s in ("sdf", "texture")}
+    in_file = {"sdf": files["sdf"]["training"]["budget"], "texture": files["texture"]["budget"],
+               "nested": load_field(out / "ball" / "nested.safetensors").levels_info[0]["budget"]}
+    for stage, b in rec["budget"].items():
+        assert b["steps"] >= 1 and b["expected_steps"] > 2 * b["steps"], (stage, b)
+        assert rec["metrics"][stage]["expected_steps"] == b["expected_steps"] == in_file[stage]["expected_steps"]
+        assert in_file[stage]["steps"] == b["steps"] and in_file[stage]["warning"] == b["warning"]
+        assert f"made {b['steps']} steps of the ~{b['expected_steps']}" in b["warning"]
+        assert b["warning"] in rec["warnings"]  # also logged by the worker
+    assert in_file["sdf"]["preset"] == "64x1" and in_file["texture"]["preset"] == "texture:quick"
+    assert in_file["nested"]["step_cost"] > 0
+    assert summary["assets"]["ball"]["budget"] == rec["budget"]
+    row = json.loads((out / "index.json").read_text())[0]
+    for stage, b in rec["budget"].items():
+        assert f"{stage} {b['steps']} of ~{b['expected_steps']} !" in row["steps made of expected"]
+    assert "steps made of expected" in (out / "index.html").read_text()
+
+
 def _without_root_file_access():
     """preexec_fn: drop CAP_DAC_OVERRIDE and CAP_DAC_READ_SEARCH from the bounding set, so that root's process
     after exec obeys permission bits like any user's (tests run as root in CI)."""
