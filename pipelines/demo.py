@@ -147,6 +147,7 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     if cfg.report_views > 0:  # the HTML report is part of the set: written before the commit
         from neural_bake.view.report import ReportConfig, write_asset_report
 
-        index = write_asset_report(stage, ReportConfig(views=cfg.report_views), log=lambda m: None)
+        index = write_asset_report(stage, ReportConfig(views=cfg.report_views), log=lambda m: None,
+                                   name=folder.out)
         summary["report"] = folder.shown(index)
     return summary

@@ -168,6 +168,19 @@ def test_permission_denied_is_one_line_and_exit_1(files, locked_folder, verb):
     assert sorted(p.name for p in locked_folder.iterdir()) == (["out"] if verb.endswith("folder") else [])
 
 
+def test_view_of_a_write_protected_bake_folder_names_the_folder(files, tmp_path):
+    bake = tmp_path / "out"
+    assert run_cli(["bake", files["obj"], "--sdf", files["sdf"], *TINY_BAKE, "-o", bake]).returncode == 0
+    before = sorted(p.name for p in bake.iterdir())
+    os.chmod(bake, 0o555)
+    try:
+        r = run_cli(["view", bake, "--no-open", "--views", "1", "--size", "16"], unprivileged=True)
+    finally:
+        os.chmod(bake, 0o755)
+    assert r.returncode == 1 and r.stderr == f"neural-bake: error: {bake}: Permission denied\n"
+    assert sorted(p.name for p in bake.iterdir()) == before and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
 @pytest.mark.parametrize("verb", ["bake", "fit sdf"])
 def test_file_size_limit_is_one_line_naming_the_users_file(files, tmp_path, verb):
     """A write the system refuses half-way (here: over RLIMIT_FSIZE, EFBIG) names the user's file, exit 1,

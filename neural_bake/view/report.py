@@ -174,8 +174,11 @@ def _fmt(v, nd=2) -> str:
 
 def write_asset_report(folder, config: ReportConfig | None = None, *,
                        neural: Callable[[Camera], MeshRender] | str | None = "auto", neural_note: str = "",
-                       log: Callable[[str], None] = print) -> Path:
+                       log: Callable[[str], None] = print, name=None) -> Path:
     """Write ``folder/report/index.html`` for the bake in ``folder``; return the path of index.html.
+
+    - ``name``: the folder as the report names it (title, heading, view.json), when ``folder`` is a staging
+      folder that becomes it; default ``folder``.
 
     - ``neural``: a renderer camera → :class:`MeshRender` of the fitted fields (the neural preview);
       "auto": the SDF and texture models report.json names (:func:`neural_renderer_from_report`), when
@@ -203,7 +206,11 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
 
         neural, found_note = neural_renderer_from_report(folder, report)
         neural_note = neural_note or found_note
-    stage = Path(tempfile.mkdtemp(prefix=".report-", dir=folder))
+    shown = Path(name) if name is not None else folder
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=".report-", dir=folder))
+    except OSError as exc:  # a write-protected folder, say: name it, not the staging folder
+        raise OSError(exc.errno, exc.strerror, str(shown)) from None
     try:
         (stage / "views").mkdir()
         baked = view_mesh_from_glb(glb)
@@ -286,14 +293,14 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
         if mv_path is not None:
             shutil.copy2(mv_path, stage / MODEL_VIEWER_SCRIPT)
             atomic_write_text(stage / "models.js", models_js(models, stage / "sun.hdr"))
-        summary = {"folder": str(folder), "views": len(cams), "size": cfg.size, "camera": camera.to_dict(),
+        summary = {"folder": str(shown), "views": len(cams), "size": cfg.size, "camera": camera.to_dict(),
                    "metrics": metrics, "source": str(src_path) if src_path else None, "source_note": src_note,
                    "neural": neural is not None, "neural_note": neural_note,
                    "model_viewer": mv_path is not None, "model_viewer_note": mv_note,
                    "viewer_attributes": model_viewer_attributes(camera),
                    "background": list(DEFAULT_BACKGROUND)}
         atomic_write_text(stage / "view.json", json.dumps(summary, indent=2, default=str))
-        page = _html(folder, report, summary, uv_maps, heat_views, has_fit_plot, has_time_plot, sorted(models),
+        page = _html(shown, report, summary, uv_maps, heat_views, has_fit_plot, has_time_plot, sorted(models),
                      {p.name for p in (stage / "views").iterdir()})
         atomic_write_text(stage / "index.html", page)
         final = folder / REPORT_DIR
@@ -348,7 +355,7 @@ def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bo
     if s["model_viewer"]:
         parts.append(f"<script src='{MODEL_VIEWER_SCRIPT}'></script><script src='models.js'></script>")
     parts.append("</head><body>")
-    parts.append(f"<h1>Bake report: {_esc(folder.resolve())}</h1>")
+    parts.append(f"<h1>Bake report: {_esc(folder.absolute())}</h1>")
     # viewer
     parts.append("<h2>Interactive viewer</h2>")
     if s["model_viewer"]:

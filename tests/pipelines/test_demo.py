@@ -40,6 +40,8 @@ def test_demo_shrunken_end_to_end(tmp_path):
     assert on_disk["sdf"]["distance_error"] > 0
     # the demo ends with the path of its HTML report
     assert lines[-1].endswith(str(out / "report" / "index.html")) and (out / "report" / "index.html").is_file()
+    page = (out / "report" / "index.html").read_text()  # built in the staging folder, titled after the output
+    assert "<title>neural-bake report: demo</title>" in page and ".stage-" not in page
     view = json.loads((out / "report" / "view.json").read_text())
     assert view["neural"] and {"baked_vs_source", "neural_vs_source", "baked_vs_neural"} <= set(view["metrics"])
 

@@ -175,6 +175,19 @@ def test_view_holds_the_bake_folders_lock_while_it_writes(bake_folder, capsys):
     assert main(["view", str(folder), "--headless", "--views", "1", "--size", "24"]) == 0  # free again
 
 
+def test_a_report_written_in_a_staging_folder_names_the_output(bake_folder, tmp_path):
+    """A report built inside a staging folder (the demo commits the report with its bake) is titled after
+    the output folder the staging folder becomes, never after the staging folder."""
+    folder, _ = bake_folder
+    stage = tmp_path / ".demo-out.stage-1-abc"
+    shutil.copytree(folder, stage, ignore=shutil.ignore_patterns("report"))
+    index = write_asset_report(stage, ReportConfig(views=1, size=32), neural=None, log=lambda m: None,
+                               name=tmp_path / "demo-out")
+    page = index.read_text()
+    assert "<title>neural-bake report: demo-out</title>" in page and ".stage-" not in page
+    assert json.loads((index.parent / "view.json").read_text())["folder"] == str(tmp_path / "demo-out")
+
+
 def test_a_preview_that_cannot_draw_leaves_its_slot_with_the_reason(bake_folder):
     folder, _ = bake_folder
 
