@@ -10,6 +10,7 @@ reports); trimesh loads it too.
 from __future__ import annotations
 
 import json
+import os
 import struct
 import tempfile
 from pathlib import Path
@@ -29,10 +30,14 @@ _TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
 _NCOMP = {v: k for k, v in _TYPES.items()}
 
 
-def _png_bytes(image: np.ndarray, colour: str) -> bytes:
+def _png_bytes(image: np.ndarray, colour: str, beside: Path) -> bytes:
+    """``image`` as PNG bytes. OpenImageIO writes a file: it goes in a folder beside ``beside`` (the GLB)
+    named as the GLB's atomic temporary file, so what a killed run leaves is removed by the next run for that
+    output (or with the staging folder it is in), never left in the system's temporary folder."""
     from ..io.images import write_image
 
-    with tempfile.TemporaryDirectory(prefix="neural_bake_glb_") as d:
+    folder = beside.parent if str(beside.parent) else Path(".")
+    with tempfile.TemporaryDirectory(prefix=f".{beside.name}.{os.getpid()}.", suffix=".tmp", dir=folder) as d:
         p = Path(d) / "map.png"
         write_image(p, image, colour=colour, bits=8)
         return p.read_bytes()
@@ -94,6 +99,8 @@ def export_glb(
     from ..mesh.tangents import vertex_normals, vertex_uv
 
     path = Path(path)
+    if not path.parent.is_dir() and str(path.parent):
+        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
     if normal_map is not None and tangents is None:
         raise NeuralBakeError("export_glb: a tangent-space normal_map needs tangents (Baker.tangents)")
     kept = {k: _check_image(k, v, (3, 4)) for k, v in (material_maps or {}).items()}
@@ -169,7 +176,7 @@ def export_glb(
     images, textures = [], []
 
     def add_texture(image: np.ndarray, colour: str) -> int:
-        images.append({"bufferView": add_view(_png_bytes(image, colour)), "mimeType": "image/png"})
+        images.append({"bufferView": add_view(_png_bytes(image, colour, path)), "mimeType": "image/png"})
         textures.append({"source": len(images) - 1, "sampler": 0})
         return len(textures) - 1
 
@@ -219,8 +226,6 @@ def export_glb(
             bytes(blob),
         ]
     )
-    if not path.parent.is_dir() and str(path.parent):
-        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return path

@@ -1,6 +1,7 @@
 """GLB export: round trip through trimesh and through the raw glTF accessors; source frame; errors."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -84,6 +85,36 @@ def test_failed_export_keeps_the_good_file(tmp_path, asset):
     with pytest.raises(NeuralBakeError, match="normal_map holds NaN"):
         export_glb(path, m, normal_map=bad, tangents=tangents)
     assert path.read_bytes() == good and sorted(p.name for p in tmp_path.iterdir()) == ["a.glb"]
+
+
+def test_maps_are_encoded_beside_the_glb_where_the_next_run_removes_a_killed_runs_leftover(tmp_path, asset,
+                                                                                          monkeypatch):
+    """The PNG files OpenImageIO needs for the GLB's textures go in a temporary folder beside the GLB, named as
+    one of its atomic temporary files (never in the system's temporary folder): a run killed meanwhile leaves
+    it where the next run for the output removes it."""
+    import re
+    import tempfile
+
+    import neural_bake.io.images as images
+    from neural_bake.io.outdir import OutputLock
+
+    m, tangents, normal_map, albedo = asset
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "system-tmp"))
+    (tmp_path / "system-tmp").mkdir()
+    seen, real = [], images.write_image
+    monkeypatch.setattr(images, "write_image", lambda p, *a, **k: seen.append(p) or real(p, *a, **k))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
+    export_glb(tmp_path / "a.glb", m, normal_map=normal_map, albedo=albedo, tangents=tangents)
+    assert len(seen) == 2 and all(p.parent.parent == tmp_path for p in seen)
+    assert all(re.fullmatch(r"\.a\.glb\.\d+\.[^.]+\.tmp", p.parent.name) for p in seen), seen
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.glb", "system-tmp"]
+    assert list((tmp_path / "system-tmp").iterdir()) == []
+    left = tmp_path / seen[0].parent.name.replace(f".{os.getpid()}.", ".4194305.")  # as a killed run leaves it
+    left.mkdir()
+    (left / "map.png").write_bytes(b"x")
+    with OutputLock(tmp_path / "a.glb"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.glb", "system-tmp"]
 
 
 def test_errors(tmp_path, asset):
