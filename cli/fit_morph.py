@@ -80,11 +80,15 @@ def pools(pool):
 
 
 def check_output(output: str) -> None:
+    """Refuse an output in a missing folder; lock it for the run (one writer per file, see lock_outputs)."""
     from neural_bake.errors import FitError
+
+    from .options import lock_outputs
 
     out_dir = os.path.dirname(os.path.abspath(output))
     if not os.path.isdir(out_dir):
         raise FitError(f"{output}: folder {out_dir} does not exist")
+    lock_outputs(output)
 
 
 @click.command(epilog="""\b

@@ -96,6 +96,10 @@ def test_every_writing_verb_refuses_an_output_another_run_holds(files, tmp_path,
         "fit texture": (tex, ["fit", "texture", files["obj"], "--sdf", files["sdf"], "-o", str(tex), "--steps", "2"]),
         "fit nested": (tmp_path / "n.nested", ["fit", "nested", files["sdf"], "-o", str(tmp_path / "n.nested"),
                                                "--steps", "2"]),
+        "fit morph": (tmp_path / "mo.sdf", ["fit", "morph", files["obj"], files["obj"], "-o", str(tmp_path / "mo.sdf"),
+                                            "--steps", "2"]),
+        "fit sequence": (tmp_path / "sq.sdf", ["fit", "sequence", files["obj"], files["obj"], "-o",
+                                               str(tmp_path / "sq.sdf"), "--steps", "2"]),
         "bench --json": (tmp_path / "b.json", ["bench", "normals", "--quick", "--json", str(tmp_path / "b.json")]),
     }
     before = model.read_bytes()
