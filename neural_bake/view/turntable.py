@@ -66,14 +66,16 @@ def write_gif(path, frames: list[np.ndarray], *, seconds_per_frame: float = 0.12
 def write_turntable(mesh: ViewMesh, out_dir, *, views: int = 8, size: int = 320) -> Path:
     """Render ``views`` turntable frames of ``mesh`` (``size``² pixels, :func:`view_camera`) into ``out_dir``
     as ``frame_000.png`` … and ``turntable.gif``; return the GIF's path. The folder is created if needed
-    (its parent must exist)."""
+    (its parent must exist); a symlink is followed and stays a link."""
+    from ..io.atomic import link_target
     from ..io.images import write_image
 
     out = Path(out_dir)
     if not out.parent.is_dir():
         raise ViewError(f"{out}: folder {out.parent} does not exist")
+    target = link_target(out)  # a dangling link's folder is made where it points
     frames = render_turntable(mesh, view_camera(mesh, width=size, height=size), views)
-    out.mkdir(exist_ok=True)
+    target.mkdir(exist_ok=True)
     pixels = [to_srgb8(f.rgb) for f in frames]
     for k, img in enumerate(pixels):
         write_image(out / f"frame_{k:03d}.png", img.astype(np.float32) / 255, colour="data")

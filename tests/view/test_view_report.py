@@ -160,6 +160,15 @@ def test_view_verb_writes_the_report_or_headless_frames(bake_folder, tmp_path, c
     assert "whole number" in capsys.readouterr().err
 
 
+def test_headless_frames_through_a_symlink_keep_the_link(bake_folder, tmp_path):
+    _, bake = bake_folder
+    link = tmp_path / "latest"
+    link.symlink_to("frames-1")  # dangling: the folder is made where it points
+    assert main(["view", str(bake.glb), "--headless", "--views", "1", "--size", "16", "--out", str(link)]) == 0
+    assert link.is_symlink() and sorted(p.name for p in (tmp_path / "frames-1").iterdir()) == [
+        "frame_000.png", "turntable.gif"]
+
+
 def test_view_holds_the_bake_folders_lock_while_it_writes(bake_folder, capsys):
     from neural_bake.io.outdir import OutputLock
 
