@@ -356,3 +356,9 @@ def test_bench_bake_anchor_table_shrunken():
     notes = " ".join(res["notes"])
     assert "against the anchor:" in notes and "Blender Cycles:" in notes
     assert "quality vs source unchanged within 0.05° median" in notes
+    # the user's command: the real `neural-bake bake` as its own process, its wall and report stages
+    cmd = [r for r in res["tables"]["the user's command"] if r["method"].startswith("neural-bake bake")]
+    assert len(cmd) == 1 and cmd[0]["map"] == "96²"
+    c = cmd[0]
+    assert c["wall s"] > c["bake s"] > 0 and c["prepare s"] > 0 and c["load s"] > 0 and 0 < c["evaluated"] <= 1.0
+    assert c["vs source med°"] is not None and "the user's command:" in notes
