@@ -161,14 +161,26 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def plan_workers(workers: int, threads: int, n_assets: int, cores: int | None = None) -> tuple[int, int]:
-    """(workers, threads per worker): workers ≤ assets; 0 means auto; threads = cores // workers when auto."""
+def plan_workers(workers: int, threads: int, n_assets: int, cores: int | None = None,
+                 busy: float | None = None) -> tuple[int, int]:
+    """(workers, threads per worker): workers ≤ assets; 0 means auto; threads = cores // workers when auto.
+
+    Auto plans for the machine as it is: ``busy`` cores (default: the 1-minute load average, taken before
+    any worker starts, so it counts other programs) are left out of the cores the workers share. Each
+    worker's fits and bakes then choose their threads by measurement up to its share
+    (:mod:`neural_bake.nets.threads`)."""
     cores = cores or usable_cores()
     if workers < 0 or threads < 0:
         raise NeuralBakeError(f"workers {workers} / threads {threads}: must be >= 0 (0: auto)")
-    w = workers or max(1, cores // 2)
+    if busy is None:
+        try:
+            busy = os.getloadavg()[0]
+        except OSError:  # no load average on this platform
+            busy = 0.0
+    free = max(1, cores - int(round(max(0.0, float(busy))))) if not workers else cores
+    w = workers or max(1, free // 2)
     w = max(1, min(w, n_assets))
-    t = threads or max(1, cores // w)
+    t = threads or max(1, (free if not workers else cores) // w)
     return w, t
 
 

@@ -331,11 +331,20 @@ def test_stage_options_are_checked_before_work():
 def test_plan_workers_never_oversubscribes():
     for cores in (1, 2, 3, 8, 64):
         for workers in (0, 1, 2, 4):
-            w, t = plan_workers(workers, 0, 100, cores=cores)
-            assert w >= 1 and t >= 1
-            assert w * t <= max(cores, w)  # only more workers than cores, if asked, goes over (one thread each)
-    assert plan_workers(0, 0, 100, cores=8) == (4, 2)
-    assert plan_workers(8, 0, 3, cores=8) == (3, 2)  # never more workers than assets
+            for busy in (0.0, 1.0, 100.0):
+                w, t = plan_workers(workers, 0, 100, cores=cores, busy=busy)
+                assert w >= 1 and t >= 1
+                assert w * t <= max(cores, w)  # only more workers than cores, if asked, goes over (one thread each)
+    assert plan_workers(0, 0, 100, cores=8, busy=0.0) == (4, 2)
+    assert plan_workers(8, 0, 3, cores=8, busy=0.0) == (3, 2)  # never more workers than assets
+
+
+def test_plan_workers_leaves_out_the_busy_cores():
+    """Auto plans for the machine as it is: cores other programs keep busy are not planned for."""
+    assert plan_workers(0, 0, 100, cores=8, busy=4.2) == (2, 2)
+    assert plan_workers(0, 0, 100, cores=2, busy=1.0) == (1, 1)
+    assert plan_workers(0, 0, 100, cores=2, busy=9.0) == (1, 1)  # at least one worker, one thread
+    assert plan_workers(3, 0, 100, cores=8, busy=8.0) == (3, 2)  # workers given: the user's plan
     with pytest.raises(NeuralBakeError, match="must be >= 0"):
         plan_workers(-1, 0, 3)
 
