@@ -12,7 +12,7 @@ from .load import load_asset
 from .output import write_render
 from .renderer import RenderResult, default_camera, render
 from .scene import CHANNELS, EFFECTS, AmbientOcclusion, Scene, SceneError, SceneObject, Transform, load_scene
-from .sequence import SequenceResult, render_sequence
+from .sequence import SequenceResult, render_sequence, render_time
 from .shading import (
     DirectionalLight,
     Material,
@@ -32,6 +32,7 @@ __all__ = [
     "RenderAsset", "RenderError", "SpaceTimeAsset", "TextureSource", "TraceLevel", "analytic_level",
     "analytic_texture", "as_render_asset", "siren_level", "siren_texture", "cast_guaranteed", "load_asset",
     "write_render", "RenderResult", "default_camera", "render", "CHANNELS", "EFFECTS", "AmbientOcclusion", "Scene",
-    "SceneError", "SceneObject", "Transform", "load_scene", "SequenceResult", "render_sequence", "EvalCounter",
+    "SceneError", "SceneObject", "Transform", "load_scene", "SequenceResult", "render_sequence", "render_time",
+    "EvalCounter",
     "TRACE_MODES", "TraceSettings", "trace_rays",
 ]

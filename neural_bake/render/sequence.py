@@ -1,7 +1,9 @@
-"""Dynamic previews: a space-time field f(x, t) rendered frame by frame into numbered PNGs and a GIF or MP4.
+"""Dynamic previews: a space-time field f(x, t) rendered frame by frame into numbered PNGs and a GIF or MP4,
+or at one time into a still (:func:`render_time`).
 
-Frame i of n renders f(·, t_i) with t_i spread evenly over the time range (both ends included). The PNG frames
-go to a folder that is committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
+Frame i of n renders f(·, t_i) with t_i spread evenly over the time range (both ends included). The PNG frames,
+and beside each the other channels asked for (``frame_0003.depth.png``…, as :func:`~.output.write_render`
+writes them), go to a folder that is committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
 whole old set or the whole new set, one writer at a time); the animation is written atomically with
 imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships).
 """
@@ -9,7 +11,7 @@ imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -18,16 +20,17 @@ import numpy as np
 from ..constants import MAX_FRAMES, MAX_TIME_MAGNITUDE
 from ..io.atomic import atomic_path
 from ..io.colour import linear_to_srgb
-from ..io.images import write_image
 from ..io.outdir import OutputFolder
 from ..fields.spacetime import time_to_tau
 from ..limits import check_count, check_image_size, check_magnitude
 from .asset import RenderError, SpaceTimeAsset
-from .renderer import default_camera, render
+from .camera import Camera
+from .output import CHANNEL_FORMATS, write_render
+from .renderer import RenderResult, default_camera, render
 from .scene import Scene
 from .stats import EvalCounter
 
-__all__ = ["SequenceResult", "render_sequence", "frame_times", "ANIMATION_FORMATS"]
+__all__ = ["SequenceResult", "render_sequence", "render_time", "frame_times", "ANIMATION_FORMATS"]
 
 #: Animation containers.
 ANIMATION_FORMATS = (".gif", ".mp4")
@@ -36,12 +39,14 @@ ANIMATION_FORMATS = (".gif", ".mp4")
 @dataclass
 class SequenceResult:
     """``frames``: the PNG paths in order; ``animation``: the GIF/MP4 path (or None); ``times``: t per frame;
-    ``stats``: per-frame render stats and the summed evaluation counters."""
+    ``stats``: per-frame render stats and the summed evaluation counters; ``channels``: the other channels'
+    paths per frame, by channel name (``{"depth": [frame_0000.depth.png, …]}``)."""
 
     frames: list[Path]
     animation: Path | None
     times: list[float]
     stats: dict
+    channels: dict[str, list[Path]] = field(default_factory=dict)
 
 
 def frame_times(n: int, time_range: tuple[float, float]) -> list[float]:
@@ -61,14 +66,16 @@ def render_sequence(
     times: Sequence[float] | None = None,
     animation=None,
     fps: float = 12.0,
+    channel_format: str = "png",
     progress: Callable[[int, int, float], None] | None = None,
     size: tuple[int, int] | None = None,
     fov_deg: float | None = None,
     device=None,
 ) -> SequenceResult:
     """Render ``frames`` frames of ``asset`` (evenly over ``time_range``, or at ``times`` when given) into
-    ``frames_dir/frame_0000.png`` … and, with ``animation``
-    (a .gif or .mp4 path), the animation. The camera (the scene's, or one framing the asset at its first
+    ``frames_dir/frame_0000.png`` …, the scene's other channels beside each frame (``frame_0000.depth.png``…,
+    ``channel_format`` "png" or "exr" as :func:`~.output.write_render`) and, with ``animation``
+    (a .gif or .mp4 path), the animation of the colour frames. The camera (the scene's, or one framing the asset at its first
     time, of ``size`` and ``fov_deg``) stays fixed over the sequence. ``progress(i, n, seconds)`` is called after each frame.
     ``device``: the torch device of the rays (default: the CPU; the networks stay where ``asset`` has them).
     """
@@ -87,6 +94,10 @@ def render_sequence(
     time_to_tau(times, asset.time_range, 1.0, name="t")  # every time inside the asset's range, before any frame
     if size is not None and scene.camera is None:
         check_image_size(*size, error=RenderError)
+    if channel_format not in CHANNEL_FORMATS:
+        raise RenderError(f"channel_format {channel_format!r}: expected one of {', '.join(CHANNEL_FORMATS)}")
+    if "color" not in scene.channels:
+        raise RenderError("render_sequence: the scene must ask for the color channel")
     if not (isinstance(fps, (int, float)) and 0 < fps <= 120):
         raise RenderError(f"fps: expected a number in (0, 120], got {fps!r}")
     anim = Path(animation) if animation is not None else None
@@ -96,24 +107,22 @@ def render_sequence(
     parent = frames_dir.parent if str(frames_dir.parent) else Path(".")
     if not parent.is_dir():
         raise RenderError(f"{frames_dir}: folder {parent} does not exist")
-    camera = scene.camera
-    if camera is None:
-        w, h = size or (256, 256)
-        camera = default_camera([asset.at(times[0])], width=w, height=h, fov_deg=fov_deg or 40.0)
+    camera = _camera(asset, scene, times[0], size, fov_deg)
     scene = scene.with_(camera=camera)
     counter = EvalCounter()
     per_frame, images = [], []
+    extra: dict[str, list[Path]] = {}
     with OutputFolder(frames_dir) as tmp:  # committed as a unit, one writer, a symlink followed
         paths = []
         for i, t in enumerate(times):
             res = render(asset.at(t), scene, device=device)
             counter.merge(res.counter)
-            rgb = res.channels.get("color")
-            if rgb is None:
-                raise RenderError("render_sequence: the scene must ask for the color channel")
+            rgb = res.channels["color"]
             name = f"frame_{i:04d}.png"
-            write_image(tmp / name, rgb, colour="srgb")
+            written = write_render(res, tmp / name, channel_format=channel_format)  # colour first
             paths.append(frames_dir / name)
+            for c, p in zip([c for c in res.stats["channels"] if c != "color" and c in res.channels], written[1:]):
+                extra.setdefault(c, []).append(frames_dir / p.name)
             images.append(np.round(np.clip(linear_to_srgb(np.clip(rgb, 0, 1)), 0, 1) * 255).astype(np.uint8))
             per_frame.append({"time": t, "seconds": res.stats["seconds"]["total"], "hit": res.stats["pixels"]["hit"]})
             if progress is not None:
@@ -122,7 +131,42 @@ def render_sequence(
         _write_animation(anim, images, fps)
     stats = {"frames": per_frame, "evaluations": counter.to_dict(), "camera": camera.to_dict(),
              "time_range": list(tr), "fps": fps}
-    return SequenceResult(paths, anim, times, stats)
+    return SequenceResult(paths, anim, times, stats, extra)
+
+
+def render_time(
+    asset: SpaceTimeAsset,
+    scene: Scene,
+    t: float,
+    *,
+    size: tuple[int, int] | None = None,
+    fov_deg: float | None = None,
+    device=None,
+) -> RenderResult:
+    """Render ``asset`` at the one time ``t`` as :func:`render_sequence` renders that frame (the same camera:
+    the scene's, or one framing the asset, of ``size`` and ``fov_deg``); write it with
+    :func:`~.output.write_render`. ``result.stats["time"]`` is ``t``.
+
+    Raises RenderError for an asset that is not space-time or a non-finite ``t``, TimeRangeError for a ``t``
+    outside the asset's time range.
+    """
+    if not isinstance(asset, SpaceTimeAsset):
+        raise RenderError(f"render_time: expected a space-time asset, got {type(asset).__name__}")
+    t = check_magnitude(t, "t", MAX_TIME_MAGNITUDE, error=RenderError)
+    time_to_tau(t, asset.time_range, 1.0, name="t")
+    if size is not None and scene.camera is None:
+        check_image_size(*size, error=RenderError)
+    res = render(asset.at(t), scene.with_(camera=_camera(asset, scene, t, size, fov_deg)), device=device)
+    res.stats["time"] = t
+    return res
+
+
+def _camera(asset: SpaceTimeAsset, scene: Scene, t: float, size, fov_deg) -> Camera:
+    """The scene's camera, else one framing ``asset`` at ``t`` of ``size`` (default 256²) and ``fov_deg``."""
+    if scene.camera is not None:
+        return scene.camera
+    w, h = size or (256, 256)
+    return default_camera([asset.at(t)], width=w, height=h, fov_deg=fov_deg or 40.0)
 
 
 def _write_animation(path: Path, images: list[np.ndarray], fps: float) -> None:

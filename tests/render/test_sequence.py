@@ -1,11 +1,15 @@
 """Dynamic previews: an analytic space-time SDF (a sphere morphing into a torus) → numbered PNGs + GIF/MP4."""
 
+import json
+
 import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
 
 from neural_bake.cli.main import main
+from neural_bake.errors import TimeRangeError
+from neural_bake.io.colour import linear_to_srgb
 from neural_bake.io.images import read_image
 from neural_bake.io.outdir import MANIFEST
 from neural_bake.nets.siren import Siren
@@ -13,7 +17,7 @@ from neural_bake.render.asset import RenderAsset, RenderError, SpaceTimeAsset, a
 from neural_bake.render.camera import Camera
 from neural_bake.render.renderer import render
 from neural_bake.render.scene import Scene
-from neural_bake.render.sequence import frame_times, render_sequence
+from neural_bake.render.sequence import frame_times, render_sequence, render_time
 from neural_bake.types import Frame
 
 from render_cases import exact_sphere_hits
@@ -136,3 +140,69 @@ def test_space_time_levels_fix_time():
     torch.testing.assert_close(v, want) and g.shape == (5, 3)
     r = render(RenderAsset([lv]), Scene(camera=Camera(width=4, height=4), channels=("color",)))
     assert np.isfinite(r["color"]).all()
+
+
+CAM24 = Camera(position=(0.0, 0.0, 2.5), width=24, height=24)
+
+
+def grow() -> SpaceTimeAsset:
+    """f(x, t) = |x| − (0.3 + 0.3 t): a sphere whose radius grows from 0.3 to 0.6 over [0, 1]."""
+    return SpaceTimeAsset(lambda t: RenderAsset([analytic_level(lambda p: p.norm(dim=1) - (0.3 + 0.3 * t),
+                                                                name="grow")]), (0.0, 1.0))
+
+
+def test_frames_carry_their_channels_and_match_single_time_renders(tmp_path):
+    scene = Scene(camera=CAM24, skip=False, effects=(), channels=("color", "depth", "hit"))
+    res = render_sequence(grow(), scene, tmp_path / "grow_frames", frames=3, animation=tmp_path / "grow.gif",
+                          channel_format="exr")
+    names = [f"frame_{i:04d}.{c}" for i in range(3) for c in ("png", "depth.exr", "hit.exr")]
+    on_disk = sorted(p.name for p in (tmp_path / "grow_frames").iterdir())
+    assert on_disk == sorted(names + [MANIFEST])
+    listed = json.loads((tmp_path / "grow_frames" / MANIFEST).read_text())["files"]
+    assert sorted(listed) == sorted(names)  # the channel files are part of the committed set
+    assert res.channels == {c: [tmp_path / "grow_frames" / f"frame_{i:04d}.{c}.exr" for i in range(3)]
+                            for c in ("depth", "hit")}
+    gif = iio.imread(tmp_path / "grow.gif", index=None)
+    assert gif.shape[:3] == (3, 24, 24)  # the animation is the colour frames alone
+    areas, centre = [], []
+    for i, t in enumerate(res.times):
+        hit = read_image(res.channels["hit"][i], colour="data")[..., 0] > 0.5
+        depth = read_image(res.channels["depth"][i], colour="data")[..., 0]
+        want_hit, want_t = exact_sphere_hits(CAM24, 0.3 + 0.3 * t)
+        assert np.array_equal(hit, want_hit)
+        np.testing.assert_allclose(depth[hit], want_t[hit], atol=2e-3)
+        assert (depth[~hit] == 0).all()
+        areas.append(int(hit.sum()))
+        centre.append(float(depth[12, 12]))
+        one = render_time(grow(), scene, t)  # the same time rendered alone gives the same numbers
+        assert one.stats["time"] == t and np.array_equal(one["hit"], hit)
+        np.testing.assert_array_equal(np.where(one["hit"], one["depth"], 0).astype(np.float32), depth)
+        np.testing.assert_array_equal(np.round(read_image(res.frames[i], colour="data") * 255),
+                                      np.round(np.clip(linear_to_srgb(np.clip(one["color"], 0, 1)), 0, 1) * 255))
+    assert areas[0] < areas[1] < areas[2]  # the sphere grows …
+    assert centre[0] > centre[1] > centre[2]  # … towards the eye
+
+
+def test_png_channels_of_frames_and_the_default_camera(tmp_path):
+    scene = Scene(skip=False, effects=(), channels=("color", "hit", "depth"))
+    res = render_sequence(grow(), scene, tmp_path / "f", times=[0.0, 1.0], size=(24, 16))
+    assert sorted(res.channels) == ["depth", "hit"] and len(res.channels["hit"]) == 2
+    hits = [read_image(p, colour="data")[..., 0] > 0.5 for p in res.channels["hit"]]
+    assert hits[0].shape == (16, 24) and hits[0].sum() < hits[1].sum() and (hits[0] <= hits[1]).all()
+    one = render_time(grow(), scene, 1.0, size=(24, 16))  # the camera framing the asset is the sequence's
+    assert np.array_equal(one["hit"], hits[1])
+
+
+def test_single_time_and_channel_errors(tmp_path):
+    scene = Scene(camera=CAM24, skip=False)
+    with pytest.raises(TimeRangeError, match=r"^t = 1.5 is outside the fitted time range \[0, 1\]$"):
+        render_time(grow(), scene, 1.5)
+    with pytest.raises(RenderError, match="^t nan: must be a finite number"):
+        render_time(grow(), scene, float("nan"))
+    with pytest.raises(RenderError, match="space-time asset"):
+        render_time(grow().at(0.0), scene, 0.0)
+    with pytest.raises(RenderError, match="^channel_format 'tif'"):
+        render_sequence(grow(), scene, tmp_path / "f", frames=2, channel_format="tif")
+    with pytest.raises(RenderError, match="must ask for the color channel"):
+        render_sequence(grow(), scene.with_(channels=("depth",)), tmp_path / "f", frames=2)
+    assert list(tmp_path.iterdir()) == []  # refused before any output
