@@ -58,6 +58,7 @@ _EXPORTS = {
     "save_model": ".fields",
     "load_sdf_field": ".fields",
     "to_sdf_field": ".fields",
+    "import_siren": ".fields",
     # fit
     "SurfaceSamples": ".fit.sampling",
     "VolumeSamples": ".fit.sampling",

@@ -5,6 +5,7 @@ Everything above (fit, bake, render, the CLI) reaches model files only through t
 
 from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_field, register_kind, save_field,
                     save_model, to_sdf_field)
+from .imported import import_siren
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, closest_surface_points, unit_normals
 from .spacetime import SPACETIME_KIND, SpaceTimeField, time_mapping, time_to_tau
@@ -29,6 +30,7 @@ __all__ = [
     "FieldKind",
     "KINDS",
     "BARE_NETWORK_HINT",
+    "import_siren",
     "NESTED_FORMAT",
     "closest_surface_points",
     "unit_normals",
