@@ -3,7 +3,8 @@
 Parses the options into a :class:`~neural_bake.render.scene.Scene` (a scene file first, options on top),
 renders with :func:`neural_bake.render.render` and writes OUT, the extra channels beside it and, with
 --stats, the evaluation counters as JSON. A space-time model (networks of x, y, z, t) with OUT ending in
-.gif or .mp4 renders --frames frames into OUT's ``<stem>_frames/`` folder and the animation into OUT.
+.gif or .mp4 renders --frames frames (each with its channels beside it) into OUT's ``<stem>_frames/`` folder
+and the animation into OUT; with OUT a folder, the frames alone; with OUT an image, the one time --t names.
 """
 
 from __future__ import annotations
@@ -54,10 +55,12 @@ def _size(text: str | None):
 Examples:
   neural-bake render bumpy.nested -o bumpy.png --texture bumpy.tex --size 512
   neural-bake render bumpy.nested -o bumpy.png --config scene.toml --effects shading,shadows --device cuda
-  neural-bake render morph.sdf -o morph.gif --frames 24 --fps 12""")
+  neural-bake render morph.sdf -o morph.gif --frames 24 --fps 12
+  neural-bake render morph.sdf -o half.png --t 0.5 --channels color,depth""")
 @click.argument("model", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out", default=None, type=click.Path(),
-              help="Colour image (PNG, EXR…); for a space-time model a folder of frames or a .gif or .mp4.")
+              help="Colour image (PNG, EXR…); for a space-time model a folder of frames, a .gif or .mp4, or an image "
+                   "of one time (--t T).")
 @click.option("--config", "--scene", "scene_path", type=click.Path(dir_okay=False), default=None,
               help="TOML scene file (camera, lights, material, effects, channels, trace settings); the options "
                    "given override it.")
@@ -77,7 +80,8 @@ Examples:
                    "(or none) [default shading].")
 @click.option("--channels", default=None,
               help="Comma-separated: color, depth, normal, hit, iterations, holes, lod [default color]; the "
-                   "others are written beside OUT as OUT-stem.<channel>.<ext>.")
+                   "others are written beside OUT as OUT-stem.<channel>.<ext> (beside each frame of a space-time "
+                   "model).")
 @click.option("--channel-format", type=click.Choice(["png", "exr"]), default="png", show_default=True,
               help="File format of the extra channels (exr keeps raw values).")
 @click.option("--mode", type=click.Choice(["fixed", "threshold"]), default=None,
@@ -178,17 +182,35 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
 
     out_path = Path(out)
     names_folder = out.endswith(("/", "\\")) or out_path.is_dir()
+    as_folder = names_folder or not out_path.suffix
+    as_image = not as_folder and out_path.suffix.lower() not in (".gif", ".mp4")
     if isinstance(asset, SpaceTimeAsset):
-        as_folder = names_folder or not out_path.suffix
-        if not as_folder and out_path.suffix.lower() not in (".gif", ".mp4"):
-            raise SceneError(f"-o {out}: a space-time model renders frames into a folder (-o frames/) or an "
-                             f"animation (a .gif or .mp4 path)")
+        from neural_bake.fields.spacetime import time_to_tau
+
         tr = _time_range(time_range)
         ts = None
         if times is not None:
             from neural_bake.fit.spacetime import parse_times
 
             ts = parse_times(times, name="--t")
+            time_to_tau(ts, asset.time_range, 1.0, name="--t")
+        if tr is not None:
+            time_to_tau(list(tr), asset.time_range, 1.0, name="--time-range: t")
+    if isinstance(asset, SpaceTimeAsset) and as_image:
+        from neural_bake.render import render_time
+        from neural_bake.render.sequence import frame_times
+
+        one = ts if ts is not None else frame_times(frames, tr or asset.time_range)
+        if len(one) != 1:
+            raise SceneError(f"-o {out}: an image holds one time; {len(one)} times of a space-time model go to "
+                             f"a folder (-o frames/) or an animation (a .gif or .mp4 path)")
+        result = render_time(asset, scene, one[0], **render_kw)
+        paths = write_render(result, out_path, channel_format=channel_format)
+        s = result.stats
+        say(f"wrote {', '.join(str(p) for p in paths)} at t = {one[0]:g} ({s['pixels']['hit']} of "
+            f"{s['pixels']['total']} pixels hit, {s['seconds']['total']:.2f} s)")
+        stats = s
+    elif isinstance(asset, SpaceTimeAsset):
 
         def progress(i, n, seconds):
             if verbosity() >= 0:
@@ -196,8 +218,10 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
 
         frames_dir = out_path if as_folder else out_path.with_name(f"{out_path.stem}_frames")
         res = render_sequence(asset, scene, frames_dir, frames=frames, time_range=tr, times=ts,
-                              animation=None if as_folder else out_path, fps=fps, progress=progress, **render_kw)
-        say(f"wrote {len(res.frames)} frames to {frames_dir}/" + ("" if as_folder else f" and {out_path}"))
+                              animation=None if as_folder else out_path, fps=fps, channel_format=channel_format,
+                              progress=progress, **render_kw)
+        extra = f" with {', '.join(res.channels)}" if res.channels else ""
+        say(f"wrote {len(res.frames)} frames{extra} to {frames_dir}/" + ("" if as_folder else f" and {out_path}"))
         stats = res.stats
     else:
         if out_path.suffix.lower() in (".gif", ".mp4"):

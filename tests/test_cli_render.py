@@ -165,3 +165,83 @@ def test_print_config_is_the_resolved_scene_and_renders_the_same_image(models, t
     assert code == 2 and err.startswith(f"neural-bake: error: {f}: unknown key 'effekts'") and err.count("\n") == 1
     code, _, err = run([models["sdf"]], capsys)
     assert code == 2 and "missing -o/--output" in err
+
+
+@pytest.fixture(scope="module")
+def growing(models):
+    """A space-time file f(x, t) = g(x) − c·sin(sin(τ)), τ = 2t − 1 over the time range [0, 1], built exactly
+    from the fitted sphere g (radius 0.7) by one more neuron per layer carrying τ: the radius grows with t."""
+    from neural_bake.fields import NestedSequence, load_field
+
+    g = load_field(models["sdf"]).model
+    w, d = g.width, g.depth
+    net = Siren(w + 1, d, in_dim=4, omega_0=g.omega_0, hidden_omega=g.hidden_omega)
+    c = 0.15 / np.sin(np.sin(1.0))  # radius 0.55 at t = 0, 0.85 at t = 1 (unit frame)
+    with torch.no_grad():
+        for i, (new, old) in enumerate(zip(net.layers, g.layers)):
+            new.weight.zero_()
+            new.bias.zero_()
+            new.weight[:old.out_features, :old.in_features] = old.weight
+            new.bias[:old.out_features] = old.bias
+            if i == 0:
+                new.weight[w, 3] = 1.0 / g.omega_0  # sin(τ)
+            elif i < len(net.layers) - 1:
+                new.weight[w, w] = 1.0 / g.hidden_omega  # sin(sin(τ))
+            else:
+                new.weight[0, w] = -c
+    path = models["dir"] / "grow.nested"
+    NestedSequence(levels=[net], frame=Frame((0.0, 0.0, 0.0), 0.5), levels_info=[{"delta": 0.0}],
+                   metadata={"spacetime": {"time_range": [0.0, 1.0], "time_extent": 1.0}}).save(path)
+    return str(path)
+
+
+def test_one_time_of_a_space_time_model_is_a_still_with_its_channels(growing, tmp_path, capsys):
+    opts = ["--size", "24", "--channels", "color,depth,hit", "--channel-format", "exr"]
+    code, _, err = run([growing, "-o", str(tmp_path / "one.png"), "--t", "0.75", *opts,
+                        "--stats", str(tmp_path / "one.json")], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "cache") == [
+        "one.depth.exr", "one.hit.exr", "one.json", "one.png"]
+    stats = json.loads((tmp_path / "one.json").read_text())
+    hit = read_image(tmp_path / "one.hit.exr", colour="data")[..., 0] > 0.5
+    assert stats["time"] == 0.75 and stats["pixels"]["hit"] == int(hit.sum()) > 0
+    # the same time through the frames path gives the same numbers
+    frames = tmp_path / "frames"
+    code, _, err = run([growing, "-o", str(frames), "--t", "0.25,0.75", *opts], capsys)
+    assert code == 0, err
+    for c in ("png", "depth.exr", "hit.exr"):
+        np.testing.assert_allclose(read_image(frames / f"frame_0001.{c}", colour="data"),
+                                   read_image(tmp_path / f"one.{c}", colour="data"), atol=1e-5)
+    before = read_image(frames / "frame_0000.hit.exr", colour="data")[..., 0] > 0.5
+    depth = [read_image(frames / f"frame_{i:04d}.depth.exr", colour="data")[..., 0] for i in (0, 1)]
+    assert before.sum() < hit.sum() and (before <= hit).all()  # the sphere grows with t …
+    assert depth[0][12, 12] > depth[1][12, 12] > 0  # … towards the eye
+
+
+def test_channels_of_an_animation_go_beside_its_frames(growing, tmp_path, capsys):
+    import imageio.v3 as iio
+
+    from neural_bake.io.outdir import MANIFEST
+
+    code, _, err = run([growing, "-o", str(tmp_path / "a.gif"), "--t", "0:1:2", "--size", "16",
+                        "--channels", "color,hit,depth"], capsys)
+    assert code == 0, err
+    names = sorted(f"frame_{i:04d}.{c}.png" for i in (0, 1) for c in ("hit", "depth")) + [
+        "frame_0000.png", "frame_0001.png"]
+    listed = json.loads((tmp_path / "a_frames" / MANIFEST).read_text())["files"]
+    assert sorted(listed) == sorted(names) == sorted(p.name for p in (tmp_path / "a_frames").iterdir()
+                                                     if p.name != MANIFEST)
+    assert iio.imread(tmp_path / "a.gif", index=None).shape[:3] == (2, 16, 16)
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--t", "0:1:3"], "-o {out}: an image holds one time; 3 times of a space-time model go to a folder"),
+    ([], "-o {out}: an image holds one time; 24 times"),
+    (["--t", "2"], "--t = 2 is outside the fitted time range [0, 1]"),
+    (["--t", "0.5", "--time-range", "0,3"], "--time-range: t = 3 is outside the fitted time range [0, 1]"),
+])
+def test_times_an_image_cannot_hold_exit_2_with_one_line(growing, tmp_path, capsys, extra, match):
+    out = tmp_path / "x.png"
+    code, _, err = run([growing, "-o", str(out), "--size", "8", *extra], capsys)
+    assert code == 2 and err.count("\n") == 1 and match.format(out=out) in err, err
+    assert not out.exists()
