@@ -1,11 +1,12 @@
 """Dynamic previews: a space-time field f(x, t) rendered frame by frame into numbered PNGs and a GIF or MP4,
 or at one time into a still (:func:`render_time`).
 
-Frame i of n renders f(·, t_i) with t_i spread evenly over the time range (both ends included). The PNG frames,
-and beside each the other channels asked for (``frame_0003.depth.png``…, as :func:`~.output.write_render`
-writes them), go to a folder that is committed as a unit (:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the
-whole old set or the whole new set, one writer at a time); the animation is written atomically with
-imageio (GIF through Pillow, MP4 through the ffmpeg binary imageio-ffmpeg ships).
+Frame i of n renders f(·, t_i) with t_i spread evenly over the time range (both ends included). The PNG
+frames, and beside each the other channels asked for (``frame_0003.depth.png``…, as
+:func:`~.output.write_render` writes them), go to a folder that is committed as a unit
+(:class:`~neural_bake.io.outdir.OutputFolder`: a reader sees the whole old set or the whole new set, one
+writer at a time); the animation is written atomically with imageio (GIF through Pillow, MP4 through the
+ffmpeg binary imageio-ffmpeg ships).
 """
 
 from __future__ import annotations
@@ -75,8 +76,9 @@ def render_sequence(
     """Render ``frames`` frames of ``asset`` (evenly over ``time_range``, or at ``times`` when given) into
     ``frames_dir/frame_0000.png`` …, the scene's other channels beside each frame (``frame_0000.depth.png``…,
     ``channel_format`` "png" or "exr" as :func:`~.output.write_render`) and, with ``animation``
-    (a .gif or .mp4 path), the animation of the colour frames. The camera (the scene's, or one framing the asset at its first
-    time, of ``size`` and ``fov_deg``) stays fixed over the sequence. ``progress(i, n, seconds)`` is called after each frame.
+    (a .gif or .mp4 path), the animation of the colour frames. The camera (the scene's, or one framing the
+    asset at its first time, of ``size`` and ``fov_deg``) stays fixed over the sequence. ``progress(i, n,
+    seconds)`` is called after each frame.
     ``device``: the torch device of the rays (default: the CPU; the networks stay where ``asset`` has them).
     """
     if not isinstance(asset, SpaceTimeAsset):
