@@ -37,10 +37,13 @@ def _png_bytes(image: np.ndarray, colour: str, beside: Path) -> bytes:
     from ..io.images import write_image
 
     folder = beside.parent if str(beside.parent) else Path(".")
-    with tempfile.TemporaryDirectory(prefix=f".{beside.name}.{os.getpid()}.", suffix=".tmp", dir=folder) as d:
-        p = Path(d) / "map.png"
-        write_image(p, image, colour=colour, bits=8)
-        return p.read_bytes()
+    try:
+        with tempfile.TemporaryDirectory(prefix=f".{beside.name}.{os.getpid()}.", suffix=".tmp", dir=folder) as d:
+            p = Path(d) / "map.png"
+            write_image(p, image, colour=colour, bits=8)
+            return p.read_bytes()
+    except OSError as exc:  # the GLB is the file the user asked for: name it, not the temporary map
+        raise OSError(exc.errno, exc.strerror, str(beside)) from None
 
 
 def _check_image(name: str, image, channels: tuple[int, ...]) -> np.ndarray:

@@ -172,11 +172,14 @@ def write_image(
             reason = " ".join(str(out.geterror() or "").split())
         finally:
             closed = out.close()
-        if not (ok and closed) or reason:
+        failed = not (ok and closed) or bool(reason) or tmp.stat().st_size == 0
+        # a writer that flushes on close may lose its last bytes to a full disk and still report success
+        if failed or _no_free_block(tmp.parent):
             cause = _write_failure_cause(tmp.parent)
             if cause is not None:
                 raise OSError(cause, os.strerror(cause), str(p))
-            raise ImageError(f"{p}: cannot write image ({reason or _oiio_error(oiio)})")
+            if failed:
+                raise ImageError(f"{p}: cannot write image ({reason or _oiio_error(oiio)})")
     return p
 
 
@@ -189,18 +192,19 @@ def _oiio_error(oiio) -> str:
 _PROBE_BYTES = 1 << 16
 
 
+def _no_free_block(folder: Path) -> bool:
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False
+
+
 def _write_failure_cause(folder: Path) -> int | None:
-    """The errno behind a write OpenImageIO could not finish in ``folder`` (it reports none): ENOSPC when the
-    file system has no free block, else the errno of a small probe write there (ENOSPC, EDQUOT, EFBIG, EIO…),
-    else None (the writer failed for a reason of its own)."""
-    import errno
+    """The errno behind a write OpenImageIO could not finish in ``folder`` (it reports none): the errno of a
+    small probe write there (ENOSPC, EDQUOT, EFBIG, EIO…), else None (the writer failed for a reason of its
+    own)."""
     import tempfile
 
-    try:
-        if os.statvfs(folder).f_bavail == 0:
-            return errno.ENOSPC
-    except OSError as exc:
-        return exc.errno
     try:
         with tempfile.TemporaryFile(dir=folder) as fh:
             fh.write(b"\0" * _PROBE_BYTES)
