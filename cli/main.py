@@ -61,6 +61,7 @@ class LazyGroup(click.Group):
 COMMANDS = {
     "samples": ("neural_bake.cli.samples", "command"),
     "inspect": ("neural_bake.cli.inspect", "command"),
+    "import": ("neural_bake.cli.import_weights", "command"),
     "fit": ("neural_bake.cli.fit", "group"),
     "bake": ("neural_bake.cli.bake", "command"),
     "bake-frames": ("neural_bake.cli.bake_frames", "command"),
