@@ -229,7 +229,8 @@ def fill(folder: Path, leave: int) -> None:
 
 #: (verb, bytes left free): "no room for its lock" leaves less than the lock file's first block;
 #: "render an image" fails inside OpenImageIO's writer, which gives no reason of its own
-FULL_DISK_CASES = [("bake", 8192), ("fit sdf", 8192), ("fit sdf, no room for its lock", 0), ("render an image", 1024)]
+FULL_DISK_CASES = [("bake", 8192), ("fit sdf", 8192), ("fit sdf, no room for its lock", 0), ("render an image", 1024),
+                   ("render a JPEG", 1024)]
 
 
 @pytest.mark.parametrize("verb, leave", FULL_DISK_CASES, ids=[v for v, _ in FULL_DISK_CASES])
@@ -237,8 +238,8 @@ def test_full_disk_is_one_line_naming_the_users_output(files, full_disk, verb, l
     if verb == "bake":
         out = full_disk / "out"
         args = ["bake", files["obj"], "--sdf", files["sdf"], *TINY_BAKE, "-o", out]
-    elif verb == "render an image":
-        out = full_disk / "shot.exr"
+    elif verb.startswith("render"):
+        out = full_disk / ("shot.jpg" if verb.endswith("JPEG") else "shot.exr")
         args = ["render", files["sdf"], "--size", "128", "-o", out]
     else:
         out = full_disk / "m.sdf"

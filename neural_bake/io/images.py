@@ -155,14 +155,19 @@ def write_image(
     else:
         fmt, data = "uint16", np.round(np.clip(arr, 0.0, 1.0) * 65535.0).astype(np.uint16)
     h, w, c = data.shape
+    if ext in (".jpg", ".jpeg"):
+        # Pillow (which imageio brings): libjpeg under OpenImageIO ends the process on a failed write
+        from PIL import Image
+
+        with atomic_path(p) as tmp:
+            Image.fromarray(data[..., 0] if c == 1 else data).save(tmp, format="JPEG", quality=95)
+        return p
     with atomic_path(p) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
             raise ImageError(f"{p}: cannot write image ({_oiio_error(oiio)})")
         spec = oiio.ImageSpec(w, h, c, fmt)
         spec.attribute("oiio:UnassociatedAlpha", 1)  # our alpha is straight: store it as is
-        if ext in (".jpg", ".jpeg"):
-            spec.attribute("Compression", "jpeg:95")
         if ext == ".exr":
             spec.attribute("compression", "zip")
         try:
