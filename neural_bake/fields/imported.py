@@ -85,7 +85,10 @@ def siren_from_state_dict(state, name: str | os.PathLike, *, omega_0: float, hid
     for key in state:
         if not isinstance(key, str):
             raise ModelFileError(f"{name}: a state dict key {key!r:.40} is not a string")
-        keys[key[len("module."):] if key.startswith("module.") else key] = key
+        bare = key[len("module."):] if key.startswith("module.") else key
+        if bare in keys:
+            raise ModelFileError(f"{name}: both {keys[bare]} and {key} name one layer's tensor")
+        keys[bare] = key
     layout, layers = _layers(keys, name)
     tensors = []
     for i, (wkey, bkey) in enumerate(layers):

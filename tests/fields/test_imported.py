@@ -174,6 +174,7 @@ BAD_STATES = [
     (lambda: {}, "an empty state dict"),
     (lambda: {**_state(), "net.net.0.1.weight": torch.zeros(3)}, "unknown keys net.net.0.1.weight; not a plain SIREN"),
     (lambda: {**_state(), "epoch": 3}, "unknown keys epoch"),
+    (lambda: {**_state(), "module.net.net.1.0.bias": torch.zeros(8)}, "both net.net.1.0.bias and module.net.net.1.0.bias"),
     (_pe_state, "positional_encoding.freq_bands looks like a positional encoding"),
     (lambda: {**_state(), **{"net.0.0.weight": torch.zeros(8, 3)}}, "keys of different SIREN layouts mixed"),
     (lambda: {k: v for k, v in _state().items() if not k.startswith("net.net.1.")}, "layer 1 is missing"),
