@@ -233,8 +233,10 @@ def _check_out(out: Path) -> None:
     """OUT is (or can be made) a folder this process can write; one line otherwise."""
     if out.exists() and not out.is_dir():
         raise NeuralBakeError(f"-o {out}: exists and is not a folder")
+    from neural_bake.io.atomic import link_target
+
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        link_target(out).mkdir(parents=True, exist_ok=True)  # a dangling symlink: its folder made where it points
         probe = out / f".batch-probe-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()

@@ -441,3 +441,18 @@ def test_bad_config_files(tmp_path, capsys, text, message):
     assert main(["batch", "--print-config", "-o", str(tmp_path)]) == 0
     capsys.readouterr()
     assert main(["batch", "-o", str(tmp_path / "o")]) == 2  # no manifest
+
+
+def test_batch_output_through_a_symlink_is_followed(tmp_path):
+    """A dangling symlink as OUT: its folder is made where it points and the link kept; a loop is one line."""
+    from neural_bake.errors import OutputError
+    from neural_bake.pipelines.batch import _check_out
+
+    link = tmp_path / "latest"
+    link.symlink_to("run-1")
+    _check_out(link)
+    assert link.is_symlink() and (tmp_path / "run-1").is_dir() and list((tmp_path / "run-1").iterdir()) == []
+    (tmp_path / "l1").symlink_to("l2")
+    (tmp_path / "l2").symlink_to("l1")
+    with pytest.raises(OutputError, match="l1: a symlink loop"):
+        _check_out(tmp_path / "l1")
