@@ -37,6 +37,7 @@ SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="default"
 Examples:
   neural-bake fit sdf samples/bumpy_sphere.obj -o bumpy.sdf --preset quick
   neural-bake fit sdf mesh.obj -o mesh.sdf --minutes 3 --seed 1 --device cuda
+  neural-bake fit sdf mesh.obj -o mesh.sdf --preset quick --budget steps   # the same result under any load
   neural-bake fit sdf --preset quick --print-config > sdf.toml
   neural-bake fit sdf mesh.obj -o mesh.sdf --config sdf.toml --steps 2000""")
 @click.argument("mesh", type=click.Path(dir_okay=False), required=False)
@@ -65,8 +66,13 @@ def command(mesh, output, config, preset, metrics):
     last = fit.history[-1] if fit.history else {}
     b = fit.budget
     how = (fit.stopped_reason if b is None else b["stopped"]) + ("; loss compiled" if fit.config.compile == "on" else "")
-    if b is not None and b["expected_steps"]:
+    if b is not None and b.get("budget") == "steps":
+        how += (f"; the preset's steps on the quiet reference machine, ~{b['estimated_seconds']:.0f} s "
+                "estimated on this one")
+    elif b is not None and b["expected_steps"]:
         how += f"; this machine makes ~{b['expected_steps']} Adam steps in {b['budget_seconds']:.0f} s"
+        if b.get("asset_seconds_per_step"):
+            how += f" with this mesh's sampling ({1e3 * b['asset_seconds_per_step']:.1f} ms a step)"
     skipped = ((b or {}).get("pool_refreshes") or {}).get("skipped")
     if skipped:
         how += (f"; {skipped} pool refresh(es) skipped (building them would have taken over "
@@ -74,6 +80,8 @@ def command(mesh, output, config, preset, metrics):
     say(f"fit sdf {fit.config.width}x{fit.config.depth}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
         f"final loss {last.get('loss', float('nan')):.4g}"
         + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
+    if b is not None and b.get("note"):
+        say(b["note"])
     if fit.micro_batch_tuning:
         last_tuning = fit.micro_batch_tuning[-1]
         ms = ", ".join(f"{k}: {1e3 * t:.1f} ms" for k, t in last_tuning["seconds"].items())

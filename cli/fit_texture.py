@@ -26,13 +26,14 @@ SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "defau
                   described=("quick", "default", "high"),
                   preset_help="Network size and time budget (fast, medium and fine are older names of quick, "
                               "default and high; none: 256x3 for --steps)",
-                  required=("mesh", "sdf_path", "output"))
+                  required=("mesh", "sdf_path", "output"), pass_preset=True)
 
 
 @click.command(cls=ConfigCommand, config=SPEC, epilog="""\b
 Examples:
   neural-bake fit texture samples/bumpy_sphere.obj --sdf bumpy.sdf -o bumpy.tex --preset quick
   neural-bake fit texture mesh.obj --sdf mesh.nested -o mesh.tex --minutes 2 --lam 1e-3 --device cuda
+  neural-bake fit texture mesh.obj --sdf mesh.sdf -o mesh.tex --preset quick --budget steps
   neural-bake fit texture --preset default --print-config > texture.toml""")
 @click.argument("mesh", type=click.Path(dir_okay=False), required=False)
 @click.option("--sdf", "sdf_path", type=click.Path(dir_okay=False), default=None,
@@ -46,12 +47,12 @@ Examples:
 @click.option("--metrics/--no-metrics", default=True,
               help="After fitting, print surface PSNR, colour change across the band and render-space MSE.")
 @verbosity_options
-def command(mesh, sdf_path, output, config, texture_path, uv_policy, metrics):
+def command(mesh, sdf_path, output, config, preset, texture_path, uv_policy, metrics):
     """Fit a colour MLP g to MESH's texture; bakes read it at the SDF's closest points (--lam: λ·⟨∇g, ∇f⟩² in the δ-band).
 
     Every setting below is a field of the texture fit's config: a --config file sets them first, the
     options given override it."""
-    from dataclasses import replace
+    from dataclasses import asdict, replace
 
     from neural_bake.fit.texture import fit_texture, texture_metrics
     from neural_bake.io.mesh_io import load_mesh
@@ -63,12 +64,16 @@ def command(mesh, sdf_path, output, config, texture_path, uv_policy, metrics):
     lock_outputs(output, config.checkpoint)  # checks their folders; one writer per file
     say(f"settings: {config}", 1)
     m = load_mesh(mesh, texture_path, uv_policy=uv_policy)
-    fit = fit_texture(m, sdf_path, config)
+    # the preset again, as `fit sdf` does: the budget is accounted against its step cost
+    fit = fit_texture(m, sdf_path, None, preset=preset, **asdict(config))
     fit.save(output)
     cfg = fit.config
     b = fit.budget
     how = fit.stopped_reason if b is None else b["stopped"]
-    if b is not None and b["expected_steps"]:
+    if b is not None and b.get("budget") == "steps":
+        how += (f"; the preset's steps on the quiet reference machine, ~{b['estimated_seconds']:.0f} s "
+                "estimated on this one")
+    elif b is not None and b["expected_steps"]:
         how += f"; this machine makes ~{b['expected_steps']} in the budget"
     say(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
         f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame), {fit.encoding} colours")

@@ -203,12 +203,14 @@ FP32_GEMM_REL_TOL = 1e-5
 #: the view: it has no image basis and is refused.
 CAMERA_PARALLEL_EPS = 1e-9
 
-#: A time-budgeted fit that made fewer than this fraction of the steps its preset makes on this machine
-#: warns that it was slowed (the machine was busy) and is weaker than the preset's.
+#: A time-budgeted fit that made fewer than this fraction of the steps its preset makes on this machine (its
+#: asset's own sampling work included) warns that it was slowed (the machine was busy) and is weaker than the
+#: preset's.
 BUDGET_WARN_FRACTION = 0.5
 
-#: ... and blames the drawing of its training samples instead of the machine when that took at least this
-#: share of the budget (an open mesh's winding numbers, a pool refresh too slow for the budget).
+#: A time-budgeted fit's account notes (no warning: its expected steps count that work) when drawing its
+#: training samples, work that grows with its mesh (an open mesh's winding numbers, mining), took at least
+#: this share of its time.
 BUDGET_SAMPLING_SHARE = 0.5
 
 #: A time-budgeted SDF fit rebuilds its sample pools (every ``refresh_every`` steps) only while the rebuilds,

@@ -8,10 +8,17 @@ bare-GEMM probe read one CPU 1.8× faster than another where the fits ran 1.1× 
 step of the same kind. At the start of a budgeted fit :func:`probe_rate` times the reference step and takes
 the best of its readings and of the best rate this machine (CPU model, thread count) has shown before (kept
 in a small cache file): the machine's speed, not its current share of it, which a busy machine cuts.
-:func:`expected_steps` = budget seconds × rate / cost. A fit that made fewer than
-:data:`~neural_bake.constants.BUDGET_WARN_FRACTION` of them was slowed by something else (other processes,
-a throttled machine): :func:`budget_record` says so in one line, and the fitters record both figures in the
-model file.
+:func:`expected_steps` = budget seconds / (cost / rate + the asset's own seconds a step): a fit also pays
+for work that grows with its mesh (an SDF fit's pool builds and refreshes, hard-example and zero-set mining:
+distance queries and winding numbers against the mesh), which a cost measured on small meshes does not hold,
+so the fit times that work on its own clock and the expected steps are this machine's for this asset. A fit
+that made fewer than :data:`~neural_bake.constants.BUDGET_WARN_FRACTION` of them was slowed by something else
+(other processes, a throttled machine: its steps' own work took over twice the quiet step's time):
+:func:`budget_record` says so in one line, and the fitters record both figures in the model file.
+
+A ``budget="steps"`` fit runs instead the steps its preset makes in its budget on the quiet reference machine
+(:data:`~neural_bake.fit.presets.REFERENCE_STEPS`), so its result does not depend on the load; its time is
+then the estimate (:func:`steps_budget`).
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import torch
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 
 __all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps", "step_cost",
-           "budget_record", "fit_budget", "stop_note", "cache_file"]
+           "budget_record", "fit_budget", "steps_budget", "reference_steps", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
 REFERENCE_STEP = (128, 2, 4096)
@@ -173,38 +180,62 @@ def step_cost(step: Callable[[], None], repeat: int = 5, *, clock: Callable[[], 
     return max(best_step, MIN_SECONDS) / max(best_ref, MIN_SECONDS)
 
 
-def expected_steps(preset: str | None, seconds: float | None, rate: float | None = None) -> int | None:
+def expected_steps(preset: str | None, seconds: float | None, rate: float | None = None,
+                   asset_seconds: float | None = None) -> int | None:
     """Adam steps ``preset`` (a :data:`STEP_COST` key) makes in ``seconds`` on a machine making ``rate``
-    reference steps a second (default: :func:`probe_rate`); None for a preset without a reference or a run
-    without a budget."""
+    reference steps a second (default: :func:`probe_rate`) when each step also pays ``asset_seconds`` of the
+    asset's own work (its sampling; None: none); None for a preset without a reference or a run without a
+    budget."""
     if preset not in STEP_COST or not seconds or seconds <= 0:
         return None
     rate = probe_rate() if rate is None else float(rate)
-    return int(seconds * rate / STEP_COST[preset])
+    return int(seconds / (STEP_COST[preset] / rate + max(0.0, float(asset_seconds or 0.0))))
+
+
+def reference_steps(preset: str | None) -> int | None:
+    """The Adam steps ``preset`` (a :data:`STEP_COST` key) makes in its budget on the quiet reference machine
+    (:data:`~neural_bake.fit.presets.REFERENCE_STEPS`); None for a preset without a reference."""
+    from .presets import REFERENCE_STEPS
+
+    return REFERENCE_STEPS.get(preset) if preset is not None else None
 
 
 def budget_record(steps: int, expected: int | None, *, preset: str | None = None, seconds: float | None = None,
                   rate: float | None = None, stopped_reason: str | None = None,
-                  sampling_share: float | None = None, what: str | None = None) -> dict:
-    """The budget's account, JSON-ready: ``steps`` made, ``expected`` (None: no reference), their ``ratio``,
-    the probe's ``reference_rate`` (reference steps a second), ``sampling_share`` (the part of the fit's time
-    spent drawing training samples, or None when not measured), and ``warning``: one line when fewer than
-    half the expected steps were
-    made (None otherwise), naming the sampling as the cause when it took at least
-    :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the budget, else a busy or slowed machine. A run
-    that stopped at its step cap is not short of time and gets no warning. ``what``: the fit the warning names
-    (default: the preset)."""
+                  sampling_share: float | None = None, what: str | None = None,
+                  step_seconds: float | None = None, asset_seconds: float | None = None,
+                  compute_seconds: float | None = None, preset_steps: int | None = None) -> dict:
+    """The budget's account, JSON-ready: ``budget`` ("time"), ``steps`` made, ``expected`` (the steps this
+    machine makes for this asset; None: no reference), their ``ratio``, the probe's ``reference_rate``
+    (reference steps a second), ``sampling_share`` (the part of the fit's time spent drawing training samples,
+    or None when not measured), ``step_seconds`` (the preset's step on this machine, quiet: cost / rate),
+    ``asset_seconds_per_step`` (the asset's own work a step, measured; counted in ``expected``),
+    ``compute_seconds_per_step`` (the steps' own work, measured), ``preset_steps`` (the steps without the
+    asset's work), ``note``: one line when the asset's own work took at least
+    :data:`~neural_bake.constants.BUDGET_SAMPLING_SHARE` of the time (None otherwise), and ``warning``: one
+    line when fewer than half the expected steps were made (None otherwise): the machine was busy or slowed,
+    with how much slower than quiet its steps' own work ran when measured. A run that stopped at its step cap
+    is not short of time and gets no warning. ``what``: the fit the warning names (default: the preset)."""
     ratio = None if not expected else steps / expected
     share = None if sampling_share is None else float(sampling_share)
-    warning = None
+    warning = note = None
+    name = what or preset or "fit"
     if ratio is not None and ratio < BUDGET_WARN_FRACTION and stopped_reason != "steps":
-        why = (f"drawing training samples took {100 * share:.0f} % of its time (an open mesh's winding "
-               "numbers are costly)" if share is not None and share >= BUDGET_SAMPLING_SHARE
-               else "the machine was busy or slowed")
-        warning = (f"{what or preset or 'fit'}: made {steps} steps of the ~{expected} this machine makes in "
+        why = "the machine was busy or slowed"
+        if compute_seconds and step_seconds:
+            why = (f"its steps' own work took {compute_seconds / step_seconds:.1f}× the "
+                   f"{1e3 * step_seconds:.1f} ms this machine takes for one when quiet: {why}")
+        warning = (f"{name}: made {steps} steps of the ~{expected} this machine makes in "
                    f"{seconds or 0:.0f} s ({100 * ratio:.0f} %): {why}; the fit is weaker than the preset's")
-    return {"preset": preset, "steps": int(steps), "expected_steps": expected, "ratio": ratio,
-            "budget_seconds": seconds, "reference_rate": rate, "sampling_share": share, "warning": warning}
+    if share is not None and share >= BUDGET_SAMPLING_SHARE and asset_seconds is not None:
+        note = (f"{name}: drawing training samples (this mesh's pools and mined points) took {100 * share:.0f} % "
+                f"of its time; the ~{expected} steps expected count it"
+                + (f" (~{preset_steps} without it)" if preset_steps is not None else ""))
+    return {"budget": "time", "preset": preset, "steps": int(steps), "expected_steps": expected, "ratio": ratio,
+            "budget_seconds": seconds, "reference_rate": rate, "sampling_share": share,
+            "step_seconds": step_seconds, "asset_seconds_per_step": asset_seconds,
+            "compute_seconds_per_step": compute_seconds, "preset_steps": preset_steps, "note": note,
+            "warning": warning}
 
 
 def stop_note(stopped_reason: str, steps: int, seconds: float, minutes: float | None, step_cap: int) -> str:
@@ -236,11 +267,14 @@ def _full_rate() -> float:
 
 def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float | None, step_cap: int,
                stopped_reason: str, budget_seconds: float | None = None,
-               sampling_share: float | None = None) -> dict | None:
+               sampling_share: float | None = None, asset_seconds: float | None = None,
+               compute_seconds: float | None = None) -> dict | None:
     """The budget account of a finished fit (:func:`budget_record` plus ``stopped``: :func:`stop_note`), and
     its warning issued as a :class:`~neural_bake.errors.NeuralBakeWarning`; None for a fit without a time
     budget. ``budget_seconds``: the part of the budget the counted steps had (default: all of it);
-    ``sampling_share``: the part of the steps' time spent drawing training samples (None: not measured)."""
+    ``sampling_share``: the part of the steps' time spent drawing training samples; ``asset_seconds``: the
+    seconds a step spent on the asset's own work (sampling that grows with the mesh), counted in the expected
+    steps; ``compute_seconds``: the seconds a step spent on its own work, the rest (each None: not measured)."""
     if not minutes:
         return None
     import warnings
@@ -249,9 +283,30 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
 
     span = 60.0 * minutes if budget_seconds is None else budget_seconds
     rate = _full_rate() if preset in STEP_COST else None
-    rec = budget_record(steps, expected_steps(preset, span, rate), preset=preset, seconds=span, rate=rate,
-                        stopped_reason=stopped_reason, sampling_share=sampling_share)
+    step_seconds = None if rate is None or preset is None else STEP_COST[preset] / rate
+    rec = budget_record(steps, expected_steps(preset, span, rate, asset_seconds), preset=preset, seconds=span,
+                        rate=rate, stopped_reason=stopped_reason, sampling_share=sampling_share,
+                        step_seconds=step_seconds, asset_seconds=asset_seconds, compute_seconds=compute_seconds,
+                        preset_steps=expected_steps(preset, span, rate) if asset_seconds is not None else None)
     rec["stopped"] = stop_note(stopped_reason, steps, seconds, minutes, step_cap)
     if rec["warning"]:
         warnings.warn(rec["warning"], NeuralBakeWarning, stacklevel=3)
     return rec
+
+
+def steps_budget(preset: str, *, steps: int, seconds: float, asset_seconds: float | None = None,
+                 sampling_share: float | None = None) -> dict:
+    """The account of a ``budget="steps"`` fit, JSON-ready: ``budget`` ("steps"), the ``steps`` made and the
+    preset's ``reference_steps`` (:func:`reference_steps`; also as ``expected_steps``), ``estimated_seconds``:
+    the time they take on this machine, quiet (steps × (cost / rate + the asset's own seconds a step,
+    ``asset_seconds``, when measured)), beside the ``seconds`` they took, ``step_seconds``,
+    ``asset_seconds_per_step``, ``reference_rate``, ``sampling_share``, ``stopped`` and no warning (the load
+    changes its time, not its result)."""
+    rate = _full_rate()
+    step_seconds = STEP_COST[preset] / rate
+    n = reference_steps(preset)
+    return {"budget": "steps", "preset": preset, "steps": int(steps), "reference_steps": n, "expected_steps": n,
+            "estimated_seconds": steps * (step_seconds + max(0.0, float(asset_seconds or 0.0))),
+            "seconds": seconds, "step_seconds": step_seconds, "asset_seconds_per_step": asset_seconds,
+            "reference_rate": rate, "sampling_share": sampling_share, "warning": None,
+            "stopped": stop_note("steps", steps, seconds, None, steps)}

@@ -7,7 +7,7 @@ presets' earlier names (fast, medium, fine) stay as aliases too.
 
 from __future__ import annotations
 
-__all__ = ["PRESET_NAMES", "SDF_ALIASES", "TEXTURE_ALIASES", "resolve_preset"]
+__all__ = ["PRESET_NAMES", "SDF_ALIASES", "TEXTURE_ALIASES", "REFERENCE_STEPS", "resolve_preset"]
 
 #: The shared preset names, cheapest first.
 PRESET_NAMES = ("quick", "default", "high")
@@ -18,6 +18,23 @@ SDF_ALIASES: dict[str, str] = {}
 
 #: Earlier texture preset names onto the shared ones.
 TEXTURE_ALIASES = {"fast": "quick", "medium": "default", "fine": "high"}
+
+#: Adam steps each preset makes in its time budget (the Adam part: a 64x1 fit sets a quarter aside for its
+#: polish) on the quiet reference machine, the step count a ``budget="steps"`` fit runs; keys as
+#: :data:`~neural_bake.fit.budget.STEP_COST`'s. Derived, not counted: budget seconds × the reference rate the
+#: step costs were measured at (BENCHMARKS.md, "Honest budgets") / STEP_COST, rounded down.
+REFERENCE_STEPS: dict[str, int] = {
+    "quick": 2190,
+    "default": 7230,
+    "high": 8057,
+    "64x1": 11432,
+    "128x2": 19315,
+    "256x2": 11480,
+    "256x3": 11486,
+    "texture:quick": 32601,
+    "texture:default": 13428,
+    "texture:high": 40000,
+}
 
 
 def resolve_preset(name: str, aliases: dict[str, str], known) -> str | None:

@@ -83,13 +83,16 @@ class SdfFit:
     count chosen, best seconds per count); None when the count was fixed."""
     budget: dict | None = None
     """A time-budgeted run's account (:func:`neural_bake.fit.budget.fit_budget`): Adam steps made beside the
-    steps the preset makes on this machine in Adam's part of the budget, why it stopped, the warning if any."""
+    steps the preset makes on this machine for this mesh (its sampling counted) in Adam's part of the budget,
+    why it stopped, the warning if any; a ``budget="steps"`` run's (:func:`neural_bake.fit.budget.steps_budget`):
+    the preset's reference steps and their estimated seconds here."""
     threads: dict | None = None
     """The CPU threads Adam's steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`: the
     count in force, every count that ran, each measured decision); None when not recorded."""
     sampling_seconds: float | None = None
-    """Wall time of this run's Adam part spent building pools, re-ranking them and drawing batches (the
-    sampling's share of the step cost); None when not recorded (a loaded file)."""
+    """Seconds (the fit's clock: wall time by default) of this run's Adam part spent building pools,
+    re-ranking and mining them and drawing batches (the sampling's share of the step cost); None when not
+    recorded (a loaded file)."""
 
     distance_error: float | None = None
     """Sampled distance error to the mesh (unit frame): max |f| at mesh surface samples
@@ -189,8 +192,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             ``"quick"`` (192x3 for 2 minutes), ``"default"`` (192x3 for 5), ``"high"`` (256x4 for 10 minutes),
             applied before ``overrides``.
         clock: the seconds every budget decision of the run measures — Adam's budget, the share of bf16
-            steps, the polish's reserve and deadline (default ``time.perf_counter``;
-            tests simulate a slow or loaded machine with their own).
+            steps, the polish's reserve and deadline, the budget account's split of a step into sampling and
+            its own work (default ``time.perf_counter``; tests simulate a slow or loaded machine with their own).
         **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
 
     Returns:
@@ -207,6 +210,16 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     if not np.isfinite(mesh.vertices).all():
         raise FitError(f"{mesh.name}: the mesh has non-finite vertex coordinates")
     cfg = config_from(config, preset=preset, **overrides)
+    budget_key = _preset_key(preset, cfg)
+    budget_minutes = cfg.minutes  # the time budget the run is sized by (a budget="steps" run's preset's)
+    if cfg.budget == "steps":  # the preset's steps on the quiet reference machine, no time stop
+        from .budget import reference_steps
+
+        n_steps = reference_steps(budget_key)
+        if n_steps is None:
+            raise FitError("fit_sdf: budget='steps' needs preset (one of "
+                           f"{', '.join(PRESETS)}) with the preset's width, depth and batches, got preset {preset!r}")
+        cfg = replace(cfg, steps=n_steps, minutes=None)
     device = torch.device(cfg.device or "cpu")
     dtype = _DTYPES[cfg.dtype]
     gen = torch.Generator().manual_seed(int(cfg.seed))
@@ -219,7 +232,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     if cfg.gemm_dtype == "auto":
         cfg = replace(cfg, gemm_dtype="bfloat16" if _bf16_pays(cfg, device, dtype) else "float32")
     use_bf16 = cfg.gemm_dtype == "bfloat16" and cfg.bf16_fraction > 0
-    compiled = should_compile(cfg.compile, device, long_run=long_run(cfg.steps, cfg.minutes))
+    compiled = should_compile(cfg.compile, device, long_run=long_run(cfg.steps, budget_minutes))
     cfg = replace(cfg, compile="on" if compiled else "off")
     loss_terms = CompiledFn(sdf_loss_terms, enabled=compiled, desc=f"fit sdf {cfg.width}x{cfg.depth}")
     now = clock or time.perf_counter
@@ -259,13 +272,15 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     tuner = (MicroBatchTuner(micro) if cfg.micro_batches == 0 and cfg.minutes and device.type == "cpu"
              else None)
 
-    sampling = {"seconds": 0.0}  # wall time of pools, re-rankings and draws (the sampling's share of a step)
+    # the clock's seconds of pools, re-rankings, mining and draws (the asset's own work in a step) and the steps
+    sampling = {"seconds": 0.0, "steps": 0}
 
     def step_fn(step: int, g: torch.Generator) -> dict:
-        t_sample = time.perf_counter()
+        t_sample = now()
         data = pools.get(step)
         sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
-        sampling["seconds"] += time.perf_counter() - t_sample
+        sampling["seconds"] += now() - t_sample
+        sampling["steps"] += 1
         low = low_precision(step)
         k, timed = tuner.next(step, "bf16" if low else "float32") if tuner else (micro, False)
         t0 = time.perf_counter()  # the tuner measures the machine's real speed, whatever the budget's clock
@@ -286,11 +301,10 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             per_eval = _seconds_per_eval(polish_loss, cfg, device, dtype, now)
             reserve = min(0.5 * 60.0 * cfg.minutes, (cfg.polish_evals + 3) * per_eval)
         loop_cfg = replace(loop_cfg, minutes=cfg.minutes - reserve / 60.0)
-    t_adam = time.perf_counter()  # real seconds, as the sampling's timer counts (the budget's clock may be a test's)
+    t_adam = now()  # this run's Adam seconds, on the clock the sampling is timed by
     res = train(model, step_fn, loop_cfg, fingerprint=fingerprint, metadata={"mesh": mesh.name}, clock=now)
-    adam_real = time.perf_counter() - t_adam
-    budget = _budget(preset, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None,
-                     sampling["seconds"] / adam_real if adam_real > 0 else None)
+    budget = _budget(budget_key, cfg, res, 60.0 * cfg.minutes - reserve if cfg.minutes else None,
+                     sampling, now() - t_adam)
     if budget is not None:  # a budgeted run may have skipped pool refreshes (sdf_pools): the account says so
         budget["pool_refreshes"] = pools.record()
     polish = None
@@ -312,11 +326,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
                   sampling_seconds=sampling["seconds"], distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
 
 
-def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None,
-            sampling_share: float | None = None) -> dict | None:
-    """The budget account of Adam's part of a run (its steps against the preset's on this machine); the
-    preset counts only when the run kept its network and batch (else its step cost is another)."""
-    from .budget import fit_budget
+def _preset_key(preset: str | None, cfg: SdfFitConfig) -> str | None:
+    """The :data:`PRESETS` key whose step cost the run has: ``preset``'s, when the run kept its network and
+    batch (else its step cost is another); None otherwise."""
     from .presets import SDF_ALIASES, resolve_preset
 
     key = None if preset is None else resolve_preset(preset, SDF_ALIASES, PRESETS)
@@ -325,9 +337,27 @@ def _budget(preset: str | None, cfg: SdfFitConfig, res, adam_seconds: float | No
         if (cfg.width, cfg.depth, cfg.batch, cfg.batch_near, cfg.batch_uniform) != (
                 ref.width, ref.depth, ref.batch, ref.batch_near, ref.batch_uniform):
             key = None
+    return key
+
+
+def _budget(key: str | None, cfg: SdfFitConfig, res, adam_seconds: float | None, sampling: dict,
+            run_seconds: float) -> dict | None:
+    """The budget account of Adam's part of a run (its steps against the preset's, ``key``, on this machine for
+    this mesh): ``sampling`` holds the clock's seconds of this run's sampling and its step count, ``run_seconds``
+    this run's Adam seconds; their split gives the mesh's own seconds a step, counted in the expected steps,
+    and the steps' own work, which says whether the machine was slowed. A ``budget="steps"`` run's account
+    is :func:`~neural_bake.fit.budget.steps_budget`."""
+    from .budget import fit_budget, steps_budget
+
+    n = sampling["steps"]
+    asset = sampling["seconds"] / n if n else None
+    compute = max(0.0, run_seconds - sampling["seconds"]) / n if n else None
+    share = sampling["seconds"] / run_seconds if run_seconds > 0 else None
+    if cfg.budget == "steps" and key is not None:
+        return steps_budget(key, steps=res.steps, seconds=res.seconds, asset_seconds=asset, sampling_share=share)
     return fit_budget(key, steps=res.steps, seconds=res.seconds, minutes=cfg.minutes, step_cap=int(cfg.steps),
                       stopped_reason=res.stopped_reason, budget_seconds=adam_seconds,
-                      sampling_share=sampling_share)
+                      sampling_share=share, asset_seconds=asset, compute_seconds=compute)
 
 
 def _polish_loss(batch, *, model: Siren, cfg: SdfFitConfig, micro: int) -> torch.Tensor:

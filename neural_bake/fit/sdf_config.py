@@ -30,6 +30,11 @@ class SdfFitConfig:
     """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
     minutes: float | None = None
     """Wall-clock budget in minutes (None: no budget)."""
+    budget: str = "time"
+    """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
+    "steps": run the steps the preset makes in its budget on the quiet reference machine
+    (:data:`~neural_bake.fit.presets.REFERENCE_STEPS`; they replace ``steps`` and ``minutes``), so the
+    result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
     batch: int = 4096
     """Surface points per step."""
     batch_near: int = 4096
@@ -180,7 +185,7 @@ class SdfFitConfig:
 
     def fingerprint_dict(self) -> dict:
         """The settings that define the training trajectory (not budgets, paths or display)."""
-        skip = {"steps", "minutes", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile",
+        skip = {"steps", "minutes", "budget", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile",
                 "micro_batches", "polish_evals", "polish_share", "polish_points", "polish_max_weight", "polish_max_p"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
@@ -303,5 +308,7 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError(f"fit_sdf: gemm_dtype must be 'auto', 'float32' or 'bfloat16', got {cfg.gemm_dtype!r}")
     if not (0.0 <= cfg.bf16_fraction <= 1.0):
         raise FitError(f"fit_sdf: bf16_fraction must be in [0, 1], got {cfg.bf16_fraction!r}")
+    if cfg.budget not in ("time", "steps"):
+        raise FitError(f"fit_sdf: budget must be 'time' or 'steps', got {cfg.budget!r}")
     if cfg.dtype not in _DTYPES:
         raise FitError(f"fit_sdf: dtype must be one of {', '.join(_DTYPES)}, got {cfg.dtype!r}")

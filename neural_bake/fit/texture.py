@@ -97,6 +97,11 @@ class TextureFitConfig:
     """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
     minutes: float | None = None
     """Wall-time budget in minutes (None: no budget, run ``steps``)."""
+    budget: str = "time"
+    """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
+    "steps": run the steps the preset makes in its budget on the quiet reference machine
+    (:data:`~neural_bake.fit.presets.REFERENCE_STEPS`; they replace ``steps`` and ``minutes``), so the
+    result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
     batch: int = 4096
     """Surface samples per step (colour term)."""
     band_batch: int | None = None
@@ -170,7 +175,9 @@ class TextureFit:
     - ``steps``, ``seconds``: steps done and wall time; ``stopped_reason``: "steps" or "time budget";
       ``restarts``: divergence recoveries (each halved the learning rate).
     - ``budget``: a time-budgeted fit's account (:func:`neural_bake.fit.budget.fit_budget`: steps made
-      beside the steps its preset makes on this machine, why it stopped, the warning if any); else None.
+      beside the steps its preset makes on this machine, why it stopped, the warning if any), a
+      ``budget="steps"`` fit's (:func:`neural_bake.fit.budget.steps_budget`: the preset's reference steps and
+      their estimated seconds here); else None.
     - ``threads``: the CPU threads the steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`).
     """
 
@@ -457,6 +464,8 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {c.orth_method!r}")
     if c.lr_schedule not in ("constant", "cosine"):
         raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
+    if c.budget not in ("time", "steps"):
+        raise FitError(f"budget: must be 'time' or 'steps', got {c.budget!r}")
     if c.encoding not in ("auto", *ENCODINGS):
         raise FitError(f"encoding: must be 'auto', 'srgb' or 'linear', got {c.encoding!r}")
 
@@ -519,9 +528,22 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     """
     from .training import LoopConfig, train
 
+    from .budget import fit_budget, reference_steps, steps_budget
+    from .presets import TEXTURE_ALIASES, resolve_preset
+
     overrides = dict(overrides)
     preset = overrides.get("preset")
     config = _resolve_config(config, overrides)
+    key = None if preset is None else resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
+    arch = {k: getattr(config, k) for k in ("width", "depth", "batch")}
+    same = key is not None and all(PRESETS[key][k] == v for k, v in arch.items())  # the preset's step cost
+    cost_key = f"texture:{key}" if same else None
+    if config.budget == "steps":  # the preset's steps on the quiet reference machine, no time stop
+        n_steps = reference_steps(cost_key)
+        if n_steps is None:
+            raise FitError(f"budget: 'steps' needs preset (one of {', '.join(PRESETS)}) with the preset's width, "
+                           f"depth and batch, got preset {preset!r}")
+        config = replace(config, steps=n_steps, minutes=None)
     rgb = _texture_rgb(mesh, texture)
     sdf = _as_sdf_field(sdf_model)
     _check_frames(mesh, sdf)
@@ -581,14 +603,12 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
                    metadata=_metadata(mesh.frame, delta, lam, config, 0, encoding=encoding), on_log=callback,
                    **({} if clock is None else {"clock": clock}))
     model.eval()
-    from .budget import fit_budget
-    from .presets import TEXTURE_ALIASES, resolve_preset
-
-    key = None if preset is None else resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
-    arch = {k: getattr(config, k) for k in ("width", "depth", "batch")}
-    same = key is not None and all(PRESETS[key][k] == v for k, v in arch.items())  # the preset's step cost
-    budget = fit_budget(f"texture:{key}" if same else None, steps=result.steps, seconds=result.seconds,
-                        minutes=config.minutes, step_cap=int(config.steps), stopped_reason=result.stopped_reason)
+    # every sample is drawn before the loop: a step's work does not grow with the mesh
+    if config.budget == "steps" and cost_key is not None:
+        budget = steps_budget(cost_key, steps=result.steps, seconds=result.seconds)
+    else:
+        budget = fit_budget(cost_key, steps=result.steps, seconds=result.seconds, minutes=config.minutes,
+                            step_cap=int(config.steps), stopped_reason=result.stopped_reason)
     return TextureFit(model=model, frame=mesh.frame, delta=delta, lam=lam, config=config,
                       history=result.history, steps=result.steps, seconds=result.seconds,
                       stopped_reason=result.stopped_reason, restarts=result.restarts, budget=budget,

@@ -58,15 +58,49 @@ def test_budget_record_warns_below_half():
     assert budget_record(10, None)["ratio"] is None
 
 
-def test_budget_warning_names_the_sampling_when_it_took_the_time():
-    slow = budget_record(40, 100, preset="64x1", seconds=90, stopped_reason="time budget", sampling_share=0.72)
-    assert slow["sampling_share"] == 0.72
-    assert slow["warning"] == ("64x1: made 40 steps of the ~100 this machine makes in 90 s (40 %): drawing "
-                               "training samples took 72 % of its time (an open mesh's winding numbers are "
-                               "costly); the fit is weaker than the preset's")
-    # a small sampling share leaves the machine as the cause
-    busy = budget_record(40, 100, preset="64x1", seconds=90, stopped_reason="time budget", sampling_share=0.13)
-    assert "the machine was busy or slowed" in busy["warning"]
+def test_budget_record_names_the_slowdown_and_notes_the_sampling():
+    """Below half, the warning says how much slower than quiet the steps' own work ran; the mesh's own
+    sampling is counted in the expected steps, so a large share of it is a note, not a warning."""
+    slow = budget_record(40, 100, preset="64x1", seconds=90, stopped_reason="time budget", step_seconds=0.5,
+                         compute_seconds=1.25, asset_seconds=0.0, sampling_share=0.0)
+    assert slow["warning"] == ("64x1: made 40 steps of the ~100 this machine makes in 90 s (40 %): its steps' own "
+                               "work took 2.5× the 500.0 ms this machine takes for one when quiet: the machine was "
+                               "busy or slowed; the fit is weaker than the preset's")
+    assert slow["note"] is None and slow["budget"] == "time"
+    heavy = budget_record(95, 100, preset="64x1", seconds=90, stopped_reason="time budget", step_seconds=0.2,
+                          compute_seconds=0.2, asset_seconds=0.7, sampling_share=0.72, preset_steps=450)
+    assert heavy["warning"] is None and heavy["asset_seconds_per_step"] == 0.7
+    assert heavy["note"] == ("64x1: drawing training samples (this mesh's pools and mined points) took 72 % of its "
+                             "time; the ~100 steps expected count it (~450 without it)")
+    # a small sampling share needs no note
+    assert budget_record(95, 100, preset="64x1", seconds=90, sampling_share=0.13, asset_seconds=0.01)["note"] is None
+
+
+def test_expected_steps_count_the_assets_own_seconds():
+    cost = STEP_COST["64x1"]
+    assert expected_steps("64x1", 120.0, rate=cost) == 120  # a quiet step takes 1 s here
+    assert expected_steps("64x1", 120.0, rate=cost, asset_seconds=3.0) == 30
+    assert expected_steps("64x1", 120.0, rate=cost, asset_seconds=None) == 120
+
+
+def test_reference_steps_are_each_presets_budget_at_one_reference_rate():
+    """REFERENCE_STEPS holds, for every preset with a step cost, the Adam part of its time budget times one
+    reference rate over its cost: the rate each entry implies is the same."""
+    from neural_bake.fit.budget import reference_steps
+    from neural_bake.fit.presets import REFERENCE_STEPS
+    from neural_bake.fit.sdf_config import PRESETS as SDF
+    from neural_bake.fit.texture import PRESETS as TEXTURE
+
+    def adam_seconds(key):
+        if key.startswith("texture:"):
+            return 60.0 * TEXTURE[key.split(":", 1)[1]]["minutes"]
+        return 60.0 * SDF[key]["minutes"] * (1.0 - SDF[key].get("polish_share", 0.0))
+
+    assert set(REFERENCE_STEPS) == set(STEP_COST)
+    rates = [n * STEP_COST[k] / adam_seconds(k) for k, n in REFERENCE_STEPS.items()]
+    assert max(rates) / min(rates) < 1.001
+    assert reference_steps("quick") == REFERENCE_STEPS["quick"] and reference_steps(None) is None
+    assert reference_steps("9x9") is None
 
 
 def test_stop_notes():
@@ -158,3 +192,177 @@ def test_step_cost_is_the_step_over_the_reference_step_on_one_clock():
         now[0] += 0.5
 
     assert math.isclose(step_cost(step, 3, clock=clock), 6.0)
+
+
+# ------------------------------------------------------------------- the asset's own costs, budget="steps"
+def _ball(sub=2):
+    import trimesh
+
+    from neural_bake.io.mesh_io import mesh_from_arrays
+
+    m = trimesh.creation.icosphere(subdivisions=sub, radius=0.8)
+    return mesh_from_arrays(np.asarray(m.vertices), np.asarray(m.faces), normalise=False)
+
+
+#: Pools small enough for a quick test (not part of a preset's step cost: its network and batches are).
+SMALL_POOLS = dict(pool_surface=20000, pool_near=20000, pool_uniform=5000, progress=False)
+
+
+def _costed_clock(monkeypatch, *, sample: float, compute: float):
+    """A clock that moves only when an SDF fit samples (``sample`` seconds a step: pools, mining, the draw)
+    and when its step computes (``compute`` seconds), with this machine's quiet 64x1 step at 1 s."""
+    from neural_bake.fit import budget, sdf
+
+    now = [0.0]
+    draw, backward = sdf._draw, sdf.sdf_step_backward
+
+    def slow_draw(*args, **kwargs):
+        now[0] += sample
+        return draw(*args, **kwargs)
+
+    def slow_backward(*args, **kwargs):
+        now[0] += compute
+        return backward(*args, **kwargs)
+
+    monkeypatch.setattr(sdf, "_draw", slow_draw)
+    monkeypatch.setattr(sdf, "sdf_step_backward", slow_backward)
+    monkeypatch.setattr(budget, "_full_rate", lambda: STEP_COST["64x1"])
+    return lambda: now[0]
+
+
+def test_a_mesh_whose_sampling_takes_the_time_is_expected_to_make_fewer_steps_and_not_warned(monkeypatch):
+    """Each step samples for 3 s and computes for 1 s (the quiet step's time): 30 steps in 120 s, as
+    expected for this mesh; no warning of a busy machine, a note of the sampling's share instead."""
+    import warnings
+
+    from neural_bake.fit.sdf import fit_sdf
+
+    clock = _costed_clock(monkeypatch, sample=3.0, compute=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        fit = fit_sdf(_ball(), preset="64x1", clock=clock, polish_evals=0, **SMALL_POOLS)
+    b = fit.budget
+    assert fit.steps == b["steps"] == 30 and b["expected_steps"] == 30 and b["warning"] is None
+    assert b["preset_steps"] == 120 and b["ratio"] == 1.0
+    assert b["asset_seconds_per_step"] == pytest.approx(3.0) and b["compute_seconds_per_step"] == pytest.approx(1.0)
+    assert b["step_seconds"] == pytest.approx(1.0) and b["sampling_share"] == pytest.approx(0.75)
+    assert b["note"] == ("64x1: drawing training samples (this mesh's pools and mined points) took 75 % of its "
+                         "time; the ~30 steps expected count it (~120 without it)")
+
+
+def test_a_fit_whose_steps_compute_slowly_is_warned_of_a_busy_machine(monkeypatch):
+    """Each step computes for 3 s where this machine takes 1 s when quiet, and samples in no time: 40 of
+    the 120 expected steps, and a warning that names the slowdown."""
+    from neural_bake.fit.sdf import fit_sdf
+
+    clock = _costed_clock(monkeypatch, sample=0.0, compute=3.0)
+    with pytest.warns(NeuralBakeWarning) as caught:
+        fit = fit_sdf(_ball(), preset="64x1", clock=clock, polish_evals=0, **SMALL_POOLS)
+    b = fit.budget
+    assert fit.steps == 40 and b["expected_steps"] == 120 and b["asset_seconds_per_step"] == 0.0
+    assert b["warning"] == ("64x1: made 40 steps of the ~120 this machine makes in 120 s (33 %): its steps' own work "
+                            "took 3.0× the 1000.0 ms this machine takes for one when quiet: the machine was busy or "
+                            "slowed; the fit is weaker than the preset's")
+    assert [str(w.message) for w in caught if "made 40 steps" in str(w.message)] == [b["warning"]]
+    assert b["note"] is None
+
+
+def test_a_steps_budget_runs_the_presets_reference_steps_whatever_the_clock(monkeypatch, tmp_path, ticker):
+    """budget="steps": the preset's steps on the reference machine (here shrunk to 4), no time stop, on a slow
+    clock as on a fast one; the file records the budget kind and the estimated seconds."""
+    import warnings
+
+    from neural_bake.fit import presets
+    from neural_bake.fit.sdf import fit_sdf, load_sdf
+
+    monkeypatch.setitem(presets.REFERENCE_STEPS, "64x1", 4)
+    fits = []
+    for clock in (ticker(10.0), ticker(1e-4)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", NeuralBakeWarning)
+            fits.append(fit_sdf(_ball(), preset="64x1", budget="steps", clock=clock, polish_evals=0,
+                                **SMALL_POOLS))
+    for fit in fits:
+        b = fit.budget
+        assert fit.steps == 4 and fit.stopped_reason == "steps" and fit.config.minutes is None
+        assert fit.config.steps == 4 and fit.config.budget == "steps"
+        assert b["budget"] == "steps" and b["reference_steps"] == b["expected_steps"] == 4 and b["warning"] is None
+        assert b["estimated_seconds"] == pytest.approx(4 * (b["step_seconds"] + b["asset_seconds_per_step"]))
+        assert b["stopped"] == "step count (4) done"
+    torch.testing.assert_close(torch.cat([p.flatten() for p in fits[0].model.parameters()]),
+                               torch.cat([p.flatten() for p in fits[1].model.parameters()]), atol=1e-5, rtol=0)
+    fits[0].save(tmp_path / "s.sdf")
+    back = load_sdf(tmp_path / "s.sdf")
+    assert back.config.budget == "steps" and back.budget["budget"] == "steps" and back.steps == 4
+    assert back.budget["estimated_seconds"] == fits[0].budget["estimated_seconds"]
+
+
+def test_a_steps_budget_needs_a_preset_with_its_network():
+    from neural_bake.errors import FitError
+    from neural_bake.fit.sdf import fit_sdf
+
+    with pytest.raises(FitError, match=r"^fit_sdf: budget='steps' needs preset .*got preset None$"):
+        fit_sdf(_ball(1), budget="steps", width=16, depth=1, steps=2, progress=False)
+    with pytest.raises(FitError, match=r"^fit_sdf: budget='steps' needs preset .*got preset '64x1'$"):
+        fit_sdf(_ball(1), preset="64x1", budget="steps", width=32, progress=False)
+    with pytest.raises(FitError, match=r"^fit_sdf: budget must be 'time' or 'steps', got 'wall'$"):
+        fit_sdf(_ball(1), budget="wall")
+
+
+def test_cli_fit_sdf_with_a_steps_budget(monkeypatch, tmp_path, capsys):
+    """`fit sdf --preset quick --budget steps` runs the preset's reference steps (shrunk to 3) and records
+    the budget kind, the steps and the estimate in the model file."""
+    import trimesh
+
+    from neural_bake.cli.main import main
+    from neural_bake.fit import presets
+    from neural_bake.fit.sdf import load_sdf
+
+    monkeypatch.setitem(presets.REFERENCE_STEPS, "quick", 3)
+    src, out = tmp_path / "ball.obj", tmp_path / "ball.sdf"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src)
+    code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "quick", "--budget", "steps", "--no-progress",
+                 "--no-metrics", "--pool-surface", "4000", "--pool-near", "4000", "--pool-uniform", "1000"])
+    assert code == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    assert "3 steps in" in printed and "the preset's steps on the quiet reference machine, ~" in printed
+    fit = load_sdf(out)
+    assert fit.steps == 3 and fit.config.budget == "steps" and fit.config.minutes is None
+    assert fit.budget["budget"] == "steps" and fit.budget["reference_steps"] == 3
+    assert fit.budget["estimated_seconds"] > 0
+
+
+def test_texture_steps_budget_runs_the_presets_reference_steps(monkeypatch, tmp_path, ticker):
+    """A texture fit with budget="steps" makes the preset's reference steps (shrunk to 5) on a clock that
+    says each step took 20 s, without a warning; without a preset it is refused."""
+    import warnings
+
+    from neural_bake.errors import FitError
+    from neural_bake.fit import presets
+    from neural_bake.fit.texture import fit_texture
+    from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.samples.generate import write_sample
+    from neural_bake.samples.shapes import get_sample
+
+    mesh = load_mesh(write_sample(get_sample("sphere").mesh(resolution=400, texture_size=64), tmp_path, "sphere"))
+
+    def sphere_sdf(x):
+        n = x.norm(dim=1, keepdim=True)
+        return n[:, 0] - 0.9, x / n.clamp_min(1e-12)
+
+    monkeypatch.setitem(presets.REFERENCE_STEPS, "texture:quick", 5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        fit = fit_texture(mesh, sphere_sdf, preset="quick", budget="steps", pool=2000, clock=ticker(10.0))
+    assert fit.steps == 5 and fit.stopped_reason == "steps" and fit.config.minutes is None
+    assert fit.budget["budget"] == "steps" and fit.budget["reference_steps"] == 5
+    assert fit.budget["estimated_seconds"] == pytest.approx(5 * fit.budget["step_seconds"])
+    with pytest.raises(FitError, match=r"^budget: 'steps' needs preset .*got preset None$"):
+        fit_texture(mesh, sphere_sdf, budget="steps", pool=2000)
+
+
+def test_batch_stages_take_a_steps_budget():
+    from pipelines.stages import resolve_stages
+
+    stages = resolve_stages({"sdf": {"preset": "quick", "budget": "steps"}, "texture": {"budget": "steps"}})
+    assert stages["sdf"].budget == "steps" and stages["texture"].budget == "steps"

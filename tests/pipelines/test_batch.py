@@ -236,8 +236,10 @@ def test_budgeted_stages_record_expected_and_made_steps_and_warn(tmp_path, sampl
         {f"{_cpu_name()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
     monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))  # the workers inherit it
     stages = tiny(nested={"steps": 10_000_000, "minutes": 0.01})
-    # the presets' own networks and batches (their step costs are known), short budgets, small pools
-    stages["sdf"] = {"preset": "64x1", "minutes": 0.01, "pool_surface": 8000, "pool_near": 8000, "pool_uniform": 2000,
+    # the presets' own networks and batches (their step costs are known), short budgets, small pools; the SDF
+    # budget long enough that its pools' first build (the mesh's own work, which the expected steps count)
+    # leaves most of it to the steps
+    stages["sdf"] = {"preset": "64x1", "minutes": 0.05, "pool_surface": 8000, "pool_near": 8000, "pool_uniform": 2000,
                      "polish_evals": 0, "compile": "off", "gemm_dtype": "float32", "micro_batches": 1}
     stages["texture"] = {"preset": "quick", "minutes": 0.01, "pool": 4000}
     manifest = tmp_path / "m.csv"
