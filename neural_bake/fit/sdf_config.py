@@ -33,7 +33,7 @@ class SdfFitConfig:
     budget: str = "time"
     """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
     "steps": run the steps the preset makes in its budget on the quiet reference machine
-    (:data:`~neural_bake.fit.presets.REFERENCE_STEPS`; they replace ``steps`` and ``minutes``), so the
+    (neural_bake.fit.presets.REFERENCE_STEPS; they replace ``steps`` and ``minutes``), so the
     result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
     batch: int = 4096
     """Surface points per step."""
