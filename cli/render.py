@@ -248,6 +248,11 @@ def _time_range(text):
         t0, t1 = (float(v) for v in text.split(","))
     except ValueError:
         raise SceneError(f"--time-range: expected T0,T1, got {text!r}") from None
+    from neural_bake.constants import MAX_TIME_MAGNITUDE
+    from neural_bake.limits import check_magnitude
+
+    for t in (t0, t1):  # a non-finite or huge end is refused as such, before any range check
+        check_magnitude(t, "time_range", MAX_TIME_MAGNITUDE, error=SceneError)
     if not t0 <= t1:
         raise SceneError(f"--time-range: T0 must not exceed T1, got {text!r}")
     return t0, t1

@@ -308,7 +308,7 @@ def test_cap(files, timed, tmp_path, capsys, monkeypatch, case):
             "time range": (["render", timed["st"], "-o", gif, "--time-range", "0,1e300"],
                            "--time-range 1e+300: must be a finite number within ±1e+30"),
             "time outside": (["render", timed["st"], "-o", gif, "--time-range", "0,5", "--frames", "3"],
-                             "t = 2.5 is outside the fitted time range [0, 1]"),
+                             "--time-range: t = 5 is outside the fitted time range [0, 1]"),
             "header time extent": (["render", timed["huge"], "-o", gif],
                                    f"{timed['huge']}: time_extent = 1e+308 is larger than 1e+30"),
             "bake supersample": ([*bake, "--size", "8192", "--supersample", "4"],
