@@ -103,7 +103,7 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--coarse", "march:inf"], "--coarse 'march:inf': march needs a finite number"),
         (["--maps", "normal,height"], "--maps 'normal,height': unknown map 'height'"),
         (["--maps", "albedo"], "--maps albedo needs --texture-model"),
-        (["--size", "0"], "--size 0: must be between 1 and 16384"),
+        (["--size", "0"], "--size 0: must be a whole number in 1..16384"),
         (["--truth", "sample:cube"], "--truth sample:cube: unknown sample 'cube'"),
         (["--truth", "oracle"], "--truth 'oracle': expected auto, mesh or sample:NAME"),
         (["--delta", "-1"], "--delta -1.0: must be a positive distance"),
