@@ -282,7 +282,10 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         sampling["seconds"] += now() - t_sample
         sampling["steps"] += 1
         low = low_precision(step)
-        k, timed = tuner.next(step, "bf16" if low else "float32") if tuner else (micro, False)
+        # keyed by the loss variant and the CPU threads in force (nets.threads may change them): a tuning
+        # never compares counts timed with different threads
+        key = ("bf16" if low else "float32", torch.get_num_threads())
+        k, timed = tuner.next(step, key) if tuner else (micro, False)
         t0 = time.perf_counter()  # the tuner measures the machine's real speed, whatever the budget's clock
         # back-propagated here, part by part (the loop sees a detached loss and skips its own backward)
         terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low)

@@ -40,7 +40,8 @@ class MicroBatchTuner:
     (:func:`micro_batch_count`), at most four of them, in interleaved rounds on the run's own steps (``rounds``
     steps each; the first tuning of a loss variant runs one more round, untimed, which pays any compile of its
     shapes), keeps the fastest, and tunes again every ``every`` steps and whenever ``key`` (the loss variant:
-    bf16 or float32 GEMMs) changes. The steps it times are training steps like the others: the parts'
+    bf16 or float32 GEMMs, and the CPU thread count) changes; a change of key in the middle of a tuning drops
+    that tuning (its timings would compare different settings). The steps it times are training steps like the others: the parts'
     gradients add up to the whole batch's for any count, so tuning costs only the few steps run at a slower
     count. Only for time-budgeted runs, which depend on the machine's speed anyway; a run with a step count
     keeps the rule's count so that a seed reproduces bit for bit."""
@@ -61,6 +62,8 @@ class MicroBatchTuner:
         """The count for this step and whether to time it (then report with :meth:`record`)."""
         if len(self.candidates) == 1:
             return self.choice, False
+        if self._queue and key != self._key:  # the key changed mid-tuning: its timings would be mixed
+            self._queue, self._times = [], {}
         if not self._queue and (key != self._key or self._last is None or step - self._last >= self.every):
             self._key, self._last, self._times = key, step, {}
             warm = key not in self._seen

@@ -28,7 +28,7 @@ from typing import Callable
 import torch
 
 from ..constants import (THREAD_ABORT_FACTOR, THREAD_DRIFT, THREAD_PROBE_INTERVAL_S, THREAD_PROBE_SHARE, THREAD_REPROBE_S,
-                         THREAD_TRIAL_STEPS, THREAD_WINDOW)
+                         THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
 from ..errors import NeuralBakeError
 
 __all__ = ["ENV_THREADS", "ENV_MAX_THREADS", "ThreadChoice", "ThreadTuner", "choose_threads", "fixed_threads", "usable_cores",
@@ -146,7 +146,8 @@ class ThreadTuner:
     """Chooses the thread count of a loop from the loop's own steps, and probes again when the step time drifts.
 
     Call :meth:`before_step` before each step (it sets the thread count the step runs with) and
-    :meth:`after_step` with the step's seconds. A probe runs ``trial_steps`` steps per candidate count, the
+    :meth:`after_step` with the step's seconds. The first ``warmup`` steps run on every candidate thread,
+    untimed (a loop's first steps pay one-time costs); then a probe runs ``trial_steps`` steps per candidate count, the
     count in force first (the first after a switch is not counted: new threads warm up; a count whose first
     step is already :data:`~neural_bake.constants.THREAD_ABORT_FACTOR` × slower than the best so far is not
     tried further) and keeps the fastest (:func:`_best`). Then
@@ -161,7 +162,8 @@ class ThreadTuner:
 
     def __init__(self, *, device: torch.device | str = "cpu", candidates: tuple[int, ...] | None = None,
                  trial_steps: int = THREAD_TRIAL_STEPS, window: int = THREAD_WINDOW, drift: float = THREAD_DRIFT,
-                 interval: float = THREAD_PROBE_INTERVAL_S, reprobe: float = THREAD_REPROBE_S, clock: Callable[[], float] = time.perf_counter,
+                 interval: float = THREAD_PROBE_INTERVAL_S, reprobe: float = THREAD_REPROBE_S,
+                 warmup: int = THREAD_WARMUP_STEPS, clock: Callable[[], float] = time.perf_counter,
                  env: str | None = None, on_change: Callable[[int], None] | None = None):
         if isinstance(trial_steps, bool) or int(trial_steps) != trial_steps or trial_steps < 1:
             raise NeuralBakeError(f"trial_steps must be a positive integer, got {trial_steps!r}",
@@ -186,8 +188,14 @@ class ThreadTuner:
         self._last_probe = -float("inf")
         self._reprobe_after = self.reprobe
         self._probe: dict | None = None
+        self._warm = 0
         if self.active and len(self.candidates) > 1:
-            self._start_probe("start")
+            # the first steps of a loop pay one-time costs (pools, compiles, tunings): they run on every core
+            # and are not timed; the first probe follows them
+            self._warm = int(warmup)
+            self._set(max(self.candidates))
+            if self._warm == 0:
+                self._start_probe("start")
         elif self.active:
             self.history.append({"step": 0, "threads": self.candidates[0], "how": "measured", "reason": "start",
                                  "seconds_per_step": {}})
@@ -217,6 +225,11 @@ class ThreadTuner:
         """Record the seconds of the step just run (and switch counts during a probe)."""
         self.step += 1
         if not self.active:
+            return
+        if self._warm > 0:
+            self._warm -= 1
+            if self._warm == 0:
+                self._start_probe("start")
             return
         probe = self._probe
         if probe is not None:

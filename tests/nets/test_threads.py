@@ -94,7 +94,7 @@ def test_tuner_follows_a_neighbour_that_starts_and_stops():
     wait that keeps the probes' cost a small share of the time."""
     m = Machine()
     tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", trial_steps=3, window=10, drift=1.5,
-                        interval=5.0, reprobe=60.0)
+                        interval=5.0, reprobe=60.0, warmup=0)
     run(tuner, m, 8)  # the first probe: 4 steps per count (one warm-up)
     assert tuner.threads == 2 and len(tuner.history) == 1
     assert tuner.history[0]["seconds_per_step"] == pytest.approx({"2": QUIET[2], "1": QUIET[1]})
@@ -120,12 +120,27 @@ def test_tuner_probes_no_more_often_than_its_interval():
     """A step time that keeps drifting starts a probe at most once per ``interval`` seconds."""
     m = Machine()
     tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", trial_steps=1, window=2, drift=1.2,
-                        interval=1000.0, reprobe=1e9)
+                        interval=1000.0, reprobe=1e9, warmup=0)
     run(tuner, m, 4)
     for k in range(50):
         m.costs = BUSY if k % 2 else QUIET
         run(tuner, m, 3)
     assert m.now < 1000.0 * 2 and len(tuner.history) <= 1 + int(m.now // 1000.0)
+
+
+def test_first_steps_run_on_every_thread_untimed():
+    """A loop's first steps (pools, compiles: one-time costs) run on all threads and are not taken as trials;
+    the first probe follows them."""
+    m = Machine()
+    torch.set_num_threads(1)
+    tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", trial_steps=2, warmup=5)
+    assert tuner.threads == 2 == torch.get_num_threads()
+    m.costs = {1: 2.0, 2: 50.0}  # the one-time costs: the first steps look slow with any count
+    run(tuner, m, 5)
+    assert tuner.history == []  # nothing decided from them
+    m.costs = QUIET
+    run(tuner, m, 6)  # the probe: 3 steps per count
+    assert tuner.threads == 2 and tuner.history[0]["step"] == 11 and tuner.history[0]["reason"] == "start"
 
 
 def test_fixed_tuner_never_probes():
