@@ -339,7 +339,7 @@ CERTIFY_MIN_TARGET = 1e-9
 
 # --- CPU threads (neural_bake.nets.threads) -------------------------------------------------------------------
 #: Steps a loop runs on all its threads before its first thread probe (its one-time costs: pools, compiles).
-THREAD_WARMUP_STEPS = 20
+THREAD_WARMUP_STEPS = 5
 
 #: Steps a thread probe times per candidate count (after one warm-up step that is not counted).
 THREAD_TRIAL_STEPS = 3

@@ -582,7 +582,8 @@ class Baker:
 
         # the threads the bake's evaluations run fastest with on the machine as it is (nets.threads)
         points = self._probe(sdf)
-        threads = choose_threads(lambda: sdf.value_and_normal(points), device=points.device)
+        slice_ = points.repeat(4, 1)  # a slice the size of a few evaluation chunks: threads show what they pay
+        threads = choose_threads(lambda: sdf.value_and_normal(slice_), device=points.device, repeats=3)
         probe = points if precision == "auto" else None
         fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
             if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")

@@ -137,11 +137,11 @@ def run(quick: bool = False, *, workloads: tuple[str, ...] | None = None, fit_se
     with tempfile.TemporaryDirectory(prefix="nb-bench-contention-") as tmp:
         root = Path(tmp)
         model = root / "model.sdf"
-        fit_args = ["fit", "sdf", str(mesh), "--preset", "quick", "--minutes", f"{fit_seconds / 60.0:.6f}",
-                    "--no-metrics", "--no-progress", "--compile", "off", *fit_args]
+        fit_cmd = ["fit", "sdf", str(mesh), "--preset", "quick", "--minutes", f"{fit_seconds / 60.0:.6f}",
+                   "--no-metrics", "--no-progress", "--compile", "off", *fit_args]
         if {"bake", "render"} & set(workloads):  # the model they use: a quiet fit with the default threads
             say(f"fit sdf: the model the bake and render use ({fit_seconds:.0f} s, quiet)")
-            _cli([*fit_args, "-o", str(model)], settings["default"])
+            _cli([*fit_cmd, "-o", str(model)], settings["default"])
         for busy in (False, True):
             state = "busy" if busy else "quiet"
             with competitor(busy):
@@ -149,7 +149,7 @@ def run(quick: bool = False, *, workloads: tuple[str, ...] | None = None, fit_se
                     if "fit" in workloads:
                         out = root / f"fit-{state}-{threads}.sdf"
                         say(f"fit sdf, {state}, {threads} threads: {fit_seconds:.0f} s")
-                        _cli([*fit_args, "-o", str(out)], value)
+                        _cli([*fit_cmd, "-o", str(out)], value)
                         measured["fit"][threads][state] = _fit_steps(out)
                     if "bake" in workloads:
                         say(f"bake {bake_size}², {state}, {threads} threads")

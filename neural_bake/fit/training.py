@@ -264,6 +264,25 @@ def train(
                       on_log=on_log, clock=clock)
 
 
+def _forward_slice(model, device):
+    """A small slice of the loop's work for the thread count of its first steps: a no-grad forward pass of
+    ``model`` on 4,096 points (None when its input width is unknown)."""
+    dim = getattr(model, "in_dim", None)
+    if dim is None:
+        first = next((m for m in model.modules() if isinstance(m, torch.nn.Linear)), None)
+        dim = None if first is None else first.in_features
+    if dim is None:
+        return None
+    p = next(iter(model.parameters()))
+    x = torch.rand(4096, int(dim), generator=torch.Generator().manual_seed(0)).to(device=device, dtype=p.dtype)
+
+    def work():
+        with torch.no_grad():
+            model(x)
+
+    return work
+
+
 def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, clock) -> LoopResult:
     cfg = config or LoopConfig()
     _validate(cfg)
@@ -332,7 +351,8 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
     recent: collections.deque = collections.deque(maxlen=int(cfg.collapse_window))  # the collapse test's losses
     best_median = math.inf
     width = model_width(model)
-    tuner = ThreadTuner(device=device, clock=clock, on_change=lambda n: reroute(width, device))
+    tuner = ThreadTuner(device=device, clock=clock, on_change=lambda n: reroute(width, device),
+                        initial=_forward_slice(model, device))
     t_start = clock() - spent
     try:
         while step < cfg.steps:

@@ -146,8 +146,10 @@ class ThreadTuner:
     """Chooses the thread count of a loop from the loop's own steps, and probes again when the step time drifts.
 
     Call :meth:`before_step` before each step (it sets the thread count the step runs with) and
-    :meth:`after_step` with the step's seconds. The first ``warmup`` steps run on every candidate thread,
-    untimed (a loop's first steps pay one-time costs); then a probe runs ``trial_steps`` steps per candidate count, the
+    :meth:`after_step` with the step's seconds. The first ``warmup`` steps run untimed (a loop's first steps
+    pay one-time costs) on every candidate thread, or on the count :func:`choose_threads` finds fastest for
+    ``initial`` (a small slice of the loop's work: a busy neighbour then does not slow those costs too);
+    then a probe runs ``trial_steps`` steps per candidate count, the
     count in force first (the first after a switch is not counted: new threads warm up; a count whose first
     step is already :data:`~neural_bake.constants.THREAD_ABORT_FACTOR` × slower than the best so far is not
     tried further) and keeps the fastest (:func:`_best`). Then
@@ -163,7 +165,7 @@ class ThreadTuner:
     def __init__(self, *, device: torch.device | str = "cpu", candidates: tuple[int, ...] | None = None,
                  trial_steps: int = THREAD_TRIAL_STEPS, window: int = THREAD_WINDOW, drift: float = THREAD_DRIFT,
                  interval: float = THREAD_PROBE_INTERVAL_S, reprobe: float = THREAD_REPROBE_S,
-                 warmup: int = THREAD_WARMUP_STEPS, clock: Callable[[], float] = time.perf_counter,
+                 warmup: int = THREAD_WARMUP_STEPS, initial: Callable[[], object] | None = None, clock: Callable[[], float] = time.perf_counter,
                  env: str | None = None, on_change: Callable[[int], None] | None = None):
         if isinstance(trial_steps, bool) or int(trial_steps) != trial_steps or trial_steps < 1:
             raise NeuralBakeError(f"trial_steps must be a positive integer, got {trial_steps!r}",
@@ -189,11 +191,17 @@ class ThreadTuner:
         self._reprobe_after = self.reprobe
         self._probe: dict | None = None
         self._warm = 0
+        self.initial: ThreadChoice | None = None
         if self.active and len(self.candidates) > 1:
-            # the first steps of a loop pay one-time costs (pools, compiles, tunings): they run on every core
-            # and are not timed; the first probe follows them
+            # the first steps of a loop pay one-time costs (pools, compiles, tunings): they are not timed, and
+            # run on every candidate thread, or on the count a quick probe of ``initial`` (a slice of the
+            # loop's work, timed in real seconds) finds fastest; the first probe of the steps follows them
             self._warm = int(warmup)
-            self._set(max(self.candidates))
+            if initial is not None:
+                self.initial = choose_threads(initial, candidates=self.candidates, env="auto")
+                self._set(self.initial.threads)
+            else:
+                self._set(max(self.candidates))
             if self._warm == 0:
                 self._start_probe("start")
         elif self.active:
@@ -276,4 +284,4 @@ class ThreadTuner:
         """JSON-ready: the count in force, every count that ran, and each decision."""
         return {"threads": self.threads, "threads_used": sorted(self.threads_used),
                 "how": "fixed" if self.fixed is not None else ("measured" if self.active else "device"),
-                "decisions": self.history}
+                "initial": None if self.initial is None else self.initial.as_dict(), "decisions": self.history}
