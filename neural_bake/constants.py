@@ -338,6 +338,9 @@ MIN_SECONDS = 1e-9
 CERTIFY_MIN_TARGET = 1e-9
 
 # --- CPU threads (neural_bake.nets.threads) -------------------------------------------------------------------
+#: A thread probe keeps a larger count unless a smaller one is faster by more than this factor.
+THREAD_MARGIN = 1.10
+
 #: Steps a loop runs on all its threads before its first thread probe (its one-time costs: pools, compiles).
 THREAD_WARMUP_STEPS = 5
 

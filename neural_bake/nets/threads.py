@@ -27,8 +27,8 @@ from typing import Callable
 
 import torch
 
-from ..constants import (THREAD_ABORT_FACTOR, THREAD_DRIFT, THREAD_PROBE_INTERVAL_S, THREAD_PROBE_SHARE, THREAD_REPROBE_S,
-                         THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
+from ..constants import (THREAD_ABORT_FACTOR, THREAD_DRIFT, THREAD_MARGIN, THREAD_PROBE_INTERVAL_S,
+                         THREAD_PROBE_SHARE, THREAD_REPROBE_S, THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
 from ..errors import NeuralBakeError
 
 __all__ = ["ENV_THREADS", "ENV_MAX_THREADS", "ThreadChoice", "ThreadTuner", "choose_threads", "fixed_threads", "usable_cores",
@@ -98,9 +98,11 @@ class ThreadChoice:
 
 
 def _best(seconds: dict[int, float]) -> int:
-    """The fastest count; a count within 3 % of a larger one loses to it (fewer waits on a quiet machine)."""
+    """The fastest count, unless a larger count is within :data:`~neural_bake.constants.THREAD_MARGIN` of it
+    (then the largest such: a short probe's noise must not take threads from a quiet machine; a busy
+    neighbour makes the extra threads several times slower, far beyond the margin)."""
     fastest = min(seconds.values())
-    return max(n for n, s in seconds.items() if s <= fastest * 1.03)
+    return max(n for n, s in seconds.items() if s <= fastest * THREAD_MARGIN)
 
 
 def choose_threads(work: Callable[[], object], *, device: torch.device | str = "cpu", repeats: int = 2,

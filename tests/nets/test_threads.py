@@ -35,9 +35,10 @@ def keep_threads():
     torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize("costs, expected", [(QUIET, 2), (BUSY, 1), ({1: 1.0, 2: 1.02}, 2)])
+@pytest.mark.parametrize("costs, expected", [(QUIET, 2), (BUSY, 1), ({1: 1.0, 2: 1.08}, 2), ({1: 1.0, 2: 1.12}, 1)])
 def test_choose_threads_keeps_the_fastest(costs, expected):
-    """The fastest count wins; a larger count within 3 % of the fastest is kept (fewer waits when quiet)."""
+    """The fastest count wins; a larger count within 10 % of the fastest is kept (a short probe's noise must
+    not take threads from a quiet machine)."""
     m = Machine()
     m.costs = costs
     choice = choose_threads(m.work, candidates=(2, 1), clock=m.clock, env="auto")
