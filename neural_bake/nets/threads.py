@@ -150,25 +150,26 @@ class ThreadTuner:
     Call :meth:`before_step` before each step (it sets the thread count the step runs with) and
     :meth:`after_step` with the step's seconds. The first ``warmup`` steps run untimed (a loop's first steps
     pay one-time costs) on every candidate thread, or on the count :func:`choose_threads` finds fastest for
-    ``initial`` (a small slice of the loop's work: a busy neighbour then does not slow those costs too);
-    then a probe runs ``trial_steps`` steps per candidate count, the
-    count in force first (the first after a switch is not counted: new threads warm up; a count whose first
-    step is already :data:`~neural_bake.constants.THREAD_ABORT_FACTOR` × slower than the best so far is not
-    tried further) and keeps the fastest (:func:`_best`). Then
-    the median of the last ``window`` step times is watched: beyond ``drift`` × (or below 1 / ``drift`` ×)
-    the median the choice was made with, and at least ``interval`` seconds (by ``clock``) after the last
-    probe, a new probe starts; so does one every ``reprobe`` seconds while fewer threads than the largest
-    candidate run (their step time does not show that a neighbour stopped), or less often when the last
-    probe cost more than :data:`~neural_bake.constants.THREAD_PROBE_SHARE` of that time. ``history`` lists every decision (step, threads, seconds per step of each
-    count); ``threads_used`` the counts that ran. With a fixed count (``NEURAL_BAKE_THREADS``) or
-    ``device`` not the CPU it never probes.
+    ``initial`` (a small slice of the loop's work: a busy neighbour then does not slow those costs too).
+    Then a probe runs ``trial_steps`` steps per candidate count, the count in force first (the first step
+    after a switch is not counted: new threads warm up; a count whose first step is already
+    :data:`~neural_bake.constants.THREAD_ABORT_FACTOR` × slower than the best so far is not tried further),
+    and keeps the fastest (:func:`_best`). Then the median of the last ``window`` step times is watched:
+    beyond ``drift`` × (or below 1 / ``drift`` ×) the median the choice was made with, and at least
+    ``interval`` seconds (by ``clock``) after the last probe, a new probe starts; so does one every
+    ``reprobe`` seconds while fewer threads than the largest candidate run (their step time does not show
+    that a neighbour stopped), or less often when the last probe cost more than
+    :data:`~neural_bake.constants.THREAD_PROBE_SHARE` of that time. ``history`` lists every decision (step,
+    threads, seconds per step of each count); ``threads_used`` the counts that ran. With a fixed count
+    (``NEURAL_BAKE_THREADS``) or ``device`` not the CPU it never probes.
     """
 
     def __init__(self, *, device: torch.device | str = "cpu", candidates: tuple[int, ...] | None = None,
                  trial_steps: int = THREAD_TRIAL_STEPS, window: int = THREAD_WINDOW, drift: float = THREAD_DRIFT,
                  interval: float = THREAD_PROBE_INTERVAL_S, reprobe: float = THREAD_REPROBE_S,
-                 warmup: int = THREAD_WARMUP_STEPS, initial: Callable[[], object] | None = None, clock: Callable[[], float] = time.perf_counter,
-                 env: str | None = None, on_change: Callable[[int], None] | None = None):
+                 warmup: int = THREAD_WARMUP_STEPS, initial: Callable[[], object] | None = None,
+                 clock: Callable[[], float] = time.perf_counter, env: str | None = None,
+                 on_change: Callable[[int], None] | None = None):
         if isinstance(trial_steps, bool) or int(trial_steps) != trial_steps or trial_steps < 1:
             raise NeuralBakeError(f"trial_steps must be a positive integer, got {trial_steps!r}",
                                   parameter="trial_steps")
