@@ -83,6 +83,10 @@ MAX_IMAGE_SIDE = 16384
 #: Most pixels (width × height) a render may ask for: its per-pixel ray and output buffers stay within memory.
 MAX_IMAGE_PIXELS = 1 << 24
 
+#: Widest view (pixels a side) and most views a bake's visual check (`view`) may ask for.
+MAX_VIEW_SIDE = 4096
+MAX_VIEWS = 720
+
 #: Most frames (frame times) a space-time render, a per-frame bake or a sequence fit may ask for.
 MAX_FRAMES = 10_000
 

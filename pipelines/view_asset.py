@@ -40,11 +40,15 @@ def view_path(path, *, headless: bool = False, out=None, views: int = 8, size: i
     Returns the report's index.html, or (headless) the GIF. A GLB outside a bake folder gets a folder of its
     own beside it, ``STEM-view/``, holding a copy of it and the report.
     """
+    from neural_bake.constants import MAX_VIEW_SIDE, MAX_VIEWS
     from neural_bake.io.outdir import OutputLock, record_in_set
+    from neural_bake.limits import check_count
     from neural_bake.view.meshes import load_view_mesh
     from neural_bake.view.report import ReportConfig, write_asset_report
     from neural_bake.view.turntable import write_turntable
 
+    views = check_count(views, "views", MAX_VIEWS)  # before anything is rendered or allocated
+    size = check_count(size, "size", MAX_VIEW_SIDE, minimum=16)
     folder, glb = _resolve(path)
     if headless:
         target = Path(out) if out else ((folder / "turntable") if folder else glb.parent / f"{glb.stem}-turntable")

@@ -444,3 +444,13 @@ def test_a_four_input_network_labelled_static_is_refused_by_every_verb(files, tm
         f"{bad}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps R^4 to R^1 (a space-time "
         f"SDF is kind 'spacetime_sdf', with its time range)")
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != "cache") == ["st4.sdf"]
+
+
+@pytest.mark.parametrize("argv, want", [(["--size", "100000"], "--size 100000: must be a whole number in 16..4096"),
+                                        (["--views", "100000"], "--views 100000: must be a whole number in 1..720"),
+                                        (["--views", "0"], "--views 0: must be a whole number in 1..720")])
+def test_view_sizes_are_capped(capsys, tmp_path, argv, want):
+    """`view`'s image size and view count are refused in one line before anything is rendered or written."""
+    assert main(["view", str(tmp_path / "bake"), "--no-open", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.endswith(want) and list(tmp_path.iterdir()) == []
