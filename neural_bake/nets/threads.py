@@ -200,11 +200,14 @@ class ThreadTuner:
             # run on every candidate thread, or on the count a quick probe of ``initial`` (a slice of the
             # loop's work, timed in real seconds) finds fastest; the first probe of the steps follows them
             self._warm = int(warmup)
+            self._set(max(self.candidates))
             if initial is not None:
-                self.initial = choose_threads(initial, candidates=self.candidates, env="auto")
-                self._set(self.initial.threads)
-            else:
-                self._set(max(self.candidates))
+                try:
+                    self.initial = choose_threads(initial, candidates=self.candidates, env="auto")
+                except (RuntimeError, TypeError, ValueError):  # a slice the model cannot run: no quick probe
+                    torch.set_num_threads(max(self.candidates))
+                else:
+                    self._set(self.initial.threads)
             if self._warm == 0:
                 self._start_probe("start")
         elif self.active:

@@ -179,3 +179,19 @@ def test_training_loop_runs_on_the_measured_count(monkeypatch):
     assert res.steps == 30
     assert res.threads["threads"] == 1 and res.threads["threads_used"] == [1, 2]
     assert res.threads["decisions"][0]["seconds_per_step"]["1"] == pytest.approx(BUSY[1])
+
+
+def test_initial_probe_sets_the_first_steps_count_and_a_failing_one_is_skipped():
+    """The quick probe of a slice of the loop's work picks the count of the untimed first steps; a slice that
+    cannot run leaves them on every candidate thread."""
+    m = Machine()
+    m.costs = BUSY
+    tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", warmup=3, initial=m.work)
+    assert tuner.initial is not None and tuner.threads in (1, 2)  # timed in real seconds: either may win
+
+    def broken():
+        raise RuntimeError("mat1 and mat2 shapes cannot be multiplied")
+
+    tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", warmup=3, initial=broken)
+    assert tuner.initial is None and tuner.threads == 2 == torch.get_num_threads()
+    assert tuner.summary()["initial"] is None
