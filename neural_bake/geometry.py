@@ -10,9 +10,10 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .constants import RAYCAST_SCENE_CACHE, UNDERFLOW_EPS
+from .constants import FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
-__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "raycasting_scene"]
+__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "mismatch_problem",
+           "raycasting_scene"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -26,6 +27,19 @@ def frame_mismatch(a, b) -> float:
     offset measured in ``b``'s unit frame and the relative scale difference |s_a / s_b − 1|."""
     offset = float(np.linalg.norm(np.subtract(a.center, b.center))) * float(b.scale)
     return max(offset, abs(float(a.scale) / float(b.scale) - 1.0))
+
+
+def mismatch_problem(agreement: dict, *, frames, surface) -> str | None:
+    """The first failed check of an SDF against what it is meant to describe (a mesh, a texture's surface):
+    ``agreement["frame_mismatch"]`` above ``FRAME_MISMATCH_TOL`` gives ``frames()``, else
+    ``agreement["median_abs_f"]`` (None: not measured) above ``SDF_MISMATCH_MEDIAN`` gives ``surface()`` (each
+    a callable returning the problem in words); None when both pass."""
+    if agreement["frame_mismatch"] > FRAME_MISMATCH_TOL:
+        return frames()
+    median = agreement.get("median_abs_f")
+    if median is not None and median > SDF_MISMATCH_MEDIAN:
+        return surface()
+    return None
 
 
 def area_weighted_normals(

@@ -146,9 +146,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         maps_spec = "normal,albedo" if tex_path else "normal"
     maps = _parse_maps(maps_spec)
     parse_coarse(coarse)
-    if size < 1 or size > 16384:
-        raise NeuralBakeError(f"--size {size}: must be between 1 and 16384")
-    check_map_samples(size, supersample)
+    check_map_samples(size, supersample)  # the map's side and samples, named by parameter
     if "albedo" in maps and tex_path is None:
         raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
     if delta is not None and not delta > 0:

@@ -18,7 +18,7 @@ import torch
 from ..constants import FRAME_MISMATCH_TOL, SDF_CHECK_SAMPLES, SDF_MISMATCH_MEDIAN
 from ..errors import NeuralBakeError
 from ..fields import SdfField
-from ..geometry import frame_mismatch
+from ..geometry import frame_mismatch, mismatch_problem
 from ..types import Mesh
 
 __all__ = ["sdf_agreement", "check_sdf_describes_mesh"]
@@ -51,15 +51,14 @@ def check_sdf_describes_mesh(mesh: Mesh, sdf: SdfField, *, force: bool = False, 
     frames differ beyond ``FRAME_MISMATCH_TOL`` or the median |f| exceeds ``SDF_MISMATCH_MEDIAN``, unless
     ``force``. ``option`` is how the message names the override. Returns the figures with ``"passed"``."""
     a = sdf_agreement(mesh, sdf)
-    problem = None
-    if a["frame_mismatch"] > FRAME_MISMATCH_TOL:
-        f = sdf.frame
-        problem = (f"the frames differ by {a['frame_mismatch']:.3g} (tolerance {FRAME_MISMATCH_TOL:g}): SDF centre "
-                   f"{[round(c, 6) for c in f.center]} scale {f.scale:.6g}, mesh centre "
-                   f"{[round(c, 6) for c in mesh.frame.center]} scale {mesh.frame.scale:.6g}")
-    elif a["median_abs_f"] > SDF_MISMATCH_MEDIAN:
-        problem = (f"median |f| on the mesh's surface is {a['median_abs_f']:.4g} (unit frame, {a['samples']} samples; "
-                   f"threshold {SDF_MISMATCH_MEDIAN:g})")
+    f = sdf.frame
+    problem = mismatch_problem(
+        a,
+        frames=lambda: (f"the frames differ by {a['frame_mismatch']:.3g} (tolerance {FRAME_MISMATCH_TOL:g}): SDF "
+                        f"centre {[round(c, 6) for c in f.center]} scale {f.scale:.6g}, mesh centre "
+                        f"{[round(c, 6) for c in mesh.frame.center]} scale {mesh.frame.scale:.6g}"),
+        surface=lambda: (f"median |f| on the mesh's surface is {a['median_abs_f']:.4g} (unit frame, {a['samples']} "
+                         f"samples; threshold {SDF_MISMATCH_MEDIAN:g})"))
     a["passed"] = problem is None
     if problem and not force:
         raise NeuralBakeError(f"{sdf.name}: does not describe {mesh.name}: {problem}; fit the SDF on this mesh, "

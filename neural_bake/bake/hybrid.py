@@ -145,8 +145,8 @@ class HybridFallback:
         image = maximum_filter(image, size=2 * reach_texels + 1, mode="constant", cval=False)
         return image[pix[candidates, 0] - r0, pix[candidates, 1]]
 
-    def _check_pick(self, n: int, candidates: np.ndarray) -> np.ndarray:
-        """A seeded uniform choice among ``candidates`` (indices into a band of ``n`` samples)."""
+    def _check_pick(self, candidates: np.ndarray) -> np.ndarray:
+        """A seeded uniform choice among ``candidates`` (indices into the band)."""
         from .baker import sample_keys
 
         if not len(candidates):
@@ -190,7 +190,7 @@ class HybridFallback:
             ring = rest[near]
             if len(ring):
                 take(ring, *self._decide(coarse, texels, ring, normals, valid, base))
-            check = self._check_pick(m, rest[~near])
+            check = self._check_pick(rest[~near])
             if len(check):
                 why, b = self._decide(coarse, texels, check, normals, valid, base)
                 take(check, why, b)

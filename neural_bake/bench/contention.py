@@ -3,7 +3,7 @@
 Three commands, each run as the user runs it (its own `neural-bake` process, wall time end to end): the
 ``quick`` SDF fit of the bumpy sphere sample for a fixed time budget (measured: the steps it made), a bake of
 that SDF (decimate:2000, normal map only, no baseline) and a render of it. Each runs quiet and beside a
-competitor: a CPU-bound process started in a session of its own (``setsid``, as a program started from
+competitor: a CPU-bound process started with ``setsid`` (detached, as a program started from
 another terminal is; with autogroup scheduling it takes its share of the CPU whatever its niceness). Each
 runs with torch's default threads (one per core, fixed) and with the thread count chosen by measurement
 (:mod:`neural_bake.nets.threads`), so every ratio is measured in the same run.
@@ -49,7 +49,7 @@ _SPIN = "import os\nwhile True:\n    pass\n"
 
 @contextlib.contextmanager
 def competitor(busy: bool = True) -> Iterator[int | None]:
-    """A CPU-bound Python process in a new session (``setsid``) for the body; yields its pid (None when not
+    """A CPU-bound Python process started with ``setsid`` for the body; yields its pid (None when not
     ``busy``). It is killed on exit, whatever happens in the body."""
     if not busy:
         yield None
@@ -164,7 +164,7 @@ def run(quick: bool = False, *, workloads: tuple[str, ...] | None = None, fit_se
                              str(render_size)], value)
     rows = rows_from(measured)
     notes = [f"mesh: {mesh.name}" + (f"; fit options {' '.join(fit_args)}" if fit_args else ""),
-             f"competitor: one CPU-bound process in its own session (setsid) on {cores} cores; default threads: "
+             f"competitor: one CPU-bound process started with setsid on {cores} cores; default threads: "
              f"{cores} fixed (torch's one per core), measured: NEURAL_BAKE_THREADS=auto",
              f"fit: the quick preset on the bumpy sphere sample for {fit_seconds:.0f} s (steps made); bake: "
              f"decimate:2000, normal map {bake_size}², no baseline; render: {render_size}²; wall time of each "

@@ -155,18 +155,18 @@ def check_texture_matches_sdf(texture: TextureField, sdf, *, force: bool = False
     ``"passed"``."""
     from ..constants import FRAME_MISMATCH_TOL, SDF_MISMATCH_MEDIAN
     from ..errors import NeuralBakeError
+    from ..geometry import mismatch_problem
 
     a = texture_agreement(texture, sdf)
     name = sdf_name or getattr(sdf, "name", "the SDF")
-    problem = None
-    if a["frame_mismatch"] > FRAME_MISMATCH_TOL:
-        tf, sf = texture.frame, sdf.frame
-        problem = (f"fitted in another frame than {name}: the frames differ by {a['frame_mismatch']:.3g} "
-                   f"(tolerance {FRAME_MISMATCH_TOL:g}): texture centre {[round(c, 6) for c in tf.center]} scale "
-                   f"{tf.scale:.6g}, SDF centre {[round(c, 6) for c in sf.center]} scale {sf.scale:.6g}")
-    elif a["median_abs_f"] is not None and a["median_abs_f"] > SDF_MISMATCH_MEDIAN:
-        problem = (f"fitted on another surface than {name}: median |f| at the texture's {a['samples']} surface "
-                   f"points is {a['median_abs_f']:.4g} (unit frame; threshold {SDF_MISMATCH_MEDIAN:g})")
+    tf, sf = texture.frame, sdf.frame
+    problem = mismatch_problem(
+        a,
+        frames=lambda: (f"fitted in another frame than {name}: the frames differ by {a['frame_mismatch']:.3g} "
+                        f"(tolerance {FRAME_MISMATCH_TOL:g}): texture centre {[round(c, 6) for c in tf.center]} "
+                        f"scale {tf.scale:.6g}, SDF centre {[round(c, 6) for c in sf.center]} scale {sf.scale:.6g}"),
+        surface=lambda: (f"fitted on another surface than {name}: median |f| at the texture's {a['samples']} "
+                         f"surface points is {a['median_abs_f']:.4g} (unit frame; threshold {SDF_MISMATCH_MEDIAN:g})"))
     a["passed"] = problem is None
     if problem and not force:
         raise NeuralBakeError(f"{texture.name}: {problem}; give the texture model fitted with this SDF, or "

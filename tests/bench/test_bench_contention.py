@@ -1,4 +1,4 @@
-"""bench contention: the competitor is a real process in its own session, the table's ratios and targets come
+"""bench contention: the competitor is a real process started with setsid, the table's ratios and targets come
 from the measured figures, and a shrunken run measures the real fit command quiet and busy."""
 
 import os
@@ -9,9 +9,9 @@ from neural_bake.bench.contention import competitor, rows_from, run
 from neural_bake.errors import NeuralBakeError
 
 
-def test_competitor_runs_in_its_own_session_and_is_killed():
+def test_competitor_runs_detached_with_setsid_and_is_killed():
     with competitor() as pid:
-        assert pid is not None and os.getsid(pid) == pid != os.getsid(0)  # setsid: a session (and group) of its own
+        assert pid is not None and os.getsid(pid) == pid != os.getsid(0)  # setsid: its own process group, apart from ours
         with open(f"/proc/{pid}/stat") as fh:
             assert fh.read().split()[2] in "RS"  # running (or just preempted)
     with pytest.raises(ProcessLookupError):
