@@ -211,10 +211,14 @@ def _sample_hits(xs, ys, hs, ws, rows):
         e = np.zeros(0, np.int64)
         return e, e, e, np.zeros((0, 3)), 0
     # scanlines: for every (face, sample row) the exact x-span of the triangle on that row, then only the
-    # sample centres inside the span are enumerated (no rejected bounding-box candidates)
+    # sample centres inside the span are enumerated (no rejected bounding-box candidates). Each sample keeps
+    # the lowest copy index whose triangle holds it (``owner``); samples strictly inside several triangles
+    # are counted as overlaps.
     nr = r1[live] - r0[live] + 1
-    out_k, out_r, out_c, out_b = [], [], [], []
-    strict_ids = []
+    n_samples = (b - a) * ws
+    none = np.iinfo(np.int64).max
+    owner = np.full(n_samples, none, dtype=np.int64)
+    strict_count = np.zeros(n_samples, dtype=np.int64)
     for sl in _chunks_by_budget(nr, _MAX_CANDIDATES // 4):
         ids = live[sl]
         slot = np.repeat(np.arange(len(ids)), nr[sl])
@@ -236,27 +240,20 @@ def _sample_hits(xs, ys, hs, ws, rows):
             b0, b1, b2 = bary.T  # column tests: .all(axis=1) on (N, 3) is several times slower
             inside = (b0 >= -TEXEL_INSIDE_EPS) & (b1 >= -TEXEL_INSIDE_EPS) & (b2 >= -TEXEL_INSIDE_EPS)
             strict = (b0 > TEXEL_STRICT_EPS) & (b1 > TEXEL_STRICT_EPS) & (b2 > TEXEL_STRICT_EPS)
-            strict_ids.append((rr[strict] - a) * ws + cc[strict])
-            out_k.append(k[inside])
-            out_r.append(rr[inside])
-            out_c.append(cc[inside])
-            out_b.append(bary[inside])
-    if not out_k:
+            sid = (rr - a) * ws + cc
+            np.minimum.at(owner, sid[inside], k[inside])
+            strict_count += np.bincount(sid[strict], minlength=n_samples)
+    hit = np.flatnonzero(owner != none)  # ascending sample index: row-major order
+    if hit.size == 0:
         e = np.zeros(0, np.int64)
         return e, e, e, np.zeros((0, 3)), 0
-    k, rr, cc, bary = (np.concatenate(v) for v in (out_k, out_r, out_c, out_b))
-    sid = (rr - a) * ws + cc
-    order = np.argsort(sid, kind="stable")  # stable: within a sample, the lowest copy (face) index first
-    sid_sorted = sid[order]
-    first = np.ones(len(order), bool)
-    first[1:] = sid_sorted[1:] != sid_sorted[:-1]
-    keep = order[first]
-    s_ids = np.concatenate(strict_ids)
-    _, cnt = np.unique(s_ids, return_counts=True)
-    overlaps = int((cnt > 1).sum())
-    bary = np.clip(bary[keep], 0.0, None)
+    k = owner[hit]
+    rr, cc = hit // ws + a, hit % ws
+    bary, _ = _bary(xs[k], ys[k], cc.astype(np.float64), rr.astype(np.float64))
+    overlaps = int(np.count_nonzero(strict_count > 1))
+    bary = np.clip(bary, 0.0, None)
     bary /= bary.sum(axis=1, keepdims=True)
-    return k[keep], rr[keep], cc[keep], bary, overlaps
+    return k, rr, cc, bary, overlaps
 
 
 def _closest_on_triangles(x, y, px, py):
