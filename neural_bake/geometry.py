@@ -12,14 +12,27 @@ import numpy as np
 
 from .constants import FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
-__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "mismatch_problem",
-           "raycasting_scene"]
+__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "interpolate_corners",
+           "mismatch_problem", "raycasting_scene"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles in degrees (M,) between unit vectors a and b (M, 3), float64; a zero vector gives 90°."""
     d = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
     return np.degrees(np.arccos(np.clip(d, -1.0, 1.0)))
+
+
+def interpolate_corners(values: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Per-corner ``values`` (F, 3, C) interpolated at points on faces ``face`` (M,) with barycentric weights
+    ``bary`` (M, 3) (corner k of the face weighted by ``bary[:, k]``): (M, C) float64. One gather per corner
+    (``np.take``), not an (M, 3, C) gather."""
+    values = np.asarray(values, dtype=np.float64)
+    face = np.asarray(face, dtype=np.int64)
+    bary = np.asarray(bary, dtype=np.float64)
+    out = np.take(values[:, 0, :], face, axis=0) * bary[:, 0:1]
+    for k in (1, 2):
+        out += np.take(values[:, k, :], face, axis=0) * bary[:, k: k + 1]
+    return out
 
 
 def frame_mismatch(a, b) -> float:

@@ -91,3 +91,19 @@ def test_scene_cache_is_bounded():
         raycasting_scene(s.vertices + k + 1.0, s.faces)
     assert len(geometry._SCENES) == RAYCAST_SCENE_CACHE
     assert raycasting_scene(s.vertices, s.faces) is not first  # evicted, built again
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_interpolate_corners_matches_a_per_point_sum(dtype):
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(50, 3, 4)).astype(dtype)
+    face = rng.integers(0, 50, 1000)
+    bary = rng.dirichlet(np.ones(3), 1000).astype(dtype)
+    slow = np.array([sum(float(bary[m, k]) * values[face[m], k].astype(np.float64) for k in range(3))
+                     for m in range(len(face))])
+    fast = geometry.interpolate_corners(values, face, bary)
+    assert fast.dtype == np.float64 and fast.shape == (1000, 4)
+    np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-12)
+    # a corner's own weight gives its value back exactly
+    corner = geometry.interpolate_corners(values, face, np.tile([0.0, 1.0, 0.0], (1000, 1)))
+    np.testing.assert_array_equal(corner, values[face, 1].astype(np.float64))

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
+from ..geometry import interpolate_corners
 from ..geometry import raycasting_scene as _shared_scene
 from ..types import Mesh
 
@@ -32,7 +33,7 @@ def raycasting_scene(fine: Mesh):
 def _interp(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Interpolate per-corner ``values`` (F, 3, C) at open3d barycentrics: (1−u−v)·v0 + u·v1 + v·v2."""
     w = np.stack([1.0 - uvs[:, 0] - uvs[:, 1], uvs[:, 0], uvs[:, 1]], axis=1)
-    return np.einsum("mk,mkc->mc", w, values[prim])
+    return interpolate_corners(values, prim, w)
 
 
 def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..constants import DIRECTION_EPS, UV_MATCH_TOL
 from ..errors import NeuralBakeError
-from ..geometry import angular_error
+from ..geometry import angular_error, interpolate_corners
 from ..types import Mesh
 from .maps import colors_to_normals, decode_tangent_space
 
@@ -198,7 +198,7 @@ class _Truth:
             from ..io.colour import sample_texture
 
             fine = self.fine
-            uv = np.einsum("mk,mkc->mc", closest["bary"], np.asarray(fine.uv)[closest["face"]])
+            uv = interpolate_corners(fine.uv, closest["face"], closest["bary"])
             cols = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
         return normals, cols
 
