@@ -280,7 +280,16 @@ def _distill(student: Siren, teacher, *, steps, minutes, lr, seed, band, batch, 
     budget = None if cost is None else _level_budget(res, cost, minutes, steps, desc)
     return {"steps": res.steps, "best_step": res.best_step, "best_eval_sup": res.best_value,
             "seconds": round(res.seconds, 3), "stopped_reason": res.stopped_reason, "restarts": res.restarts,
-            "final_mse": res.history[-1]["mse"] if res.history else None, "budget": budget}, res
+            "final_mse": res.history[-1]["mse"] if res.history else None, "budget": budget,
+            "history": _thin(res.history)}, res
+
+
+def _thin(history: list[dict], keep: int = 200) -> list[dict]:
+    """At most ``keep`` rows of a loss history, evenly spaced, the last kept (the curve a report draws)."""
+    if len(history) <= keep:
+        return list(history)
+    idx = sorted({round(i * (len(history) - 1) / (keep - 1)) for i in range(keep)})
+    return [history[i] for i in idx]
 
 
 def _distill_cost(student: Siren, x: torch.Tensor, y: torch.Tensor, batch: int, seed: int) -> float:
@@ -370,15 +379,20 @@ def fit_nested(
         progress: show progress bars.
 
     Returns:
-        A :class:`NestedSequence` ``[h_1, …, h_k, f]``.
+        A :class:`NestedSequence` ``[h_1, …, h_k, f]``; each level's info holds its loss history
+        (``history``, at most 200 rows), and the metadata the fine fit's (``fine_training``) when
+        ``fine_model`` is an SdfFit.
 
     Raises:
         FitError: bad levels or settings, a network without a zero level set in [-1, 1]³, divergence.
     """
     from .sdf import SdfFit
 
+    fine_training = None
     if isinstance(fine_model, SdfFit):
         frame = frame or fine_model.frame
+        fine_training = {"steps": int(fine_model.steps), "seconds": round(float(fine_model.seconds), 3),
+                         "history": _thin(fine_model.history)}
         fine_model = fine_model.model
     if not isinstance(fine_model, Siren):
         raise FitError(f"fit_nested: fine_model must be a Siren or an SdfFit, got {type(fine_model).__name__}")
@@ -497,5 +511,7 @@ def fit_nested(
                           NeuralBakeWarning, stacklevel=2)
     metadata = {"package_version": __version__, "seed": int(seed), "steps": int(steps), "minutes": minutes,
                 "lr": lr, "batch": int(batch), "pool": int(pool), "n_estimate": int(n_estimate)}
+    if fine_training is not None:  # the fine level's own fit, so a report of the sequence draws every curve
+        metadata["fine_training"] = fine_training
     return NestedSequence(levels=seq_levels, frame=frame, levels_info=infos + [fine_info], band=float(band),
                           eps=float(eps), stability=stability, metadata=metadata)

@@ -30,9 +30,10 @@ from ..render.shading import Material
 from .compare import difference_image, image_metrics, silhouette_iou
 from .meshes import ViewError, ViewMesh, view_mesh_from_glb, view_mesh_from_mesh
 from .raycast import DEFAULT_BACKGROUND, MeshRender, render_mesh
+from .stages import StageNode, stage_bar_svg, stage_tree
 from .turntable import to_srgb8, turntable_cameras, view_camera, write_gif
 
-__all__ = ["ReportConfig", "write_asset_report", "REPORT_DIR", "source_of"]
+__all__ = ["ReportConfig", "write_asset_report", "REPORT_DIR", "source_of", "fit_histories"]
 
 #: The report's folder inside a bake's output folder.
 REPORT_DIR = "report"
@@ -67,24 +68,42 @@ def source_of(folder: Path, report: dict) -> tuple[Path | None, str]:
     return None, f"source mesh {name} not found"
 
 
-def _fit_histories(folder: Path, report: dict) -> dict[str, list[dict]]:
-    from ..nets.model_io import read_model_metadata
+def _model_path(folder: Path, name) -> Path | None:
+    for cand in (Path(name), folder / Path(name).name):
+        if cand.is_file():
+            return cand
+    return None
 
-    out = {}
+
+def fit_histories(folder: Path, report: dict) -> dict[str, list[dict]]:
+    """Every fit's loss history the model files named by a bake's report record, ``{label: rows}`` (rows:
+    step, seconds, losses): the SDF fit, each nested level's distillation and the fine fit a nested file
+    keeps, the texture fit. Files that are missing or unreadable give no curve."""
+    from ..nets.model_io import parse_header, read_model_metadata, read_raw_metadata
+
+    out: dict[str, list[dict]] = {}
     for key, label in (("sdf", "SDF fit"), ("texture_model", "texture fit")):
         name = report.get(key)
-        if not name:
+        path = _model_path(folder, name) if name else None
+        if path is None:
             continue
-        for cand in (Path(name), folder / Path(name).name):
-            if cand.is_file():
-                try:
-                    meta = read_model_metadata(cand).get("metadata", {})
-                    hist = list((meta.get("training") or {}).get("history") or [])
-                except Exception:  # noqa: BLE001 - a report without a plot beats no report
-                    hist = []
-                if hist:
-                    out[label] = hist
-                break
+        try:
+            raw = read_raw_metadata(path)
+            if "neural_bake" in raw and raw.get("format") != "neural_bake.model":  # a nested sequence
+                header = parse_header(raw["neural_bake"], path)
+                fine = (header.get("metadata") or {}).get("fine_training") or {}
+                if fine.get("history"):
+                    out["SDF fit (fine level f)"] = list(fine["history"])
+                for i, info in enumerate(header.get("levels_info") or []):
+                    if isinstance(info, dict) and info.get("history"):
+                        out[f"nested level {i} ({info.get('width')}x{info.get('depth')})"] = list(info["history"])
+                continue
+            meta = read_model_metadata(path).get("metadata", {})
+            hist = list((meta.get("training") or {}).get("history") or [])
+        except Exception:  # noqa: BLE001 - a report without a plot beats no report
+            hist = []
+        if hist:
+            out[label] = hist
     return out
 
 
@@ -96,8 +115,12 @@ def _plot_fits(histories: dict[str, list[dict]], path: Path) -> bool:
 
     if not histories:
         return False
-    fig, axes = plt.subplots(1, len(histories), figsize=(5.2 * len(histories), 3.4), squeeze=False)
-    for ax, (label, hist) in zip(axes[0], histories.items()):
+    cols = min(3, len(histories))
+    nrows = -(-len(histories) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 3.4 * nrows), squeeze=False)
+    for ax in axes.flat[len(histories):]:
+        ax.set_visible(False)
+    for ax, (label, hist) in zip(axes.flat, histories.items()):
         keys = [k for k in hist[0] if k not in ("step", "seconds", "lr") and isinstance(hist[0][k], (int, float))]
         t = [h.get("seconds", 0.0) for h in hist]
         for k in keys:
@@ -107,29 +130,9 @@ def _plot_fits(histories: dict[str, list[dict]], path: Path) -> bool:
         ax.set_yscale("log")
         ax.set_xlabel("seconds")
         ax.set_ylabel("loss (log)")
-        ax.set_title(f"{label}: accuracy against time")
+        ax.set_title(f"{label}: loss against time", fontsize=10)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return True
-
-
-def _plot_timings(seconds: dict, path: Path) -> bool:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    items = [(k, float(v)) for k, v in seconds.items() if isinstance(v, (int, float)) and k != "total"]
-    if not items:
-        return False
-    fig, ax = plt.subplots(figsize=(6, 0.35 * len(items) + 1))
-    ax.barh([k for k, _ in items], [v for _, v in items], color="#4a7fb5")
-    ax.set_xlabel("seconds")
-    ax.invert_yaxis()
-    ax.set_title("bake time by stage")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -268,15 +271,17 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
             if (folder / name).is_file():
                 shutil.copy2(folder / name, stage / name)
                 uv_maps.append((name, caption))
+        turns = (0, len(cams) // 2) if len(cams) > 1 else (0,)
         heat_views = []
         if (folder / "error_normal.png").is_file() and baked.uv is not None:
             heat = read_image(folder / "error_normal.png", colour="data")
-            for k in (0, len(cams) // 2) if len(cams) > 1 else (0,):
+            for k in turns:
                 write_image(stage / f"heat_model_{k}.png", _heat_render(baked, heat, cams[k]), colour="data")
-                heat_views.append(f"heat_model_{k}.png")
+                heat_views.append((f"heat_model_{k}.png", f"normal error on the coarse mesh, {_turn(k, len(cams))}"))
+        colour, colour_note = _colour_section(baked, source_mesh, stage, cams, turns)
 
-        has_fit_plot = _plot_fits(_fit_histories(folder, report), stage / "fits.png")
-        has_time_plot = _plot_timings(report.get("seconds", {}), stage / "timings.png")
+        has_fit_plot = _plot_fits(fit_histories(folder, report), stage / "fits.png")
+        stages = stage_tree(report.get("seconds") or {}, report.get("seconds_total"))
 
         # the interactive viewer
         mv_path, mv_note = (Path(cfg.model_viewer), "") if cfg.model_viewer else find_model_viewer()
@@ -298,9 +303,10 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
                    "neural": neural is not None, "neural_note": neural_note,
                    "model_viewer": mv_path is not None, "model_viewer_note": mv_note,
                    "viewer_attributes": model_viewer_attributes(camera),
-                   "background": list(DEFAULT_BACKGROUND)}
+                   "background": list(DEFAULT_BACKGROUND),
+                   "colour_error": colour, "colour_note": colour_note}
         atomic_write_text(stage / "view.json", json.dumps(summary, indent=2, default=str))
-        page = _html(shown, report, summary, uv_maps, heat_views, has_fit_plot, has_time_plot, sorted(models),
+        page = _html(shown, report, summary, uv_maps, heat_views, has_fit_plot, stages, sorted(models),
                      {p.name for p in (stage / "views").iterdir()})
         atomic_write_text(stage / "index.html", page)
         final = folder / REPORT_DIR
@@ -317,6 +323,32 @@ def write_asset_report(folder, config: ReportConfig | None = None, *,
             shutil.rmtree(stage, ignore_errors=True)
     log(f"report: {final / 'index.html'}")
     return final / "index.html"
+
+
+def _turn(k: int, views: int) -> str:
+    """How a turntable view is named in captions."""
+    return "first view" if k == 0 else f"view {k + 1} of {views} (turned {360 * k // views}°)"
+
+
+def _colour_section(baked: ViewMesh, source_mesh, stage: Path, cams: list[Camera], turns) -> tuple[dict | None, str]:
+    """Write the source texture read through the bake's UV layout, the colour error map over the UVs and
+    over the model into ``stage``; return (the error's figures and file names, or None; why not)."""
+    from .colour import COLOUR_ERROR_SCALE, colour_heat, compare_colours
+
+    if baked.albedo is None:
+        return None, "the bake has no albedo map"
+    if source_mesh is None or source_mesh.texture is None or source_mesh.uv is None:
+        return None, "the source mesh has no texture (or was not found)"
+    cmp = compare_colours(baked, source_mesh)
+    write_image(stage / "colour_source.png", cmp.source, colour="srgb")
+    write_image(stage / "colour_baked.png", cmp.baked, colour="srgb")
+    heat = colour_heat(cmp.error, cmp.coverage)
+    write_image(stage / "error_colour.png", heat, colour="data")
+    models = []
+    for k in turns:
+        write_image(stage / f"heat_colour_{k}.png", _heat_render(baked, heat, cams[k]), colour="data")
+        models.append((f"heat_colour_{k}.png", f"colour error on the coarse mesh, {_turn(k, len(cams))}"))
+    return {**cmp.stats, "scale_levels": COLOUR_ERROR_SCALE, "models": models}, ""
 
 
 def _mean_metrics(rows: list[dict]) -> dict:
@@ -345,7 +377,7 @@ model-viewer{display:block;background:#e7e7e7}
 """
 
 
-def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bool, time_plot: bool,
+def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bool, stages: StageNode,
           models: list[str], views: set[str]) -> str:
     from .viewer import MODEL_VIEWER_SCRIPT
 
@@ -437,20 +469,52 @@ def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bo
     parts.append("</div>")
     if heat_views:
         parts.append("<h2>Errors over the model</h2><div class='row'>")
-        for name in heat_views:
-            parts.append(f"<figure><img src='{name}'><figcaption>normal error map on the coarse mesh</figcaption></figure>")
+        for name, caption in heat_views:
+            parts.append(f"<figure><img src='{name}'><figcaption>{_esc(caption)} (white ≥ "
+                         f"{_fmt(report.get('error_map_scale_deg', 10.0), 0)}°)</figcaption></figure>")
         parts.append("</div>")
-    # timings and fits
+    parts.append(_colour_html(s.get("colour_error"), s.get("colour_note", "")))
+    # timings: nested stages inside their parent, the top row summing to the run's wall time
     parts.append("<h2>Time by stage</h2>")
-    secs = report.get("seconds", {})
-    if time_plot:
-        parts.append("<img src='timings.png'>")
-    parts.append("<table><tr><th>stage</th><th>seconds</th></tr>")
-    for k, v in secs.items():
-        if isinstance(v, (int, float)):
-            parts.append(f"<tr><td>{_esc(k)}</td><td>{_fmt(float(v))}</td></tr>")
-    parts.append("</table>")
-    parts.append("<h2>Fits: accuracy against time</h2>")
-    parts.append("<img src='fits.png'>" if fit_plot else "<p class='note'>No fit history found (model files not beside the bake).</p>")
+    if stages.children:
+        parts.append("<p>Top row: the run, stage by stage, adding up to its wall time; each row below splits "
+                     "the stage above it (“other”: time outside the listed sub-stages).</p>")
+        parts.append(stage_bar_svg(stages))
+        parts.append("<table><tr><th>stage</th><th>seconds</th><th>share of the run</th></tr>")
+        for depth, node in _walk(stages):
+            parts.append(f"<tr><td style='padding-left:{8 + 18 * depth}px'>{_esc(node.name)}</td>"
+                         f"<td>{_fmt(node.seconds)}</td><td>{100 * node.seconds / stages.seconds:.1f} %</td></tr>")
+        parts.append(f"<tr><th>run (wall time)</th><th>{_fmt(stages.seconds)}</th><th>100 %</th></tr></table>")
+    else:
+        parts.append("<p class='note'>report.json records no stage times.</p>")
+    parts.append("<h2>Fits: loss against time</h2>")
+    parts.append("<img src='fits.png'>" if fit_plot else "<p class='note'>No fit history found (model files not "
+                 "beside the bake).</p>")
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def _walk(node: StageNode, depth: int = 0):
+    for c in node.children:
+        yield depth, c
+        yield from _walk(c, depth + 1)
+
+
+def _colour_html(colour: dict | None, note: str) -> str:
+    """The colour section: source texture and baked albedo at the same surface points, the error map."""
+    head = "<h2>Colour: source texture and baked albedo at the same surface points</h2>"
+    if colour is None:
+        return head + f"<p class='note'>No colour comparison: {_esc(note)}.</p>"
+    parts = [head, "<p>Each texel of the bake's UV layout is a point of the coarse mesh; the source texture is read "
+             "at its closest point on the source mesh, through the source's own UVs. Colour error: mean over R, G, "
+             "B of |sRGB difference|, in 8-bit levels (white ≥ "
+             f"{_fmt(colour['scale_levels'], 0)}). Median {_fmt(colour['median'])}, p95 {_fmt(colour['p95'])}, "
+             f"max {_fmt(colour['max'])} levels over {colour['count']} texels.</p><div class='row'>"]
+    for name, caption in (("colour_source.png", "source texture, read through the bake's UV layout"),
+                          ("colour_baked.png", "baked albedo"),
+                          ("error_colour.png", "colour error over the UV layout")):
+        parts.append(f"<figure><img class='map' src='{name}'><figcaption>{_esc(caption)}</figcaption></figure>")
+    for name, caption in colour["models"]:
+        parts.append(f"<figure><img src='{name}'><figcaption>{_esc(caption)}</figcaption></figure>")
+    parts.append("</div>")
+    return "".join(parts)

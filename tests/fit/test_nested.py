@@ -82,6 +82,10 @@ def test_save_load_round_trip(seq, tmp_path):
     assert back.frame == seq.frame and back.band == seq.band and back.eps == seq.eps
     assert back.deltas == seq.deltas and back.iterations == seq.iterations
     assert back.stability == seq.stability
+    # each level keeps its loss history (the curve a report draws): steps up to the level's last, time rising
+    for info, kept in zip(seq.levels_info[:2], back.levels_info[:2]):
+        assert kept["history"] == info["history"] and info["history"][-1]["step"] == 120
+        assert all(a["seconds"] <= b["seconds"] for a, b in zip(info["history"], info["history"][1:]))
     x = torch.rand(64, 3) * 2 - 1
     with torch.no_grad():
         for a, b in zip(back.levels, seq.levels):

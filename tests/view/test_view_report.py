@@ -51,7 +51,7 @@ def test_report_renders_compares_and_stays_offline(bake_folder):
     assert view["source"] == str(sample_path("bumpy_sphere")) and not view["neural"]
     for name in ("source_0.png", "baked_1.png", "bare_0.png", "diff_baked_vs_source_0.png"):
         assert (index.parent / "views" / name).is_file()
-    assert (index.parent / "heat_model_0.png").is_file() and (index.parent / "timings.png").is_file()
+    assert (index.parent / "heat_model_0.png").is_file() and "<svg" in page
     # the slot says why (report.json names no SDF model); report.json's figures are shown
     assert "No neural preview: report.json names no SDF model" in page and "1.50" in page
 
@@ -207,3 +207,41 @@ def test_a_preview_that_cannot_draw_leaves_its_slot_with_the_reason(bake_folder)
     view = json.loads((index.parent / "view.json").read_text())
     assert not view["neural"] and view["neural_note"] == "the preview renderer failed: no surface at all"
     assert "neural_vs_source" not in view["metrics"]
+
+
+def test_report_captions_colour_section_and_every_fit_curve(bake_folder, tmp_path, fit_sphere_siren):
+    from neural_bake.fit.nested import fit_nested
+    from neural_bake.fit.sdf import SdfFit
+    from neural_bake.types import Frame
+    from neural_bake.view.report import fit_histories
+
+    src, _ = bake_folder
+    folder = tmp_path / "bake"
+    folder.mkdir()
+    for name in ("asset.glb", "error_normal.png"):
+        shutil.copy2(src / name, folder / name)
+    fine_history = [{"step": s, "seconds": 0.1 * s, "loss": 1.0 / s} for s in (1, 10, 20)]
+    seq = fit_nested(SdfFit(model=fit_sphere_siren(steps=30), frame=Frame(), history=fine_history), [(8, 0)],
+                     steps=20, pool=2000, batch=256, eval_every=10, eval_samples=500, n_estimate=1000,
+                     stability_samples=(), certify=False, progress=False)
+    seq.save(folder / "nested.safetensors")
+    report = {**json.loads((src / "report.json").read_text()), "sdf": "nested.safetensors"}
+    (folder / "report.json").write_text(json.dumps(report))
+    curves = fit_histories(folder, report)
+    assert list(curves) == ["SDF fit (fine level f)", "nested level 0 (8x0)"]
+    assert curves["SDF fit (fine level f)"] == fine_history
+    level = curves["nested level 0 (8x0)"]
+    assert level[-1]["step"] == 20 and all(a["seconds"] <= b["seconds"] for a, b in zip(level, level[1:]))
+
+    index = write_asset_report(folder, ReportConfig(views=2, size=48), log=lambda m: None)
+    page = index.read_text()
+    captions = re.findall(r"<figcaption>([^<]+)</figcaption>", page)
+    assert len(captions) == len(set(captions)), captions  # no two pictures share a caption
+    assert (index.parent / "fits.png").is_file()
+    # the colour section: source texture through the bake's layout, baked albedo, error over UVs and model
+    view = json.loads((index.parent / "view.json").read_text())
+    colour = view["colour_error"]
+    assert colour["count"] > 1000 and colour["median"] < 3  # analytic albedo against the sample's texture
+    for name in ("colour_source.png", "colour_baked.png", "error_colour.png", "heat_colour_0.png", "heat_colour_1.png"):
+        assert (index.parent / name).is_file() and name in page
+    assert "8-bit levels" in page
