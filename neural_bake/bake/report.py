@@ -355,15 +355,15 @@ def bake_report(
                 rep["baseline"]["all_texels"] = every
         files = []
         if err_img is not None:
-            write_image(out_dir / "error_normal.png", err_img.image(), colour="data")
+            write_image(out_dir / "error_normal.png", err_img.image(), colour="data", fast=True)
             files.append("error_normal.png")
         if base_img is not None:
-            write_image(out_dir / "error_baseline.png", base_img.image(), colour="data")
+            write_image(out_dir / "error_baseline.png", base_img.image(), colour="data", fast=True)
             files.append("error_baseline.png")
-        write_image(out_dir / "miss.png", result.miss.astype(np.float32), colour="data")
+        write_image(out_dir / "miss.png", result.miss.astype(np.float32), colour="data", fast=True)
         files.append("miss.png")
         if result.hybrid is not None:
-            write_image(out_dir / "hybrid.png", result.hybrid.astype(np.float32), colour="data")
+            write_image(out_dir / "hybrid.png", result.hybrid.astype(np.float32), colour="data", fast=True)
             files.append("hybrid.png")
         rep["files"] = files
         rep["error_map_scale_deg"] = ERROR_MAP_MAX_DEG

@@ -167,3 +167,15 @@ def test_write_unknown_format_and_bits(tmp_path):
 def test_write_missing_folder(tmp_path):
     with pytest.raises(ImageError, match=r"folder .*nowhere does not exist"):
         write_image(tmp_path / "nowhere" / "x.png", np.zeros((2, 2, 3)))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_fast_png_holds_the_same_pixels_with_faster_settings(tmp_path, channels):
+    # a smooth image (as error maps are), where the compression level decides the size
+    y, x = np.mgrid[0:256, 0:256] / 255.0
+    a = np.stack([x, y, x * y][:channels], axis=-1).astype(np.float32)
+    small = read_image(write_image(tmp_path / "small.png", a, colour="data"), colour="data")
+    fast_path = write_image(tmp_path / "fast.png", a, colour="data", fast=True)
+    np.testing.assert_array_equal(read_image(fast_path, colour="data"), small)
+    # the settings reach the encoder: another compressed stream for the same pixels
+    assert fast_path.read_bytes() != (tmp_path / "small.png").read_bytes()
