@@ -77,6 +77,7 @@ def export_glb(
     material_maps: dict[str, np.ndarray] | None = None,
     same_image: list[tuple[str, str]] | None = None,
     material_factors: dict[str, float] | None = None,
+    png_files: dict[str, Path] | None = None,
     name: str = "neural_bake",
 ) -> Path:
     """Write ``mesh`` and its baked maps as one GLB file at ``path`` (atomically); return the path.
@@ -95,6 +96,9 @@ def export_glb(
       (H, W, 3) float data in [0, 1], written unchanged (no colour encoding). ``same_image``: pairs of those
       names that are one image (written once); ``material_factors``: ``metallicFactor``/``roughnessFactor``
       of the asset's material (default 1.0 with a metallic-roughness map, else 0.0 and 1.0).
+    - ``png_files``: 8-bit PNG files already written from ``normal_map`` / ``albedo`` (keys "normal_map",
+      "albedo"), with the encoding this function gives them (the normal map as data, the albedo sRGB, as
+      :func:`~neural_bake.io.images.write_image` writes them): their bytes are embedded, not encoded again.
 
     Raises :class:`NeuralBakeError` for arrays of the wrong shape, a normal map without tangents, and
     :class:`MeshError` for a texture map on a mesh without UVs or not split at seams.
@@ -178,19 +182,21 @@ def export_glb(
     gltf["meshes"][0]["primitives"][0]["material"] = 0
     images, textures = [], []
 
-    def add_texture(image: np.ndarray, colour: str) -> int:
-        images.append({"bufferView": add_view(_png_bytes(image, colour, path)), "mimeType": "image/png"})
+    def add_texture(image: np.ndarray, colour: str, key: str | None = None) -> int:
+        written = (png_files or {}).get(key) if key is not None else None
+        data = Path(written).read_bytes() if written is not None else _png_bytes(image, colour, path)
+        images.append({"bufferView": add_view(data), "mimeType": "image/png"})
         textures.append({"source": len(images) - 1, "sampler": 0})
         return len(textures) - 1
 
     if albedo is not None:
         a = _check_image("albedo", albedo, (3, 4))
-        gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {"index": add_texture(a, "srgb")}
+        gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {"index": add_texture(a, "srgb", "albedo")}
         if a.shape[2] == 4:
             gltf["materials"][0]["alphaMode"] = "BLEND"
     if normal_map is not None:
         nm = _check_image("normal_map", normal_map, (3,))
-        gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data")}
+        gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data", "normal_map")}
     shared = {b: a for a, b in (same_image or [])}
     index: dict[str, int] = {}
     for key, slot in (("normal", "normalTexture"), ("metallic_roughness", "metallicRoughnessTexture"),

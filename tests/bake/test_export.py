@@ -154,3 +154,21 @@ def test_vertex_ply_round_trip(tmp_path):
     assert np.allclose(got.vertex_normals, normals, atol=1e-5)
     with pytest.raises(NeuralBakeError, match="normals must have shape"):
         export_vertex_ply(tmp_path / "w.ply", m, normals=normals[:3])
+
+
+def test_png_files_written_beside_are_embedded_as_the_same_bytes(tmp_path, asset):
+    from neural_bake.io.images import write_image
+
+    m, tangents, normal_map, albedo = asset
+    nfile = write_image(tmp_path / "normal.png", normal_map, colour="data", bits=8)
+    afile = write_image(tmp_path / "albedo.png", albedo, colour="srgb", bits=8)
+    encoded = export_glb(tmp_path / "a.glb", m, normal_map=normal_map, albedo=albedo, tangents=tangents)
+    reused = export_glb(tmp_path / "b.glb", m, normal_map=normal_map, albedo=albedo, tangents=tangents,
+                        png_files={"normal_map": nfile, "albedo": afile})
+    gltf, _, images = read_glb(reused)
+    mat = gltf["materials"][0]
+    by_slot = {"albedo": images[gltf["textures"][mat["pbrMetallicRoughness"]["baseColorTexture"]["index"]]["source"]],
+               "normal_map": images[gltf["textures"][mat["normalTexture"]["index"]]["source"]]}
+    assert by_slot["normal_map"] == nfile.read_bytes() and by_slot["albedo"] == afile.read_bytes()
+    # the files hold exactly what the GLB encodes itself: both GLBs are the same bytes
+    assert reused.read_bytes() == encoded.read_bytes()
