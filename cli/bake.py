@@ -1,7 +1,8 @@
-"""`neural-bake bake MESH --sdf MODEL -o OUT`: bake neural normals (and colours) onto a coarse mesh (thin verb).
+"""`neural-bake bake [MESH] --sdf MODEL -o OUT`: bake neural normals (and colours) onto a coarse mesh (thin verb).
 
-Parses the options and calls :func:`neural_bake.pipelines.bake_asset.bake_asset`, which writes OUT/asset.glb,
-the loose maps, OUT/report.json and the error maps atomically (a failed run leaves OUT as it was).
+Parses the options and calls :func:`neural_bake.pipelines.bake_asset.bake_asset`, which writes OUT/asset.glb
+(and with --formats asset.usd, asset.usdz), the loose maps, OUT/report.json and the error maps atomically
+(a failed run leaves OUT as it was).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "defau
                   costs={"quick": "1000 faces, 512² maps: about 5 s",
                          "default": "2000 faces, 2048² maps: about 30 s",
                          "high": "5000 faces, 4096² maps, 2×2 samples: about 10 min"},
-                  preset_help="Coarse mesh and maps (none: the defaults below)", required=("mesh", "sdf_path", "output"))
+                  preset_help="Coarse mesh and maps (none: the defaults below)", required=("sdf_path", "output"))
 
 _TEXELS = {"auto": None, "cache": True, "stream": False}
 
@@ -41,6 +42,7 @@ _TEXELS = {"auto": None, "cache": True, "stream": False}
 Examples:
   neural-bake bake samples/bumpy_sphere.obj --sdf bumpy.sdf -o baked/ --preset quick
   neural-bake bake mesh.obj --sdf mesh.nested --texture-model mesh.tex --coarse decimate:2000 --size 1024 -o out/
+  neural-bake bake --sdf model.sdf --coarse march:128 -o out/ --formats glb,usd,usdz
   neural-bake bake --preset high --print-config > bake.toml""")
 @click.argument("mesh", metavar="MESH", type=click.Path(dir_okay=False), required=False)
 @click.option("--sdf", "sdf_path", metavar="MODEL", default=None, help="Fine SDF model file (kind 'sdf').")
@@ -57,8 +59,10 @@ Examples:
               help="Older spelling of --cache-texels: cache (yes), stream (no), auto (none).")
 @verbosity_options
 def command(mesh, sdf_path, tex_path, output, config, texels_mode):
-    """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB, maps
-    and a quality report into OUTPUT.
+    """Bake the neural normals (and colours) of MESH's fitted fields onto a coarse mesh; write a GLB (and
+    USD/USDZ with --formats), maps and a quality report into OUTPUT. Without MESH the coarse mesh is the
+    model marched (--coarse march:RES or level:I:RES; a decimate spec becomes march:128) and the map is
+    measured against ∇f, with no classical baseline.
 
     Every setting below is a field of the bake's config: a --config file sets them first, the options
     given override it."""

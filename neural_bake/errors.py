@@ -34,6 +34,7 @@ __all__ = [
     "OutputError",
     "WriteError",
     "OutputBusyError",
+    "MissingExtraError",
     "USER_INPUT_ERRNOS",
     "os_error",
 ]
@@ -105,6 +106,13 @@ class WriteError(NeuralBakeError):
 
 class OutputBusyError(WriteError):
     """Another process holds the lock of the output (one writer per output): exit code 1."""
+
+
+class MissingExtraError(NeuralBakeError):
+    """An optional dependency the asked output needs is not installed (the message says how to install it):
+    exit code 1, the command line is fine but the machine lacks it."""
+
+    exit_code = 1
 
 
 #: errnos that say the path the user gave is wrong (exit 2); every other OSError is the environment (exit 1)

@@ -18,9 +18,14 @@ from typing import Callable
 
 from neural_bake.constants import ADAPTIVE_TOLERANCE_DEG
 
-__all__ = ["BakeAssetConfig", "bake_asset", "bake_config", "PRESETS", "MAPS"]
+__all__ = ["BakeAssetConfig", "bake_asset", "bake_config", "PRESETS", "MAPS", "FORMATS", "MODEL_ONLY_COARSE"]
 
 MAPS = ("normal", "albedo", "vertex")
+#: Files of the baked asset: asset.glb, asset.usd (a stage referencing the loose maps), asset.usdz (a package).
+FORMATS = ("glb", "usd", "usdz")
+#: The coarse mesh of a bake without a source mesh when the spec says decimate (nothing to decimate): the
+#: model marched at this resolution (the finest level of a nested sequence).
+MODEL_ONLY_COARSE = "march:128"
 
 
 @dataclass
@@ -31,6 +36,8 @@ class BakeAssetConfig:
     """Coarse mesh: decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION (a nested sequence's level I marched) or keep."""
     maps: str | None = None
     """Comma-separated maps: normal, albedo (needs a texture model), vertex; None: normal[,albedo]."""
+    formats: str = "glb"
+    """Comma-separated asset files of the baked maps: glb, usd (a stage beside the loose maps), usdz (usd and usdz need the extra usd)."""
     size: int = 2048
     """Map side in texels."""
     texture: str | None = None
@@ -99,6 +106,7 @@ def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
     from neural_bake.limits import check_map_samples
 
     check_map_samples(cfg.size, cfg.supersample)  # before any texel is allocated
+    _parse_formats(cfg.formats)
     for name, allowed in (("normal_space", ("tangent", "object")), ("padding", ("pull-push", "dilate", "none")),
                           ("bits", (8, 16)), ("hybrid_decide", ("lattice", "all"))):
         if getattr(cfg, name) not in allowed:
@@ -111,11 +119,15 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                coarse_mesh=None, log: Callable[[str], None] = print) -> dict:
     """Bake ``mesh`` (a file) with the SDF model ``sdf_path`` (and ``texture_model``) into folder ``out``.
 
+    ``mesh`` None bakes from the model alone: the coarse mesh is the model marched (``config.coarse`` march or
+    level; a decimate spec becomes :data:`MODEL_ONLY_COARSE`, keep is refused), there is no hybrid fallback and
+    no classical baseline, and the report measures the map against ∇f of the finest level.
+
     ``out`` is a path (committed as a unit when the bake succeeds) or an entered
     :class:`~neural_bake.io.outdir.OutputFolder` whose set the bake is part of (the caller commits it).
 
-    Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture), the loose maps, error maps
-    and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
+    Writes OUT/asset.glb (coarse mesh, tangents, baseColorTexture, normalTexture; ``config.formats`` adds
+    OUT/asset.usd and OUT/asset.usdz), the loose maps, error maps and OUT/report.json; returns the report. ``log`` receives one-line progress messages.
     ``coarse_mesh``: a ``(Mesh, info)`` pair made earlier (by the batch's coarse stage, from ``config.coarse``)
     to bake onto instead of making it here.
     Raises NeuralBakeError (one line) for bad input, before anything is written.
@@ -145,7 +157,22 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     if maps_spec is None:
         maps_spec = "normal,albedo" if tex_path else "normal"
     maps = _parse_maps(maps_spec)
-    parse_coarse(coarse)
+    formats = _parse_formats(cfg.formats)
+    if "usd" in formats or "usdz" in formats:
+        from neural_bake.io.usd import import_pxr
+
+        import_pxr()  # usd-core missing: one line saying how to install it, before any work
+    kind = parse_coarse(coarse)[0]
+    if mesh is None:
+        if kind == "keep":
+            raise NeuralBakeError(f"coarse {coarse!r}: keep bakes onto the source mesh, and none is given; use "
+                                  f"march:RESOLUTION or level:I:RESOLUTION", parameter="coarse")
+        if truth.startswith("sample:"):
+            raise NeuralBakeError(f"truth {truth!r}: compares a source mesh with a sample, and none is given",
+                                  parameter="truth")
+        if kind == "decimate":
+            log(f"no source mesh: the coarse mesh is the model marched ({MODEL_ONLY_COARSE}), not {coarse}")
+            coarse = MODEL_ONLY_COARSE
     check_map_samples(size, supersample)  # the map's side and samples, named by parameter
     if "albedo" in maps and tex_path is None:
         raise NeuralBakeError("--maps albedo needs --texture-model MODEL (or drop albedo from --maps)")
@@ -187,34 +214,42 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
             delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
             log(f"nesting band δ = {delta:g} (unit frame) from {Path(tex_path).name}")
-        fine = load_mesh(mesh, texture)
-        if truth.startswith("sample:"):
-            _sample_truth(mesh, fine, truth)  # a mesh that is not the sample is refused before the bake
-        asset = read_asset(mesh, fine)
-        # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
-        reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+        fine = reference = asset = None
         keep = parse_coarse(coarse)[0] == "keep"
-        timings["load"] = time.perf_counter() - t0
-        from neural_bake.bake.agreement import check_sdf_describes_mesh
+        sdf_check: dict = {"passed": None, "note": "no source mesh to check the SDF against"}
+        if mesh is not None:
+            fine = load_mesh(mesh, texture)
+            if truth.startswith("sample:"):
+                _sample_truth(mesh, fine, truth)  # a mesh that is not the sample is refused before the bake
+            asset = read_asset(mesh, fine)
+            # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
+            reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+            from neural_bake.bake.agreement import check_sdf_describes_mesh
 
-        sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
-        if not sdf_check["passed"]:
-            log(f"--force: baking an SDF that fails the mesh check (frames differ by {sdf_check['frame_mismatch']:.3g}, "
-                f"median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
+            sdf_check = check_sdf_describes_mesh(fine, sdf, force=cfg.force, option="--force")
+            if not sdf_check["passed"]:
+                log(f"--force: baking an SDF that fails the mesh check (frames differ by "
+                    f"{sdf_check['frame_mismatch']:.3g}, median |f| on the mesh {sdf_check['median_abs_f']:.4g})")
+        timings["load"] = time.perf_counter() - t0
         if tex is not None:  # a texture model of another object is refused like an SDF of another mesh
             from neural_bake.fields import check_texture_matches_sdf
 
             sdf_check["texture"] = check_texture_matches_sdf(tex, sdf_file, force=cfg.force, option="--force",
                                                              sdf_name=Path(sdf_path).name)
-        coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
-                                 else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
+        try:
+            coarse_m, coarse_info = (coarse_mesh if coarse_mesh is not None
+                                     else make_coarse_mesh(reference if keep else fine, coarse, sdf_file))
+        except NeuralBakeError as exc:
+            if mesh is not None:
+                raise
+            raise NeuralBakeError(f"{sdf_path}: no surface to bake from the model alone ({exc})") from None
         timings["coarse"] = coarse_info["seconds"]
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
         if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:
             _check_uv_area(mesh, coarse_m.uv, size)
 
         written: list[str] = []
-        report: dict = {"mesh": str(mesh), "sdf": folder.shown(sdf_path),
+        report: dict = {"mesh": None if mesh is None else str(mesh), "sdf": folder.shown(sdf_path),
                         "texture_model": tex_path and folder.shown(tex_path), "coarse": coarse_info, "maps": maps,
                         "sdf_check": sdf_check}
         texel_maps = [m for m in maps if m in ("normal", "albedo")]
@@ -225,7 +260,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                           padding=None if padding == "none" else padding, cache_texels=cfg.cache_texels)
             timings["prepare"] = time.perf_counter() - t0
             hybrid = None
-            if cfg.hybrid and "normal" in maps:
+            if cfg.hybrid and "normal" in maps and reference is not None:
                 from neural_bake.bake.hybrid import HybridFallback
 
                 hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
@@ -272,10 +307,20 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             # onto the asset itself, the GLB keeps what was not baked: its base colour, normal, AO/roughness/metal
             kept_maps = asset.maps if keep else {}
             albedo_out = res.albedo if res.albedo is not None or not keep else fine.texture
-            export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
-                       albedo=albedo_out, tangents=baker.tangents, material_maps=kept_maps,
-                       same_image=asset.same_image, material_factors=asset.factors)
-            written.append("asset.glb")
+            if "glb" in formats:
+                export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
+                           albedo=albedo_out, tangents=baker.tangents, material_maps=kept_maps,
+                           same_image=None if asset is None else asset.same_image,
+                           material_factors=None if asset is None else asset.factors)
+                written.append("asset.glb")
+            for fmt in ("usd", "usdz"):  # the same mesh and maps; the stage references the loose PNGs
+                if fmt in formats:
+                    from neural_bake.bake.usd_export import export_usd
+
+                    export_usd(stage / f"asset.{fmt}", baker.mesh,
+                               base_colour=stage / "albedo.png" if res.albedo is not None else None,
+                               normal_map=stage / "normal.png" if gltf_normals else None)
+                    written.append(f"asset.{fmt}")
             if keep:
                 report["kept"] = {
                     "vertex_normals": "the asset's" if asset.corner_normals is not None else "computed",
@@ -284,7 +329,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                                    + [k for k in kept_maps if not (k == "normal" and gltf_normals)])}
             timings["write"] = time.perf_counter() - t0
             base = base_fn = None
-            if baseline:
+            if baseline and reference is not None:
                 from neural_bake.bake.baseline import baseline_bake, raycasting_scene
 
                 if res.normals is not None:  # every texel sample in memory: one baseline bake of them all
@@ -299,12 +344,16 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                     def base_fn(texels):
                         return baseline_bake(baker.mesh, reference, texels, cage=cage, scene=scene)
 
-            normals_fn, colours_fn, sample_name = _sample_truth(mesh, baker.mesh, truth)
+            normals_fn, colours_fn, sample_name = (None, None, None) if mesh is None else \
+                _sample_truth(mesh, baker.mesh, truth)
             rep = bake_report(res, baker, truth=normals_fn, fine=None if normals_fn else reference,
                               truth_colors=colours_fn, baseline=base, baseline_fn=base_fn, bits=nbits,
                               timings=timings, out_dir=stage)
             if sample_name:
                 rep["truth"] = f"analytic ({sample_name} sample)"
+            if mesh is None:
+                rep["truth"] = ("none: no source mesh; the map is measured against ∇f of the finest level "
+                                "(vs_gradient_deg), and there is no classical baseline")
             every = rep.get("baseline", {}).get("all_texels")
             if every:
                 log(f"baseline (mesh-to-mesh rays) over all {every['samples']} samples: {every['seconds']:.1f} s, "
@@ -332,6 +381,10 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         report["files"] = written + ["report.json"]
         atomic_write_text(stage / "report.json", dumps(report))
     summary = report.get("vs_truth_deg") or {}
+    grad = report.get("vs_gradient_deg") or {}
+    if mesh is None and grad.get("median") is not None:
+        log(f"normal map vs ∇f of the finest level (no source mesh, no baseline): median {grad['median']:.2f}°, "
+            f"p95 {grad['p95']:.2f}°")
     if summary.get("median") is not None:
         line = f"normal error vs truth: median {summary['median']:.2f}°, p95 {summary['p95']:.2f}°"
         b = report.get("baseline", {}).get("vs_truth_deg")
@@ -400,6 +453,18 @@ def _fidelity_warnings(report: dict, coarse: str) -> list[str]:
         out.append(f"the normal map (median {ours['median']:.2f}°) does not beat the coarse mesh's own normals "
                    f"(median {own['median']:.2f}°)")
     return out
+
+
+def _parse_formats(spec) -> list[str]:
+    """The asset formats of a ``formats`` spec ("glb,usd"); NeuralBakeError naming ``formats`` otherwise."""
+    from neural_bake.errors import NeuralBakeError
+
+    names = [m.strip() for m in str(spec).split(",") if m.strip()]
+    bad = [m for m in names if m not in FORMATS]
+    if bad or not names:
+        raise NeuralBakeError(f"formats {spec!r}: unknown format {bad[0] if bad else '(none)'!r} (choose from "
+                              f"{', '.join(FORMATS)})", parameter="formats")
+    return list(dict.fromkeys(names))
 
 
 def _parse_maps(spec: str) -> list[str]:

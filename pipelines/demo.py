@@ -125,11 +125,16 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
     tex_q = texture_metrics(tex.field(), mesh, seq, delta=tex.delta, n=50_000)
     log(f"      {tex.steps} steps in {tex.seconds:.0f} s: surface PSNR {tex_q['surface_psnr']:.1f} dB")
 
-    log(f"[5/5] baking the nested sequence onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps)")
+    from neural_bake.io.usd import USD_INSTALL, usd_available
+
+    formats = "glb,usd,usdz" if usd_available() else "glb"  # the USD beside the GLB when usd-core is there
+    log(f"[5/5] baking the nested sequence onto a coarse mesh ({cfg.coarse}, {cfg.size}² maps; {formats})")
+    if formats == "glb":
+        log(f"      no USD: {USD_INSTALL} adds asset.usd and asset.usdz")
     # force: the sequence was fitted on this very mesh; a short budget's rough fit is baked and reported, with
     # the mesh check's figures in the report, rather than refused
     report = bake_asset(str(mesh_path), str(nested_path), folder,
-                        BakeAssetConfig(coarse=cfg.coarse, size=cfg.size, force=True),
+                        BakeAssetConfig(coarse=cfg.coarse, size=cfg.size, force=True, formats=formats),
                         texture_model=str(tex_path), log=lambda m: log("      " + m))
     summary = {
         "config": asdict(cfg),

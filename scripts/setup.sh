@@ -40,9 +40,10 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   fi
 fi
 
-# 4. The package (editable, so the checkout is what runs) and the test tools.
+# 4. The package (editable, so the checkout is what runs), the test tools and the USD writer (the test
+#    extras hold usd-core, so `make demo` writes asset.usd and the tests validate it).
 say "installing neural-bake and its dependencies"
-"${PIP[@]}" -e ".[test]"
+"${PIP[@]}" -e ".[test,usd]"
 "$VENV/bin/python" -c "import open3d, torch, OpenImageIO, pymeshlab, xatlas; print('setup: ok: torch', torch.__version__)"
 
 # 5. The visual checks: model-viewer (npm) beside the reports, Chromium for the browser test.

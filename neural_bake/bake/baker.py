@@ -798,7 +798,7 @@ def parse_coarse(spec: str) -> tuple[str, float | int | tuple[int, int] | None]:
     return kind, int(value)
 
 
-def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | NestedSequence | None = None) -> tuple[Mesh, dict]:
+def coarse_mesh(mesh: Mesh | None, spec: str, sdf: SdfField | NestedSequence | None = None) -> tuple[Mesh, dict]:
     """The coarse mesh a bake targets, from a :func:`parse_coarse` spec; returns (mesh, info).
 
     ``decimate``: quadric edge collapse of ``mesh`` (UVs dropped: the Baker unwraps). ``march``: marching
@@ -807,6 +807,7 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | NestedSequence | None = N
     nested sequence (the paper's coarse surface: its zero set lies in f's band δ_I), then :func:`~neural_bake.mesh.cleanup.clean_mesh` (weld duplicate vertices, drop
     degenerate and duplicate faces and components under 1% of the largest one's faces; non-manifold and
     boundary edges are counted, not repaired). ``keep``: ``mesh`` itself (its own UVs, if any, are kept).
+    ``mesh`` may be None for ``march`` and ``level`` (the field's frame is used).
 
     ``info``: ``spec``, ``faces``, ``vertices``, ``seconds``; for ``march`` also ``march`` (the stats of
     :func:`~neural_bake.mesh.marching.march`) and ``cleanup`` (the clean-up report).
@@ -835,7 +836,8 @@ def coarse_mesh(mesh: Mesh, spec: str, sdf: SdfField | NestedSequence | None = N
             field = sdf.finest if isinstance(sdf, NestedSequence) else sdf
         if getattr(field, "model", None) is None:
             raise NeuralBakeError(f"coarse {spec!r}: march needs an SDF model (a Siren)", parameter="coarse")
-        out, stats = march(field.model, value, pruned="auto", frame=field.frame or mesh.frame)
+        out, stats = march(field.model, value, pruned="auto",
+                           frame=field.frame or (mesh.frame if mesh is not None else None))
         info["march"] = stats
         if out.n_faces == 0:
             raise NeuralBakeError(f"coarse {spec!r}: the SDF has no surface at resolution {value}", parameter="coarse")

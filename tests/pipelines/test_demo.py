@@ -19,6 +19,7 @@ def test_demo_shrunken_end_to_end(tmp_path):
     names = set(summary["outputs"])
     assert {"sdf.safetensors", "nested.safetensors", "texture.safetensors", "asset.glb", "normal.png", "albedo.png",
             "report.json", "demo.json"} <= names
+    assert {"asset.usd", "asset.usdz"} <= names  # usd-core is in the test extras: the USD beside the GLB
     on_disk = json.loads((out / "demo.json").read_text())
     assert on_disk["config"]["sample"] == "sphere"
     # whatever the (short) training reached, the baked map holds the network's own gradient
