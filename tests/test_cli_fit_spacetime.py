@@ -1,6 +1,9 @@
 """`neural-bake fit morph` / `fit sequence`: tiny end-to-end runs writing loadable space-time model files, the
 frames.json folder form, and one-line errors."""
 
+import importlib.util
+import json
+
 import numpy as np
 import pytest
 
@@ -79,6 +82,19 @@ def test_bake_frames_verb(files, tmp_path, capsys):
     assert main(["bake-frames", str(model), "--t", "0:1:3", "-o", str(out), "--resolution", "24"]) == 0
     assert "baked 3 frames" in capsys.readouterr().out
     assert sorted(p.name for p in out.glob("*.ply")) == [f"frame_{i:04d}.ply" for i in range(3)]
+    if importlib.util.find_spec("pxr") is not None:  # usd-core is in the test extras: one stage, sizes stated
+        anim = tmp_path / "anim"
+        assert main(["bake-frames", str(model), "--t", "0:1:3", "-o", str(anim), "--resolution", "24", "--format",
+                     "usd", "--fps", "12"]) == 0
+        printed = capsys.readouterr().out
+        sizes = json.loads((anim / "frames.json").read_text())["sizes"]
+        assert f"frame.usd: {sizes['file_bytes'] / 1e6:.2f} MB (the 3 per-frame PLY files would be " \
+               f"{sizes['ply_bytes'] / 1e6:.2f} MB, counted, not written); the network seq.nbm: " \
+               f"{model.stat().st_size / 1e6:.2f} MB" in printed
+        assert sorted(p.name for p in anim.iterdir() if not p.name.startswith(".")) == ["frame.usd", "frames.json"]
+        assert main(["bake-frames", str(model), "--t", "0", "-o", str(anim), "--format", "usd", "--fps", "0"]) == 2
+        assert capsys.readouterr().err == "neural-bake: error: --fps 0.0: must be a positive number of frames per " \
+                                          "second\n"
     assert main(["bake-frames", str(model), "--t", "0,2", "-o", str(out)]) == 2
     assert "t = 2 is outside the fitted time range [0, 1]" in capsys.readouterr().err
     assert main(["bake-frames", str(files["sphere"]).replace(".obj", ".png"), "--t", "0", "-o", str(out)]) == 2

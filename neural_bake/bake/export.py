@@ -22,7 +22,7 @@ from ..errors import MeshError, NeuralBakeError
 from ..io.atomic import atomic_path
 from ..types import Mesh
 
-__all__ = ["export_glb", "read_glb", "export_vertex_ply"]
+__all__ = ["export_glb", "read_glb", "export_vertex_ply", "vertex_ply_bytes"]
 
 _FLOAT, _UINT32 = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -281,10 +281,20 @@ def export_vertex_ply(path, mesh: Mesh, *, normals: np.ndarray | None = None, ve
     ``vertex_colors`` (V, 3|4) linear in [0, 1] as 8-bit sRGB-encoded red green blue (alpha dropped),
     faces as uchar-counted int32 lists. Raises :class:`NeuralBakeError` for arrays of the wrong shape.
     """
+    path = Path(path)
+    data = vertex_ply_bytes(mesh, normals=normals, vertex_colors=vertex_colors)
+    if str(path.parent) and not path.parent.is_dir():
+        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def vertex_ply_bytes(mesh: Mesh, *, normals: np.ndarray | None = None, vertex_colors: np.ndarray | None = None) -> bytes:
+    """The content :func:`export_vertex_ply` writes for these arrays (its size is a PLY frame's file size)."""
     from ..io.colour import linear_to_srgb
     from ..mesh.tangents import vertex_normals
 
-    path = Path(path)
     nrm = vertex_normals(mesh) if normals is None else _check_vertex_array("normals", normals, mesh, (3,))
     pos = mesh.frame.to_source(mesh.vertices)
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
@@ -308,9 +318,4 @@ def export_vertex_ply(path, mesh: Mesh, *, normals: np.ndarray | None = None, ve
               f"element vertex {mesh.n_vertices}"]
     header += [f"property {ply_type[t]} {n}" for n, t in fields]
     header += [f"element face {mesh.n_faces}", "property list uchar int vertex_indices", "end_header"]
-    data = ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
-    if str(path.parent) and not path.parent.is_dir():
-        raise NeuralBakeError(f"{path}: folder {path.parent} does not exist")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return path
+    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()

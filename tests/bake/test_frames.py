@@ -129,3 +129,51 @@ def test_texture_errors_leave_the_old_frames(splitting, tmp_path):
     with pytest.raises(NeuralBakeError, match=r"texture: two gives \(2,\) values per point, expected 3 or 4"):
         bake_frames(fit.at, fit.at, fit.frame, [0.0], out, resolution=16, texture=two)
     assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_usd_frames_are_one_stage_equal_to_the_ply_frames_at_each_time(splitting, tmp_path, monkeypatch):
+    pytest.importorskip("pxr", reason="usd-core (the extra usd) is in the test extras")
+    import sys
+
+    from pxr import Usd, UsdGeom, UsdValidation
+
+    from neural_bake.errors import MissingExtraError
+
+    anim, fit = splitting
+    times = [0.0, 0.5, 1.0]
+    texture = lambda t: _albedo_field(anim, fit, t)  # noqa: E731
+    ply = bake_frames(fit.at, fit.at, fit.frame, times, tmp_path / "ply", resolution=24, pruned=False, texture=texture)
+    res = bake_frames(fit.at, fit.at, fit.frame, times, tmp_path / "usd", resolution=24, pruned=False, fmt="usd",
+                      fps=30, texture=texture)
+    assert [f.name for f in res.files] == ["frame.usd"] and res.times == times
+    assert sorted(p.name for p in (tmp_path / "usd").iterdir() if not p.name.startswith(".")) == ["frame.usd",
+                                                                                                 "frames.json"]
+    # the per-frame PLY size it reports is what the PLY frames take on disk
+    assert res.sizes["ply_bytes"] == sum(f.stat().st_size for f in ply.files) == ply.sizes["file_bytes"]
+    assert res.sizes["file_bytes"] == res.files[0].stat().st_size
+    index = json.loads((tmp_path / "usd" / "frames.json").read_text())
+    assert index["format"] == "usd" and index["sizes"] == res.sizes
+    context = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
+    stage = Usd.Stage.Open(str(res.files[0]))
+    assert [e.GetMessage() for e in context.Validate(stage)] == []
+    assert stage.GetTimeCodesPerSecond() == 30 and (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 2)
+    mesh = UsdGeom.Mesh(stage.GetDefaultPrim().GetChild("mesh"))
+    counts = set()
+    for i, f in enumerate(ply.files):  # frame i at time code i equals the i-th PLY frame
+        tm = trimesh.load(f, process=False)
+        np.testing.assert_allclose(np.asarray(mesh.GetPointsAttr().Get(i)), tm.vertices, atol=1e-5)
+        faces = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(i)).reshape(-1, 3)
+        assert np.array_equal(faces, tm.faces) and (np.asarray(mesh.GetFaceVertexCountsAttr().Get(i)) == 3).all()
+        np.testing.assert_allclose(np.asarray(mesh.GetNormalsAttr().Get(i)), tm.vertex_normals, atol=1e-5)
+        colours = np.asarray(mesh.GetDisplayColorPrimvar().Get(i))  # linear; the PLY holds 8-bit sRGB
+        from neural_bake.io.colour import linear_to_srgb
+
+        assert np.abs(np.round(linear_to_srgb(colours) * 255) - tm.visual.vertex_colors[:, :3]).max() <= 1
+        counts.add(len(faces))
+    assert len(counts) == 3  # the topology changes from frame to frame, and each time holds its own
+    monkeypatch.setitem(sys.modules, "pxr", None)
+    with pytest.raises(MissingExtraError, match="pip install 'neural-bake\\[usd\\]'"):
+        bake_frames(fit.at, fit.at, fit.frame, times, tmp_path / "none", fmt="usd")
+    assert not (tmp_path / "none").exists()
+    with pytest.raises(NeuralBakeError, match="fps -1: must be a positive number"):
+        bake_frames(fit.at, fit.at, fit.frame, times, tmp_path / "none", fmt="usd", fps=-1)
