@@ -66,6 +66,7 @@ COMMANDS = {
     "bake": ("neural_bake.cli.bake", "command"),
     "bake-frames": ("neural_bake.cli.bake_frames", "command"),
     "batch": ("neural_bake.cli.batch", "command"),
+    "compare": ("neural_bake.cli.compare", "command"),
     "bench": ("neural_bake.cli.bench", "group"),
     "demo": ("neural_bake.cli.demo", "command"),
     "render": ("neural_bake.cli.render", "command"),

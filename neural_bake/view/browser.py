@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .meshes import ViewError
 
-__all__ = ["CHROMIUM_ARGS", "find_chromium", "browser_missing", "screenshot_viewer"]
+__all__ = ["CHROMIUM_ARGS", "find_chromium", "browser_missing", "screenshot_viewer", "drag_linked_viewers"]
 
 #: Launch flags: headless, no sandbox (root in containers), WebGL on the CPU, no background traffic.
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
@@ -86,3 +86,67 @@ def screenshot_viewer(index, out, *, show: str = "baked", timeout_s: float = 180
         finally:
             browser.close()
     return {"console": logs, "seconds_to_load": loaded, "seconds_total": time.perf_counter() - t0}
+
+
+def _clip(page, selector: str) -> dict:
+    box = page.locator(selector).bounding_box()
+    return {"x": round(box["x"]), "y": round(box["y"]), "width": round(box["width"]), "height": round(box["height"])}
+
+
+def drag_linked_viewers(index, out_dir, *, drag: tuple[float, float] = (120.0, 0.0), timeout_s: float = 180.0,
+                        settle_ms: int = 1500, page_shot=None) -> dict:
+    """Open a comparison page (file://) in headless Chromium, wait until every linked viewer loaded its GLB,
+    screenshot each (``before_I.png`` in ``out_dir``), drag the mouse across the first by ``drag`` pixels,
+    and screenshot each again (``after_I.png``). ``page_shot``: also save a screenshot of the whole page's
+    first screen there (PNG path).
+
+    Returns ``{"viewers": n, "orbits_before": [[θ, φ, r] per viewer], "orbits_after": […], "console": […]}``
+    (radians and metres, as model-viewer reports them). Raises :class:`ViewError` when the browser cannot run
+    or a viewer reports an error.
+    """
+    why = browser_missing()
+    if why:
+        raise ViewError(f"browser check: {why}")
+    from playwright.sync_api import sync_playwright
+
+    index, out_dir = Path(index).resolve(), Path(out_dir)
+    logs: list[tuple[str, str]] = []
+    orbit_js = "[...document.querySelectorAll('model-viewer.linked')].map(m=>{const o=m.getCameraOrbit();" \
+               "return [o.theta,o.phi,o.radius];})"
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=find_chromium(), args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            page.on("console", lambda m: logs.append((m.type, m.text[:300])))
+            page.on("pageerror", lambda e: logs.append(("pageerror", str(e)[:300])))
+            page.goto(index.as_uri())
+            wait = int(timeout_s * 1000)
+            n = page.evaluate("document.querySelectorAll('model-viewer.linked').length")
+            if not n:
+                raise ViewError(f"{index}: no linked viewers on the page")
+            page.wait_for_function(f"window.NEURAL_BAKE_LOADED >= {n} || window.NEURAL_BAKE_ERROR", timeout=wait)
+            error = page.evaluate("window.NEURAL_BAKE_ERROR || null")
+            if error:
+                raise ViewError(f"{index}: model-viewer failed to load a model ({error})")
+            page.wait_for_timeout(settle_ms)
+            if page_shot is not None:
+                page.screenshot(path=str(page_shot))
+            before = page.evaluate(orbit_js)
+            for i in range(n):
+                page.screenshot(path=str(out_dir / f"before_{i}.png"), clip=_clip(page, f"#viewer{i}"))
+            box = page.locator("#viewer0").bounding_box()
+            x0, y0 = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+            page.mouse.move(x0, y0)
+            page.mouse.down()
+            for k in range(1, 11):
+                page.mouse.move(x0 + drag[0] * k / 10, y0 + drag[1] * k / 10)
+                page.wait_for_timeout(30)
+            page.mouse.up()
+            page.wait_for_timeout(settle_ms)
+            page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+            after = page.evaluate(orbit_js)
+            for i in range(n):
+                page.screenshot(path=str(out_dir / f"after_{i}.png"), clip=_clip(page, f"#viewer{i}"))
+        finally:
+            browser.close()
+    return {"viewers": n, "orbits_before": before, "orbits_after": after, "console": logs}
