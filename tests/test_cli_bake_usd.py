@@ -84,6 +84,10 @@ def test_model_alone_bakes_every_format_and_usd_reads_back_as_the_glb(models, tm
                 assert zipfile.ZipFile(out / name).read(png) == (out / png).read_bytes()
             else:
                 assert resolved == str(out / png)
+    # the report shows the neural preview beside the bake (no source mesh to show)
+    assert main(["view", str(out), "--no-open", "--views", "1", "--size", "16"]) == 0
+    view = json.loads((out / "report" / "view.json").read_text())
+    assert view["neural"] and list(view["metrics"]) == ["baked_vs_neural"]
 
 
 def test_format_and_mesh_errors_are_one_line(models, tmp_path, capsys):
