@@ -53,6 +53,8 @@ class DemoConfig:
     """Progress bars on stderr during the fits."""
     report_views: int = 8
     """Turntable views of the HTML report (0: no report)."""
+    compare: bool = True
+    """End with the classical bake of the same texels (classical/) and a page comparing both bakes (compare/)."""
     device: str | None = None
     """Torch device of the fits ("cpu", "cuda", …; None: the CPU)."""
 
@@ -73,6 +75,8 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
         f"figures in {out / 'report.json'} and {out / 'demo.json'}")
     if "report" in summary:
         log(f"check the bake by eye: {summary['report']}")
+    if "comparison" in summary:
+        log(f"the neural and the classical bake side by side: {summary['comparison']}")
     return summary
 
 
@@ -155,4 +159,14 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
         index = write_asset_report(stage, ReportConfig(views=cfg.report_views), log=lambda m: None,
                                    name=folder.out)
         summary["report"] = folder.shown(index)
+    if cfg.compare:  # the classical bake of the same coarse mesh, layout and texels, then both on one page
+        from neural_bake.pipelines.bake_classical import bake_classical
+        from neural_bake.view.comparison import CompareConfig, write_comparison
+
+        log("      classical bake of the same texels (mesh-to-mesh rays) and the comparison page")
+        bake_classical(stage, stage / "classical", log=lambda m: log("      " + m))
+        index = write_comparison([stage, stage / "classical"], stage / "compare",
+                                 CompareConfig(views=max(1, cfg.report_views)), names=["neural", "classical"],
+                                 log=lambda m: None)
+        summary["comparison"] = folder.shown(index)
     return summary

@@ -72,7 +72,7 @@ def read_bake(folder) -> dict:
 def _model_path(folder: Path, name) -> Path | None:
     if not name:
         return None
-    for cand in (Path(name), folder / Path(name).name):
+    for cand in (folder / Path(name).name, Path(name)):  # beside the bake first: the files it was made with
         if cand.is_file():
             return cand
     return None

@@ -69,7 +69,7 @@ def source_of(folder: Path, report: dict) -> tuple[Path | None, str]:
 
 
 def _model_path(folder: Path, name) -> Path | None:
-    for cand in (Path(name), folder / Path(name).name):
+    for cand in (folder / Path(name).name, Path(name)):  # beside the bake first: the files it was made with
         if cand.is_file():
             return cand
     return None

@@ -22,6 +22,7 @@ STAGE_PARENTS: dict[str, tuple[str, ...]] = {
     "unwrap": ("prepare",), "tangents": ("prepare",), "rasterize": ("prepare", "bake"),
     "sdf": ("bake",), "texture": ("bake",), "adaptive": ("bake",), "check": ("bake",), "maps": ("bake",),
     "padding": ("bake",), "hybrid": ("maps",),
+    "rays": ("bake",), "closest": ("bake",), "shade": ("bake",),  # the classical bake's (bake.classical)
 }
 #: The order of a bake run's top-level stages (others follow in the report's order).
 RUN_ORDER = ("load", "coarse", "prepare", "bake", "write")

@@ -39,8 +39,19 @@ def test_demo_shrunken_end_to_end(tmp_path):
     assert on_disk["texture"]["delta"] == pytest.approx(seq["deltas"][0])
     assert report["sdf"].endswith("nested.safetensors") and report["sdf_check"]["median_abs_f"] >= 0
     assert on_disk["sdf"]["distance_error"] > 0
-    # the demo ends with the path of its HTML report
-    assert lines[-1].endswith(str(out / "report" / "index.html")) and (out / "report" / "index.html").is_file()
+    # the demo ends with the paths of its HTML report and of the page comparing it with the classical bake
+    assert lines[-2].endswith(str(out / "report" / "index.html")) and (out / "report" / "index.html").is_file()
+    assert lines[-1].endswith(str(out / "compare" / "index.html")) and (out / "compare" / "index.html").is_file()
+    classical = json.loads((out / "classical" / "report.json").read_text())
+    assert classical["method"] == "classical" and classical["truth"] == "analytic (sphere sample)"
+    assert classical["bake"]["size"] == report["bake"]["size"]
+    cmp = json.loads((out / "compare" / "comparison.json").read_text())
+    assert [b["name"] for b in cmp["bakes"]] == ["neural", "classical"]
+    assert cmp["bakes"][0]["normal_median_deg"] == report["vs_truth_deg"]["median"]
+    # the same coarse mesh, layout and texels: the two maps are compared texel by texel
+    assert cmp["pairs"] and cmp["pairs"][0]["normal_map_angle_deg"]["count"] > 1000
+    assert {f["fit"] for f in cmp["bakes"][0]["fits"]} >= {"SDF (fine level)", "nested level 0 (16x0)", "texture"}
+    assert cmp["bakes"][1]["fits"] == []
     page = (out / "report" / "index.html").read_text()  # built in the staging folder, titled after the output
     assert "<title>neural-bake report: demo</title>" in page and ".stage-" not in page
     view = json.loads((out / "report" / "view.json").read_text())
