@@ -45,9 +45,11 @@ Re-running the same command skips every stage whose inputs and settings are unch
               help="Print the resolved settings (every stage field) as TOML and exit; the output is a valid --config.")
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False),
               help="Output folder: one folder per asset and batch.json (the summary).")
-@click.option("--preset", type=click.Choice(["quick", "default", "high"]), default="default", show_default=True,
+@click.option("--preset", default="default", show_default=True, metavar="NAME[,NAME…]",
               help="Stage settings: quick (about a minute per asset on a 2-core CPU), default (the fits' default "
-                   "presets: about 10 minutes), high (the largest networks: about 25 minutes).")
+                   "presets: about 10 minutes), high (the largest networks: about 25 minutes). Several, "
+                   "comma-separated (quick,default,high), run the batch once per preset into OUT/PRESET/ and "
+                   "write a page per asset comparing them (OUT/compare/ASSET/), linked from OUT/index.html.")
 @click.option("--set", "stages", multiple=True, callback=_stage_option, metavar="STAGE.FIELD=VALUE",
               help="A stage setting for every asset (repeatable; a manifest row's own value wins).")
 @click.option("--workers", type=int, default=0, show_default=True,
@@ -68,10 +70,14 @@ def command(manifest, config_path, print_config, out, preset, stages, workers, t
     MANIFEST is a CSV or JSON file (per-asset name, texture and STAGE.FIELD overrides), a text file with
     one mesh path per line, or a glob. Exit code 1 if any asset failed.
     """
+    from neural_bake.errors import NeuralBakeError
     from neural_bake.io.tomlio import read_toml, toml_text
-    from neural_bake.pipelines.batch import batch_config, resolved_config, run_batch
+    from neural_bake.pipelines.batch import (batch_config, parse_presets, resolved_config, run_batch,
+                                             run_preset_batches)
 
     ctx = click.get_current_context()
+    presets = parse_presets(preset)
+    preset = presets[0]
     given = {k: v for k, v in dict(preset=preset, stages=stages, workers=workers, threads=threads, executor=executor,
                                    address=address, seed=seed, device=device, quiet=quiet, verbose=verbose).items()
              if ctx.get_parameter_source(k) == click.core.ParameterSource.COMMANDLINE}
@@ -79,10 +85,15 @@ def command(manifest, config_path, print_config, out, preset, stages, workers, t
     table = read_toml(config_path) if config_path else {}
     cfg = batch_config(table, where=config_path or "config", **given)
     if print_config:
+        if len(presets) > 1:
+            raise NeuralBakeError("--print-config prints one preset's settings: give one --preset")
         click.echo(toml_text(*resolved_config(cfg)), nl=False)
         return
     if manifest is None or out is None:
         raise click.UsageError("give MANIFEST and -o OUT (or --print-config)")
-    summary = run_batch(manifest, out, cfg, log=click.echo)
+    if len(presets) > 1:
+        summary = run_preset_batches(manifest, out, cfg, presets, log=click.echo)
+    else:
+        summary = run_batch(manifest, out, cfg, log=click.echo)
     if summary["failed"]:
         raise click.exceptions.Exit(1)

@@ -35,7 +35,7 @@ from neural_bake.errors import NeuralBakeError
 from .bake_asset import PRESETS as BAKE_PRESETS
 from .manifest import STAGE_NAMES, AssetSpec, read_manifest
 
-__all__ = ["BatchConfig", "PRESETS", "run_batch", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
+__all__ = ["BatchConfig", "PRESETS", "run_batch", "run_preset_batches", "parse_presets", "COMPARE_DIR", "plan_workers", "SUMMARY_NAME", "EXECUTORS", "usable_cores",
            "OutputNotWritable", "summary_lines",
            "batch_config", "resolved_config"]
 
@@ -324,6 +324,92 @@ def _run_locked(manifest, out: Path, cfg: BatchConfig, assets: list[AssetSpec], 
         log(line)
     _write_index(out, summary, log)
     return summary
+
+
+#: Where a batch over several presets writes its per-asset comparison pages, in OUT.
+COMPARE_DIR = "compare"
+
+
+def parse_presets(text: str) -> list[str]:
+    """The preset names of ``text`` ("quick", or comma-separated "quick,default,high"), each once, in order;
+    NeuralBakeError naming the unknown one."""
+    names = list(dict.fromkeys(p.strip() for p in str(text).split(",") if p.strip()))
+    if not names:
+        raise NeuralBakeError(f"preset {text!r}: give a preset name (choose from {', '.join(PRESETS)})",
+                              parameter="preset")
+    for name in names:
+        if name not in PRESETS:
+            raise NeuralBakeError(f"preset {name!r}: unknown (choose from {', '.join(PRESETS)})", parameter="preset")
+    return names
+
+
+def run_preset_batches(manifest, out, config: BatchConfig | None = None, presets=("quick", "default", "high"), *,
+                       log: Callable[[str], None] = print, on_event: Callable[..., None] | None = None,
+                       compare_views: int = 8) -> dict:
+    """Run the batch of ``manifest`` once per preset and compare the presets asset by asset.
+
+    Layout of ``out``: ``out/PRESET/`` is each preset's batch folder (as :func:`run_batch` writes it: one
+    folder per asset, batch.json, index.html); ``out/compare/ASSET/index.html`` compares the presets' bakes
+    of each asset that at least two presets baked (:func:`neural_bake.view.comparison.write_comparison`);
+    ``out/index.html`` lists every asset under every preset with a link to its comparison. A preset's
+    ``config`` is ``config`` with that preset (its stage options, seed, workers … apply to every preset).
+
+    Returns ``{"presets": {preset: its batch summary}, "comparisons": {asset: path}, "failed": count}``.
+    """
+    from neural_bake.io.outdir import OutputLock
+    from neural_bake.view.comparison import CompareConfig, write_comparison
+
+    cfg = config or BatchConfig()
+    names = parse_presets(",".join(presets))
+    out = Path(out)
+    _check_out(out)
+    summaries = {}
+    for name in names:
+        log(f"batch: preset {name} into {out / name}")
+        summaries[name] = run_batch(manifest, out / name, dataclasses.replace(cfg, preset=name), log=log,
+                                    on_event=on_event)
+    comparisons: dict[str, Path] = {}
+    with OutputLock(out / COMPARE_DIR):
+        assets = list(dict.fromkeys(a for s in summaries.values() for a in s["assets"]))
+        for asset in assets:
+            done = [p for p in names if (summaries[p]["assets"].get(asset) or {}).get("status") == "ok"]
+            if len(done) < 2:
+                continue
+            (out / COMPARE_DIR).mkdir(exist_ok=True)
+            try:
+                comparisons[asset] = write_comparison([out / p / asset / "bake" for p in done],
+                                                      out / COMPARE_DIR / asset, CompareConfig(views=compare_views),
+                                                      names=done, log=lambda m: None)
+            except (NeuralBakeError, OSError) as exc:  # a page that cannot be written costs one line
+                log(f"[{asset}] no comparison page ({exc})")
+                continue
+            log(f"[{asset}] presets compared: {comparisons[asset]}")
+    _write_preset_index(out, names, summaries, comparisons, log)
+    return {"presets": summaries, "comparisons": {k: str(v) for k, v in comparisons.items()},
+            "failed": sum(s["failed"] for s in summaries.values())}
+
+
+def _write_preset_index(out: Path, names: list[str], summaries: dict, comparisons: dict, log) -> None:
+    """OUT/index.html: every asset under every preset (rows asset by asset), each linking its comparison."""
+    from neural_bake.view.index import write_batch_index
+
+    folders, rows, reasons, extra = [], [], [], []
+    assets = list(dict.fromkeys(a for s in summaries.values() for a in s["assets"]))
+    for asset in assets:
+        for p in names:
+            rec = summaries[p]["assets"].get(asset)
+            if rec is None and asset not in summaries[p]["assets"]:
+                continue
+            folders.append(out / p / asset / "bake")
+            rows.append(f"{asset} · {p}")
+            reasons.append((rec or {}).get("reason") if (rec or {}).get("status") != "ok" else None)
+            extra.append({"preset": p, **_index_columns(rec), "comparison": comparisons.get(asset)})
+    try:
+        page = write_batch_index(folders, out / INDEX_NAME, names=rows, reasons=reasons, extra=extra)
+    except (NeuralBakeError, OSError) as exc:
+        log(f"batch: no index page ({exc})")
+        return
+    log(f"batch: index {page}")
 
 
 def _rec_run(rec: dict | None) -> int:

@@ -58,6 +58,10 @@ def asset_summary(folder) -> dict:
     return out
 
 
+def _json_value(v):
+    return str(v) if isinstance(v, Path) else float(v)
+
+
 def _thumbnail(folder: Path, dest: Path, size: int) -> bool:
     from ..io.images import read_image, write_image
 
@@ -77,6 +81,13 @@ def _thumbnail(folder: Path, dest: Path, size: int) -> bool:
     return True
 
 
+def _link_or_cell(v, page_dir: Path) -> str:
+    """A table cell: a path is a link to it (relative to the page), anything else :func:`_cell`."""
+    if isinstance(v, Path):
+        return f"<a href='{html.escape(os.path.relpath(v, page_dir))}'>{html.escape(v.parent.name or v.name)}</a>"
+    return _cell(v)
+
+
 def _cell(v, nd=2) -> str:
     if v is None:
         return "–"
@@ -92,7 +103,8 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
     ``names`` (one per folder) name the rows instead of the folders' own names; ``reasons`` (one per folder,
     None where none) are failures known to the caller (a batch's one-line reasons): such a row is failed.
     ``extra`` (one dict per folder, ``{column: value}``) adds columns before the failure's, in the order the
-    keys first appear, and the same keys to each row of the JSON index.
+    keys first appear, and the same keys to each row of the JSON index; a :class:`~pathlib.Path` value is a
+    link to that file (relative to the page).
 
     One row per folder, in the order given: thumbnail (the report's first view, else a fresh render of the
     GLB), status, normal error against the truth (median, p95, and the classical bake's median), colour
@@ -134,7 +146,8 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
             f"<td>{s['status']}</td><td>{_cell(s.get('normal_median_deg'))}</td><td>{_cell(s.get('normal_p95_deg'))}</td>"
             f"<td>{_cell(s.get('baseline_median_deg'))}</td><td>{_cell(s.get('color_psnr_db'), 1)}</td>"
             f"<td>{_cell(s.get('render_psnr_db'), 1)}</td><td>{_cell(s.get('coverage'), 3)}</td>"
-            f"<td>{_cell(s.get('seconds'), 1)}</td>" + "".join(f"<td>{_cell(more.get(c))}</td>" for c in columns)
+            f"<td>{_cell(s.get('seconds'), 1)}</td>" + "".join(f"<td>{_link_or_cell(more.get(c), out_html.parent)}</td>"
+                                                               for c in columns)
             + f"<td>{_cell(s.get('reason'))}</td></tr>")
     ok = sum(s["status"] == "ok" for s in summaries)
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>neural-bake batch</title><style>"
@@ -147,5 +160,5 @@ def write_batch_index(folders, out_html, *, thumb_size: int = 128, names=None, r
             + "".join(f"<th>{html.escape(c)}</th>" for c in columns) + "<th>failure</th></tr>"
             + "\n".join(rows) + "</table></body></html>")
     atomic_write_text(out_html, page)
-    atomic_write_text(out_html.with_suffix(".json"), json.dumps(summaries, indent=2, default=float))
+    atomic_write_text(out_html.with_suffix(".json"), json.dumps(summaries, indent=2, default=_json_value))
     return out_html
