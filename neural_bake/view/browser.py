@@ -12,7 +12,8 @@ from pathlib import Path
 
 from .meshes import ViewError
 
-__all__ = ["CHROMIUM_ARGS", "find_chromium", "browser_missing", "screenshot_viewer", "drag_linked_viewers"]
+__all__ = ["CHROMIUM_ARGS", "find_chromium", "browser_missing", "screenshot_viewer", "drag_linked_viewers",
+           "screenshot_page"]
 
 #: Launch flags: headless, no sandbox (root in containers), WebGL on the CPU, no background traffic.
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
@@ -150,3 +151,30 @@ def drag_linked_viewers(index, out_dir, *, drag: tuple[float, float] = (120.0, 0
         finally:
             browser.close()
     return {"viewers": n, "orbits_before": before, "orbits_after": after, "console": logs}
+
+
+def screenshot_page(index, out, *, width: int = 1200, height: int = 900, timeout_s: float = 180.0,
+                    settle_ms: int = 2500) -> Path:
+    """Open a report or comparison page (file://) in headless Chromium, wait until its viewers loaded their
+    GLBs (``window.NEURAL_BAKE_LOADED``, when the page has viewers), and save the first ``width`` × ``height``
+    pixels of the page as PNG ``out``; return ``out``."""
+    why = browser_missing()
+    if why:
+        raise ViewError(f"browser check: {why}")
+    from playwright.sync_api import sync_playwright
+
+    index = Path(index).resolve()
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=find_chromium(), args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            page.goto(index.as_uri())
+            n = page.evaluate("document.querySelectorAll('model-viewer').length")
+            if n:
+                page.wait_for_function(f"window.NEURAL_BAKE_LOADED >= {n} || window.NEURAL_BAKE_ERROR",
+                                       timeout=int(timeout_s * 1000))
+            page.wait_for_timeout(settle_ms)
+            page.screenshot(path=str(out))
+        finally:
+            browser.close()
+    return Path(out)

@@ -459,18 +459,6 @@ def _page(s: dict, has_source: bool, script_name: str) -> str:
     else:
         p.append(f"<p class='note'>No interactive viewer: {_esc(s['model_viewer_note'])}. The pictures below are "
                  "rendered by neural-bake itself.</p>")
-    # renders
-    cols = (["source"] if has_source else []) + [b["name"] for b in bakes]
-    p.append("<h2>Turntable, same camera and lights</h2><p>Columns: " + _esc(", ".join(cols)) + ".</p>"
-             "<img src='turntable.gif' alt='turntable'>")
-    if not has_source:
-        p.append(f"<p class='note'>No source render: {_esc(s['source_note'] or 'no source mesh found')}.</p>")
-    p.append("<div class='row'>")
-    if has_source:
-        p.append("<figure><img src='views/source_0.png'><figcaption>source mesh</figcaption></figure>")
-    for i, b in enumerate(bakes):
-        p.append(f"<figure><img src='views/bake{i}_0.png'><figcaption>{_esc(b['name'])}</figcaption></figure>")
-    p.append("</div>")
     # figures
     p.append("<h2>Figures</h2><table><tr><th>figure</th>" + "".join(f"<th>{_esc(b['name'])}</th>" for b in bakes)
              + "</tr>")
@@ -526,6 +514,18 @@ def _page(s: dict, has_source: bool, script_name: str) -> str:
     scale = max((b["stages"]["seconds"] for b in bakes), default=1.0) or 1.0
     for b in bakes:
         p.append(stage_bar_svg(_tree_node(b["stages"]), width=900, scale_seconds=scale, label=b["name"]))
+    # renders
+    cols = (["source"] if has_source else []) + [b["name"] for b in bakes]
+    p.append("<h2>Turntable, same camera and lights</h2><p>Columns: " + _esc(", ".join(cols)) + ".</p>"
+             "<img src='turntable.gif' alt='turntable'>")
+    if not has_source:
+        p.append(f"<p class='note'>No source render: {_esc(s['source_note'] or 'no source mesh found')}.</p>")
+    p.append("<div class='row'>")
+    if has_source:
+        p.append("<figure><img src='views/source_0.png'><figcaption>source mesh</figcaption></figure>")
+    for i, b in enumerate(bakes):
+        p.append(f"<figure><img src='views/bake{i}_0.png'><figcaption>{_esc(b['name'])}</figcaption></figure>")
+    p.append("</div>")
     p.append("</body></html>")
     return "\n".join(p)
 
