@@ -392,7 +392,7 @@ def fit_nested(
     if isinstance(fine_model, SdfFit):
         frame = frame or fine_model.frame
         fine_training = {"steps": int(fine_model.steps), "seconds": round(float(fine_model.seconds), 3),
-                         "history": _thin(fine_model.history)}
+                         "history": _thin(fine_model.history), "budget": fine_model.budget}
         fine_model = fine_model.model
     if not isinstance(fine_model, Siren):
         raise FitError(f"fit_nested: fine_model must be a Siren or an SdfFit, got {type(fine_model).__name__}")
