@@ -138,6 +138,11 @@ HYBRID_SDF_TOL = 0.01
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
 
+#: Hybrid bake with a texture: a texel whose neural colour differs from the source texture's at the same source
+#: point by more than this CIEDE2000 ΔE (about 1 to 2 is just noticeable, 10 a clearly different colour) takes the
+#: source's colour.
+HYBRID_COLOR_DELTA_E = 2.0
+
 #: Hybrid bake decided on the adaptive lattice: this share of the interpolated samples it leaves undecided
 #: (a seeded uniform choice, per band at least HYBRID_CHECK_MIN) is decided in full, to count what it missed.
 HYBRID_CHECK_FRACTION = 1.0 / 1024

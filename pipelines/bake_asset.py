@@ -75,6 +75,8 @@ class BakeAssetConfig:
     """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
+    hybrid_color_tol: float | None = None
+    """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: HYBRID_COLOR_DELTA_E; inf: colours stay neural)."""
     hybrid_decide: str = "lattice"
     """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
@@ -180,14 +182,17 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
         raise NeuralBakeError(f"--delta {delta}: must be a positive distance")
     if isinstance(report_samples, bool) or int(report_samples) != report_samples or report_samples < 1:
         raise NeuralBakeError(f"report_samples {report_samples!r}: must be a positive integer")
-    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_SDF_TOL
+    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
 
     hybrid_tol = HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol
     hybrid_angle = HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle
+    hybrid_color_tol = HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol
     if not hybrid_tol > 0:
         raise NeuralBakeError(f"--hybrid-tol {hybrid_tol}: must be a positive distance")
     if not 0 < hybrid_angle <= 180:
         raise NeuralBakeError(f"--hybrid-angle {hybrid_angle}: must be in (0, 180] degrees")
+    if not hybrid_color_tol > 0:
+        raise NeuralBakeError(f"--hybrid-color-tol {hybrid_color_tol}: must be a positive ΔE (inf: colours stay neural)")
     from neural_bake.bake.adaptive import AdaptiveOptions
 
     adaptive = AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None
@@ -260,11 +265,16 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                           padding=None if padding == "none" else padding, cache_texels=cfg.cache_texels)
             timings["prepare"] = time.perf_counter() - t0
             hybrid = None
-            if cfg.hybrid and "normal" in maps and reference is not None:
+            # colours follow the hybrid rule where a texture is baked and the source has one to take colours from
+            colour_tol = hybrid_color_tol if (tex is not None and "albedo" in maps and reference is not None
+                                              and reference.uv is not None and reference.texture is not None
+                                              and np.isfinite(hybrid_color_tol)) else None
+            if cfg.hybrid and ("normal" in maps or colour_tol is not None) and reference is not None:
                 from neural_bake.bake.hybrid import HybridFallback
 
                 hybrid = HybridFallback(reference, sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
-                                        keep_baseline=baseline and baker.cache, decide=cfg.hybrid_decide)
+                                        keep_baseline=baseline and baker.cache, decide=cfg.hybrid_decide,
+                                        color_tol=colour_tol)
             res = baker.bake(sdf, tex if "albedo" in maps else None, delta=delta, report_samples=int(report_samples),
                              hybrid=hybrid, adaptive=adaptive, precision=cfg.precision,
                              texture_at="point" if keep else "surface")
@@ -274,6 +284,10 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
                 log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
                     f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
                 hs = hybrid.summary()
+                if colour_tol is not None:
+                    log(f"hybrid colours: {res.stats['hybrid_color_texels']} texels "
+                        f"({100 * res.stats['hybrid_color_fraction']:.1f} %) took the source texture's colour "
+                        f"(ΔE > {colour_tol:g})")
                 if hs["lattice_check"] is not None and hs["decided_fraction"] < 1:
                     c = hs["lattice_check"]
                     log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "
@@ -308,10 +322,15 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             kept_maps = asset.maps if keep else {}
             albedo_out = res.albedo if res.albedo is not None or not keep else fine.texture
             if "glb" in formats:
+                # the 8-bit PNGs just written are what the GLB embeds: their bytes, not a second encoding
+                png_files = {} if nbits != 8 else {
+                    **({"normal_map": stage / "normal.png"} if gltf_normals else {}),
+                    **({"albedo": stage / "albedo.png"} if res.albedo is not None and albedo_out is res.albedo
+                       else {})}
                 export_glb(stage / "asset.glb", baker.mesh, normal_map=res.normal_map if gltf_normals else None,
                            albedo=albedo_out, tangents=baker.tangents, material_maps=kept_maps,
                            same_image=None if asset is None else asset.same_image,
-                           material_factors=None if asset is None else asset.factors)
+                           material_factors=None if asset is None else asset.factors, png_files=png_files)
                 written.append("asset.glb")
             for fmt in ("usd", "usdz"):  # the same mesh and maps; the stage references the loose PNGs
                 if fmt in formats:

@@ -51,8 +51,15 @@ def test_bake_writes_asset_maps_and_report(files, tmp_path, capsys):
     assert code == 0, err
     names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     assert names == sorted(["asset.glb", "normal.png", "normal.exr", "albedo.png", "albedo.exr", "vertex.glb", "vertex.ply",
-                            "report.json", "error_normal.png", "error_baseline.png", "miss.png", "hybrid.png"])
+                            "report.json", "error_normal.png", "error_baseline.png", "miss.png", "hybrid.png",
+                            "hybrid_color.png"])
     rep = json.loads((out / "report.json").read_text())
+    # an untrained texture network is far from the sample's texture: its colours take the source's, and the
+    # map is then closer to the texture than the network alone
+    assert rep["hybrid"]["hybrid_color_fraction"] > 0.5
+    assert rep["color_psnr_db"] > rep["neural_color_psnr_db"] + 10
+    mask = read_image(out / "hybrid_color.png", colour="data")[..., 0] > 0.5
+    assert mask.sum() == rep["hybrid"]["hybrid_color_texels"]
     assert rep["truth"] == "analytic (sphere sample)"
     assert rep["coarse"]["faces"] <= 220 and rep["bake"]["size"] == [64, 64]
     assert rep["baseline"]["vs_truth_deg"]["median"] < 2.0  # the classical bake of a fine sphere is good
@@ -110,6 +117,7 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--report-samples", "0"], "report_samples 0: must be a positive integer"),
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
+        (["--hybrid-color-tol", "0"], "--hybrid-color-tol 0.0: must be a positive ΔE (inf: colours stay neural)"),
         (["--tolerance", "0"], "--tolerance must be a number of degrees in (0, 90), got 0.0"),
         (["--tolerance", "nan"], "--tolerance must be a number of degrees in (0, 90), got nan"),
     ],
@@ -362,3 +370,14 @@ def test_bench_bake_anchor_table_shrunken():
     c = cmd[0]
     assert c["wall s"] > c["bake s"] > 0 and c["prepare s"] > 0 and c["load s"] > 0 and 0 < c["evaluated"] <= 1.0
     assert c["vs source med°"] is not None and "the user's command:" in notes
+
+
+def test_infinite_colour_tolerance_keeps_the_networks_colours(files, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run([files["obj"], "--sdf", files["sdf"], "--texture-model", files["tex"], "--coarse", "decimate:200",
+                        "--size", "32", "--maps", "normal,albedo", "--no-baseline", "--hybrid-color-tol", "inf",
+                        "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert not (out / "hybrid_color.png").exists() and "hybrid_color_texels" not in rep["hybrid"]
+    assert rep["hybrid"]["color_tol"] is None and "neural_color_psnr_db" not in rep

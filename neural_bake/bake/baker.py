@@ -153,6 +153,9 @@ class BakeResult:
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
     - ``replaced``: (M,) bool, the samples that took it; ``neural``: (M, 3) their ∇f before (hybrid bakes
       that keep their samples; None otherwise).
+    - ``hybrid_color``: (H, W) bool, texels with a sample that took the source texture's colour (a hybrid
+      bake that decided colours), else None; ``colors_replaced`` (M,) and ``neural_colors`` (M, C): as
+      ``replaced`` and ``neural``, for the colours.
     """
 
     normal_map: np.ndarray
@@ -169,6 +172,9 @@ class BakeResult:
     hybrid: np.ndarray | None = None
     replaced: np.ndarray | None = None
     neural: np.ndarray | None = None
+    hybrid_color: np.ndarray | None = None
+    colors_replaced: np.ndarray | None = None
+    neural_colors: np.ndarray | None = None
 
 
 def welded_vertex_normals(mesh: Mesh) -> np.ndarray:
@@ -543,9 +549,10 @@ class Baker:
         without replacement (seeded by ``seed``, independent of the banding) with their values, for the
         quality report (0: none). Invalid gradients (|∇f| ≈ 0) take the interpolated geometric normal and
         are counted. ``hybrid``: a :class:`~neural_bake.bake.hybrid.HybridFallback` (or any callable
-        ``(mesh, texels, normals, valid, evaluated) -> (normals, replaced mask)``, ``evaluated`` the band's
-        (M,) mask of the samples the fields were evaluated at) run on each band before encoding: the samples
-        it replaces are flagged in ``result.hybrid`` and counted.
+        ``(mesh, texels, normals, valid, evaluated, colors=…) -> (normals, replaced mask[, colors, colours'
+        replaced mask])``, ``evaluated`` the band's (M,) mask of the samples the fields were evaluated at,
+        ``colors`` their (M, C) neural colours or None) run on each band before encoding: the samples it
+        replaces are flagged in ``result.hybrid`` (colours: ``result.hybrid_color``) and counted.
 
         ``adaptive``: an :class:`~neural_bake.bake.adaptive.AdaptiveOptions` evaluates f, ∇f and g on a coarse
         lattice per chart, refined where interpolation would exceed its tolerances, and interpolates the
@@ -603,9 +610,11 @@ class Baker:
         wsum = np.zeros((h, w), dtype=np.float32)
         miss_count = np.zeros((h, w), dtype=np.float32)
         hybrid_count = np.zeros((h, w), dtype=np.float32) if hybrid is not None else None
+        hybrid_color_count = None  # allocated at the first band whose colours the hybrid decided
+        colour_decided = False
         covered = np.zeros((h, w), dtype=bool)
         kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors", "replaced",
-                                                 "neural")}
+                                                 "neural", "colors_replaced", "neural_colors")}
         counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0, "hybrid": 0}
         secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0, "hybrid": 0.0, "adaptive": 0.0,
                 "check": 0.0}
@@ -626,12 +635,15 @@ class Baker:
             normals, valid, values = ev["normals"], ev["valid"], ev["values"]
             if (~valid).any():  # zero gradient: the interpolated geometric normal
                 normals[~valid] = tx.normal[~valid]
-            neural = replaced = None
+            neural = replaced = colors_replaced = None
+            colors = ev.get("colors")
             if hybrid is not None:
                 t1 = time.perf_counter()
                 neural = normals
-                normals, replaced = hybrid(self.mesh, tx, neural, valid, ev["evaluated"])
-                replaced = np.asarray(replaced, dtype=bool)
+                band_result = hybrid(self.mesh, tx, neural, valid, ev["evaluated"], colors=colors)
+                normals, replaced = band_result[0], np.asarray(band_result[1], dtype=bool)
+                if len(band_result) > 2 and band_result[2] is not None:
+                    colors, colors_replaced = band_result[2], np.asarray(band_result[3], dtype=bool)
                 secs["hybrid"] += time.perf_counter() - t1
             if self.normal_space == "tangent":
                 encoded, frame_ok = encode_tangent_space(normals, tx.tangent, tx.bitangent, tx.normal, self.y_convention)
@@ -649,10 +661,15 @@ class Baker:
                 if replaced is not None and replaced.any():
                     hybrid_count[band] += splat(np.ones((int(replaced.sum()), 1)), pix[replaced], None, self.shape,
                                                 rows=(r0, r1))[1]
+                if colors_replaced is not None and colors_replaced.any():
+                    if hybrid_color_count is None:
+                        hybrid_color_count = np.zeros((h, w), dtype=np.float32)
+                    hybrid_color_count[band] += splat(np.ones((int(colors_replaced.sum()), 1)), pix[colors_replaced],
+                                                      None, self.shape, rows=(r0, r1))[1]
                 if texture is not None:
                     if acc_col is None:
-                        acc_col = np.zeros((h, w, ev["colors"].shape[1]), dtype=np.float32)
-                    splat_into(acc_col, None, ev["colors"], pix, tx.weight)
+                        acc_col = np.zeros((h, w, colors.shape[1]), dtype=np.float32)
+                    splat_into(acc_col, None, colors, pix, tx.weight)
             else:
                 miss_s = np.zeros(0, dtype=bool)
             if len(values):  # a band's coverage is the full grid, set in its own rows only
@@ -666,14 +683,18 @@ class Baker:
                 for k, v in (("normals", normals), ("encoded", encoded), ("valid", valid), ("values", values)):
                     kept[k].append(v)
                 if texture is not None:
-                    kept["colors"].append(ev["colors"])
+                    kept["colors"].append(colors)
                 if replaced is not None:
                     kept["replaced"].append(replaced)
                     kept["neural"].append(neural)
+                if colors_replaced is not None:
+                    kept["colors_replaced"].append(colors_replaced)
+                    kept["neural_colors"].append(ev["colors"])
             if reservoir is not None:
                 reservoir.add({**{k: getattr(tx, k) for k in _TEXEL_FIELDS}, "normals": normals, "encoded": encoded,
-                               "valid": valid, "values": values, "colors": ev.get("colors"),
+                               "valid": valid, "values": values, "colors": colors,
                                "replaced": replaced, "neural": neural})
+            colour_decided |= colors_replaced is not None
             secs["maps"] += time.perf_counter() - t0
             t_band = time.perf_counter()
         t0 = time.perf_counter()
@@ -694,6 +715,9 @@ class Baker:
         miss = miss_count > 0
         secs["maps"] += time.perf_counter() - t0
         hybrid_map = None if hybrid_count is None else hybrid_count > 0
+        hybrid_color_map = None
+        if colour_decided:
+            hybrid_color_map = np.zeros((h, w), dtype=bool) if hybrid_color_count is None else hybrid_color_count > 0
         t0 = time.perf_counter()
         if self.padding is not None:
             normal_map = pad_charts(normal_map, covered, method=self.padding, pixels=self.padding_pixels)
@@ -718,6 +742,9 @@ class Baker:
             **({} if hybrid_map is None else {"hybrid_samples": counts["hybrid"],
                                               "hybrid_texels": int(hybrid_map.sum()),
                                               "hybrid_fraction": float(hybrid_map.sum() / max(1, n_texels))}),
+            **({} if hybrid_color_map is None else {
+                "hybrid_color_texels": int(hybrid_color_map.sum()),
+                "hybrid_color_fraction": float(hybrid_color_map.sum() / max(1, n_texels))}),
             "seconds": {
                 **{k: float(v) for k, v in self.timings.items()},
                 **{k: float(v) for k, v in secs.items()},
@@ -746,6 +773,9 @@ class Baker:
             hybrid=hybrid_map,
             replaced=cat("replaced"),
             neural=cat("neural"),
+            hybrid_color=hybrid_color_map,
+            colors_replaced=cat("colors_replaced"),
+            neural_colors=cat("neural_colors"),
         )
 
 

@@ -6,6 +6,11 @@ disagrees with the source mesh's normal there by more than ``angle_deg``, or whe
 Such samples take the classical bake's normal (:func:`~neural_bake.bake.baseline.baseline_bake`), so no
 texel of the map is further than ``angle_deg`` from the source mesh's normal.
 
+Colours follow the same rule when a texture is baked and ``color_tol`` is set: a sample whose neural colour
+differs from the source's texture at the same source point by more than ``color_tol`` (CIEDE2000 ΔE, on the
+sRGB-encoded colours) takes the source's colour. The decision uses the same rays and the same samples as the
+normals' (a sample near an unfaithful colour is decided too).
+
 Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
 sample, a second bake's cost), or on the adaptive lattice ("lattice", the default): at the samples the bake
 evaluated its fields at (the lattice nodes, borders, seams), and at the interpolated samples within
@@ -22,12 +27,13 @@ from __future__ import annotations
 import numpy as np
 
 from types import SimpleNamespace
+from typing import NamedTuple
 
 from ..constants import ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN, HYBRID_SDF_TOL
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
-__all__ = ["HybridFallback", "unfaithful", "HYBRID_DECISIONS"]
+__all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "HYBRID_DECISIONS"]
 
 #: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
 HYBRID_DECISIONS = ("lattice", "all")
@@ -52,6 +58,30 @@ def unfaithful(f_surface: np.ndarray, neural: np.ndarray, source: np.ndarray, va
     return {"mask": far | off | invalid, "sdf": far, "angle": off & ~invalid, "invalid": invalid}
 
 
+def colour_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """CIEDE2000 ΔE (M,) between linear RGB(A) colours ``a`` and ``b`` (M, ≥3) (alpha ignored), through
+    their sRGB encodings (scikit-image's ``rgb2lab``, D65); about 1 is a just noticeable difference."""
+    from skimage.color import deltaE_ciede2000, rgb2lab
+
+    from ..io.colour import linear_to_srgb
+
+    if len(a) == 0:
+        return np.zeros(0)
+    lab = [rgb2lab(linear_to_srgb(np.asarray(c, dtype=np.float64)[:, :3])) for c in (a, b)]
+    return np.asarray(deltaE_ciede2000(lab[0], lab[1]), dtype=np.float64)
+
+
+class HybridBand(NamedTuple):
+    """What :class:`HybridFallback` gives for one band: the normals (M, 3) with the unfaithful samples
+    replaced and their mask (M,), and the colours (M, C) with the replaced ones and their mask (None when no
+    colours were decided)."""
+
+    normals: np.ndarray
+    replaced: np.ndarray
+    colors: np.ndarray | None = None
+    colors_replaced: np.ndarray | None = None
+
+
 class HybridFallback:
     """Per band of texel samples: the classical bake, f at its source points, and the replacement.
 
@@ -66,17 +96,20 @@ class HybridFallback:
     - ``decide``: "lattice" (default) or "all" (:data:`HYBRID_DECISIONS`, module docstring); ``reach``:
       the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side).
     - ``seed``: of the lattice rule's check subsample.
+    - ``color_tol``: ΔE (CIEDE2000) above which a neural colour takes the source texture's (None: colours
+      are not decided). Needs ``fine`` with UVs and a texture.
 
-    Called as ``fallback(coarse, texels, normals, valid, evaluated)`` with the coarse mesh the texels lie on,
-    a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask and (M,) mask of
-    the samples the fields were evaluated at (None: all of them); returns ``(normals (M, 3) with the
-    unfaithful samples replaced, mask (M,) bool of the replaced samples)``. ``self.counts`` sums the samples
-    per reason over the calls; ``self.f_abs`` keeps |f| at the source points of the decided samples.
+    Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
+    texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
+    (M,) mask of the samples the fields were evaluated at (None: all of them) and its (M, C) linear neural
+    colours (None: no texture baked); returns a :class:`HybridBand`. ``self.counts`` sums the samples per
+    reason over the calls; ``self.f_abs`` keeps |f| at the source points of the decided samples.
     """
 
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
-                 decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0):
+                 decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0,
+                 color_tol: float | None = None):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
             raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
@@ -87,14 +120,23 @@ class HybridFallback:
                                   parameter="decide")
         if isinstance(reach, bool) or int(reach) != reach or reach < 1:
             raise NeuralBakeError(f"hybrid reach must be a positive integer, got {reach!r}", parameter="reach")
+        if color_tol is not None:
+            if not (color_tol > 0):  # NaN and non-positive
+                raise NeuralBakeError(f"hybrid color_tol must be a positive ΔE, got {color_tol!r}",
+                                      parameter="color_tol")
+            if fine.uv is None or fine.texture is None:
+                raise NeuralBakeError(f"{fine.name}: hybrid colours need a source mesh with UVs and a texture",
+                                      parameter="color_tol")
         from .baseline import raycasting_scene
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
         self.cage, self.keep_baseline, self.chunk_size = cage, bool(keep_baseline), int(chunk_size)
         self.decide, self.reach, self.seed = decide, int(reach), int(seed)
+        self.color_tol = None if color_tol is None else float(color_tol)
         self.scene = raycasting_scene(fine)
         self.baselines: list[dict] = []
-        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0}
+        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0,
+                       "color_replaced": 0}
         self.check = {"samples": 0, "missed": 0}
         self.f_abs: list[np.ndarray] = []
         self.seconds = 0.0
@@ -115,18 +157,21 @@ class HybridFallback:
         return out
 
     def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
-                base: dict | None) -> tuple[dict, dict]:
-        """(reasons, classical bake) of the samples ``idx``: rays cast unless ``base`` holds the band's."""
+                base: dict | None, colors: np.ndarray | None = None) -> tuple[dict, dict]:
+        """(reasons, classical bake) of the samples ``idx``: rays cast unless ``base`` holds the band's.
+        With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful."""
         from .baseline import baseline_bake
 
         if base is None:
             sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx])
             b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
         else:
-            b = {"normals": base["normals"][idx], "points": base["points"][idx]}
+            b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
         f_surf = self.field_values(b["points"]) if len(idx) else np.zeros(0)
         self.f_abs.append(np.abs(f_surf))
         why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
+        if colors is not None:
+            why["color"] = colour_difference(colors[idx], b["colors"]) > self.color_tol
         return why, b
 
     def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray) -> np.ndarray:
@@ -155,7 +200,8 @@ class HybridFallback:
         frac = max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates)))
         return candidates[keys < frac]
 
-    def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None):
+    def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None,
+                 colors: np.ndarray | None = None) -> HybridBand:
         import time
 
         from .baseline import baseline_bake
@@ -164,6 +210,9 @@ class HybridFallback:
         normals = np.asarray(normals, dtype=np.float64)
         valid = np.asarray(valid, dtype=bool)
         m = len(normals)
+        colors = None if colors is None or self.color_tol is None else np.asarray(colors, dtype=np.float64)
+        color_mask = np.zeros(m, dtype=bool) if colors is not None else None
+        source_colors = np.zeros_like(colors) if colors is not None else None
         base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene) if self.keep_baseline \
             else None
         if self.decide == "all" or evaluated is None:
@@ -181,24 +230,35 @@ class HybridFallback:
             classical[idx] = b["normals"]
             for k in reasons:
                 reasons[k][idx] = why[k]
+            if color_mask is not None:
+                color_mask[idx] = why["color"]
+                source_colors[idx] = b["colors"]
 
-        why, b = self._decide(coarse, texels, first, normals, valid, base)
+        def either(why):  # unfaithful normal or colour
+            return why["mask"] | why["color"] if color_mask is not None else why["mask"]
+
+        why, b = self._decide(coarse, texels, first, normals, valid, base, colors)
         take(first, why, b)
         rest = np.flatnonzero(~decided)
         if len(rest):
-            near = self._near(texels, first[why["mask"]], rest)
+            near = self._near(texels, first[either(why)], rest)
             ring = rest[near]
             if len(ring):
-                take(ring, *self._decide(coarse, texels, ring, normals, valid, base))
+                take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors))
             check = self._check_pick(rest[~near])
             if len(check):
-                why, b = self._decide(coarse, texels, check, normals, valid, base)
+                why, b = self._decide(coarse, texels, check, normals, valid, base, colors)
                 take(check, why, b)
                 self.check["samples"] += len(check)
-                self.check["missed"] += int(why["mask"].sum())
+                self.check["missed"] += int(either(why).sum())
         self._seen += m
         out = normals.copy()
         out[mask] = classical[mask]
+        out_colors = None
+        if color_mask is not None:
+            out_colors = colors.copy()
+            out_colors[color_mask] = source_colors[color_mask]
+            self.counts["color_replaced"] += int(color_mask.sum())
         self.counts["samples"] += m
         self.counts["decided"] += int(decided.sum())
         self.counts["replaced"] += int(mask.sum())
@@ -207,7 +267,7 @@ class HybridFallback:
         if self.keep_baseline:
             self.baselines.append(base)
         self.seconds += time.perf_counter() - t0
-        return out, mask
+        return HybridBand(out, mask, out_colors, color_mask)
 
     def summary(self) -> dict:
         """JSON-ready totals: thresholds, where it decided, counts per reason, share of samples replaced, |f| at
@@ -215,8 +275,10 @@ class HybridFallback:
         f = np.concatenate(self.f_abs) if self.f_abs else np.zeros(0)
         n = max(1, self.counts["samples"])
         c = self.check
-        return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, "decide": self.decide, **self.counts,
+        return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, "color_tol": self.color_tol,
+                "decide": self.decide, **self.counts,
                 "sample_fraction": self.counts["replaced"] / n,
+                "color_sample_fraction": self.counts["color_replaced"] / n if self.color_tol is not None else None,
                 "decided_fraction": self.counts["decided"] / n,
                 "lattice_check": None if self.decide == "all" else {
                     "samples": c["samples"], "missed": c["missed"],

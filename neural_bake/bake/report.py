@@ -217,7 +217,7 @@ def _median_ci95(err: np.ndarray) -> list[float] | None:
 
 #: Report entries measured on the texel samples the report holds (a subsample for a streamed bake).
 SAMPLED_FIGURES = ("vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
-                   "neural_vs_truth_deg", "hybrid.replaced_vs_truth_deg", "color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
+                   "neural_vs_truth_deg", "hybrid.replaced_vs_truth_deg", "color_psnr_db", "neural_color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
                    "baseline.fallback")
 
 
@@ -254,10 +254,12 @@ def bake_report(
     - ``timings``: extra stage times (seconds) to list, e.g. loading, coarse mesh, export.
     - ``out_dir``: if given, writes ``error_normal.png`` (angle to ground truth, white = 10°+),
       ``error_baseline.png``, ``miss.png`` and (a hybrid bake) ``hybrid.png`` (white: the texels that took
-      the classical normal) there (atomically) and lists them under ``"files"``.
+      the classical normal; ``hybrid_color.png``: the source texture's colour) there (atomically) and lists
+      them under ``"files"``.
 
     A hybrid bake (``result.hybrid``) adds ``"hybrid"`` (samples and texels that took the classical normal,
-    their share of the covered texels, their error) and ``"neural_vs_truth_deg"`` (∇f alone).
+    their share of the covered texels, their error; texels that took the source's colour) and
+    ``"neural_vs_truth_deg"`` (∇f alone; ``"neural_color_psnr_db"``: the texture network alone).
 
     Returns a JSON-ready dict. Angles are in degrees.
     """
@@ -301,13 +303,19 @@ def bake_report(
         if neural is not None:  # a hybrid bake: what ∇f alone would have given
             rep["neural_vs_truth_deg"] = stats(angular_error(neural, truth_n))
     if result.hybrid is not None:
-        rep["hybrid"] = {k: result.stats.get(k) for k in ("hybrid_samples", "hybrid_texels", "hybrid_fraction")}
+        rep["hybrid"] = {k: result.stats.get(k) for k in ("hybrid_samples", "hybrid_texels", "hybrid_fraction",
+                                                          "hybrid_color_texels", "hybrid_color_fraction")
+                         if k in result.stats}
         if replaced is not None and err is not None and replaced.any():
             rep["hybrid"]["replaced_vs_truth_deg"] = stats(err[replaced])
     if result.albedo is not None and truth_c is not None:
         k = min(3, truth_c.shape[1])
         ours = linear_to_srgb(result.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :k].astype(np.float64))
         rep["color_psnr_db"] = psnr(_quantise(ours, bits), linear_to_srgb(truth_c[:, :k]))
+        neural_c = getattr(result, "neural_colors", None) if full else None
+        if neural_c is not None:  # a hybrid bake that decided colours: what the texture network alone gives
+            rep["neural_color_psnr_db"] = psnr(_quantise(linear_to_srgb(neural_c[:, :k].astype(np.float64)), bits),
+                                               linear_to_srgb(truth_c[:, :k]))
     rep["seams"] = seam_discontinuity(
         baker.mesh, baker.tangents, result.normal_map, result.albedo,
         normal_space=baker.normal_space, y_convention=baker.y_convention,
@@ -365,6 +373,9 @@ def bake_report(
         if result.hybrid is not None:
             write_image(out_dir / "hybrid.png", result.hybrid.astype(np.float32), colour="data", fast=True)
             files.append("hybrid.png")
+        if getattr(result, "hybrid_color", None) is not None:
+            write_image(out_dir / "hybrid_color.png", result.hybrid_color.astype(np.float32), colour="data", fast=True)
+            files.append("hybrid_color.png")
         rep["files"] = files
         rep["error_map_scale_deg"] = ERROR_MAP_MAX_DEG
     return rep

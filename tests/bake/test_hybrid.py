@@ -175,9 +175,9 @@ def test_lattice_check_counts_what_the_rule_missed():
     tx = baker.texels
     normals, valid = np.asarray(tx.normal, dtype=np.float64), np.ones(tx.n_samples, dtype=bool)
     evaluated = np.asarray(tx.points)[:, 2] < 0  # the cap is around +Z
-    _, every = HybridFallback(ico(5), field, decide="all")(baker.mesh, tx, normals, valid, evaluated)
+    every = HybridFallback(ico(5), field, decide="all")(baker.mesh, tx, normals, valid, evaluated).replaced
     hybrid = HybridFallback(ico(5), field)
-    _, lattice = hybrid(baker.mesh, tx, normals, valid, evaluated)
+    lattice = hybrid(baker.mesh, tx, normals, valid, evaluated).replaced
     assert every.sum() > 500 and 0 < lattice.sum() < every.sum()
     assert not (lattice & ~every).any()  # it never replaces a faithful sample
     c = hybrid.summary()["lattice_check"]
@@ -190,3 +190,83 @@ def test_lattice_check_counts_what_the_rule_missed():
 def test_bad_decision_settings_raise(kwargs, message):
     with pytest.raises(NeuralBakeError, match=message):
         HybridFallback(ico(1), sphere_field(), **kwargs)
+
+
+RED, BLUE = (0.8, 0.1, 0.1), (0.1, 0.1, 0.8)
+
+
+def red_textured_sphere():
+    """The fine sphere with UVs and a flat red texture: the source colour is red everywhere."""
+    import dataclasses
+
+    fine = unwrap(ico(5), resolution=256)
+    return dataclasses.replace(fine, texture=np.tile(np.array(RED, dtype=np.float32), (8, 8, 1)))
+
+
+def half_blue_texture():
+    """Red on z > 0, blue below: faithful to the red source on the upper half only (ΔE red/blue ≫ 5)."""
+    import torch
+
+    from neural_bake.fields import TextureField
+
+    red, blue = torch.tensor(RED), torch.tensor(BLUE)
+    return TextureField(lambda p: torch.where((p[:, 2:3] > 0), red.to(p.dtype), blue.to(p.dtype)))
+
+
+def test_colour_difference_is_ciede2000_of_the_srgb_colours():
+    from skimage.color import deltaE_ciede2000, rgb2lab
+
+    from neural_bake.bake.hybrid import colour_difference
+    from neural_bake.io.colour import linear_to_srgb
+
+    rng = np.random.default_rng(0)
+    a, b = rng.random((50, 3)), rng.random((50, 3))
+    assert np.array_equal(colour_difference(a, a), np.zeros(50))
+    want = [deltaE_ciede2000(rgb2lab(linear_to_srgb(a[i: i + 1])), rgb2lab(linear_to_srgb(b[i: i + 1])))[0]
+            for i in range(50)]
+    np.testing.assert_allclose(colour_difference(a, b), want, rtol=1e-12)
+    # an alpha channel is ignored; white against black is the lightness range, 100
+    np.testing.assert_allclose(colour_difference(np.c_[a, np.zeros(50)], np.c_[b, np.ones(50)]), want, rtol=1e-12)
+    assert abs(colour_difference(np.ones((1, 3)), np.zeros((1, 3)))[0] - 100.0) < 1e-6
+
+
+@pytest.mark.parametrize("decide", ["all", "lattice"])
+def test_unfaithful_colours_take_the_source_texture(decide):
+    """Colours the texture field gets wrong (blue below the equator, the source is red) take the source's
+    colour; faithful ones (red above) keep the field's; the lattice rule replaces what deciding every sample
+    replaces; the normals of a faithful SDF are untouched."""
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    coarse = unwrap(ico(2), resolution=128)
+    field, tex = sphere_field(), half_blue_texture()
+    hybrid = HybridFallback(red_textured_sphere(), field, color_tol=5.0, decide=decide)
+    res = Baker(coarse, 96).bake(field, tex, hybrid=hybrid, adaptive=AdaptiveOptions())
+    below = np.asarray(Baker(coarse, 96).texels.points)[:, 2] < 0
+    assert res.replaced.sum() == 0  # the sphere SDF is exact: every normal is faithful
+    np.testing.assert_array_equal(res.colors_replaced, below)
+    np.testing.assert_allclose(res.colors, np.tile(RED, (len(below), 1)), atol=1e-6)
+    np.testing.assert_allclose(res.neural_colors[below], np.tile(BLUE, (below.sum(), 1)), atol=1e-6)
+    covered = res.coverage
+    np.testing.assert_allclose(res.albedo[covered][:, :3], np.tile(RED, (covered.sum(), 1)), atol=1e-5)
+    assert res.hybrid_color.sum() == res.stats["hybrid_color_texels"] > 0
+    s = hybrid.summary()
+    assert s["color_tol"] == 5.0 and s["color_replaced"] == below.sum()
+    if decide == "lattice":
+        assert s["lattice_check"]["missed"] == 0
+
+
+def test_colours_untouched_without_a_colour_tolerance():
+    coarse = unwrap(ico(2), resolution=128)
+    field, tex = sphere_field(), half_blue_texture()
+    res = Baker(coarse, 64).bake(field, tex, hybrid=HybridFallback(red_textured_sphere(), field))
+    assert res.hybrid_color is None and res.colors_replaced is None and "hybrid_color_texels" not in res.stats
+    below = np.asarray(Baker(coarse, 64).texels.points)[:, 2] < 0
+    np.testing.assert_allclose(res.colors[below], np.tile(BLUE, (below.sum(), 1)), atol=1e-6)
+
+
+@pytest.mark.parametrize("tol", [0.0, -1.0, float("nan")])
+def test_bad_colour_tolerance_and_a_source_without_texture_raise(tol):
+    with pytest.raises(NeuralBakeError, match="color_tol"):
+        HybridFallback(red_textured_sphere(), sphere_field(), color_tol=tol)
+    with pytest.raises(NeuralBakeError, match="UVs and a texture"):
+        HybridFallback(ico(1), sphere_field(), color_tol=5.0)
