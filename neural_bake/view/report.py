@@ -40,6 +40,8 @@ REPORT_DIR = "report"
 _UV_MAPS = (("error_normal.png", "normal error (angle to the truth; white ≥ the scale in report.json)"),
             ("error_baseline.png", "classical mesh-to-mesh bake's normal error, same scale"),
             ("miss.png", "texels off the nesting band (white)"),
+            ("hybrid.png", "texels that took the classical normal (white)"),
+            ("hybrid_color.png", "texels that took the source texture's colour (white)"),
             ("normal.png", "baked tangent-space normal map (+Y green up)"),
             ("albedo.png", "baked albedo"))
 
