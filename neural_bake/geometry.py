@@ -10,16 +10,26 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .constants import FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
+from .constants import DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
 __all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "interpolate_corners",
            "mismatch_problem", "raycasting_scene"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles in degrees (M,) between unit vectors a and b (M, 3), float64; a zero vector gives 90°."""
-    d = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
-    return np.degrees(np.arccos(np.clip(d, -1.0, 1.0)))
+    """(M,) float64 angles in degrees between the directions of rows ``a`` and ``b`` (M, 3), any float dtype.
+
+    Measured as atan2(|a × b|, a · b) in float64: accurate at every angle (identical rows give exactly 0°,
+    opposite rows exactly 180°), where arccos of the dot product loses digits near 0° and 180°. The rows need
+    not be unit; a row shorter than ``DIRECTION_EPS`` has no direction and gives 90°.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    sin = np.linalg.norm(np.cross(a, b), axis=-1)
+    cos = np.einsum("...i,...i->...", a, b)
+    out = np.degrees(np.arctan2(sin, cos))
+    undefined = (np.linalg.norm(a, axis=-1) < DIRECTION_EPS) | (np.linalg.norm(b, axis=-1) < DIRECTION_EPS)
+    return np.where(undefined, 90.0, out)
 
 
 def interpolate_corners(values: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:

@@ -107,3 +107,38 @@ def test_interpolate_corners_matches_a_per_point_sum(dtype):
     # a corner's own weight gives its value back exactly
     corner = geometry.interpolate_corners(values, face, np.tile([0.0, 1.0, 0.0], (1000, 1)))
     np.testing.assert_array_equal(corner, values[face, 1].astype(np.float64))
+
+
+def _rotated(theta_deg: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rows a and rows b at exactly ``theta_deg`` from them (float64 construction: the reference)."""
+    a = rng.normal(size=(len(theta_deg), 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    u = np.cross(a, rng.normal(size=a.shape))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    t = np.radians(theta_deg)[:, None]
+    return a, np.cos(t) * a + np.sin(t) * u
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_angular_error_against_a_float64_reference(dtype):
+    rng = np.random.default_rng(5)
+    theta = np.concatenate([[1e-6, 1e-4, 0.01, 0.1], rng.uniform(0, 180, 200), [179.99, 179.9999]])
+    a, b = _rotated(theta, rng)
+    scale = rng.uniform(0.1, 10, size=(len(theta), 1))  # not unit: the angle is of the directions
+    got = geometry.angular_error((a * scale).astype(dtype), b.astype(dtype))
+    assert got.dtype == np.float64 and got.shape == theta.shape
+    # float64 rows: the construction's own rounding; float32 rows: rounding each component to 2^-24 relative
+    tol = 1e-9 if dtype == np.float64 else 2e-5
+    np.testing.assert_allclose(got, theta, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_angular_error_exact_at_0_and_180_and_90_without_direction(dtype):
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(500, 3)).astype(dtype)
+    assert (geometry.angular_error(a, a) == 0.0).all()
+    assert (geometry.angular_error(a, -a) == 180.0).all()
+    assert (geometry.angular_error(a, 4 * a) == 0.0).all()
+    zero = np.zeros((2, 3), dtype=dtype)
+    assert (geometry.angular_error(zero, a[:2]) == 90.0).all() and (geometry.angular_error(a[:2], zero) == 90.0).all()
+    assert geometry.angular_error(np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)

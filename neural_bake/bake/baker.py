@@ -20,7 +20,7 @@ import torch
 from ..constants import ADAPTIVE_CHECK_SAMPLES, DIRECTION_EPS
 from ..errors import NeuralBakeError
 from ..fields import NestedSequence, SdfField, TextureField, closest_surface_points
-from ..geometry import area_weighted_normals
+from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
@@ -241,17 +241,6 @@ def _evaluate(
     return out
 
 
-def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(n,) angles in degrees between the directions of rows ``a`` and ``b`` (n, 3), renormalised in float64
-    and measured as 2·atan2(|a − b|, |a + b|): exact near 0°, where arccos of a float32 dot product reads
-    a few hundredths of a degree for identical vectors."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), DIRECTION_EPS)
-    b = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), DIRECTION_EPS)
-    return np.degrees(2.0 * np.arctan2(np.linalg.norm(a - b, axis=1), np.linalg.norm(a + b, axis=1)))
-
-
 def _quantiles(x: np.ndarray) -> dict:
     if x.size == 0:
         return {"median": None, "p95": None, "max": None}
@@ -349,7 +338,7 @@ class _ErrorControl:
                             self.texture_at)
             both = ref["valid"] & ev["valid"][redo]
             a = np.zeros(redo.size)
-            a[both] = _angles_deg(ev["normals"][redo][both], ref["normals"][both])
+            a[both] = angular_error(ev["normals"][redo][both], ref["normals"][both])
             a[~both & (ref["valid"] != ev["valid"][redo])] = 180.0  # one of the two has no normal
             ang[~exact] = a
             val[~exact] = np.abs(ev["values"][redo] - ref["values"])
