@@ -142,3 +142,16 @@ def test_angular_error_exact_at_0_and_180_and_90_without_direction(dtype):
     zero = np.zeros((2, 3), dtype=dtype)
     assert (geometry.angular_error(zero, a[:2]) == 90.0).all() and (geometry.angular_error(a[:2], zero) == 90.0).all()
     assert geometry.angular_error(np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_angle_measure_is_exact_near_zero(dtype, rng):
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    assert geometry.angular_error(a.astype(dtype), a.astype(dtype)).max() < 1e-5  # arccos of the dot would read ~0.02°
+    theta = rng.uniform(1e-4, 3.0, 200)
+    axis = np.cross(a, rng.normal(size=(200, 3)))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
+    tol = 1e-9 if dtype == np.float64 else 1e-3
+    np.testing.assert_allclose(geometry.angular_error(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)

@@ -21,9 +21,9 @@ from neural_bake.samples.shapes import get_sample
 
 def angle_deg(a, b):
     """Angles (degrees) between the rows' directions, exact near 0° (the bake's own measure)."""
-    from neural_bake.bake.baker import _angles_deg
+    from neural_bake.geometry import angular_error
 
-    return _angles_deg(a, b)
+    return angular_error(a, b)
 
 
 def analytic_fields(name, frame):
@@ -359,21 +359,6 @@ def test_one_evaluation_serves_every_output(sphere_baker, tmp_path):
     full_calls = counting(sdf2, "value_and_normal")
     full = baker.bake(sdf2)
     assert sum(full_calls) == full.stats["samples"]  # without adaptivity: each sample once
-
-
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_angle_measure_is_exact_near_zero(dtype, rng):
-    from neural_bake.bake.baker import _angles_deg
-
-    a = rng.normal(size=(200, 3))
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    assert _angles_deg(a.astype(dtype), a.astype(dtype)).max() < 1e-5  # arccos of the dot would read ~0.02°
-    theta = rng.uniform(1e-4, 3.0, 200)
-    axis = np.cross(a, rng.normal(size=(200, 3)))
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
-    tol = 1e-9 if dtype == np.float64 else 1e-3
-    np.testing.assert_allclose(_angles_deg(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
