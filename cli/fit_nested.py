@@ -36,21 +36,23 @@ Examples:
   neural-bake fit nested --preset default --print-config > nested.toml""")
 @click.argument("model", type=click.Path(dir_okay=False), required=False)
 @output_option("Nested-sequence file to write (one safetensors file with JSON metadata).", required=False)
-@click.option("--progress/--no-progress", default=True, help="Show progress bars on stderr.")
 @verbosity_options
-def command(model, output, config, progress):
+def command(model, output, config):
     """Distil coarser SDFs from the fine SDF MODEL; write the sequence [h1, …, f] with δ to OUTPUT."""
+    from dataclasses import replace
+
     from neural_bake.fit.nested import fit_nested, parse_levels
     from neural_bake.fit.sdf import load_sdf
 
     c = config
     refuse_nonpositive(steps=c.steps, minutes=c.minutes, band=c.band, max_boxes=c.max_boxes)
-    lv = parse_levels(c.levels)
+    parse_levels(c.levels)  # a bad level is refused before the model is read
+    if verbosity() < 0:
+        c = replace(c, progress=False)
     lock_outputs(output)  # checks its folder; one writer per file
     say(f"settings: {c}", 1)
     fine = load_sdf(model, device=c.device)
-    seq = fit_nested(fine, lv, steps=c.steps, minutes=c.minutes, seed=c.seed, band=c.band, eps=c.eps,
-                     certify=c.certify, certify_max_boxes=c.max_boxes, progress=progress and verbosity() >= 0)
+    seq = fit_nested(fine, c)
     say(f"{'level':>8} {'steps':>6} {'best':>6} {'sup est':>9} {'sup cert':>9} {'δ est':>9} {'δ cert':>9} "
         f"{'δ used':>9}")
     for info in seq.levels_info:

@@ -83,13 +83,18 @@ def type_name(hint) -> str:
         if t is type(None):
             names.append("none")
         elif typing.get_origin(t) is tuple:
-            names.append("floats")
+            names.append("ints" if _item_type(t) is int else "floats")
         else:
             names.append(getattr(t, "__name__", str(t)))
     return " or ".join(names)
 
 
 _TRUE, _FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
+
+
+def _item_type(t) -> type:
+    """The item type of a ``tuple[X, ...]`` hint: int for ``tuple[int, ...]``, else float."""
+    return int if typing.get_args(t)[:1] == (int,) else float
 
 
 def _from_text(text: str, t):
@@ -107,7 +112,7 @@ def _from_text(text: str, t):
     if t is str:
         return text
     if typing.get_origin(t) is tuple:
-        return tuple(float(x) for x in text.replace(",", " ").split())
+        return tuple(_item_type(t)(x) for x in text.replace(",", " ").split())
     raise ValueError(text)
 
 
@@ -121,8 +126,10 @@ def _from_native(value, t):
     if t is str and isinstance(value, str):
         return value
     if typing.get_origin(t) is tuple and isinstance(value, (list, tuple)):
-        if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
-            return tuple(float(x) for x in value)
+        item = _item_type(t)
+        if all(isinstance(x, (int, float)) and not isinstance(x, bool) and (item is float or int(x) == x)
+               for x in value):
+            return tuple(item(x) for x in value)
     raise ValueError(value)
 
 

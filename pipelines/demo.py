@@ -83,7 +83,7 @@ def run_demo(out_dir, config: DemoConfig | None = None, *, log: Callable[[str], 
 def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[str], None]) -> dict:
     """The demo's steps, writing into the staging folder ``stage`` of ``folder`` (committed by the caller)."""
     from neural_bake.fit.metrics import sdf_metrics
-    from neural_bake.fit.nested import fit_nested
+    from neural_bake.fit.nested import fit_nested, nested_config
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.fit.texture import fit_texture, texture_metrics
     from neural_bake.io.atomic import atomic_write_text
@@ -112,9 +112,10 @@ def _demo(stage: Path, folder, mesh_path: Path, cfg: DemoConfig, log: Callable[[
         f"{sdf_q['normal_median_deg']:.2f}° against the faces")
 
     log(f"[3/5] distilling the nested sequence ({cfg.nested_levels}, {cfg.nested_minutes:g} min per level)")
-    seq = fit_nested(sdf, cfg.nested_levels, mesh=mesh, minutes=cfg.nested_minutes, steps=1_000_000, seed=cfg.seed,
-                     certify=cfg.nested_boxes > 0, certify_max_boxes=max(cfg.nested_boxes, 1),
-                     stability_samples=(1_000, 10_000), progress=cfg.progress)
+    seq = fit_nested(sdf, nested_config(levels=cfg.nested_levels, minutes=cfg.nested_minutes, steps=1_000_000,
+                                        seed=cfg.seed, certify=cfg.nested_boxes > 0,
+                                        max_boxes=max(cfg.nested_boxes, 1), stability_samples=(1_000, 10_000),
+                                        progress=cfg.progress), mesh=mesh)
     nested_path = stage / "nested.safetensors"
     seq.save(nested_path)
     for i, info in enumerate(seq.levels_info):

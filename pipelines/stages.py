@@ -379,13 +379,11 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
     nested_cfg = cfg["nested"]
 
     def run_nested(out: Path, key: str) -> dict:
-        from neural_bake.fit.nested import fit_nested, parse_levels
+        from neural_bake.fit.nested import fit_nested
         from neural_bake.fit.sdf import load_sdf
 
         n = nested_cfg
-        seq = fit_nested(load_sdf(sdf_path, device=n.device), parse_levels(n.levels), steps=n.steps, minutes=n.minutes, seed=n.seed,
-                         band=n.band, eps=n.eps, certify=n.certify, certify_max_boxes=n.max_boxes, progress=False,
-                         stability_samples=())
+        seq = fit_nested(load_sdf(sdf_path, device=n.device), dataclasses.replace(n, progress=False, stability_samples=()))
         seq.save(out)
         return {"deltas": [round(d, 6) for d in seq.deltas], "steps": sum(seq.iterations[:-1]),
                 **_budget_metrics([info.get("budget") for info in seq.levels_info[:-1]])}

@@ -183,10 +183,10 @@ def run(quick: bool = False, *, steps: int | None = None, frames: int | None = N
                + (r[1]["hausdorff_t1"] or 9.0))[0]
     fine = fits[best]
     t0 = time.perf_counter()
-    nested = nest_spacetime(fine, [(16, 1) if quick else (64, 1)], steps=200 if quick else 1500,
+    nested = nest_spacetime(fine, levels=[(16, 1) if quick else (64, 1)], steps=200 if quick else 1500,
                             pool=20_000 if quick else 100_000, eval_samples=4000 if quick else 20_000,
                             n_estimate=10_000 if quick else 50_000, stability_samples=(),
-                            certify_max_boxes=2000 if quick else 200_000, progress=progress,
+                            max_boxes=2000 if quick else 200_000, progress=progress,
                             check_times=6 if quick else 11)
     nest_s = time.perf_counter() - t0
     info = nested.levels_info[0]

@@ -79,7 +79,7 @@ def run(quick: bool = False, *, meshes=None, model_path=None, levels=None, steps
     boxes = int(certify_max_boxes or (2000 if quick else 20_000))
     names = meshes or (["bumpy_sphere"] if quick else ["bumpy_sphere", "spot"])
     mesh_list, notes = _meshes(quick, names[:1] if model_path else names)
-    common = dict(steps=steps, seed=seed, progress=False, certify_max_boxes=boxes)
+    common = dict(steps=steps, seed=seed, progress=False, max_boxes=boxes)
     if quick:
         common.update(pool=50_000, n_estimate=20_000, eval_samples=5_000, stability_samples=(1_000, 10_000))
     rows, stability = [], []
@@ -87,7 +87,7 @@ def run(quick: bool = False, *, meshes=None, model_path=None, levels=None, steps
         fine, fine_s = _fine(name, mesh, quick, seed, model_path)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", NeuralBakeWarning)
-            base = fit_nested(fine, levels, mesh=mesh, **common)
+            base = fit_nested(fine, mesh=mesh, levels=levels, **common)
         notes += [f"{name}: {w.message}" for w in caught if issubclass(w.category, NeuralBakeWarning)]
         dist_rows = _level_rows(name, base, levels)
         for i, (w, d) in enumerate(levels):

@@ -67,12 +67,12 @@ def _networks(quick: bool, seed: int, cache_dir: Path, notes: list):
         if quick:
             fine = fit_sdf(mesh, width=64, depth=2, minutes=None, steps=300, seed=seed, progress=False,
                            polish_evals=0, compile="off", micro_batches=1)
-            seq = fit_nested(fine, [(16, 1), (32, 1)], mesh=mesh, steps=200, seed=seed, progress=False,
+            seq = fit_nested(fine, mesh=mesh, levels=[(16, 1), (32, 1)], steps=200, seed=seed, progress=False,
                              certify=False, pool=50_000, n_estimate=20_000, eval_samples=5_000,
                              stability_samples=(1_000,), stability_bands=(0.1,))
         else:
             fine = fit_sdf(mesh, preset="256x3", minutes=3.0, seed=seed, progress=False)
-            seq = fit_nested(fine, [(64, 1), (256, 1)], mesh=mesh, steps=800, seed=seed, progress=False,
+            seq = fit_nested(fine, mesh=mesh, levels=[(64, 1), (256, 1)], steps=800, seed=seed, progress=False,
                              certify=False, stability_samples=(10_000,), stability_bands=(0.1,))
     seq.save(path)
     spent = time.perf_counter() - t0

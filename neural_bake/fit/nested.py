@@ -79,6 +79,30 @@ class NestedFitConfig:
     """Seed of weights and samples."""
     device: str | None = None
     """Torch device of the distillation ("cpu", "cuda", …; None: the fine model's)."""
+    lr: float = 1e-3
+    """Adam learning rate of the distillation."""
+    batch: int = 4096
+    """Training points per step."""
+    pool: int = 200_000
+    """Training points per level (band points around the teacher's zero set, uniform points, surface samples)."""
+    omega_0: float | None = 15.0
+    """ω0 of the coarse levels (None: the fine model's); a coarse level is a smooth approximation."""
+    eval_every: int = 100
+    """Steps between the sup-norm evaluations that choose the kept step."""
+    eval_samples: int = 20_000
+    """Band points of each such evaluation."""
+    n_estimate: int = 100_000
+    """Band points of the final sup-norm estimate."""
+    stability_samples: tuple[int, ...] = (1_000, 10_000, 100_000)
+    """Sample sizes of the stability table (sizes × ``stability_bands``; empty: no table)."""
+    stability_bands: tuple[float, ...] = (0.1, 0.2, 0.3)
+    """Bands Δ of the stability table."""
+    certify_rel_tol: float = 0.25
+    """The certification subdivides a box until its bound is within this fraction of the estimate."""
+    warn_ratio: float = 2.0
+    """Warn when the certified sup-norm is above this many times the sampled estimate."""
+    progress: bool = True
+    """Show progress bars."""
 
 
 #: Nested-fit presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
@@ -327,56 +351,21 @@ def _level_budget(res, cost: float, minutes: float, step_cap: int, desc: str) ->
     return rec
 
 
-def fit_nested(
-    fine_model,
-    levels=((64, 1), (256, 1)),
-    *,
-    mesh: Mesh | None = None,
-    frame: Frame | None = None,
-    steps: int = 2000,
-    minutes: float | None = None,
-    seed: int = 0,
-    lr: float = 1e-3,
-    batch: int = 4096,
-    pool: int = 200_000,
-    band: float = 0.1,
-    eps: float = 1e-3,
-    omega_0: float | None = 15.0,
-    eval_every: int = 100,
-    eval_samples: int = 20_000,
-    n_estimate: int = 100_000,
-    stability_samples=(1_000, 10_000, 100_000),
-    stability_bands=(0.1, 0.2, 0.3),
-    certify: bool = True,
-    certify_max_boxes: int = 20_000,
-    certify_rel_tol: float = 0.25,
-    warn_ratio: float = 2.0,
-    progress: bool = True,
-) -> NestedSequence:
+def fit_nested(fine_model, config: NestedFitConfig | None = None, *, mesh: Mesh | None = None,
+               frame: Frame | None = None, **overrides) -> NestedSequence:
     """Distil coarser Sirens from ``fine_model`` and set their nesting thresholds δ (module docstring).
 
     Args:
         fine_model: the fine SDF f — a :class:`Siren` or an :class:`~neural_bake.fit.sdf.SdfFit` (its frame
             is then used).
-        levels: coarse levels as (W, D), coarse to fine, e.g. ``[(64, 1), (256, 1)]``.
+        config: the settings (default :class:`NestedFitConfig`): the coarse ``levels`` (W, D), coarse to fine,
+            steps or a time budget (``minutes``) per level — a budgeted level's info holds its account
+            (``budget``: steps made beside the steps this machine makes in the budget, and a warning below half
+            of them) — the band Δ and ε, the sup-norm samples and the certification.
         mesh: optional source mesh; its surface samples join the training points and its frame is used.
         frame: the frame to store (default: the SdfFit's or the mesh's, else identity).
-        steps: training steps per level. minutes: wall-clock budget per level (None: none); a budgeted level's
-            info holds its account (``budget``: steps made beside the steps this machine makes in the budget,
-            and a warning below half of them).
-        seed: seeds initial weights, samples and per-step draws.
-        lr, batch, pool: Adam learning rate, points per step, training points per level.
-        band: Δ of the sup-norm (unit frame). eps: ε of Prop. 1.
-        omega_0: ω0 of the coarse levels (None: f's). Default 15: coarse levels are smooth approximations;
-            distilling a (32, 1) from a (64, 1) bumpy-sphere SDF in 600 steps gave a sampled sup-norm of 0.027
-            with ω0 = 15 against 0.044 with ω0 = 30 (and 0.37 with lr 2e-4 instead of 1e-3).
-        eval_every, eval_samples: the kept step is the one with the smallest sup-norm over ``eval_samples``
-            band points, evaluated every ``eval_every`` steps.
-        n_estimate: band samples of the final sup-norm estimate.
-        stability_samples, stability_bands: the grid of the stability table (sizes × Δ); empty: none.
-        certify: run the range-analysis certification. certify_max_boxes, certify_rel_tol: its budget.
-        warn_ratio: warn when certified sup > warn_ratio × estimated sup.
-        progress: show progress bars.
+        **overrides: any :class:`NestedFitConfig` field, e.g. ``levels=[(8, 0)], steps=200``
+            (``levels`` as text or (W, D) pairs).
 
     Returns:
         A :class:`NestedSequence` ``[h_1, …, h_k, f]``; each level's info holds its loss history
@@ -386,8 +375,15 @@ def fit_nested(
     Raises:
         FitError: bad levels or settings, a network without a zero level set in [-1, 1]³, divergence.
     """
+    from dataclasses import replace
+
     from .sdf import SdfFit
 
+    unknown = sorted(set(overrides) - set(NestedFitConfig.__dataclass_fields__))
+    if unknown:
+        raise FitError(f"fit_nested: unknown setting(s) {', '.join(unknown)}")
+    cfg = replace(config or NestedFitConfig(), **overrides)
+    levels = cfg.levels
     fine_training = None
     if isinstance(fine_model, SdfFit):
         frame = frame or fine_model.frame
@@ -401,18 +397,20 @@ def fit_nested(
                        f"R^{fine_model.in_dim} -> R^{fine_model.out_dim})")
     if mesh is not None and fine_model.in_dim != 3:
         raise FitError("fit_nested: mesh is for a static fine model; a space-time model takes no mesh")
+    if isinstance(levels, str) and not levels.strip():
+        raise FitError("fit_nested: give at least one coarse level")
     levels = parse_levels(levels) if isinstance(levels, str) else [tuple(lv) for lv in levels]
     for lv in levels:
         if len(lv) != 2 or int(lv[0]) != lv[0] or int(lv[1]) != lv[1] or lv[0] < 1 or lv[1] < 0:
             raise FitError(f"fit_nested: level {lv!r} is not (width >= 1, depth >= 0)")
     if not levels:
         raise FitError("fit_nested: give at least one coarse level")
-    if not (math.isfinite(band) and band > 0):
-        raise FitError(f"fit_nested: band must be positive, got {band!r}")
-    if not (math.isfinite(eps) and eps >= 0):
-        raise FitError(f"fit_nested: eps must be non-negative, got {eps!r}")
-    for name, v in (("steps", steps), ("batch", batch), ("pool", pool), ("n_estimate", n_estimate),
-                    ("eval_samples", eval_samples)):
+    if not (math.isfinite(cfg.band) and cfg.band > 0):
+        raise FitError(f"fit_nested: band must be positive, got {cfg.band!r}")
+    if not (math.isfinite(cfg.eps) and cfg.eps >= 0):
+        raise FitError(f"fit_nested: eps must be non-negative, got {cfg.eps!r}")
+    for name, v in (("steps", cfg.steps), ("batch", cfg.batch), ("pool", cfg.pool), ("n_estimate", cfg.n_estimate),
+                    ("eval_samples", cfg.eval_samples)):
         if int(v) != v or v < 1:
             raise FitError(f"fit_nested: {name} must be a positive integer, got {v!r}")
     if mesh is not None:
@@ -420,26 +418,27 @@ def fit_nested(
     frame = frame or Frame()
     fine_model.eval()
     p = next(fine_model.parameters())
-    if band_samples(fine_model, 64, band, seed=int(seed), max_tries=16).shape[0] == 0:
-        raise FitError(f"fit_nested: the fine model has no point of [-1, 1]^{fine_model.in_dim} within {band} of "
+    if band_samples(fine_model, 64, cfg.band, seed=int(cfg.seed), max_tries=16).shape[0] == 0:
+        raise FitError(f"fit_nested: the fine model has no point of [-1, 1]^{fine_model.in_dim} within {cfg.band} of "
                        f"its zero level set (is it an SDF of a surface in the unit frame?)")
     surface = None
     if mesh is not None:
         from .sampling import sample_surface
 
-        surface = sample_surface(mesh, min(pool // 10, 50_000), seed=seed).points
+        surface = sample_surface(mesh, min(cfg.pool // 10, 50_000), seed=cfg.seed).points
 
     coarse: list[Siren | None] = [None] * len(levels)
     infos: list[dict] = [{} for _ in levels]
     teacher = fine_model
     for i in range(len(levels) - 1, -1, -1):
         w, d = levels[i]
-        gen = torch.Generator().manual_seed(int(seed) * 101 + i)
-        student = Siren(int(w), int(d), in_dim=fine_model.in_dim, omega_0=omega_0 or fine_model.omega_0,
+        gen = torch.Generator().manual_seed(int(cfg.seed) * 101 + i)
+        student = Siren(int(w), int(d), in_dim=fine_model.in_dim, omega_0=cfg.omega_0 or fine_model.omega_0,
                         generator=gen).to(p.device, p.dtype)
-        info, _ = _distill(student, teacher, steps=int(steps), minutes=minutes, lr=lr, seed=int(seed) * 101 + i,
-                           band=band, batch=int(batch), pool=int(pool), eval_n=int(eval_samples),
-                           eval_every=int(eval_every), progress=progress, desc=f"nested level {w}x{d}",
+        info, _ = _distill(student, teacher, steps=int(cfg.steps), minutes=cfg.minutes, lr=cfg.lr,
+                           seed=int(cfg.seed) * 101 + i,
+                           band=cfg.band, batch=int(cfg.batch), pool=int(cfg.pool), eval_n=int(cfg.eval_samples),
+                           eval_every=int(cfg.eval_every), progress=cfg.progress, desc=f"nested level {w}x{d}",
                            surface_points=surface)
         student.eval()
         info.update(width=int(w), depth=int(d))
@@ -451,22 +450,22 @@ def fit_nested(
     for i in range(len(levels)):
         h, g = seq_levels[i], seq_levels[i + 1]
         t_est = time.perf_counter()
-        est = estimate_sup_norm(h, g, band=band, n=int(n_estimate), seed=int(seed) + 17 * i)
+        est = estimate_sup_norm(h, g, band=cfg.band, n=int(cfg.n_estimate), seed=int(cfg.seed) + 17 * i)
         infos[i]["sup_estimated"] = est
         infos[i]["estimate_seconds"] = round(time.perf_counter() - t_est, 3)
         rows = []
-        for s in stability_samples:
-            for b in stability_bands:
+        for s in cfg.stability_samples:
+            for b in cfg.stability_bands:
                 rows.append({"samples": int(s), "band": float(b),
-                             "sup": estimate_sup_norm(h, g, band=float(b), n=int(s), seed=int(seed) + 1000 + i)})
+                             "sup": estimate_sup_norm(h, g, band=float(b), n=int(s), seed=int(cfg.seed) + 1000 + i)})
         stability.append(rows)
         infos[i]["sup_certified"] = None
         infos[i]["certify"] = None
-        if certify:
+        if cfg.certify:
             try:
                 t_cert = time.perf_counter()
-                cert = certify_sup_norm(h, g, band=band, estimate=est, rel_tol=certify_rel_tol,
-                                        max_boxes=int(certify_max_boxes))
+                cert = certify_sup_norm(h, g, band=cfg.band, estimate=est, rel_tol=cfg.certify_rel_tol,
+                                        max_boxes=int(cfg.max_boxes))
                 cert["seconds"] = round(time.perf_counter() - t_cert, 3)
             except ImportError:
                 warnings.warn("fit_nested: range analysis (neural_bake.nets.range_analysis) is not available; "
@@ -477,7 +476,7 @@ def fit_nested(
                 cert["sup_certified"] = max(cert["sup_certified"], est)
                 infos[i]["sup_certified"] = cert["sup_certified"]
                 infos[i]["certify"] = cert
-                if cert["sup_certified"] > warn_ratio * max(est, DIRECTION_EPS):
+                if cert["sup_certified"] > cfg.warn_ratio * max(est, DIRECTION_EPS):
                     warnings.warn(
                         f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}): certified |h - g| bound "
                         f"{cert['sup_certified']:.4g} is "
@@ -488,10 +487,11 @@ def fit_nested(
                         NeuralBakeWarning, stacklevel=2)
 
     # thresholds, fine to coarse (Prop. 1)
-    fine_info = {"width": fine_model.width, "depth": fine_model.depth, "steps": 0, "delta_estimated": eps,
-                 "delta_certified": eps if certify and all(i["sup_certified"] is not None for i in infos) else None}
-    fine_info.update(delta=eps, delta_source="eps")
-    d_est, d_cert, d_used = eps, fine_info["delta_certified"], eps
+    fine_info = {"width": fine_model.width, "depth": fine_model.depth, "steps": 0, "delta_estimated": cfg.eps,
+                 "delta_certified": (cfg.eps if cfg.certify and all(i["sup_certified"] is not None for i in infos)
+                                     else None)}
+    fine_info.update(delta=cfg.eps, delta_source="eps")
+    d_est, d_cert, d_used = cfg.eps, fine_info["delta_certified"], cfg.eps
     for i in range(len(levels) - 1, -1, -1):
         d_est = infos[i]["sup_estimated"] + d_est
         infos[i]["delta_estimated"] = d_est
@@ -505,13 +505,13 @@ def fit_nested(
         d_used += infos[i]["sup_certified"] if tight else infos[i]["sup_estimated"]
         infos[i]["delta"] = d_used
         infos[i]["delta_source"] = "certified" if tight else "estimated"
-        if d_used > band:
+        if d_used > cfg.band:
             warnings.warn(f"fit_nested: level {i} ({levels[i][0]}x{levels[i][1]}) has δ = {d_used:.4g} above the "
-                          f"band Δ = {band} where |h - g| was measured; rerun with a larger band or more steps",
+                          f"band Δ = {cfg.band} where |h - g| was measured; rerun with a larger band or more steps",
                           NeuralBakeWarning, stacklevel=2)
-    metadata = {"package_version": __version__, "seed": int(seed), "steps": int(steps), "minutes": minutes,
-                "lr": lr, "batch": int(batch), "pool": int(pool), "n_estimate": int(n_estimate)}
+    metadata = {"package_version": __version__, "seed": int(cfg.seed), "steps": int(cfg.steps),
+                "minutes": cfg.minutes, "lr": cfg.lr, "batch": int(cfg.batch), "pool": int(cfg.pool), "n_estimate": int(cfg.n_estimate)}
     if fine_training is not None:  # the fine level's own fit, so a report of the sequence draws every curve
         metadata["fine_training"] = fine_training
-    return NestedSequence(levels=seq_levels, frame=frame, levels_info=infos + [fine_info], band=float(band),
-                          eps=float(eps), stability=stability, metadata=metadata)
+    return NestedSequence(levels=seq_levels, frame=frame, levels_info=infos + [fine_info], band=float(cfg.band),
+                          eps=float(cfg.eps), stability=stability, metadata=metadata)

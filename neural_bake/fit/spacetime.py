@@ -700,13 +700,14 @@ def spacetime_metrics(fit: SpaceTimeFit, mesh: Mesh, t: float, **kwargs) -> dict
 DELTA_POLICIES = ("certified", "estimated")
 
 
-def nest_spacetime(fit: SpaceTimeFit, levels=((64, 1),), *, check_times: int = 11, delta: str = "certified",
-                   **kwargs):
+def nest_spacetime(fit: SpaceTimeFit, config=None, *, check_times: int = 11, delta: str = "certified",
+                   **overrides):
     """Coarse space-time levels distilled from ``fit``'s network, with one δ per level that holds for every t
-    of the fitted range: :func:`~neural_bake.fit.nested.fit_nested` over [-1, 1]⁴ (space × the time input,
-    which covers τ ∈ [−E, E] for E ≤ 1), sup-norms estimated over space-time samples and certified by range
-    analysis over space-time boxes (``certify``, default on; ``certify_max_boxes`` bounds its cost, recorded in
-    ``levels_info[i]["certify"]["seconds"]``).
+    of the fitted range: :func:`~neural_bake.fit.nested.fit_nested` with ``config`` (a
+    :class:`~neural_bake.fit.nested.NestedFitConfig`; default: one (64, 1) level) and ``overrides`` (its
+    fields) over [-1, 1]⁴ (space × the time input, which covers τ ∈ [−E, E] for E ≤ 1), sup-norms estimated
+    over space-time samples and certified by range analysis over space-time boxes (``certify``, default on;
+    ``max_boxes`` bounds its cost, recorded in ``levels_info[i]["certify"]["seconds"]``).
 
     The sampled sup of each level is also taken at ``check_times`` evenly spaced fixed times
     (:func:`nesting_by_time`, ``n_estimate`` samples each) and the estimated δ rebuilt from the larger value.
@@ -724,7 +725,7 @@ def nest_spacetime(fit: SpaceTimeFit, levels=((64, 1),), *, check_times: int = 1
     """
     import warnings
 
-    from .nested import fit_nested
+    from .nested import NestedFitConfig, fit_nested
 
     if fit.time_extent > 1.0:
         raise FitError(f"nest_spacetime: time_extent {fit.time_extent:g} > 1: the space-time band is sampled for "
@@ -732,17 +733,18 @@ def nest_spacetime(fit: SpaceTimeFit, levels=((64, 1),), *, check_times: int = 1
     if delta not in DELTA_POLICIES:
         raise FitError(f"nest_spacetime: delta must be one of {', '.join(DELTA_POLICIES)}, got {delta!r}")
     if delta == "certified":  # fit_nested's choice (certified only near the estimate) is replaced below
-        kwargs.setdefault("warn_ratio", math.inf)
+        overrides.setdefault("warn_ratio", math.inf)
+    cfg = config or NestedFitConfig(levels="64x1")
     with warnings.catch_warnings():
         if delta == "certified":
             warnings.filterwarnings("ignore", message=r".*above the band .* where \|h - g\| was measured")
-        seq = fit_nested(fit.model, levels, frame=fit.frame, **kwargs)
+        seq = fit_nested(fit.model, cfg, frame=fit.frame, **overrides)
+    n_estimate, seed = int(overrides.get("n_estimate", cfg.n_estimate)), int(overrides.get("seed", cfg.seed))
     seq.metadata["spacetime"] = {"time_range": list(fit.time_range), "time_extent": fit.time_extent,
                                  "kind": fit.kind, "method": fit.method, "times": list(fit.times)}
     # the space-time estimate samples [-1, 1]^4 uniformly: sharpen it at fixed times (the ends of the range
     # included, where uniform samples are sparse)
-    rows = nesting_by_time(seq, np.linspace(*fit.time_range, check_times), n=int(kwargs.get("n_estimate", 100_000)),
-                           seed=int(kwargs.get("seed", 0)) + 991)
+    rows = nesting_by_time(seq, np.linspace(*fit.time_range, check_times), n=n_estimate, seed=seed + 991)
     infos = seq.levels_info
     for r in rows:
         info = infos[r["level"]]

@@ -14,7 +14,7 @@ from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
 
 SMALL = dict(steps=120, pool=8000, batch=1024, eval_every=40, eval_samples=2000, n_estimate=5000,
-             stability_samples=(500, 2000), stability_bands=(0.1, 0.2), certify_max_boxes=3000, progress=False)
+             stability_samples=(500, 2000), stability_bands=(0.1, 0.2), max_boxes=3000, progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def seq(fine):
     frame = Frame((1.0, 2.0, 3.0), 0.5)
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
-        s = fit_nested(SdfFit(model=fine, frame=frame), [(8, 0), (16, 1)], warn_ratio=1.0, **SMALL)
+        s = fit_nested(SdfFit(model=fine, frame=frame), levels=[(8, 0), (16, 1)], warn_ratio=1.0, **SMALL)
     s.metadata["warnings"] = [str(w.message) for w in rec if issubclass(w.category, NeuralBakeWarning)]
     return s
 
@@ -147,7 +147,7 @@ def test_no_surface_in_the_cube():
             p.zero_()
         far.layers[-1].bias.fill_(5.0)
     with pytest.raises(FitError, match="fine model has no point of"):
-        fit_nested(far, [(8, 0)], steps=2, pool=100, batch=16, eval_samples=10, n_estimate=100, progress=False,
+        fit_nested(far, levels=[(8, 0)], steps=2, pool=100, batch=16, eval_samples=10, n_estimate=100, progress=False,
                    certify=False, stability_samples=())
 
 

@@ -269,8 +269,8 @@ def test_errors():
 def nested_morph(sphere_to_torus):
     from neural_bake.fit.spacetime import nest_spacetime
 
-    return nest_spacetime(sphere_to_torus, [(16, 1)], steps=200, pool=20_000, eval_samples=4000, n_estimate=10_000,
-                          stability_samples=(), certify_max_boxes=3000, progress=False, check_times=6)
+    return nest_spacetime(sphere_to_torus, levels=[(16, 1)], steps=200, pool=20_000, eval_samples=4000,
+                          n_estimate=10_000, stability_samples=(), max_boxes=3000, progress=False, check_times=6)
 
 
 def _near_zero_set(model, n, seed, steps=3):

@@ -221,7 +221,7 @@ def test_report_captions_colour_section_and_every_fit_curve(bake_folder, tmp_pat
     for name in ("asset.glb", "error_normal.png"):
         shutil.copy2(src / name, folder / name)
     fine_history = [{"step": s, "seconds": 0.1 * s, "loss": 1.0 / s} for s in (1, 10, 20)]
-    seq = fit_nested(SdfFit(model=fit_sphere_siren(steps=30), frame=Frame(), history=fine_history), [(8, 0)],
+    seq = fit_nested(SdfFit(model=fit_sphere_siren(steps=30), frame=Frame(), history=fine_history), levels=[(8, 0)],
                      steps=20, pool=2000, batch=256, eval_every=10, eval_samples=500, n_estimate=1000,
                      stability_samples=(), certify=False, progress=False)
     seq.save(folder / "nested.safetensors")
