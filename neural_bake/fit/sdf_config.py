@@ -9,7 +9,7 @@ import torch
 
 from ..errors import FitError
 from ..nets.compiled import COMPILE_MODES
-from .training import LoopConfig
+from .training import CheckpointSettings
 
 __all__ = ["SdfFitConfig", "PRESETS", "config_from"]
 
@@ -17,19 +17,18 @@ _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
 @dataclass
-class SdfFitConfig:
-    """Settings of :func:`fit_sdf`. Presets: :data:`PRESETS`."""
+class SdfFitConfig(CheckpointSettings):
+    """Settings of :func:`fit_sdf` (the loop's first: :class:`~neural_bake.fit.training.CheckpointSettings`).
+    Presets: :data:`PRESETS`."""
 
+    steps: int = 5000  # the loop's settings with this fit's defaults
+    log_every: int = 100
     width: int = 256
     """Hidden width W of the Siren (papers' (W, D) notation)."""
     depth: int = 3
     """Number D of hidden W×W matrices (D + 1 hidden layers)."""
     omega_0: float = 30.0
     """ω0 of the first layer (hidden layers use 30); stored in the model file."""
-    steps: int = 5000
-    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
-    minutes: float | None = None
-    """Wall-clock budget in minutes (None: no budget)."""
     budget: str = "time"
     """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
     "steps": run the steps the preset makes in its budget on the quiet reference machine
@@ -41,12 +40,6 @@ class SdfFitConfig:
     """Near-surface points (with ground-truth SDF) per step."""
     batch_uniform: int = 1024
     """Uniform points in [-1, 1]³ (with ground-truth SDF) per step."""
-    lr: float = 1e-4
-    """Initial Adam learning rate (cosine decay to ``lr_min_factor`` of it over the steps or the time budget)."""
-    lr_schedule: str = "cosine"
-    """"cosine" or "constant"."""
-    lr_min_factor: float = 0.05
-    """Final learning rate of the cosine schedule as a fraction of ``lr`` (0 < factor ≤ 1)."""
     w_surface: float = 3000.0
     """Weight of mean f² on surface samples."""
     w_normal: float = 100.0
@@ -77,18 +70,6 @@ class SdfFitConfig:
     """Standard deviations (unit frame) of the near-surface offsets, mixed in equal parts."""
     refresh_every: int = 2000
     """Steps between pool refreshes (0: never refresh)."""
-    seed: int = 0
-    """Seeds the initial weights, the pools and the per-step draws: the same seed gives the same model."""
-    checkpoint: str | None = None
-    """Checkpoint file written during training (None: no checkpoint)."""
-    checkpoint_every: int = 500
-    """Steps between checkpoints."""
-    resume: bool = False
-    """Continue from ``checkpoint`` if it exists (same mesh and settings)."""
-    progress: bool = True
-    """Show a progress bar with the losses."""
-    log_every: int = 100
-    """Steps between history entries."""
     hard_fraction: float = 0.25
     """Part of each step's surface batch drawn from the pool's hardest samples (largest |f|, hard-example
     mining; 0: off), and likewise of the near-surface batch (largest |f − d|). The worst-fitted places set
@@ -175,13 +156,6 @@ class SdfFitConfig:
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
     """"float32" or "float64"."""
-
-    def loop_config(self, desc: str = "fit sdf") -> LoopConfig:
-        """The training-loop part of this config."""
-        return LoopConfig(steps=self.steps, minutes=self.minutes, lr=self.lr, lr_schedule=self.lr_schedule,
-                          lr_min_factor=self.lr_min_factor, seed=self.seed, checkpoint=self.checkpoint,
-                          checkpoint_every=self.checkpoint_every, resume=self.resume, progress=self.progress,
-                          log_every=self.log_every, desc=desc)
 
     def fingerprint_dict(self) -> dict:
         """The settings that define the training trajectory (not budgets, paths or display)."""

@@ -59,7 +59,7 @@ from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
 from ..nets.timeslice import fix_last_input
 from ..types import Frame, Mesh
-from .training import LoopConfig, train
+from .training import LoopSettings, train
 
 __all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "SEQUENCE_METHODS",
            "reframe", "common_frame", "time_to_tau", "spacetime_metrics", "load_spacetime", "SPACETIME_KIND",
@@ -76,8 +76,12 @@ SEQUENCE_METHODS = ("interpolate", "eikonal")
 
 
 @dataclass
-class SpaceTimeFitConfig:
-    """Settings of :func:`fit_morph` and :func:`fit_sequence`."""
+class SpaceTimeFitConfig(LoopSettings):
+    """Settings of :func:`fit_morph` and :func:`fit_sequence` (the loop's first:
+    :class:`~neural_bake.fit.training.LoopSettings`)."""
+
+    steps: int = 3000  # the loop's settings with this fit's defaults
+    lr: float = 2e-4
 
     width: int = 128
     """Hidden width W of the space-time Siren."""
@@ -91,10 +95,6 @@ class SpaceTimeFitConfig:
     """What holds in between the given shapes. Morph: "interpolate" (supervised interpolation + eikonal;
     better quality per minute) or "lse" (level set equation). Sequence: "interpolate" (between the two
     neighbouring frames) or "eikonal" (the eikonal term alone)."""
-    steps: int = 3000
-    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
-    minutes: float | None = None
-    """Wall-clock budget in minutes (None: no budget)."""
     batch: int = 2048
     """Surface points per step, shared by the shapes (the morph's two ends, the frames)."""
     batch_near: int = 2048
@@ -103,12 +103,6 @@ class SpaceTimeFitConfig:
     """Uniform points in [-1, 1]³ (with true SDF) per step, shared by the shapes."""
     batch_between: int = 2048
     """Points at times in between per step (the LSE or interpolation term, and eikonal)."""
-    lr: float = 2e-4
-    """Initial Adam learning rate (cosine decay to ``lr_min_factor`` of it)."""
-    lr_schedule: str = "cosine"
-    """"cosine" or "constant"."""
-    lr_min_factor: float = 0.05
-    """Final learning rate of the cosine schedule as a fraction of ``lr``."""
     w_surface: float = 3000.0
     """Weight of mean f² on surface samples."""
     w_normal: float = 100.0
@@ -132,12 +126,6 @@ class SpaceTimeFitConfig:
     both, for the in-between terms."""
     sigmas: tuple[float, ...] = (0.003, 0.01, 0.05)
     """Standard deviations (common unit frame) of the near-surface offsets, mixed in equal parts."""
-    seed: int = 0
-    """Seeds the initial weights, the pools and the per-step draws."""
-    progress: bool = True
-    """Show a progress bar with the losses."""
-    log_every: int = 50
-    """Steps between history entries."""
     device: str | None = None
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
@@ -582,10 +570,8 @@ def _run(shapes, taus, kind: str, method: str, cfg: SpaceTimeFitConfig, frame: F
         return spacetime_loss_terms(model, surf, surf_n, vol, vol_d, between, bd, cfg, mode=mode, dtau_dt=dtau_dt,
                                     between_w=w)
 
-    loop = LoopConfig(steps=cfg.steps, minutes=None if cfg.minutes is None else
-                      max(cfg.minutes - (time.perf_counter() - t_start) / 60.0, MIN_BUDGET_MINUTES),
-                      lr=cfg.lr, lr_schedule=cfg.lr_schedule, lr_min_factor=cfg.lr_min_factor, seed=cfg.seed,
-                      progress=cfg.progress, log_every=cfg.log_every, desc=desc)
+    loop = cfg.loop_config(desc, minutes=None if cfg.minutes is None else  # the pools' time counts
+                           max(cfg.minutes - (time.perf_counter() - t_start) / 60.0, MIN_BUDGET_MINUTES))
     res = train(model, step_fn, loop)
     model.eval()
     return SpaceTimeFit(model=model, frame=frame, time_range=(float(time_range[0]), float(time_range[1])),

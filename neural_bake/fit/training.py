@@ -42,7 +42,7 @@ import math
 import statistics
 import time
 import warnings
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable
 
@@ -55,38 +55,61 @@ from ..nets.cpu_gemm import gemm_route, model_width, reroute
 from ..nets.threads import ThreadTuner
 from ..nets.heap import keep_freed_memory
 
-__all__ = ["LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
+__all__ = ["LoopSettings", "CheckpointSettings", "LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
 #: The ``format`` entry of a checkpoint's metadata.
 CHECKPOINT_FORMAT = "neural_bake.checkpoint.v1"
 
 
 @dataclass
-class LoopConfig:
-    """How :func:`train` runs (the fitter's own config maps onto this)."""
+class LoopSettings:
+    """The training loop's settings as every fitter's config holds them (its config class derives from this
+    one, with its own defaults); :meth:`loop_config` makes the loop's :class:`LoopConfig` of them."""
 
     steps: int = 1000
     """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
     minutes: float | None = None
     """Wall-clock budget in minutes (None: no budget). Resumed runs count the time already spent."""
     lr: float = 1e-4
-    """Initial Adam learning rate."""
+    """Initial Adam learning rate (halved on each divergence recovery)."""
     lr_schedule: str = "cosine"
     """"constant" or "cosine" (decay to ``lr_min_factor`` × lr over the steps or the time budget)."""
     lr_min_factor: float = 0.05
-    """Final learning rate of the cosine schedule as a fraction of ``lr``."""
+    """Final learning rate of the cosine schedule as a fraction of ``lr`` (0 < factor ≤ 1)."""
     seed: int = 0
-    """Seeds the per-step generators (see :func:`step_generator`)."""
+    """Seeds the initial weights, the samples and the per-step draws: the same seed gives the same model."""
+    progress: bool = True
+    """Show a progress bar with the losses."""
+    log_every: int = 50
+    """Steps between history entries (and progress updates)."""
+
+    def loop_config(self, desc: str = "fit", **changes) -> "LoopConfig":
+        """The :class:`LoopConfig` of this config's loop settings (checkpoint settings included where the
+        config has them), labelled ``desc``; ``changes``: other :class:`LoopConfig` fields."""
+        names = {f.name for f in fields(CheckpointSettings)}
+        own = {f.name: getattr(self, f.name) for f in fields(self) if f.name in names}
+        return LoopConfig(**{**own, "desc": desc, **changes})
+
+
+@dataclass
+class CheckpointSettings(LoopSettings):
+    """:class:`LoopSettings` with checkpoints and resume (fitters whose runs can be resumed)."""
+
     checkpoint: str | None = None
-    """Checkpoint file (safetensors) written every ``checkpoint_every`` steps and at the end; None: none."""
+    """Checkpoint file (safetensors: weights, optimiser state) written every ``checkpoint_every`` steps and at
+    the end; None: none."""
     checkpoint_every: int = 500
     """Steps between checkpoints."""
     resume: bool = False
-    """Continue from ``checkpoint`` if that file exists (same run fingerprint required)."""
-    progress: bool = True
-    """Show a tqdm progress bar with the losses."""
-    log_every: int = 50
-    """Steps between history entries (and progress updates)."""
+    """Continue from ``checkpoint`` if that file exists (same run fingerprint required: mesh, network and
+    settings)."""
+
+
+@dataclass
+class LoopConfig(CheckpointSettings):
+    """How :func:`train` runs: the loop settings of a fitter's config (:meth:`LoopSettings.loop_config`) and
+    the loop's own."""
+
     snapshot_every: int = 100
     """Steps between in-memory snapshots that divergence recovery restores."""
     max_restarts: int = 4
