@@ -1,6 +1,6 @@
 """Small geometric measures that loading, fitting, baking and rendering all use (numpy; no stage imports):
-angles, frame agreement, area-weighted vertex normals, the edge report, and one cached open3d ray-casting
-scene per triangle set."""
+angles, frame agreement, area-weighted vertex normals (of arrays, or of a mesh), a mesh's sampleable faces,
+the edge report, and one cached open3d ray-casting scene per triangle set."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .constants import DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
+from .errors import MeshError
+from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
-__all__ = ["angular_error", "area_weighted_normals", "edge_report", "frame_mismatch", "interpolate_corners",
-           "mismatch_problem", "raycasting_scene"]
+__all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "frame_mismatch",
+           "interpolate_corners", "mismatch_problem", "raycasting_scene", "sampleable_faces", "vertex_normals"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -101,6 +102,49 @@ def area_weighted_normals(
     if fallback is not None:
         out[norm[:, 0] <= UNDERFLOW_EPS] = fallback
     return out
+
+
+def vertex_normals(mesh) -> np.ndarray:
+    """(V, 3) float64 unit outward vertex normals of a :class:`~neural_bake.types.Mesh`.
+
+    ``mesh.vertex_normals`` when set (renormalised), otherwise :func:`area_weighted_normals` of its faces. A
+    vertex without a usable normal (all its faces degenerate, no face, a zero stored row) gets +Z instead of
+    a zero or NaN row.
+    """
+    if mesh.vertex_normals is None:
+        return area_weighted_normals(mesh.vertices, mesh.faces, fallback=(0.0, 0.0, 1.0))
+    n = np.asarray(mesh.vertex_normals, dtype=np.float64)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
+    out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)
+    return out
+
+
+def sampleable_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (K,) int64 and areas (K,) float64 of the faces of a :class:`~neural_bake.types.Mesh` that can be
+    sampled or summed over: not ``mesh.degenerate``, finite area above ``DEGENERATE_AREA``.
+
+    Raises :class:`~neural_bake.errors.MeshError` when there is none.
+    """
+    areas = mesh.face_areas
+    ok = np.isfinite(areas) & (areas > DEGENERATE_AREA)
+    if mesh.degenerate is not None:
+        ok &= ~np.asarray(mesh.degenerate, dtype=bool)
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        raise MeshError(f"{mesh.name}: no non-degenerate faces to sample ({mesh.n_faces} faces, all of zero area)")
+    return idx, areas[idx]
+
+
+def check_points(points, caller: str) -> np.ndarray:
+    """``points`` as an (N, 3) float64 array; ``ValueError`` naming ``caller`` for another shape or a NaN or
+    infinite coordinate."""
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{caller}: points must be (N, 3), got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError(f"{caller}: points contain NaN or infinite values")
+    return p
 
 
 def edge_report(faces: np.ndarray) -> dict:

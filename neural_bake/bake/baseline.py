@@ -43,7 +43,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
     Returns ``{"points" (M, 3), "face" (M,), "bary" (M, 3) (weights of the face's corners),
     "normals" (M, 3) interpolated unit vertex normals, "distance" (M,)}``.
     """
-    from ..mesh.tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     if scene is None:
         scene = raycasting_scene(fine)
@@ -78,7 +78,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     chosen point, "cage", "seconds": {"setup", "rays", "closest", "shade", "total"}}``.
     """
     from ..io.colour import sample_texture
-    from ..mesh.tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     if cage is None:
         cage = DEFAULT_CAGE

@@ -29,7 +29,7 @@ SOURCE_UP_AXIS = "Y"
 
 
 def _unit_normals(mesh: Mesh, normals) -> np.ndarray:
-    from ..mesh.tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     nrm = vertex_normals(mesh) if normals is None else np.asarray(normals, dtype=np.float64)
     return nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), DIRECTION_EPS)

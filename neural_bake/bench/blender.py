@@ -128,7 +128,7 @@ def cycles_bake(
     ``python``: see :func:`find_python`. Raises :class:`BlenderError` (one line) when the interpreter is
     missing, the worker exits non-zero, or it runs longer than ``timeout`` seconds.
     """
-    from ..mesh.tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     if normal_space not in ("tangent", "object"):
         raise BlenderError(f"normal_space must be 'tangent' or 'object', got {normal_space!r}")

@@ -72,7 +72,8 @@ def _open3d_sdf(mesh: Mesh, p: np.ndarray) -> np.ndarray:
 
 def run(quick: bool = False, n: int | None = None, n_sign: int | None = None, seed: int = 0) -> dict:
     """Run the benchmark; ``n`` samples per throughput row, ``n_sign`` query points per sign row."""
-    from ..fit.sampling import sample_near, sample_surface, sample_uniform, signed_distance, winding_number
+    from ..fit.sampling import sample_near, sample_surface, sample_uniform, signed_distance
+    from ..mesh.winding import winding_number
 
     n = n or (5_000 if quick else 100_000)
     n_sign = n_sign or (500 if quick else 4_000)

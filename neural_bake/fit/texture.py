@@ -54,13 +54,13 @@ from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
 from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field,
                       save_model, to_sdf_field, unit_normals)
-from ..geometry import frame_mismatch, raycasting_scene
+from ..geometry import frame_mismatch
 from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
+from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 
-from .training import CheckpointSettings
 __all__ = [
     "TextureFitConfig",
     "TextureFit",
@@ -71,7 +71,6 @@ __all__ = [
     "texture_targets",
     "texel_face_weights",
     "band_orthogonality",
-    "render_views",
 ]
 
 #: δ (unit frame) used when neither the config nor the SDF model file gives one: 1/60 of the unit-frame
@@ -83,12 +82,8 @@ SdfCallable = Callable[[torch.Tensor], "tuple[torch.Tensor, torch.Tensor]"]
 
 
 @dataclass
-class TextureFitConfig(CheckpointSettings):
-    """Settings of :func:`fit_texture` (the loop's first: :class:`~neural_bake.fit.training.CheckpointSettings`);
-    one line per field (the CLI help comes from these)."""
-
-    steps: int = 2000  # the loop's settings with this fit's defaults
-    progress: bool = False
+class TextureFitConfig:
+    """Settings of :func:`fit_texture`; one line per field (the CLI help comes from these)."""
 
     width: int = 256
     """W: width of the colour SIREN's hidden layers."""
@@ -98,6 +93,10 @@ class TextureFitConfig(CheckpointSettings):
     """ω0 of the first layer (frequency of the colour field over the unit frame)."""
     hidden_omega: float = 30.0
     """ω of the later hidden layers."""
+    steps: int = 2000
+    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
+    minutes: float | None = None
+    """Wall-time budget in minutes (None: no budget, run ``steps``)."""
     budget: str = "time"
     """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
     "steps": run the steps the preset makes in its budget on the quiet reference machine
@@ -107,6 +106,10 @@ class TextureFitConfig(CheckpointSettings):
     """Surface samples per step (colour term)."""
     band_batch: int | None = None
     """Band samples per step (orthogonality term); None: ``batch // 4`` (measured: as constant as ``batch``)."""
+    lr: float = 1e-4
+    """Initial Adam learning rate (halved on each divergence recovery)."""
+    lr_schedule: str = "cosine"
+    """"constant" or "cosine" decay over the steps or the time budget."""
     lam: float = 0.0
     """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (0: off, bakes read g on f = 0; 1e-3: paper)."""
     delta: float | None = None
@@ -124,8 +127,20 @@ class TextureFitConfig(CheckpointSettings):
     encoding: str = "auto"
     """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
     unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
+    seed: int = 0
+    """Seed of the initialisation, the samples and the batches (same seed, same run)."""
+    checkpoint: str | None = None
+    """Checkpoint file (safetensors, weights + optimiser) written every ``checkpoint_every`` steps; None: none."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints."""
+    resume: bool = False
+    """Continue from ``checkpoint`` if that file exists (same mesh, network and settings)."""
+    log_every: int = 50
+    """Steps between history entries."""
     max_restarts: int = 4
     """Divergence recoveries (restore the last snapshot, halve lr) before giving up with FitError."""
+    progress: bool = False
+    """Show a progress bar on stderr."""
     device: str = "cpu"
     """Torch device for training."""
     dtype: str = "float32"
@@ -511,7 +526,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     resume, divergence recovery with learning-rate halving). Returns a :class:`TextureFit`; raises
     :class:`FitError` when training diverges for good or there are no band samples.
     """
-    from .training import train
+    from .training import LoopConfig, train
 
     from .budget import fit_budget, reference_steps, steps_budget
     from .presets import TEXTURE_ALIASES, resolve_preset
@@ -574,7 +589,12 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
         orth = band_orthogonality(model, bp, bn, method=config.orth_method).mean()
         return {"loss": colour + lam * orth, "colour": colour, "orth": orth}
 
-    loop = config.loop_config(f"fit texture {mesh.name}", max_restarts=int(config.max_restarts))
+    loop = LoopConfig(
+        steps=int(config.steps), minutes=config.minutes, lr=float(config.lr), lr_schedule=config.lr_schedule,
+        seed=int(config.seed), checkpoint=config.checkpoint, checkpoint_every=int(config.checkpoint_every),
+        resume=bool(config.resume), progress=bool(config.progress), log_every=int(config.log_every),
+        max_restarts=int(config.max_restarts), desc=f"fit texture {mesh.name}",
+    )
     fingerprint = json.dumps({"kind": "texture", "mesh": mesh.name, "faces": mesh.n_faces,
                               "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
                               "pool": config.pool, "seed": config.seed, "encoding": encoding,
@@ -618,44 +638,6 @@ def _eval(model, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
 
 def _psnr(mse: float) -> float:
     return float("inf") if mse <= 0 else float(10.0 * math.log10(1.0 / mse))
-
-
-def render_views(mesh: Mesh, n_views: int = 6, resolution: int = 128) -> list[dict]:
-    """Ray-cast the ground-truth mesh (unit frame) from ``n_views`` orthographic views around it.
-
-    Views look at the origin from directions spread on a sphere (Fibonacci lattice); each image covers
-    [-1, 1]² of the view plane. Returns one dict per view: ``direction`` (3,), ``points`` (M, 3) hit points,
-    ``face_index`` (M,), ``bary`` (M, 3) barycentrics, ``pixels`` (M,) flat pixel indices of the hits, and
-    ``resolution``. Uses open3d's ``RaycastingScene``.
-    """
-    import open3d as o3d
-
-    scene = raycasting_scene(mesh.vertices, mesh.faces)
-    views = []
-    k = np.arange(n_views) + 0.5
-    z = 1 - 2 * k / n_views
-    phi = np.pi * (1 + 5 ** 0.5) * k
-    dirs = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
-    s = (np.arange(resolution) + 0.5) / resolution * 2 - 1
-    for d in dirs:
-        d = d / np.linalg.norm(d)
-        up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        right = np.cross(up, d)
-        right /= np.linalg.norm(right)
-        up = np.cross(d, right)
-        yy, xx = np.meshgrid(-s, s, indexing="ij")
-        origins = 2.0 * d + xx[..., None] * right + yy[..., None] * up
-        rays = np.concatenate([origins, np.broadcast_to(-d, origins.shape)], axis=-1).reshape(-1, 6)
-        ans = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
-        t = ans["t_hit"].numpy()
-        hit = np.isfinite(t)
-        fid = ans["primitive_ids"].numpy()[hit].astype(np.int64)
-        uv = ans["primitive_uvs"].numpy()[hit].astype(np.float64)
-        bary = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)
-        pts = np.einsum("mk,mkj->mj", bary, mesh.vertices[mesh.faces[fid]])
-        views.append({"direction": d, "points": pts, "face_index": fid, "bary": bary,
-                      "pixels": np.flatnonzero(hit), "resolution": resolution})
-    return views
 
 
 def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None = None,

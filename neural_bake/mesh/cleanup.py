@@ -135,7 +135,7 @@ def clean_mesh(
         warnings=list(mesh.warnings),
     )
     if out.vertex_normals is None and out.n_vertices:
-        from .tangents import vertex_normals
+        from ..geometry import vertex_normals
 
         out.vertex_normals = vertex_normals(out)
     out.degenerate = out.face_areas < DEGENERATE_AREA

@@ -164,7 +164,7 @@ def decimate(
         warnings=list(mesh.warnings),
     )
     from ..geometry import edge_report
-    from .tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     out.watertight = edge_report(out.faces)["watertight"]
 

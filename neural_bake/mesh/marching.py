@@ -393,7 +393,7 @@ def march(
     verts = verts.astype(np.float64) - bound
     faces = faces.astype(np.int64)
     mesh = Mesh(vertices=verts, faces=faces, frame=frame or Frame(), source="")
-    from .tangents import vertex_normals
+    from ..geometry import vertex_normals
 
     mesh.vertex_normals = vertex_normals(mesh)
     mesh.degenerate = mesh.face_areas < DEGENERATE_AREA

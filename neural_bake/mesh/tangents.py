@@ -4,27 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import TANGENT_EPS, UNDERFLOW_EPS, UV_DET_EPS, UV_MATCH_TOL
+from ..constants import TANGENT_EPS, UV_DET_EPS, UV_MATCH_TOL
 from ..errors import MeshError
-from ..geometry import area_weighted_normals
+from ..geometry import vertex_normals  # re-exported: the mesh layer's name for it
 from ..types import Mesh
 
 __all__ = ["tangent_frames", "vertex_normals", "vertex_uv"]
-
-
-def vertex_normals(mesh: Mesh) -> np.ndarray:
-    """(V, 3) float64 unit outward vertex normals of ``mesh``.
-
-    ``mesh.vertex_normals`` when set, otherwise area-weighted face normals. A vertex whose faces are all
-    degenerate (or that no face uses) gets +Z instead of a zero/NaN normal.
-    """
-    if mesh.vertex_normals is None:
-        return area_weighted_normals(mesh.vertices, mesh.faces, fallback=(0.0, 0.0, 1.0))
-    n = np.asarray(mesh.vertex_normals, dtype=np.float64)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    out = np.divide(n, norm, out=np.zeros_like(n), where=norm > UNDERFLOW_EPS)
-    out[norm[:, 0] <= UNDERFLOW_EPS] = (0.0, 0.0, 1.0)
-    return out
 
 
 def vertex_uv(mesh: Mesh, *, atol: float = UV_MATCH_TOL) -> np.ndarray:

@@ -13,7 +13,8 @@ from ..constants import (TEXEL_INSIDE_EPS, TEXEL_OVERLAP_EPS, TEXEL_SPAN_TOL, TE
                          UV_AREA_EPS, UV_FLAT_EDGE_EPS)
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Mesh
-from .tangents import tangent_frames, vertex_normals, vertex_uv
+from ..geometry import vertex_normals
+from .tangents import tangent_frames, vertex_uv
 
 __all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points"]
 

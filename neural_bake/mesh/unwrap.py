@@ -9,7 +9,8 @@ import numpy as np
 
 from ..errors import MeshError, NeuralBakeError
 from ..types import Mesh
-from .tangents import vertex_normals, vertex_uv
+from ..geometry import vertex_normals
+from .tangents import vertex_uv
 
 __all__ = ["UnwrapConfig", "unwrap", "unwrap_with_mapping", "split_uv_seams", "vertex_uv"]
 
