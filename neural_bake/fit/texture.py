@@ -61,6 +61,7 @@ from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 
+from .training import CheckpointSettings
 __all__ = [
     "TextureFitConfig",
     "TextureFit",
@@ -82,8 +83,12 @@ SdfCallable = Callable[[torch.Tensor], "tuple[torch.Tensor, torch.Tensor]"]
 
 
 @dataclass
-class TextureFitConfig:
-    """Settings of :func:`fit_texture`; one line per field (the CLI help comes from these)."""
+class TextureFitConfig(CheckpointSettings):
+    """Settings of :func:`fit_texture` (the loop's first: :class:`~neural_bake.fit.training.CheckpointSettings`);
+    one line per field (the CLI help comes from these)."""
+
+    steps: int = 2000  # the loop's settings with this fit's defaults
+    progress: bool = False
 
     width: int = 256
     """W: width of the colour SIREN's hidden layers."""
@@ -93,10 +98,6 @@ class TextureFitConfig:
     """ω0 of the first layer (frequency of the colour field over the unit frame)."""
     hidden_omega: float = 30.0
     """ω of the later hidden layers."""
-    steps: int = 2000
-    """Maximum number of optimiser steps (the run also stops at ``minutes``)."""
-    minutes: float | None = None
-    """Wall-time budget in minutes (None: no budget, run ``steps``)."""
     budget: str = "time"
     """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
     "steps": run the steps the preset makes in its budget on the quiet reference machine
@@ -106,10 +107,6 @@ class TextureFitConfig:
     """Surface samples per step (colour term)."""
     band_batch: int | None = None
     """Band samples per step (orthogonality term); None: ``batch // 4`` (measured: as constant as ``batch``)."""
-    lr: float = 1e-4
-    """Initial Adam learning rate (halved on each divergence recovery)."""
-    lr_schedule: str = "cosine"
-    """"constant" or "cosine" decay over the steps or the time budget."""
     lam: float = 0.0
     """λ: weight of the orthogonality term Σ_c ⟨∇g_c, n⟩² (0: off, bakes read g on f = 0; 1e-3: paper)."""
     delta: float | None = None
@@ -127,20 +124,8 @@ class TextureFitConfig:
     encoding: str = "auto"
     """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
     unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
-    seed: int = 0
-    """Seed of the initialisation, the samples and the batches (same seed, same run)."""
-    checkpoint: str | None = None
-    """Checkpoint file (safetensors, weights + optimiser) written every ``checkpoint_every`` steps; None: none."""
-    checkpoint_every: int = 500
-    """Steps between checkpoints."""
-    resume: bool = False
-    """Continue from ``checkpoint`` if that file exists (same mesh, network and settings)."""
-    log_every: int = 50
-    """Steps between history entries."""
     max_restarts: int = 4
     """Divergence recoveries (restore the last snapshot, halve lr) before giving up with FitError."""
-    progress: bool = False
-    """Show a progress bar on stderr."""
     device: str = "cpu"
     """Torch device for training."""
     dtype: str = "float32"
@@ -526,7 +511,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     resume, divergence recovery with learning-rate halving). Returns a :class:`TextureFit`; raises
     :class:`FitError` when training diverges for good or there are no band samples.
     """
-    from .training import LoopConfig, train
+    from .training import train
 
     from .budget import fit_budget, reference_steps, steps_budget
     from .presets import TEXTURE_ALIASES, resolve_preset
@@ -589,12 +574,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
         orth = band_orthogonality(model, bp, bn, method=config.orth_method).mean()
         return {"loss": colour + lam * orth, "colour": colour, "orth": orth}
 
-    loop = LoopConfig(
-        steps=int(config.steps), minutes=config.minutes, lr=float(config.lr), lr_schedule=config.lr_schedule,
-        seed=int(config.seed), checkpoint=config.checkpoint, checkpoint_every=int(config.checkpoint_every),
-        resume=bool(config.resume), progress=bool(config.progress), log_every=int(config.log_every),
-        max_restarts=int(config.max_restarts), desc=f"fit texture {mesh.name}",
-    )
+    loop = config.loop_config(f"fit texture {mesh.name}", max_restarts=int(config.max_restarts))
     fingerprint = json.dumps({"kind": "texture", "mesh": mesh.name, "faces": mesh.n_faces,
                               "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
                               "pool": config.pool, "seed": config.seed, "encoding": encoding,
