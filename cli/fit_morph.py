@@ -7,9 +7,10 @@ import os
 
 import click
 
+from .config_options import ConfigCommand, ConfigSpec
 from .options import say, verbosity, verbosity_options
 
-__all__ = ["command", "load_shape", "network_options", "report_fit"]
+__all__ = ["command", "load_shape", "spacetime_spec", "spacetime_options", "spacetime_config", "report_fit"]
 
 
 def load_shape(path: str):
@@ -25,25 +26,43 @@ def load_shape(path: str):
     return load_sdf(path)
 
 
-def network_options(fn):
-    """The options fit morph and fit sequence share."""
+def _config_class():
+    from neural_bake.fit.spacetime import SpaceTimeFitConfig
+
+    return SpaceTimeFitConfig
+
+
+def spacetime_spec(fn: str, required: tuple[str, ...]) -> ConfigSpec:
+    """The options of fit morph (``fn`` "fit_morph") and fit sequence ("fit_sequence"): the fields of
+    SpaceTimeFitConfig, checked as ``fn`` checks them (its methods)."""
+
+    def resolve(preset, values):
+        from neural_bake.fit.spacetime import MORPH_METHODS, SEQUENCE_METHODS, _config_from
+
+        return _config_from(None, fn, MORPH_METHODS if fn == "fit_morph" else SEQUENCE_METHODS, **values)
+
+    return ConfigSpec(load=_config_class, resolve=resolve, required=required)
+
+
+def spacetime_options(fn):
+    """The options fit morph and fit sequence add to their config's."""
     for opt in reversed([
-        click.option("--width", type=int, default=128, show_default=True, help="Hidden width W of the 4-D Siren."),
-        click.option("--depth", type=int, default=2, show_default=True, help="Hidden W x W matrices D."),
-        click.option("--steps", type=int, default=3000, show_default=True, help="Maximum optimiser steps."),
-        click.option("--minutes", type=float, default=None, help="Wall-clock budget in minutes (default: none)."),
-        click.option("--seed", type=int, default=0, show_default=True, help="Seed of weights and samples."),
-        click.option("--lr", type=float, default=None, help="Initial Adam learning rate (default 2e-4)."),
-        click.option("--time-extent", type=float, default=None,
-                     help="The time range maps onto tau in [-E, E] (default 1; smaller: smoother in t)."),
         click.option("--pool", type=int, default=None,
-                     help="Samples per shape of the surface and near pools (default 50000; uniform: a quarter)."),
+                     help="Samples per shape of the surface, near and in-between pools at once (uniform: a quarter); "
+                          "overrides --pool-surface, --pool-near, --pool-uniform and --pool-between."),
         click.option("--metrics/--no-metrics", default=True,
                      help="Measure Chamfer/Hausdorff against the given meshes at their times."),
-        click.option("--progress/--no-progress", default=True, help="Show a progress bar on stderr."),
     ]):
         fn = opt(fn)
     return fn
+
+
+def spacetime_config(config, pool):
+    """The resolved config with ``--pool`` applied and no progress bar under ``--quiet``."""
+    from dataclasses import replace
+
+    config = replace(config, **pools(pool))
+    return replace(config, progress=False) if verbosity() < 0 else config
 
 
 def report_fit(fit, shapes_at_times, metrics: bool, output: str) -> None:
@@ -91,30 +110,29 @@ def check_output(output: str) -> None:
     lock_outputs(output)
 
 
-@click.command(epilog="""\b
+@click.command(cls=ConfigCommand, config=spacetime_spec("fit_morph", ("a", "b", "output")), epilog="""\b
 Example:
   neural-bake fit morph samples/sphere.obj samples/torus.obj -o morph.sdf --minutes 2
-  neural-bake render morph.sdf -o morph.gif --frames 24""")
-@click.argument("a", type=click.Path(dir_okay=False))
-@click.argument("b", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+  neural-bake render morph.sdf -o morph.gif --frames 24
+  neural-bake fit morph --method lse --print-config > morph.toml""")
+@click.argument("a", type=click.Path(dir_okay=False), required=False)
+@click.argument("b", type=click.Path(dir_okay=False), required=False)
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
-@click.option("--method", type=click.Choice(["lse", "interpolate"]), default="interpolate", show_default=True,
-              help="lse: level set equation df/dt + v|grad f| = 0 with v = d_A - d_B; interpolate: supervised "
-                   "blend of the two distances plus the eikonal term.")
 @click.option("--align", type=click.Choice(["source", "unit"]), default="source", show_default=True,
               help="source: the shapes keep their places; unit: each is centred and scaled first (unrelated models).")
-@network_options
+@spacetime_options
 @verbosity_options
-def command(a, b, output, method, align, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics,
-            progress):
-    """Fit a space-time SDF morphing shape A (t = 0) into shape B (t = 1); A and B are meshes or SDF model files."""
+def command(a, b, output, align, pool, metrics, config):
+    """Fit a space-time SDF morphing shape A (t = 0) into shape B (t = 1); A and B are meshes or SDF model files.
+
+    --method lse: the level set equation df/dt + v|grad f| = 0 with v = d_A - d_B; interpolate: a supervised
+    blend of the two distances plus the eikonal term."""
     from neural_bake.fit.spacetime import fit_morph
 
     check_output(output)
     sa, sb = load_shape(a), load_shape(b)
-    fit = fit_morph(sa, sb, method=method, align=align, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed,
-                    lr=lr, time_extent=time_extent, progress=progress and verbosity() >= 0, **pools(pool))
+    fit = fit_morph(sa, sb, spacetime_config(config, pool), align=align)
     if align == "unit":  # the metrics compare with the shapes as the fit saw them
         from dataclasses import replace
 

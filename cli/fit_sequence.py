@@ -7,30 +7,31 @@ from pathlib import Path
 
 import click
 
-from .fit_morph import check_output, network_options, pools, report_fit
-from .options import verbosity, verbosity_options
+from .config_options import ConfigCommand
+from .fit_morph import check_output, report_fit, spacetime_config, spacetime_options, spacetime_spec
+from .options import verbosity_options
 
 __all__ = ["command"]
 
 
-@click.command(epilog="""\b
+@click.command(cls=ConfigCommand, config=spacetime_spec("fit_sequence", ("frames", "output")), epilog="""\b
 Example:
   neural-bake samples -o samples/ --names twisting_torus
   neural-bake fit sequence samples/twisting_torus -o twist.sdf --minutes 3""")
-@click.argument("frames", nargs=-1, required=True, type=click.Path())
+@click.argument("frames", nargs=-1, type=click.Path())
 @click.option("--times", default=None,
               help="Frame times: START:STOP:COUNT or a comma-separated list (default: the folder's frames.json, "
                    "else evenly spaced over [0, 1]).")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Model file to write (safetensors + JSON metadata, kind 'spacetime_sdf').")
-@click.option("--method", type=click.Choice(["interpolate", "eikonal"]), default="interpolate", show_default=True,
-              help="Between frames: interpolate the two neighbouring frames' distances, or the eikonal term alone.")
-@network_options
+@spacetime_options
 @verbosity_options
-def command(frames, times, output, method, width, depth, steps, minutes, seed, lr, time_extent, pool, metrics,
-            progress):
+def command(frames, times, output, pool, metrics, config):
     """Fit a space-time SDF through the mesh FRAMES (files, or one folder with frames.json as `neural-bake
-    samples` writes it)."""
+    samples` writes it).
+
+    --method interpolate: between frames, the two neighbouring frames' distances interpolated; eikonal: the
+    eikonal term alone."""
     from neural_bake.errors import NeuralBakeError
     from neural_bake.fit.spacetime import fit_sequence, parse_times
     from neural_bake.io.mesh_io import load_mesh
@@ -53,6 +54,5 @@ def command(frames, times, output, method, width, depth, steps, minutes, seed, l
     if len(ts) != len(files):
         raise NeuralBakeError(f"--times: {len(ts)} times for {len(files)} frames")
     meshes = [load_mesh(f) for f in files]
-    fit = fit_sequence(meshes, ts, method=method, width=width, depth=depth, steps=steps, minutes=minutes, seed=seed, lr=lr,
-                       time_extent=time_extent, progress=progress and verbosity() >= 0, **pools(pool))
+    fit = fit_sequence(meshes, ts, spacetime_config(config, pool))
     report_fit(fit, list(zip(ts, meshes)), metrics, output)

@@ -11,7 +11,8 @@ from neural_bake.cli.config_options import ConfigCommand
 from neural_bake.cli.main import cli, main
 from neural_bake.configs import field_types
 
-CONFIG_VERBS = [("fit", "sdf"), ("fit", "nested"), ("fit", "texture"), ("bake",), ("demo",)]
+CONFIG_VERBS = [("fit", "sdf"), ("fit", "nested"), ("fit", "texture"), ("fit", "morph"), ("fit", "sequence"), ("bake",),
+                ("demo",)]
 
 
 def command_of(path):
