@@ -86,11 +86,11 @@ _EXPORTS = {
     "rasterize_texels": ".mesh.texels",
     "tangent_frames": ".mesh.tangents",
     "clean_mesh": ".mesh.cleanup",
+    "coarse_mesh": ".mesh.coarse",
     "iter_texels": ".mesh.texels",
     "vertex_uv": ".mesh.tangents",
     # bake
     "Baker": ".bake.baker",
-    "coarse_mesh": ".bake.baker",
     "bake_vertices": ".bake.baker",
     "bake_texels": ".bake.baker",
     "pad_charts": ".bake.padding",

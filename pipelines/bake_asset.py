@@ -136,8 +136,9 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     """
     import numpy as np
 
-    from neural_bake.bake.baker import Baker, bake_vertices, parse_coarse
-    from neural_bake.bake.baker import coarse_mesh as make_coarse_mesh
+    from neural_bake.bake.baker import Baker, bake_vertices
+    from neural_bake.mesh.coarse import parse_coarse
+    from neural_bake.mesh.coarse import coarse_mesh as make_coarse_mesh
     from neural_bake.bake.export import export_glb, export_vertex_ply
     from neural_bake.bake.report import bake_report
     from neural_bake.errors import MeshError, NeuralBakeError
@@ -452,7 +453,7 @@ def _load_field(path, option: str, want: str, device=None):
 def _sdf_for(field, coarse: str):
     """The SdfField to bake: a nested sequence gives its fine f with the band δ of the level the coarse mesh
     is marched from (``level:I:RES``), else of its coarsest level (the widest band)."""
-    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.mesh.coarse import parse_coarse
     from neural_bake.fields import to_sdf_field
 
     kind, value = parse_coarse(coarse)

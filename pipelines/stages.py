@@ -151,7 +151,7 @@ def unknown_setting(stage: str, name: str) -> str | None:
 
 def _check_values(cfg: dict, prefix: str) -> None:
     """Checks of the settings that the stage functions would only make when they run."""
-    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.mesh.coarse import parse_coarse
     from neural_bake.fit.nested import parse_levels
 
     n = cfg["nested"]
@@ -417,7 +417,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         raise NeuralBakeError(f"coarse.spec {coarse_spec!r}: a level of the nested sequence needs nested.levels")
 
     def run_coarse(out: Path, key: str) -> dict:
-        from neural_bake.bake.baker import coarse_mesh
+        from neural_bake.mesh.coarse import coarse_mesh
         from neural_bake.fields import load_field
 
         coarse_m, info = coarse_mesh(mesh, coarse_spec, load_field(field_path) if marched else None)

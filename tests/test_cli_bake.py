@@ -9,7 +9,7 @@ import pytest
 import torch
 import trimesh
 
-from neural_bake.bake.baker import coarse_mesh, parse_coarse
+from neural_bake.mesh.coarse import coarse_mesh, parse_coarse
 from neural_bake.bake.export import read_glb
 from neural_bake.cli.main import main
 from neural_bake.errors import NeuralBakeError

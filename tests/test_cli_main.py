@@ -100,7 +100,7 @@ def test_console_script(tmp_path):
 
 
 def test_library_errors_name_parameters_and_the_cli_names_its_options(monkeypatch, tmp_path, capsys):
-    from neural_bake.bake.baker import parse_coarse
+    from neural_bake.mesh.coarse import parse_coarse
     from neural_bake.cli.main import OPTIONS, cli_message
     from neural_bake.errors import NeuralBakeError
     from neural_bake.fit.nested import parse_levels

@@ -10,7 +10,6 @@ of them (:class:`TexelSample`), on which :func:`neural_bake.bake.report.bake_rep
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -19,7 +18,7 @@ import torch
 
 from ..constants import ADAPTIVE_CHECK_SAMPLES, DIRECTION_EPS
 from ..errors import NeuralBakeError
-from ..fields import NestedSequence, SdfField, TextureField, closest_surface_points
+from ..fields import SdfField, TextureField, closest_surface_points
 from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet
@@ -27,7 +26,8 @@ from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_pos
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .padding import PADDING_METHODS, pad_charts
 
-__all__ = ["TEXTURE_AT", "Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices", "welded_vertex_normals", "parse_coarse", "coarse_mesh"]
+__all__ = ["TEXTURE_AT", "Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices",
+           "welded_vertex_normals"]
 
 DEFAULT_CHUNK = 1 << 16
 #: Texel samples a streamed bake keeps for its quality report (about 64 MB of per-sample data).
@@ -574,37 +574,12 @@ class Baker:
             raise NeuralBakeError(f"check_samples must be a non-negative integer, got {check_samples!r}")
         if adaptive is not None and not isinstance(adaptive, AdaptiveOptions):
             raise NeuralBakeError(f"adaptive must be AdaptiveOptions or None, got {type(adaptive).__name__}")
-        from ..nets.threads import choose_threads
-
-        # the threads the bake's evaluations run fastest with on the machine as it is (nets.threads)
-        points = self._probe(sdf)
-        slice_ = points.repeat(4, 1)  # a slice the size of a few evaluation chunks: threads show what they pay
-        threads = choose_threads(lambda: sdf.value_and_normal(slice_), device=points.device, repeats=3)
-        probe = points if precision == "auto" else None
-        fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
-            if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")
-        fast_tex, tex_prec, tex_why = (None, None, None) if texture is None else (
-            texture.with_precision(precision, measure=precision_measure,
-                                   probe=None if probe is None else self._probe(texture))
-            if hasattr(texture, "with_precision") else (texture, "fp32", "no precision choice"))
-        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex),
-                                texture_at=texture_at)
-        control.precision = {"asked": precision, "sdf": sdf_prec, "sdf_reason": sdf_why, "texture": tex_prec,
-                             "texture_reason": tex_why}
+        control, threads = self._prepare(sdf, texture, adaptive, int(check_samples), seed, precision,
+                                         precision_measure, texture_at)
         keep = self.cache if keep_samples is None else bool(keep_samples)
         reservoir = None if keep or report_samples == 0 else _Reservoir(report_samples, seed)
-        h, w = self.shape
-        acc_vec = np.zeros((h, w, 3), dtype=np.float32)  # weighted sums; float32 keeps 4k maps small
-        acc_col = None
-        wsum = np.zeros((h, w), dtype=np.float32)
-        miss_count = np.zeros((h, w), dtype=np.float32)
-        hybrid_count = np.zeros((h, w), dtype=np.float32) if hybrid is not None else None
-        hybrid_color_count = None  # allocated at the first band whose colours the hybrid decided
-        colour_decided = False
-        covered = np.zeros((h, w), dtype=bool)
-        kept: dict[str, list] = {k: [] for k in ("normals", "encoded", "valid", "values", "colors", "replaced",
-                                                 "neural", "colors_replaced", "neural_colors")}
-        counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0, "hybrid": 0}
+        maps = _MapAccumulator(self.shape, delta, hybrid=hybrid is not None)
+        kept = _Kept(texture is not None) if keep else None
         secs = {"rasterize": 0.0, "sdf": 0.0, "texture": 0.0, "maps": 0.0, "hybrid": 0.0, "adaptive": 0.0,
                 "check": 0.0}
         t_all = time.perf_counter()
@@ -624,71 +599,172 @@ class Baker:
             normals, valid, values = ev["normals"], ev["valid"], ev["values"]
             if (~valid).any():  # zero gradient: the interpolated geometric normal
                 normals[~valid] = tx.normal[~valid]
-            neural = replaced = colors_replaced = None
-            colors = ev.get("colors")
+            band = _Band(normals=normals, valid=valid, values=values, colors=ev.get("colors"))
             if hybrid is not None:
                 t1 = time.perf_counter()
-                neural = normals
-                band_result = hybrid(self.mesh, tx, neural, valid, ev["evaluated"], colors=colors)
-                normals, replaced = band_result[0], np.asarray(band_result[1], dtype=bool)
-                if len(band_result) > 2 and band_result[2] is not None:
-                    colors, colors_replaced = band_result[2], np.asarray(band_result[3], dtype=bool)
+                band.neural, band.neural_colors = normals, band.colors
+                out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors)
+                band.normals, band.replaced = out[0], np.asarray(out[1], dtype=bool)
+                if len(out) > 2 and out[2] is not None:
+                    band.colors, band.colors_replaced = out[2], np.asarray(out[3], dtype=bool)
                 secs["hybrid"] += time.perf_counter() - t1
             if self.normal_space == "tangent":
-                encoded, frame_ok = encode_tangent_space(normals, tx.tangent, tx.bitangent, tx.normal, self.y_convention)
+                band.encoded, band.frame_ok = encode_tangent_space(band.normals, tx.tangent, tx.bitangent, tx.normal,
+                                                                   self.y_convention)
             else:
-                encoded, frame_ok = normals.copy(), np.ones(len(normals), dtype=bool)
-            if len(values):
-                pix = np.asarray(tx.pixel)
-                r0, r1 = int(pix[:, 0].min()), int(pix[:, 0].max()) + 1
-                band = slice(r0, r1)
-                splat_into(acc_vec, wsum, encoded, pix, tx.weight)
-                miss_s = np.abs(values) > delta if delta is not None else np.zeros(len(values), dtype=bool)
-                if miss_s.any():
-                    miss_count[band] += splat(np.ones((int(miss_s.sum()), 1)), pix[miss_s], None, self.shape,
-                                              rows=(r0, r1))[1]
-                if replaced is not None and replaced.any():
-                    hybrid_count[band] += splat(np.ones((int(replaced.sum()), 1)), pix[replaced], None, self.shape,
-                                                rows=(r0, r1))[1]
-                if colors_replaced is not None and colors_replaced.any():
-                    if hybrid_color_count is None:
-                        hybrid_color_count = np.zeros((h, w), dtype=np.float32)
-                    hybrid_color_count[band] += splat(np.ones((int(colors_replaced.sum()), 1)), pix[colors_replaced],
-                                                      None, self.shape, rows=(r0, r1))[1]
-                if texture is not None:
-                    if acc_col is None:
-                        acc_col = np.zeros((h, w, colors.shape[1]), dtype=np.float32)
-                    splat_into(acc_col, None, colors, pix, tx.weight)
-            else:
-                miss_s = np.zeros(0, dtype=bool)
-            if len(values):  # a band's coverage is the full grid, set in its own rows only
-                covered[band] |= np.asarray(tx.coverage, dtype=bool)[band]
-            counts["samples"] += len(values)
-            counts["invalid"] += int((~valid).sum())
-            counts["singular"] += int((~frame_ok).sum())
-            counts["miss"] += int(miss_s.sum())
-            counts["hybrid"] += 0 if replaced is None else int(replaced.sum())
-            if keep:
-                for k, v in (("normals", normals), ("encoded", encoded), ("valid", valid), ("values", values)):
-                    kept[k].append(v)
-                if texture is not None:
-                    kept["colors"].append(colors)
-                if replaced is not None:
-                    kept["replaced"].append(replaced)
-                    kept["neural"].append(neural)
-                if colors_replaced is not None:
-                    kept["colors_replaced"].append(colors_replaced)
-                    kept["neural_colors"].append(ev["colors"])
+                band.encoded, band.frame_ok = band.normals.copy(), np.ones(len(band.normals), dtype=bool)
+            maps.add(tx, band)
+            if kept is not None:
+                kept.add(band)
             if reservoir is not None:
-                reservoir.add({**{k: getattr(tx, k) for k in _TEXEL_FIELDS}, "normals": normals, "encoded": encoded,
-                               "valid": valid, "values": values, "colors": colors,
-                               "replaced": replaced, "neural": neural})
-            colour_decided |= colors_replaced is not None
+                reservoir.add({**{k: getattr(tx, k) for k in _TEXEL_FIELDS}, "normals": band.normals,
+                               "encoded": band.encoded, "valid": valid, "values": values, "colors": band.colors,
+                               "replaced": band.replaced, "neural": band.neural})
             secs["maps"] += time.perf_counter() - t0
             t_band = time.perf_counter()
         t0 = time.perf_counter()
+        normal_map, albedo = maps.finish()
+        secs["maps"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if self.padding is not None:
+            normal_map = pad_charts(normal_map, maps.covered, method=self.padding, pixels=self.padding_pixels)
+            if albedo is not None:
+                albedo = pad_charts(albedo, maps.covered, method=self.padding, pixels=self.padding_pixels)
+        secs["padding"] = time.perf_counter() - t0
+        secs["bake"] = time.perf_counter() - t_all
+        stats = {
+            **self._settings(),
+            **maps.stats(),
+            "delta": delta,
+            "seconds": {
+                **{k: float(v) for k, v in self.timings.items()},
+                **{k: float(v) for k, v in secs.items()},
+                "rasterize": float(self.timings.get("rasterize", 0.0) + secs["rasterize"]),
+            },
+            "texels_per_second": float(maps.n_texels / secs["bake"]) if secs["bake"] > 0 else None,
+            "threads": threads.as_dict(),
+            "field": sdf.name,
+            "texture_field": None if texture is None else texture.name,
+            "texture_at": None if texture is None else texture_at,
+            **control.summary(),
+        }
+        per_sample = kept.arrays() if kept is not None else {}
+        return BakeResult(
+            normal_map=normal_map.astype(np.float32),
+            albedo=None if albedo is None else albedo.astype(np.float32),
+            coverage=maps.covered,
+            miss=maps.miss,
+            stats=stats,
+            sample=None if reservoir is None else reservoir.sample(self.shape, self.supersample),
+            hybrid=maps.hybrid_map,
+            hybrid_color=maps.hybrid_color_map,
+            **{k: per_sample.get(k) for k in _Kept.FIELDS},
+        )
+
+    def _prepare(self, sdf, texture, adaptive, check_samples: int, seed: int, precision: str, precision_measure,
+                 texture_at: str):
+        """The evaluation of a bake: the thread count measured on a slice of its own work, the precision each
+        network runs in, and the error control that evaluates (adaptively or not) and checks the fields."""
+        from ..nets.threads import choose_threads
+
+        # the threads the bake's evaluations run fastest with on the machine as it is (nets.threads)
+        points = self._probe(sdf)
+        slice_ = points.repeat(4, 1)  # a slice the size of a few evaluation chunks: threads show what they pay
+        threads = choose_threads(lambda: sdf.value_and_normal(slice_), device=points.device, repeats=3)
+        probe = points if precision == "auto" else None
+        fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
+            if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")
+        fast_tex, tex_prec, tex_why = (None, None, None) if texture is None else (
+            texture.with_precision(precision, measure=precision_measure,
+                                   probe=None if probe is None else self._probe(texture))
+            if hasattr(texture, "with_precision") else (texture, "fp32", "no precision choice"))
+        control = _ErrorControl(self, sdf, texture, adaptive, int(check_samples), seed, fast=(fast_sdf, fast_tex),
+                                texture_at=texture_at)
+        control.precision = {"asked": precision, "sdf": sdf_prec, "sdf_reason": sdf_why, "texture": tex_prec,
+                             "texture_reason": tex_why}
+        return control, threads
+
+    def _settings(self) -> dict:
+        """The map's settings as the bake's stats state them."""
+        h, w = self.shape
+        return {"size": [h, w], "normal_space": self.normal_space, "y_convention": self.y_convention,
+                "supersample": self.supersample}
+
+
+@dataclass
+class _Band:
+    """One band's per-sample results on their way into the maps: the normals and colours baked (after the
+    hybrid's replacements), what the fields gave (``neural``, ``neural_colors``; hybrid bakes), the
+    replacement masks, and the encoded vectors with their frames' validity."""
+
+    normals: np.ndarray
+    valid: np.ndarray
+    values: np.ndarray
+    colors: np.ndarray | None = None
+    neural: np.ndarray | None = None
+    neural_colors: np.ndarray | None = None
+    replaced: np.ndarray | None = None
+    colors_replaced: np.ndarray | None = None
+    encoded: np.ndarray | None = None
+    frame_ok: np.ndarray | None = None
+
+
+class _MapAccumulator:
+    """The maps of a bake summed band by band: weighted sums of the encoded vectors and colours per texel,
+    coverage, misses (|f| > δ) and the hybrid's replacements, and the per-sample counts."""
+
+    def __init__(self, shape: tuple[int, int], delta: float | None, *, hybrid: bool):
+        h, w = self.shape = shape
+        self.delta = delta
+        self.vec = np.zeros((h, w, 3), dtype=np.float32)  # weighted sums; float32 keeps 4k maps small
+        self.col: np.ndarray | None = None
+        self.wsum = np.zeros((h, w), dtype=np.float32)
+        self.miss_count = np.zeros((h, w), dtype=np.float32)
+        self.hybrid_count = np.zeros((h, w), dtype=np.float32) if hybrid else None
+        self.hybrid_color_count: np.ndarray | None = None  # at the first band whose colours the hybrid decided
+        self.colour_decided = False
+        self.covered = np.zeros((h, w), dtype=bool)
+        self.counts = {"samples": 0, "invalid": 0, "singular": 0, "miss": 0, "hybrid": 0}
+        self.miss = np.zeros((h, w), dtype=bool)  # set by finish()
+        self.hybrid_map: np.ndarray | None = None
+        self.hybrid_color_map: np.ndarray | None = None
+
+    def _count_image(self, image: np.ndarray, pix: np.ndarray, rows: tuple[int, int]) -> None:
+        image[rows[0]: rows[1]] += splat(np.ones((len(pix), 1)), pix, None, self.shape, rows=rows)[1]
+
+    def add(self, tx, band: _Band) -> None:
+        values = band.values
+        miss_s = np.zeros(0, dtype=bool)
+        if len(values):
+            pix = np.asarray(tx.pixel)
+            rows = (int(pix[:, 0].min()), int(pix[:, 0].max()) + 1)
+            splat_into(self.vec, self.wsum, band.encoded, pix, tx.weight)
+            miss_s = np.abs(values) > self.delta if self.delta is not None else np.zeros(len(values), dtype=bool)
+            if miss_s.any():
+                self._count_image(self.miss_count, pix[miss_s], rows)
+            if band.replaced is not None and band.replaced.any():
+                self._count_image(self.hybrid_count, pix[band.replaced], rows)
+            if band.colors_replaced is not None and band.colors_replaced.any():
+                if self.hybrid_color_count is None:
+                    self.hybrid_color_count = np.zeros(self.shape, dtype=np.float32)
+                self._count_image(self.hybrid_color_count, pix[band.colors_replaced], rows)
+            if band.colors is not None:
+                if self.col is None:
+                    self.col = np.zeros((*self.shape, band.colors.shape[1]), dtype=np.float32)
+                splat_into(self.col, None, band.colors, pix, tx.weight)
+            # a band's coverage is the full grid, set in its own rows only
+            self.covered[rows[0]: rows[1]] |= np.asarray(tx.coverage, dtype=bool)[rows[0]: rows[1]]
+        self.counts["samples"] += len(values)
+        self.counts["invalid"] += int((~band.valid).sum())
+        self.counts["singular"] += int((~band.frame_ok).sum())
+        self.counts["miss"] += int(miss_s.sum())
+        self.counts["hybrid"] += 0 if band.replaced is None else int(band.replaced.sum())
+        self.colour_decided |= band.colors_replaced is not None
+
+    def finish(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(normal map (H, W, 3) encoded (x + 1)/2, albedo (H, W, C) or None), unpadded; sets the masks."""
         # the average of a texel's unit vectors, renormalised (the weight sum cancels out)
-        vec = acc_vec
+        vec = self.vec
         norm = np.sqrt(np.einsum("ijk,ijk->ij", vec, vec))[:, :, None]
         np.divide(vec, norm, out=vec, where=norm > DIRECTION_EPS)
         vec[norm[:, :, 0] <= DIRECTION_EPS] = (0.0, 0.0, 1.0)  # texels whose samples cancel out, and the background
@@ -696,76 +772,66 @@ class Baker:
         normal_map += 1.0
         normal_map *= 0.5
         np.clip(normal_map, 0.0, 1.0, out=normal_map)
-        del acc_vec, vec
         albedo = None
-        if acc_col is not None:
-            albedo = acc_col
-            np.divide(albedo, wsum[:, :, None], out=albedo, where=wsum[:, :, None] > 0)
-        miss = miss_count > 0
-        secs["maps"] += time.perf_counter() - t0
-        hybrid_map = None if hybrid_count is None else hybrid_count > 0
-        hybrid_color_map = None
-        if colour_decided:
-            hybrid_color_map = np.zeros((h, w), dtype=bool) if hybrid_color_count is None else hybrid_color_count > 0
-        t0 = time.perf_counter()
-        if self.padding is not None:
-            normal_map = pad_charts(normal_map, covered, method=self.padding, pixels=self.padding_pixels)
-            if albedo is not None:
-                albedo = pad_charts(albedo, covered, method=self.padding, pixels=self.padding_pixels)
-        secs["padding"] = time.perf_counter() - t0
-        secs["bake"] = time.perf_counter() - t_all
-        n_texels = int(covered.sum())
-        stats = {
-            "size": [h, w],
-            "normal_space": self.normal_space,
-            "y_convention": self.y_convention,
-            "supersample": self.supersample,
-            "samples": counts["samples"],
-            "texels_covered": n_texels,
-            "coverage": float(covered.mean()),
-            "invalid_gradients": counts["invalid"],
-            "singular_frames": counts["singular"],
-            "delta": delta,
-            "miss_samples": counts["miss"],
-            "miss_texels": int(miss.sum()),
-            **({} if hybrid_map is None else {"hybrid_samples": counts["hybrid"],
-                                              "hybrid_texels": int(hybrid_map.sum()),
-                                              "hybrid_fraction": float(hybrid_map.sum() / max(1, n_texels))}),
-            **({} if hybrid_color_map is None else {
-                "hybrid_color_texels": int(hybrid_color_map.sum()),
-                "hybrid_color_fraction": float(hybrid_color_map.sum() / max(1, n_texels))}),
-            "seconds": {
-                **{k: float(v) for k, v in self.timings.items()},
-                **{k: float(v) for k, v in secs.items()},
-                "rasterize": float(self.timings.get("rasterize", 0.0) + secs["rasterize"]),
-            },
-            "texels_per_second": float(n_texels / secs["bake"]) if secs["bake"] > 0 else None,
-            "threads": threads.as_dict(),
-            "field": sdf.name,
-            "texture_field": None if texture is None else texture.name,
-            "texture_at": None if texture is None else texture_at,
-            **control.summary(),
+        if self.col is not None:
+            albedo = self.col
+            np.divide(albedo, self.wsum[:, :, None], out=albedo, where=self.wsum[:, :, None] > 0)
+        self.miss = self.miss_count > 0
+        self.hybrid_map = None if self.hybrid_count is None else self.hybrid_count > 0
+        if self.colour_decided:
+            self.hybrid_color_map = np.zeros(self.shape, dtype=bool) if self.hybrid_color_count is None \
+                else self.hybrid_color_count > 0
+        return normal_map, albedo
+
+    @property
+    def n_texels(self) -> int:
+        return int(self.covered.sum())
+
+    def stats(self) -> dict:
+        """Counts over the samples and texels (after :meth:`finish`)."""
+        n = self.n_texels
+        out = {
+            "samples": self.counts["samples"],
+            "texels_covered": n,
+            "coverage": float(self.covered.mean()),
+            "invalid_gradients": self.counts["invalid"],
+            "singular_frames": self.counts["singular"],
+            "miss_samples": self.counts["miss"],
+            "miss_texels": int(self.miss.sum()),
         }
-        cat = lambda k: np.concatenate(kept[k]) if keep and kept[k] else None  # noqa: E731
-        return BakeResult(
-            normal_map=normal_map.astype(np.float32),
-            albedo=None if albedo is None else albedo.astype(np.float32),
-            coverage=covered,
-            miss=miss,
-            normals=cat("normals"),
-            encoded=cat("encoded"),
-            valid=cat("valid"),
-            values=cat("values"),
-            colors=cat("colors"),
-            stats=stats,
-            sample=None if reservoir is None else reservoir.sample(self.shape, self.supersample),
-            hybrid=hybrid_map,
-            replaced=cat("replaced"),
-            neural=cat("neural"),
-            hybrid_color=hybrid_color_map,
-            colors_replaced=cat("colors_replaced"),
-            neural_colors=cat("neural_colors"),
-        )
+        if self.hybrid_map is not None:
+            out.update({"hybrid_samples": self.counts["hybrid"], "hybrid_texels": int(self.hybrid_map.sum()),
+                        "hybrid_fraction": float(self.hybrid_map.sum() / max(1, n))})
+        if self.hybrid_color_map is not None:
+            out.update({"hybrid_color_texels": int(self.hybrid_color_map.sum()),
+                        "hybrid_color_fraction": float(self.hybrid_color_map.sum() / max(1, n))})
+        return out
+
+
+class _Kept:
+    """The per-sample arrays of a bake that keeps them, band after band, concatenated at the end."""
+
+    FIELDS = ("normals", "encoded", "valid", "values", "colors", "replaced", "neural", "colors_replaced",
+              "neural_colors")
+
+    def __init__(self, textured: bool):
+        self.textured = textured
+        self.parts: dict[str, list] = {k: [] for k in self.FIELDS}
+
+    def add(self, band: _Band) -> None:
+        for k in ("normals", "encoded", "valid", "values"):
+            self.parts[k].append(getattr(band, k))
+        if self.textured:
+            self.parts["colors"].append(band.colors)
+        if band.replaced is not None:
+            self.parts["replaced"].append(band.replaced)
+            self.parts["neural"].append(band.neural)
+        if band.colors_replaced is not None:
+            self.parts["colors_replaced"].append(band.colors_replaced)
+            self.parts["neural_colors"].append(band.neural_colors)
+
+    def arrays(self) -> dict[str, np.ndarray | None]:
+        return {k: np.concatenate(v) if v else None for k, v in self.parts.items()}
 
 
 def bake_texels(
@@ -773,93 +839,3 @@ def bake_texels(
 ) -> BakeResult:
     """One-off bake: ``Baker(mesh, size, **options).bake(sdf, texture, delta=delta)``."""
     return Baker(mesh, size, **options).bake(sdf, texture, delta=delta)
-
-
-COARSE_KINDS = ("decimate", "march", "level", "keep")
-_COARSE_USAGE = "expected decimate:FACES, decimate:RATIO, march:RESOLUTION, level:I:RESOLUTION or keep"
-
-
-def parse_coarse(spec: str) -> tuple[str, float | int | tuple[int, int] | None]:
-    """Parse a coarse-mesh spec: ``"decimate:2000"`` (faces), ``"decimate:0.1"`` (ratio), ``"march:64"``
-    (grid resolution), ``"level:0:256"`` (marching cubes of a nested sequence's level 0 at 256³; value
-    ``(0, 256)``) or ``"keep"``. Raises :class:`NeuralBakeError` naming the
-    parameter ``coarse`` otherwise."""
-    kind, _, arg = str(spec).partition(":")
-    usage = _COARSE_USAGE
-    if kind not in COARSE_KINDS:
-        raise NeuralBakeError(f"coarse {spec!r}: unknown kind {kind!r} ({usage})", parameter="coarse")
-    if kind == "keep":
-        if arg:
-            raise NeuralBakeError(f"coarse {spec!r}: keep takes no value ({usage})", parameter="coarse")
-        return kind, None
-    if kind == "level":
-        level, _, res = arg.partition(":")
-        try:
-            level, res = int(level), int(res)
-        except ValueError:
-            raise NeuralBakeError(f"coarse {spec!r}: level needs LEVEL:RESOLUTION, e.g. level:0:256",
-                                  parameter="coarse") from None
-        if level < 0 or not 4 <= res <= 1024:
-            raise NeuralBakeError(f"coarse {spec!r}: level needs a level >= 0 and a resolution in [4, 1024]",
-                                  parameter="coarse")
-        return kind, (level, res)
-    try:
-        value = float(arg)
-    except ValueError:
-        raise NeuralBakeError(f"coarse {spec!r}: {kind} needs a number ({usage})", parameter="coarse") from None
-    if not math.isfinite(value):
-        raise NeuralBakeError(f"coarse {spec!r}: {kind} needs a finite number ({usage})", parameter="coarse")
-    if kind == "decimate" and 0 < value < 1:
-        return kind, value
-    if value != int(value) or (kind == "decimate" and value < 4) or (kind == "march" and not 4 <= value <= 1024):
-        limits = "a face count >= 4 or a ratio in (0, 1)" if kind == "decimate" else "a resolution in [4, 1024]"
-        raise NeuralBakeError(f"coarse {spec!r}: {kind} needs {limits}", parameter="coarse")
-    return kind, int(value)
-
-
-def coarse_mesh(mesh: Mesh | None, spec: str, sdf: SdfField | NestedSequence | None = None) -> tuple[Mesh, dict]:
-    """The coarse mesh a bake targets, from a :func:`parse_coarse` spec; returns (mesh, info).
-
-    ``decimate``: quadric edge collapse of ``mesh`` (UVs dropped: the Baker unwraps). ``march``: marching
-    cubes of ``sdf`` (a Siren field, or a nested sequence's fine f; cost-aware range pruning,
-    ``pruned="auto"``) at that resolution, in the field's frame; ``level:I:RES``: the same of level I of a
-    nested sequence (the paper's coarse surface: its zero set lies in f's band δ_I), then :func:`~neural_bake.mesh.cleanup.clean_mesh` (weld duplicate vertices, drop
-    degenerate and duplicate faces and components under 1% of the largest one's faces; non-manifold and
-    boundary edges are counted, not repaired). ``keep``: ``mesh`` itself (its own UVs, if any, are kept).
-    ``mesh`` may be None for ``march`` and ``level`` (the field's frame is used).
-
-    ``info``: ``spec``, ``faces``, ``vertices``, ``seconds``; for ``march`` also ``march`` (the stats of
-    :func:`~neural_bake.mesh.marching.march`) and ``cleanup`` (the clean-up report).
-    """
-    kind, value = parse_coarse(spec)
-    t0 = time.perf_counter()
-    info: dict = {"spec": spec}
-    if kind == "keep":
-        out = mesh
-    elif kind == "decimate":
-        from ..mesh.decimate import decimate
-
-        out = decimate(mesh, **({"ratio": value} if isinstance(value, float) else {"faces": value}))
-    else:
-        from ..mesh.cleanup import clean_mesh
-        from ..mesh.marching import march
-
-        if kind == "level":
-            if not isinstance(sdf, NestedSequence):
-                raise NeuralBakeError(f"coarse {spec!r}: level needs a nested-sequence SDF file (fit nested)",
-                                      parameter="coarse")
-            level, value = value
-            field = sdf.level(level)  # NeuralBakeError naming the levels there are
-            info["level"] = {"index": field.metadata["level"], "delta": field.delta}
-        else:
-            field = sdf.finest if isinstance(sdf, NestedSequence) else sdf
-        if getattr(field, "model", None) is None:
-            raise NeuralBakeError(f"coarse {spec!r}: march needs an SDF model (a Siren)", parameter="coarse")
-        out, stats = march(field.model, value, pruned="auto",
-                           frame=field.frame or (mesh.frame if mesh is not None else None))
-        info["march"] = stats
-        if out.n_faces == 0:
-            raise NeuralBakeError(f"coarse {spec!r}: the SDF has no surface at resolution {value}", parameter="coarse")
-        out, info["cleanup"] = clean_mesh(out)
-    info.update(faces=out.n_faces, vertices=out.n_vertices, seconds=time.perf_counter() - t0)
-    return out, info

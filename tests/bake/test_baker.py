@@ -396,7 +396,7 @@ def two_blob_siren(r2=0.06, s=0.0829):
 
 
 def test_coarse_mesh_march_is_cleaned_and_reports_it():
-    from neural_bake.bake.baker import coarse_mesh
+    from neural_bake.mesh.coarse import coarse_mesh
     from neural_bake.mesh.cleanup import clean_mesh
     from neural_bake.mesh.marching import march
     from neural_bake.types import Frame
