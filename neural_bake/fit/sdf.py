@@ -41,8 +41,9 @@ from ..constants import POOL_REFRESH_MAX_SHARE
 from ..errors import FitError, ModelFileError
 from ..nets.compiled import CompiledFn, long_run, should_compile
 from ..nets.siren import Siren
-from ..types import Frame, Mesh
+from ..types import Mesh
 from .polish import CHUNK_ITERATIONS, lbfgs_polish
+from .record import FitRecord
 from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
 from .sdf_loss import (FIRST_ORDER_MIN_SLOPE, FOCUS_CAP, first_order_distance, focused_squares, mixed_gradient,
                        sdf_loss_terms, sdf_step_backward)
@@ -57,25 +58,11 @@ __all__ = ["SdfFitConfig", "SdfFit", "PRESETS", "fit_sdf", "load_sdf", "config_f
 
 
 @dataclass
-class SdfFit:
-    """A fitted SDF: the network, the frame it lives in, and how it was trained."""
+class SdfFit(FitRecord):
+    """A fitted SDF (:class:`~neural_bake.fit.record.FitRecord`): ``model`` is the Siren f: (N, 3) unit-frame
+    points → (N, 1) signed distance (unit-frame units; negative inside), ``frame`` the mesh's."""
 
-    model: Siren
-    """The Siren f: (N, 3) unit-frame points → (N, 1) signed distance (unit-frame units; negative inside)."""
-    frame: Frame
-    """Source ↔ unit frame transform of the mesh it was fitted to."""
-    history: list[dict] = field(default_factory=list)
-    """Logged steps: ``step``, ``seconds``, ``lr``, ``loss`` and each loss term."""
-    steps: int = 0
-    """Optimiser steps done."""
-    seconds: float = 0.0
-    """Training wall time (pool sampling included)."""
     config: SdfFitConfig = field(default_factory=SdfFitConfig)
-    """The settings used."""
-    stopped_reason: str = "steps"
-    """"steps", "time budget" or "resumed finished run"."""
-    restarts: int = 0
-    """Divergence recoveries (learning-rate halvings)."""
     polish: dict | None = None
     """The L-BFGS polish's record (:class:`~neural_bake.fit.polish.PolishResult` as a dict; None: no polish)."""
     micro_batch_tuning: list[dict] | None = None
@@ -86,9 +73,6 @@ class SdfFit:
     steps the preset makes on this machine for this mesh (its sampling counted) in Adam's part of the budget,
     why it stopped, the warning if any; a ``budget="steps"`` run's (:func:`neural_bake.fit.budget.steps_budget`):
     the preset's reference steps and their estimated seconds here."""
-    threads: dict | None = None
-    """The CPU threads Adam's steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`: the
-    count in force, every count that ran, each measured decision); None when not recorded."""
     sampling_seconds: float | None = None
     """Seconds (the fit's clock: wall time by default) of this run's Adam part spent building pools,
     re-ranking and mining them and drawing batches (the sampling's share of the step cost); None when not
@@ -103,15 +87,12 @@ class SdfFit:
         error; ``delta_source`` says so), config, history summary)."""
         from ..fields import save_model
 
-        summary = self.history[-1] if self.history else {}
         delta = {} if self.distance_error is None else {
             "delta": self.distance_error, "delta_source": DISTANCE_ERROR_SOURCE}
         return save_model(
             self.model, path, kind="sdf", frame=self.frame.to_dict(), config=_jsonable(asdict(self.config)),
-            training={"steps": self.steps, "seconds": round(self.seconds, 3), "stopped_reason": self.stopped_reason,
-                      "restarts": self.restarts, "final": summary, "history": self.history[-200:],
-                      "polish": self.polish, "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None,
-                      "budget": self.budget, "threads": self.threads},
+            training={**self.training(), "polish": self.polish,
+                      "micro_batch_tuning": (self.micro_batch_tuning or [])[-20:] or None, "budget": self.budget},
             package_version=__version__, **delta,
         )
 
@@ -139,12 +120,9 @@ def load_sdf(path, *, device=None) -> SdfFit:
         cfg_dict["sigmas"] = tuple(cfg_dict["sigmas"])
     training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
     try:
-        return SdfFit(model=field.model, frame=field.frame, history=list(training.get("history", [])),
-                      steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
-                      config=SdfFitConfig(**cfg_dict), stopped_reason=str(training.get("stopped_reason", "")),
-                      restarts=int(training.get("restarts", 0)), polish=training.get("polish"),
+        return SdfFit(model=field.model, frame=field.frame, **FitRecord.training_fields(training),
+                      config=SdfFitConfig(**cfg_dict), polish=training.get("polish"),
                       micro_batch_tuning=training.get("micro_batch_tuning"), budget=training.get("budget"),
-                      threads=training.get("threads") if isinstance(training.get("threads"), dict) else None,
                       distance_error=field.delta)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}: unreadable training record ({exc})") from None

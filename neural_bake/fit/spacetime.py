@@ -59,6 +59,7 @@ from ..nets.gemm import gemm_gradient
 from ..nets.siren import Siren
 from ..nets.timeslice import fix_last_input
 from ..types import Frame, Mesh
+from .record import FitRecord
 from .training import LoopSettings, train
 
 __all__ = ["SpaceTimeFitConfig", "SpaceTimeFit", "fit_morph", "fit_sequence", "MORPH_METHODS", "SEQUENCE_METHODS",
@@ -343,13 +344,12 @@ def _shape(s, frame: Frame, name: str):
 
 # ----------------------------------------------------------------------------------------------- result
 @dataclass
-class SpaceTimeFit:
-    """A fitted space-time SDF: f(x, τ(t)) over the common unit frame and the time range."""
+class SpaceTimeFit(FitRecord):
+    """A fitted space-time SDF f(x, τ(t)) over the common unit frame and the time range
+    (:class:`~neural_bake.fit.record.FitRecord`): ``model`` is the Siren f: (N, 4) points (x, y, z, τ) → (N, 1)
+    signed distance (common unit frame, negative inside), ``frame`` the common frame of every shape of the fit."""
 
-    model: Siren
-    """The Siren f: (N, 4) points (x, y, z, τ) → (N, 1) signed distance (common unit frame, negative inside)."""
-    frame: Frame
-    """Source ↔ common unit frame transform (the frame of every shape of the fit)."""
+    config: SpaceTimeFitConfig = field(default_factory=SpaceTimeFitConfig)
     time_range: tuple[float, float] = (0.0, 1.0)
     """[t0, t1]: the times the fit covers (a morph: [0, 1]; a sequence: its first and last frame times)."""
     time_extent: float = 1.0
@@ -360,14 +360,6 @@ class SpaceTimeFit:
     """Morph: "lse" or "interpolate"; sequence: "interpolate" or "eikonal" ("frames" in earlier files)."""
     times: list[float] = field(default_factory=list)
     """The times where shapes were given (the morph's 0 and 1; the sequence's frame times)."""
-    history: list[dict] = field(default_factory=list)
-    """Logged steps: ``step``, ``seconds``, ``lr``, ``loss`` and each loss term."""
-    steps: int = 0
-    seconds: float = 0.0
-    """Training wall time (pool sampling included)."""
-    config: SpaceTimeFitConfig = field(default_factory=SpaceTimeFitConfig)
-    stopped_reason: str = "steps"
-    restarts: int = 0
 
     def tau(self, t) -> np.ndarray:
         """τ of times ``t`` (TimeRangeError outside :attr:`time_range`)."""
@@ -384,14 +376,11 @@ class SpaceTimeFit:
 
     def header(self) -> dict:
         """The JSON metadata of the model file (kind, frame, time range, how it was fitted)."""
-        last = self.history[-1] if self.history else {}
         return {"kind": SPACETIME_KIND, "frame": self.frame.to_dict(), "time_range": list(self.time_range),
                 "time_extent": self.time_extent, "animation": {"kind": self.kind, "method": self.method,
                                                                "times": list(self.times)},
                 "config": json.loads(json.dumps(asdict(self.config), default=str)),
-                "training": {"steps": self.steps, "seconds": round(self.seconds, 3),
-                             "stopped_reason": self.stopped_reason, "restarts": self.restarts, "final": last,
-                             "history": self.history[-200:]}}
+                "training": self.training()}
 
     def field(self) -> SpaceTimeField:
         """The fit as a field-layer :class:`~neural_bake.fields.spacetime.SpaceTimeField` (metadata: the header)."""
@@ -577,7 +566,7 @@ def _run(shapes, taus, kind: str, method: str, cfg: SpaceTimeFitConfig, frame: F
     return SpaceTimeFit(model=model, frame=frame, time_range=(float(time_range[0]), float(time_range[1])),
                         time_extent=float(cfg.time_extent), kind=kind, method=method, times=[float(t) for t in times],
                         history=res.history, steps=res.steps, seconds=time.perf_counter() - t_start, config=cfg,
-                        stopped_reason=res.stopped_reason, restarts=res.restarts)
+                        stopped_reason=res.stopped_reason, restarts=res.restarts, threads=res.threads)
 
 
 def fit_morph(a, b, config: SpaceTimeFitConfig | None = None, *, align: str = "source", **overrides) -> SpaceTimeFit:
@@ -817,7 +806,10 @@ def spacetime_from_header(model: Siren, meta: dict, path) -> SpaceTimeFit:
         raise ModelFileError(f"{path}: space-time SDF model file without a valid frame") from None
     (t0, t1), extent = check_time_mapping(meta, path)
     anim = meta.get("animation") if isinstance(meta.get("animation"), dict) else {}
-    training = meta.get("training") if isinstance(meta.get("training"), dict) else {}
+    try:
+        training = FitRecord.training_fields(meta.get("training"))
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: unreadable training record ({exc})") from None
     names = {f.name for f in fields(SpaceTimeFitConfig)}
     cfg = {k: v for k, v in (meta.get("config") or {}).items() if k in names}
     if "sigmas" in cfg:
@@ -828,10 +820,7 @@ def spacetime_from_header(model: Siren, meta: dict, path) -> SpaceTimeFit:
         config = SpaceTimeFitConfig()
     return SpaceTimeFit(model=model, frame=frame, time_range=(t0, t1), time_extent=float(extent),
                         kind=str(anim.get("kind", "morph")), method=str(anim.get("method", "")),
-                        times=[float(t) for t in anim.get("times", [])], history=list(training.get("history", [])),
-                        steps=int(training.get("steps", 0)), seconds=float(training.get("seconds", 0.0)),
-                        config=config, stopped_reason=str(training.get("stopped_reason", "")),
-                        restarts=int(training.get("restarts", 0)))
+                        times=[float(t) for t in anim.get("times", [])], config=config, **training)
 
 
 def load_spacetime(path, *, device=None) -> SpaceTimeFit:
