@@ -27,7 +27,7 @@ def load_shape(path: str):
 
 
 def _config_class():
-    from neural_bake.fit.spacetime import SpaceTimeFitConfig
+    from neural_bake.fit.spacetime_config import SpaceTimeFitConfig
 
     return SpaceTimeFitConfig
 
@@ -37,9 +37,9 @@ def spacetime_spec(fn: str, required: tuple[str, ...]) -> ConfigSpec:
     SpaceTimeFitConfig, checked as ``fn`` checks them (its methods)."""
 
     def resolve(preset, values):
-        from neural_bake.fit.spacetime import MORPH_METHODS, SEQUENCE_METHODS, _config_from
+        from neural_bake.fit.spacetime_config import config_from
 
-        return _config_from(None, fn, MORPH_METHODS if fn == "fit_morph" else SEQUENCE_METHODS, **values)
+        return config_from(fn=fn, **values)
 
     return ConfigSpec(load=_config_class, resolve=resolve, required=required)
 
