@@ -46,7 +46,8 @@ say "installing neural-bake and its dependencies"
 "${PIP[@]}" -e ".[test,usd]"
 "$VENV/bin/python" -c "import open3d, torch, OpenImageIO, pymeshlab, xatlas; print('setup: ok: torch', torch.__version__)"
 
-# 5. The visual checks: model-viewer (npm) beside the reports, Chromium for the browser test.
+# 5. The visual checks: model-viewer (npm) beside the reports, the Khronos glTF validator (npm) for the GLB
+#    tests, Chromium for the browser test.
 MV_VERSION=4.4.0
 MV_DIR=.cache/model-viewer
 if [ ! -f "$MV_DIR/node_modules/@google/model-viewer/dist/model-viewer-umd.min.js" ]; then
@@ -58,6 +59,14 @@ if [ ! -f "$MV_DIR/node_modules/@google/model-viewer/dist/model-viewer-umd.min.j
   else
     say "note: npm not found: reports will show pictures without the interactive glTF viewer"
   fi
+fi
+GV_VERSION=2.0.0-dev.3.10
+GV_DIR=.cache/gltf-validator
+if [ ! -f "$GV_DIR/node_modules/gltf-validator/package.json" ] && command -v npm >/dev/null 2>&1; then
+  say "fetching gltf-validator@$GV_VERSION into $GV_DIR (the Khronos validator the GLB tests run)"
+  mkdir -p "$GV_DIR"
+  npm install --prefix "$GV_DIR" --no-audit --no-fund --silent "gltf-validator@$GV_VERSION" >/dev/null \
+    || say "warning: npm could not fetch gltf-validator: the GLB validation test will be skipped"
 fi
 if ! command -v chromium >/dev/null 2>&1 && [ ! -x /usr/bin/chromium ]; then
   if command -v apt-get >/dev/null 2>&1; then

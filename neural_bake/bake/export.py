@@ -1,18 +1,14 @@
 """glTF 2.0 binary (GLB) export of a baked asset: mesh, UVs, tangents, normal and base-colour textures.
 
-The file is written by hand (JSON + one binary buffer) so that every attribute the baker used goes in
-exactly: POSITION (source frame), NORMAL, TEXCOORD_0, TANGENT (vec4, handedness in w: the renderer's
-bitangent is ``w · cross(N, T)``), COLOR_0 (linear), baseColorTexture (sRGB 8-bit PNG) and normalTexture
-(linear 8-bit PNG, +Y green up as glTF requires). :func:`read_glb` reads such a file back (for tests and
-reports); trimesh loads it too.
+Every attribute the baker used goes in exactly (packed by :func:`neural_bake.io.gltf.glb_bytes`): POSITION
+(source frame), NORMAL, TEXCOORD_0, TANGENT (vec4, handedness in w: the renderer's bitangent is
+``w · cross(N, T)``), COLOR_0 (linear), baseColorTexture (sRGB 8-bit PNG) and normalTexture (linear 8-bit PNG,
++Y green up as glTF requires). :func:`read_glb` (:mod:`neural_bake.io.gltf`'s) reads such a file back;
+trimesh loads it too.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import struct
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,31 +16,10 @@ import numpy as np
 from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
 from ..io.atomic import atomic_path
+from ..io.gltf import glb_bytes, png_bytes, read_glb
 from ..types import Mesh
 
 __all__ = ["export_glb", "read_glb", "export_vertex_ply", "vertex_ply_bytes"]
-
-_FLOAT, _UINT32 = 5126, 5125
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
-_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
-_NCOMP = {v: k for k, v in _TYPES.items()}
-
-
-def _png_bytes(image: np.ndarray, colour: str, beside: Path) -> bytes:
-    """``image`` as PNG bytes. OpenImageIO writes a file: it goes in a folder beside ``beside`` (the GLB)
-    named as the GLB's atomic temporary file, so what a killed run leaves is removed by the next run for that
-    output (or with the staging folder it is in), never left in the system's temporary folder."""
-    from ..io.images import write_image
-
-    folder = beside.parent if str(beside.parent) else Path(".")
-    try:
-        with tempfile.TemporaryDirectory(prefix=f".{beside.name}.{os.getpid()}.", suffix=".tmp", dir=folder) as d:
-            p = Path(d) / "map.png"
-            write_image(p, image, colour=colour, bits=8)
-            return p.read_bytes()
-    except OSError as exc:  # the GLB is the file the user asked for: name it, not the temporary map
-        raise OSError(exc.errno, exc.strerror, str(beside)) from None
-
 
 def _check_image(name: str, image, channels: tuple[int, ...]) -> np.ndarray:
     a = np.asarray(image, dtype=np.float32)
@@ -139,64 +114,22 @@ def export_glb(
     if vertex_colors is not None:
         attrs.append(("COLOR_0", np.clip(_check_vertex_array("vertex_colors", vertex_colors, mesh, (3, 4)), 0, 1)))
 
-    blob = bytearray()
-    views: list[dict] = []
-    accessors: list[dict] = []
-
-    def add_view(data: bytes, target: int | None = None) -> int:
-        while len(blob) % 4:
-            blob.append(0)
-        view = {"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)}
-        if target is not None:
-            view["target"] = target
-        blob.extend(data)
-        views.append(view)
-        return len(views) - 1
-
-    def add_accessor(a: np.ndarray, ctype: int, target: int, minmax: bool = False) -> int:
-        dt = np.float32 if ctype == _FLOAT else np.uint32
-        a = np.ascontiguousarray(a, dtype=dt)
-        acc = {
-            "bufferView": add_view(a.tobytes(), target),
-            "componentType": ctype,
-            "count": int(a.shape[0]),
-            "type": _TYPES[a.shape[1]] if a.ndim == 2 else "SCALAR",
-        }
-        if minmax:
-            acc["min"] = [float(x) for x in a.min(axis=0)]
-            acc["max"] = [float(x) for x in a.max(axis=0)]
-        accessors.append(acc)
-        return len(accessors) - 1
-
-    attributes = {key: add_accessor(a, _FLOAT, _ARRAY_BUFFER, key == "POSITION") for key, a in attrs}
-    indices = add_accessor(mesh.faces.reshape(-1), _UINT32, _ELEMENT_ARRAY_BUFFER)
-
-    gltf: dict = {
-        "asset": {"version": "2.0", "generator": "neural_bake"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": name}],
-        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "mode": 4}]}],
-        "materials": [{"name": name, "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}],
-    }
-    gltf["meshes"][0]["primitives"][0]["material"] = 0
-    images, textures = [], []
+    images: list[bytes] = []
+    material: dict = {"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}
 
     def add_texture(image: np.ndarray, colour: str, key: str | None = None) -> int:
         written = (png_files or {}).get(key) if key is not None else None
-        data = Path(written).read_bytes() if written is not None else _png_bytes(image, colour, path)
-        images.append({"bufferView": add_view(data), "mimeType": "image/png"})
-        textures.append({"source": len(images) - 1, "sampler": 0})
-        return len(textures) - 1
+        images.append(Path(written).read_bytes() if written is not None else png_bytes(image, colour, path))
+        return len(images) - 1
 
     if albedo is not None:
         a = _check_image("albedo", albedo, (3, 4))
-        gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {"index": add_texture(a, "srgb", "albedo")}
+        material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": add_texture(a, "srgb", "albedo")}
         if a.shape[2] == 4:
-            gltf["materials"][0]["alphaMode"] = "BLEND"
+            material["alphaMode"] = "BLEND"
     if normal_map is not None:
         nm = _check_image("normal_map", normal_map, (3,))
-        gltf["materials"][0]["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data", "normal_map")}
+        material["normalTexture"] = {"index": add_texture(np.clip(nm, 0, 1), "data", "normal_map")}
     shared = {b: a for a, b in (same_image or [])}
     index: dict[str, int] = {}
     for key, slot in (("normal", "normalTexture"), ("metallic_roughness", "metallicRoughnessTexture"),
@@ -206,72 +139,17 @@ def export_glb(
         twin = shared.get(key)
         index[key] = index[twin] if twin in index else add_texture(np.clip(kept[key][..., :3], 0, 1), "data")
         if key == "metallic_roughness":
-            pbr = gltf["materials"][0]["pbrMetallicRoughness"]
+            pbr = material["pbrMetallicRoughness"]
             pbr[slot] = {"index": index[key]}
             pbr["metallicFactor"] = float((material_factors or {}).get("metallicFactor", 1.0))
             pbr["roughnessFactor"] = float((material_factors or {}).get("roughnessFactor", 1.0))
         else:
-            gltf["materials"][0][slot] = {"index": index[key]}
-    if not textures:  # no maps: glTF's default material (trimesh then shows COLOR_0 as vertex colours)
-        del gltf["materials"], gltf["meshes"][0]["primitives"][0]["material"]
-    else:
-        # linear filtering with mip-maps (the padding makes mip levels safe), repeat wrapping
-        gltf["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]
-        gltf["images"], gltf["textures"] = images, textures
-    while len(blob) % 4:
-        blob.append(0)
-    gltf["buffers"] = [{"byteLength": len(blob)}]
-    gltf["bufferViews"] = views
-    gltf["accessors"] = accessors
-    js = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
-    js += b" " * (-len(js) % 4)
-    total = 12 + 8 + len(js) + 8 + len(blob)
-    data = b"".join(
-        [
-            struct.pack("<4sII", b"glTF", 2, total),
-            struct.pack("<I4s", len(js), b"JSON"),
-            js,
-            struct.pack("<I4s", len(blob), b"BIN\x00"),
-            bytes(blob),
-        ]
-    )
+            material[slot] = {"index": index[key]}
+    # no maps: glTF's default material (trimesh then shows COLOR_0 as vertex colours)
+    data = glb_bytes(attrs, mesh.faces, images=images, material=material if images else None, name=name)
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return path
-
-
-def read_glb(path) -> tuple[dict, dict[str, np.ndarray], list[bytes]]:
-    """Read a GLB written by :func:`export_glb`: (glTF JSON, first primitive's arrays, image bytes).
-
-    The arrays dict holds every attribute by its glTF name (float32 / uint32 numpy arrays) and
-    ``"indices"`` as (F, 3). Raises :class:`NeuralBakeError` for a file that is not a GLB.
-    """
-    data = Path(path).read_bytes()
-    if len(data) < 20 or data[:4] != b"glTF":
-        raise NeuralBakeError(f"{path}: not a GLB file")
-    jlen, jtype = struct.unpack_from("<I4s", data, 12)
-    if jtype != b"JSON":
-        raise NeuralBakeError(f"{path}: GLB without a JSON chunk")
-    gltf = json.loads(data[20 : 20 + jlen])
-    off = 20 + jlen
-    blen, _ = struct.unpack_from("<I4s", data, off)
-    blob = data[off + 8 : off + 8 + blen]
-
-    def view_bytes(i: int) -> bytes:
-        v = gltf["bufferViews"][i]
-        return blob[v.get("byteOffset", 0) : v.get("byteOffset", 0) + v["byteLength"]]
-
-    def accessor(i: int) -> np.ndarray:
-        a = gltf["accessors"][i]
-        dt = np.float32 if a["componentType"] == _FLOAT else np.uint32
-        arr = np.frombuffer(view_bytes(a["bufferView"]), dtype=dt, count=a["count"] * _NCOMP[a["type"]])
-        return arr.reshape(a["count"], -1) if a["type"] != "SCALAR" else arr
-
-    prim = gltf["meshes"][0]["primitives"][0]
-    arrays = {k: accessor(i) for k, i in prim["attributes"].items()}
-    arrays["indices"] = accessor(prim["indices"]).reshape(-1, 3)
-    images = [view_bytes(im["bufferView"]) for im in gltf.get("images", [])]
-    return gltf, arrays, images
 
 
 def export_vertex_ply(path, mesh: Mesh, *, normals: np.ndarray | None = None, vertex_colors: np.ndarray | None = None) -> Path:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..constants import DEGENERATE_AREA, MAX_COORDINATE, MERGE_DISTANCE, UV_POLICIES
-from ..geometry import area_weighted_normals, edge_report
+from ..geometry import area_weighted_normals, edge_report, vertex_normals
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Frame, Mesh
 from .atomic import atomic_write_bytes, atomic_write_text
@@ -181,7 +181,8 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike, *, frame: str = "source") -> 
       ``load_mesh(save_mesh(load_mesh(p), q))`` has the geometry of ``p``; "unit" writes unit-frame ones.
     - OBJ: ``<stem>.mtl`` and ``<stem>_basecolor.png`` (8-bit sRGB) beside it when the mesh has a texture;
       per-corner UVs as ``vt``. PLY (binary): double positions, float normals, per-vertex ``s t`` (vertices
-      split at UV seams) and ``comment TextureFile`` naming the PNG. GLB: PBR base-colour texture embedded.
+      split at UV seams) and ``comment TextureFile`` naming the PNG. GLB (:mod:`neural_bake.io.gltf`): unit
+      vertex normals, UVs (vertices split at seams) and the sRGB base-colour texture embedded.
 
     Every file goes through :func:`~neural_bake.io.atomic.atomic_path`; the mesh file is written last so it
     never names a missing texture. Raises :class:`MeshError` for an unknown format or a missing folder.
@@ -215,7 +216,7 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike, *, frame: str = "source") -> 
             write_image(p.with_name(tex_name), mesh.texture, colour="srgb", bits=8)
         atomic_write_bytes(p, _ply_bytes(vertices, faces, uv, normals, tex_name if has_tex else None))
     else:
-        atomic_write_bytes(p, _glb_bytes(vertices, faces, uv, mesh.texture))
+        atomic_write_bytes(p, _glb_bytes(vertices, faces, uv, vertex_normals(mesh), mesh.texture, p))
     return p
 
 
@@ -762,22 +763,19 @@ def _ply_bytes(vertices, faces, uv, normals, tex_name) -> bytes:
     return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
 
 
-def _glb_bytes(vertices, faces, uv, texture) -> bytes:
-    import trimesh
+def _glb_bytes(vertices, faces, uv, normals, texture, path: Path) -> bytes:
+    """The GLB of a mesh (vertices split at UV seams, glTF's v down) with its sRGB base-colour texture."""
+    from .gltf import glb_bytes, png_bytes
 
-    v, f, u, _ = _split_seams(vertices, faces, uv)
-    visual = None
+    v, f, u, n = _split_seams(vertices, faces, uv, normals)
+    attributes = [("POSITION", v), ("NORMAL", n)]
+    images, material = [], None
     if u is not None:
-        material = None
+        attributes.append(("TEXCOORD_0", np.stack([u[:, 0], 1.0 - u[:, 1]], axis=1)))
         if texture is not None:
-            from PIL import Image
-
-            from .colour import linear_to_srgb
-
-            t = np.asarray(texture, dtype=np.float32).copy()
-            t[..., :3] = linear_to_srgb(t[..., :3])
-            img = Image.fromarray(np.round(np.clip(t, 0, 1) * 255).astype(np.uint8))
-            material = trimesh.visual.material.PBRMaterial(baseColorTexture=img, metallicFactor=0.0, roughnessFactor=1.0)
-        visual = trimesh.visual.TextureVisuals(uv=u, material=material)
-    tm = trimesh.Trimesh(vertices=v, faces=f, visual=visual, process=False)
-    return tm.export(file_type="glb")
+            images.append(png_bytes(texture, "srgb", path))
+            material = {"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0,
+                                                 "roughnessFactor": 1.0}}
+            if np.asarray(texture).shape[2] == 4:
+                material["alphaMode"] = "BLEND"
+    return glb_bytes(attributes, f, images=images, material=material, name=path.stem)

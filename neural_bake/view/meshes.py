@@ -1,10 +1,12 @@
-"""What the mesh renderer draws: a triangle mesh in the source frame with the attributes a glTF viewer reads.
+"""What the mesh renderer draws: a :class:`~neural_bake.types.Mesh` in its source frame with the attributes a
+glTF viewer reads besides.
 
-A :class:`ViewMesh` is plain arrays: positions, faces, vertex normals, per-corner UVs, glTF tangents (xyz,
-handedness in w), a linear base-colour texture and a tangent-space normal map (+Y green up, encoded
-``(n + 1) / 2``). :func:`view_mesh_from_glb` reads a baked ``asset.glb`` exactly as a viewer does (the
-exported NORMAL and TANGENT, not recomputed); :func:`view_mesh_from_mesh` takes a loaded source mesh with
-its own normals and texture.
+A :class:`ViewMesh` is a mesh's arrays in the source frame (positions, faces, vertex normals, per-corner UVs,
+a linear base-colour texture: :meth:`ViewMesh.to_mesh` gives them back as a ``Mesh`` in any frame) and what a
+glTF file adds to them: glTF tangents (xyz, handedness in w), a tangent-space normal map (+Y green up,
+encoded ``(n + 1) / 2``) and vertex colours. :func:`view_mesh_from_glb` reads a baked ``asset.glb`` through
+:func:`neural_bake.io.gltf.read_glb` exactly as a viewer does (the exported NORMAL and TANGENT, not
+recomputed); :func:`view_mesh_from_mesh` takes a loaded source mesh with its own normals and texture.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NeuralBakeError
-from ..types import Mesh
+from ..geometry import vertex_normals
+from ..io.gltf import GENERATOR, glb_generator, read_glb
+from ..types import Frame, Mesh
 
 __all__ = ["ViewMesh", "ViewError", "view_mesh_from_glb", "view_mesh_from_mesh", "load_view_mesh"]
 
@@ -104,6 +108,14 @@ class ViewMesh:
         """The same mesh with another normal map (e.g. a deliberately broken one, for tests)."""
         return replace(self, normal_map=normal_map)
 
+    def to_mesh(self, frame: Frame | None = None, *, source: str | None = None) -> Mesh:
+        """The geometry as a :class:`Mesh` whose unit frame is ``frame``'s (default the identity: vertices are
+        the source-frame positions), with these vertex normals, UVs and base-colour texture; ``source`` (default
+        ``name``) is what messages call it."""
+        frame = Frame() if frame is None else frame
+        return Mesh(vertices=frame.to_unit(self.positions), faces=self.faces, uv=self.uv, texture=self.albedo,
+                    vertex_normals=self.normals, frame=frame, source=self.name if source is None else source)
+
 
 def _decode_png(data: bytes, colour: str) -> np.ndarray:
     from ..io.images import read_image
@@ -121,8 +133,6 @@ def view_mesh_from_glb(path) -> ViewMesh:
     the baseColorTexture (sRGB PNG, decoded to linear) and the normalTexture (linear data). Raises
     :class:`ViewError` naming the file for a missing file or one that is not such a GLB.
     """
-    from ..bake.export import read_glb
-
     p = Path(path)
     if not p.is_file():
         raise ViewError(f"{p}: no such GLB file")
@@ -139,8 +149,6 @@ def view_mesh_from_glb(path) -> ViewMesh:
     if "NORMAL" in arr:
         normals = np.asarray(arr["NORMAL"], dtype=np.float64)
     else:
-        from ..mesh.tangents import vertex_normals
-
         normals = vertex_normals(Mesh(vertices=positions, faces=faces))
     uv = None
     if "TEXCOORD_0" in arr:
@@ -168,8 +176,6 @@ def view_mesh_from_glb(path) -> ViewMesh:
 
 def view_mesh_from_mesh(mesh: Mesh, name: str | None = None) -> ViewMesh:
     """A loaded :class:`Mesh` in its source frame, with its own vertex normals, UVs and texture."""
-    from ..mesh.tangents import vertex_normals
-
     albedo = None
     if mesh.texture is not None and mesh.uv is not None:
         albedo = np.asarray(mesh.texture, dtype=np.float32)
@@ -181,26 +187,12 @@ def view_mesh_from_mesh(mesh: Mesh, name: str | None = None) -> ViewMesh:
 
 
 def load_view_mesh(path, texture=None) -> ViewMesh:
-    """A mesh file as a :class:`ViewMesh`: our GLBs through :func:`view_mesh_from_glb` (maps and tangents as
-    exported), any other mesh (OBJ, PLY, a foreign GLB) through :func:`~neural_bake.io.mesh_io.load_mesh`."""
+    """A mesh file as a :class:`ViewMesh`: the toolkit's GLBs (``asset.generator`` is
+    :data:`~neural_bake.io.gltf.GENERATOR`) through :func:`view_mesh_from_glb` (maps and tangents as exported),
+    any other mesh (OBJ, PLY, a foreign GLB) through :func:`~neural_bake.io.mesh_io.load_mesh`."""
     from ..io.mesh_io import load_mesh
 
     p = Path(path)
-    if p.suffix.lower() == ".glb" and p.is_file() and _written_by_us(p):
+    if p.suffix.lower() == ".glb" and p.is_file() and glb_generator(p) == GENERATOR:
         return view_mesh_from_glb(p)
     return view_mesh_from_mesh(load_mesh(p, texture), name=p.name)
-
-
-def _written_by_us(path: Path) -> bool:
-    import json
-    import struct
-
-    data = path.read_bytes()
-    if len(data) < 20 or data[:4] != b"glTF":
-        return False
-    (jlen,) = struct.unpack_from("<I", data, 12)
-    try:
-        gltf = json.loads(data[20:20 + jlen])
-    except ValueError:
-        return False
-    return gltf.get("asset", {}).get("generator") == "neural_bake"
