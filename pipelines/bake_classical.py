@@ -34,12 +34,11 @@ def bake_classical(neural_folder, out, *, cage: float | None = None, log: Callab
     from neural_bake.io.jsonio import dumps
     from neural_bake.io.mesh_io import load_mesh
     from neural_bake.io.outdir import OutputFolder
-    from neural_bake.types import Mesh
     from neural_bake.view.comparison import read_bake
     from neural_bake.view.meshes import view_mesh_from_glb
     from neural_bake.view.report import source_of
 
-    from .bake_asset import _sample_truth
+    from neural_bake.bake.job import sample_truth
 
     t_start = time.perf_counter()
     neural_folder = Path(neural_folder)
@@ -59,8 +58,7 @@ def bake_classical(neural_folder, out, *, cage: float | None = None, log: Callab
         reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
         glb = view_mesh_from_glb(neural_folder / "asset.glb")
         # the neural bake's coarse mesh and UV layout, in the source's unit frame (the GLB is in its frame)
-        coarse = Mesh(vertices=fine.frame.to_unit(glb.positions), faces=glb.faces, uv=glb.uv,
-                      vertex_normals=glb.normals, frame=fine.frame, source=str(neural_folder / "asset.glb"))
+        coarse = glb.without_maps().to_mesh(fine.frame, source=str(neural_folder / "asset.glb"))
         timings["load"] = time.perf_counter() - t0
         log(f"classical bake of {src.name} onto the coarse mesh of {neural_folder} ({coarse.n_faces} faces, "
             f"{size[0]}² maps)")
@@ -77,7 +75,7 @@ def bake_classical(neural_folder, out, *, cage: float | None = None, log: Callab
                    tangents=baker.tangents)
         written.append("asset.glb")
         timings["write"] = time.perf_counter() - t0
-        normals_fn, colours_fn, sample_name = _sample_truth(str(src), baker.mesh, "auto")
+        normals_fn, colours_fn, sample_name = sample_truth(str(src), baker.mesh, "auto")
         rep = bake_report(result, baker, truth=normals_fn, fine=None if normals_fn else reference,
                           truth_colors=colours_fn, timings=timings, out_dir=stage)
         if sample_name:

@@ -71,8 +71,7 @@ def _texel_points(baked: ViewMesh, shape: tuple[int, int]):
     (M, 3) points, source frame)."""
     from ..mesh.texels import rasterize_texels
 
-    mesh = Mesh(vertices=baked.positions, faces=baked.faces, uv=baked.uv, vertex_normals=baked.normals)
-    tx = rasterize_texels(mesh, shape, tangents=baked.tangents, conservative=False)
+    tx = rasterize_texels(baked.to_mesh(), shape, tangents=baked.tangents, conservative=False)
     return np.asarray(tx.pixel), np.asarray(tx.points, dtype=np.float64)
 
 
