@@ -12,8 +12,9 @@ Conventions of the returned :class:`~neural_bake.types.Mesh`:
 - texture (H, W, 3|4) float32 *linear* RGB(A), row 0 = top row of the image file.
 
 OBJ is parsed here (exact line-numbered errors, per-corner UVs, MTL ``map_Kd``); PLY, GLB and glTF are read
-with trimesh (``process=False``); a multi-geometry scene is concatenated with its transforms applied. A glTF
-base-colour texture is multiplied by the material's ``baseColorFactor``; vertex colours are not read.
+with trimesh (``process=False``): any file, whatever wrote it; a multi-geometry scene is concatenated with its
+transforms applied. A glTF base-colour texture is multiplied by the material's ``baseColorFactor``; vertex
+colours are not read. A GLB is written by :mod:`neural_bake.io.gltf`, the toolkit's one GLB writer.
 """
 
 from __future__ import annotations
