@@ -5,20 +5,17 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
-import torch
-
 from ..errors import FitError
 from ..nets.compiled import COMPILE_MODES
-from .training import CheckpointSettings
+from .config_checks import DTYPES as _DTYPES, check_counts, check_sigmas, check_weights
+from .training import PresetLoopSettings
 
 __all__ = ["SdfFitConfig", "PRESETS", "config_from"]
 
-_DTYPES = {"float32": torch.float32, "float64": torch.float64}
-
 
 @dataclass
-class SdfFitConfig(CheckpointSettings):
-    """Settings of :func:`fit_sdf` (the loop's first: :class:`~neural_bake.fit.training.CheckpointSettings`).
+class SdfFitConfig(PresetLoopSettings):
+    """Settings of :func:`fit_sdf` (the loop's first: :class:`~neural_bake.fit.training.PresetLoopSettings`).
     Presets: :data:`PRESETS`."""
 
     steps: int = 5000  # the loop's settings with this fit's defaults
@@ -29,11 +26,6 @@ class SdfFitConfig(CheckpointSettings):
     """Number D of hidden W×W matrices (D + 1 hidden layers)."""
     omega_0: float = 30.0
     """ω0 of the first layer (hidden layers use 30); stored in the model file."""
-    budget: str = "time"
-    """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
-    "steps": run the steps the preset makes in its budget on the quiet reference machine
-    (neural_bake.fit.presets.REFERENCE_STEPS; they replace ``steps`` and ``minutes``), so the
-    result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
     batch: int = 4096
     """Surface points per step."""
     batch_near: int = 4096
@@ -229,24 +221,15 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
 
 
 def _check_config(cfg: SdfFitConfig) -> None:
-    for name in ("width", "batch", "pool_surface"):
-        v = getattr(cfg, name)
-        if int(v) != v or v < 1:
-            raise FitError(f"fit_sdf: {name} must be a positive integer, got {v!r}")
-    for name in ("depth", "batch_near", "batch_uniform", "pool_near", "pool_uniform", "refresh_every"):
-        v = getattr(cfg, name)
-        if int(v) != v or v < 0:
-            raise FitError(f"fit_sdf: {name} must be a non-negative integer, got {v!r}")
+    check_counts(cfg, "fit_sdf", ("width", "batch", "pool_surface"), least=1)
+    check_counts(cfg, "fit_sdf", ("depth", "batch_near", "batch_uniform", "pool_near", "pool_uniform", "refresh_every"),
+                 least=0)
     if (cfg.batch_near and not cfg.pool_near) or (cfg.batch_uniform and not cfg.pool_uniform):
         raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
     if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):
         raise FitError(f"fit_sdf: omega_0 must be positive, got {cfg.omega_0!r}")
-    for name in ("w_surface", "w_normal", "w_angle", "w_eikonal", "w_sdf", "focus_tau"):
-        v = getattr(cfg, name)
-        if not (math.isfinite(v) and v >= 0):
-            raise FitError(f"fit_sdf: {name} must be a non-negative number, got {v!r}")
-    if not cfg.sigmas or not all(math.isfinite(s) and s > 0 for s in cfg.sigmas):
-        raise FitError(f"fit_sdf: sigmas must be positive numbers, got {cfg.sigmas!r}")
+    check_weights(cfg, "fit_sdf", ("w_surface", "w_normal", "w_angle", "w_eikonal", "w_sdf", "focus_tau"))
+    check_sigmas(cfg, "fit_sdf")
     if not (0.0 <= cfg.hard_fraction <= 1.0) or not (0.0 < cfg.hard_pool <= 1.0):
         raise FitError(f"fit_sdf: hard_fraction must be in [0, 1] and hard_pool in (0, 1], got "
                        f"{cfg.hard_fraction!r}, {cfg.hard_pool!r}")

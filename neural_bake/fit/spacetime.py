@@ -62,7 +62,7 @@ from ..nets.siren import Siren
 from ..nets.timeslice import fix_last_input
 from ..types import Frame, Mesh
 from .record import FitRecord
-from .sdf_config import _DTYPES
+from .config_checks import DTYPES as _DTYPES
 from .spacetime_config import MORPH_METHODS, SEQUENCE_METHODS, SpaceTimeFitConfig, config_from, parse_times
 from .spacetime_loss import spacetime_loss_terms
 from .spacetime_nesting import DELTA_POLICIES, choose_deltas, nest_spacetime, nesting_by_time

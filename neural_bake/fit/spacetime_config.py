@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from ..errors import FitError
-from .sdf_config import _DTYPES
+from .config_checks import DTYPES as _DTYPES, check_counts, check_sigmas, check_weights
 from .training import LoopSettings
 
 __all__ = ["SpaceTimeFitConfig", "config_from", "parse_times", "MORPH_METHODS", "SEQUENCE_METHODS"]
@@ -92,24 +92,15 @@ def config_from(config: SpaceTimeFitConfig | None = None, *, fn: str = "fit_morp
         raise FitError(f"{fn}: unknown setting(s) {', '.join(unknown)}")
     cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None or k in ("minutes", "device")})
     cfg = replace(cfg, sigmas=tuple(float(s) for s in np.atleast_1d(cfg.sigmas)))
-    for name in ("width", "batch", "pool_surface", "pool_near", "pool_uniform", "pool_between", "log_every"):
-        v = getattr(cfg, name)
-        if int(v) != v or v < 1:
-            raise FitError(f"{fn}: {name} must be a positive integer, got {v!r}")
-    for name in ("depth", "batch_near", "batch_uniform", "batch_between", "steps"):
-        v = getattr(cfg, name)
-        if int(v) != v or v < 0:
-            raise FitError(f"{fn}: {name} must be a non-negative integer, got {v!r}")
+    check_counts(cfg, fn, ("width", "batch", "pool_surface", "pool_near", "pool_uniform", "pool_between", "log_every"),
+                 least=1)
+    check_counts(cfg, fn, ("depth", "batch_near", "batch_uniform", "batch_between", "steps"), least=0)
     for name in ("omega_0", "time_extent", "lr"):
         v = getattr(cfg, name)
         if not (math.isfinite(v) and v > 0):
             raise FitError(f"{fn}: {name} must be a positive number, got {v!r}")
-    for name in ("w_surface", "w_normal", "w_eikonal", "w_sdf", "w_lse", "w_interp"):
-        v = getattr(cfg, name)
-        if not (math.isfinite(v) and v >= 0):
-            raise FitError(f"{fn}: {name} must be a non-negative number, got {v!r}")
-    if not cfg.sigmas or not all(math.isfinite(s) and s > 0 for s in cfg.sigmas):
-        raise FitError(f"{fn}: sigmas must be positive numbers, got {cfg.sigmas!r}")
+    check_weights(cfg, fn, ("w_surface", "w_normal", "w_eikonal", "w_sdf", "w_lse", "w_interp"))
+    check_sigmas(cfg, fn)
     if cfg.method not in methods:
         raise FitError(f"{fn}: method must be one of {', '.join(methods)}, got {cfg.method!r}")
     if cfg.dtype not in _DTYPES:

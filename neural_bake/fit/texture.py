@@ -60,8 +60,8 @@ from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
+from .training import PresetLoopSettings
 
-from .training import CheckpointSettings
 __all__ = [
     "TextureFitConfig",
     "TextureFit",
@@ -83,8 +83,8 @@ SdfCallable = Callable[[torch.Tensor], "tuple[torch.Tensor, torch.Tensor]"]
 
 
 @dataclass
-class TextureFitConfig(CheckpointSettings):
-    """Settings of :func:`fit_texture` (the loop's first: :class:`~neural_bake.fit.training.CheckpointSettings`);
+class TextureFitConfig(PresetLoopSettings):
+    """Settings of :func:`fit_texture` (the loop's first: :class:`~neural_bake.fit.training.PresetLoopSettings`);
     one line per field (the CLI help comes from these)."""
 
     steps: int = 2000  # the loop's settings with this fit's defaults
@@ -98,11 +98,6 @@ class TextureFitConfig(CheckpointSettings):
     """ω0 of the first layer (frequency of the colour field over the unit frame)."""
     hidden_omega: float = 30.0
     """ω of the later hidden layers."""
-    budget: str = "time"
-    """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
-    "steps": run the steps the preset makes in its budget on the quiet reference machine
-    (neural_bake.fit.presets.REFERENCE_STEPS; they replace ``steps`` and ``minutes``), so the
-    result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
     batch: int = 4096
     """Surface samples per step (colour term)."""
     band_batch: int | None = None

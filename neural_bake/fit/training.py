@@ -55,7 +55,7 @@ from ..nets.cpu_gemm import gemm_route, model_width, reroute
 from ..nets.threads import ThreadTuner
 from ..nets.heap import keep_freed_memory
 
-__all__ = ["LoopSettings", "CheckpointSettings", "LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
+__all__ = ["LoopSettings", "CheckpointSettings", "PresetLoopSettings", "LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
 #: The ``format`` entry of a checkpoint's metadata.
 CHECKPOINT_FORMAT = "neural_bake.checkpoint.v1"
@@ -103,6 +103,18 @@ class CheckpointSettings(LoopSettings):
     resume: bool = False
     """Continue from ``checkpoint`` if that file exists (same run fingerprint required: mesh, network and
     settings)."""
+
+
+@dataclass
+class PresetLoopSettings(CheckpointSettings):
+    """:class:`CheckpointSettings` of a fitter with presets whose time budgets are accounted
+    (:mod:`neural_bake.fit.budget`)."""
+
+    budget: str = "time"
+    """"time": run the preset's time budget (``minutes``: the steps made follow the machine and its load), or
+    "steps": run the steps the preset makes in its budget on the quiet reference machine
+    (neural_bake.fit.presets.REFERENCE_STEPS; they replace ``steps`` and ``minutes``), so the
+    result does not depend on the load and the time is the estimate (needs a preset, its network and batch)."""
 
 
 @dataclass
