@@ -42,6 +42,9 @@ class ConfigSpec:
     pass_preset: bool = False
     """Also pass the preset applied (or None) to the callback as ``preset`` (a fit whose time budget is
     accounted against its preset's)."""
+    settings_file: bool = True
+    """Add ``--config FILE`` and ``--print-config`` for a TOML file of the config's fields; False: the verb has
+    its own (render's scene file) and receives them as its own parameters."""
 
 
 def flag_name(name: str) -> str:
@@ -135,11 +138,12 @@ class ConfigCommand(click.Command):
             params.append(click.Option(["--preset", "preset"], type=click.Choice(spec.presets), default=None,
                                        help=f"{spec.preset_help}: {', '.join(costs)} on a 2-core CPU"
                                             + (f" [default: {spec.default_preset}]" if spec.default_preset else "")))
-        params.append(click.Option(["--config", "config_path"], type=click.Path(dir_okay=False), default=None,
-                                   metavar="FILE", help="TOML settings file (field = value; --print-config writes "
-                                                        "one); the options given override it."))
-        params.append(click.Option(["--print-config"], is_flag=True,
-                                   help="Print the resolved settings as a TOML settings file and exit."))
+        if spec.settings_file:
+            params.append(click.Option(["--config", "config_path"], type=click.Path(dir_okay=False), default=None,
+                                       metavar="FILE", help="TOML settings file (field = value; --print-config "
+                                                            "writes one); the options given override it."))
+            params.append(click.Option(["--print-config"], is_flag=True,
+                                       help="Print the resolved settings as a TOML settings file and exit."))
         self._fields = list(hints)
         own = {p.name for p in self.params}  # a field the verb spells itself (an older spelling) keeps it
         for name, hint in hints.items():
@@ -160,6 +164,12 @@ class ConfigCommand(click.Command):
         self._add_params()
         return super().get_params(ctx)
 
+    @staticmethod
+    def given(ctx, name: str) -> bool:
+        """Whether config field ``name``'s option was given on the command line (or by the environment)."""
+        source = ctx.get_parameter_source(_PREFIX + name)
+        return source in (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
+
     # -- running
 
     def resolve(self, ctx) -> tuple[object, str | None, dict]:
@@ -170,8 +180,9 @@ class ConfigCommand(click.Command):
 
         spec = self.spec
         params = dict(ctx.params)
-        config_path = params.pop("config_path", None)
-        params.pop("print_config", None)
+        config_path = params.pop("config_path", None) if spec.settings_file else None
+        if spec.settings_file:
+            params.pop("print_config", None)
         preset = params.pop("preset", None)
         typed = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
         given = {k[len(_PREFIX):]: params.pop(k) for k in list(params) if k.startswith(_PREFIX)
@@ -199,7 +210,7 @@ class ConfigCommand(click.Command):
         from neural_bake.configs import config_table
         from neural_bake.io.tomlio import toml_text
 
-        print_config = ctx.params.get("print_config")
+        print_config = self.spec.settings_file and ctx.params.get("print_config")
         config, preset, params = self.resolve(ctx)
         if print_config:
             click.echo(toml_text(*config_table(config)), nl=False)

@@ -10,13 +10,15 @@ and the animation into OUT; with OUT a folder, the frames alone; with OUT an ima
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
 
+from .config_options import ConfigCommand, ConfigSpec
 from .options import say, verbosity, verbosity_options
 
-__all__ = ["command"]
+__all__ = ["command", "RenderOptions"]
 
 
 def _vec3(text: str | None, option: str):
@@ -51,7 +53,75 @@ def _size(text: str | None):
     return check_image_size(parts[0], parts[1], error=SceneError)
 
 
-@click.command(epilog="""\b
+@dataclass
+class RenderOptions:
+    """The render verb's settings on top of the scene file (``--config``/``--scene``); one line per field."""
+
+    device: str | None = None
+    """Torch device of the networks and rays: cpu, cuda, cuda:1, … (none: cpu)."""
+    texture: str | None = None
+    """Texture field file (neural texture mapping; adds the texture effect)."""
+    size: str | None = None
+    """Image size: N (square) or WxH pixels (none: the scene camera's, else 256)."""
+    camera: str | None = None
+    """Eye position X,Y,Z (source frame)."""
+    look_at: str | None = None
+    """Target X,Y,Z (source frame) (none: the object's centre)."""
+    fov: float | None = None
+    """Vertical field of view in degrees (none: the scene camera's, else 40)."""
+    effects: str = ""
+    """Comma-separated: shading, normal_mapping, texture, shadows, ambient_occlusion, hole_map, or none (empty:
+    the scene's, else shading)."""
+    channels: str = ""
+    """Comma-separated: color, depth, normal, hit, iterations, holes, lod (empty: the scene's, else color); the
+    others are written beside OUT as OUT-stem.<channel>.<ext> (beside each frame of a space-time model)."""
+    channel_format: str = "png"
+    """File format of the extra channels: png, or exr (raw values)."""
+    mode: str = ""
+    """Sphere tracing: fixed (iterations per level, the paper's) or threshold (a distance threshold with a cap);
+    empty: the scene's."""
+    iterations: str | None = None
+    """Iterations per level, coarse to fine, e.g. 30,30 (0 skips a level)."""
+    guaranteed: bool = False
+    """Cast primary rays with range analysis (slower, exact)."""
+    skip: bool = True
+    """Empty-space skipping."""
+    frames: int = 24
+    """Frames of a space-time model's animation."""
+    time_range: str | None = None
+    """T0,T1 of a space-time model (none: the model's)."""
+    t: str | None = None
+    """Frame times of a space-time model: START:STOP:COUNT (e.g. 0:1:60) or a list 0,0.5,1 (instead of
+    ``frames`` and ``time_range``)."""
+    fps: float = 12.0
+    """Animation frame rate."""
+    stats: str | None = None
+    """JSON file of the evaluation counters per network and effect, timings and pixel counts."""
+    precision: str = "fp32"
+    """Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU)."""
+    force: bool = False
+    """Render a texture fitted in another frame or on another surface than MODEL (with a warning)."""
+
+
+#: The values of RenderOptions' fields that take one of a few words.
+_CHOICES = {"channel_format": ("png", "exr"), "mode": ("", "fixed", "threshold"), "precision": ("fp32", "auto")}
+
+
+def _resolve(preset, values) -> RenderOptions:
+    from neural_bake.render.scene import SceneError
+
+    options = RenderOptions(**values)
+    for name, words in _CHOICES.items():
+        if getattr(options, name) not in words:
+            raise SceneError(f"--{name.replace('_', '-')}: expected one of {', '.join(w for w in words if w)}, got "
+                             f"{getattr(options, name)!r}")
+    return options
+
+
+SPEC = ConfigSpec(load=lambda: RenderOptions, resolve=_resolve, settings_file=False)
+
+
+@click.command(cls=ConfigCommand, config=SPEC, epilog="""\b
 Examples:
   neural-bake render bumpy.nested -o bumpy.png --texture bumpy.tex --size 512
   neural-bake render bumpy.nested -o bumpy.png --config scene.toml --effects shading,shadows --device cuda
@@ -67,44 +137,8 @@ Examples:
 @click.option("--print-config", is_flag=True,
               help="Print the resolved scene (the file's, the options on top, the camera that frames MODEL) as "
                    "a scene file and exit.")
-@click.option("--device", default=None, help="Torch device of the networks and rays: cpu, cuda, cuda:1, … "
-                                             "[default: cpu].")
-@click.option("--texture", "texture_path", type=click.Path(dir_okay=False), default=None,
-              help="Texture field file (neural texture mapping; adds the texture effect).")
-@click.option("--size", default=None, help="Image size: N (square) or WxH pixels [default 256].")
-@click.option("--camera", "camera_pos", default=None, help="Eye position X,Y,Z (source frame).")
-@click.option("--look-at", "look_at", default=None, help="Target X,Y,Z (source frame) [default: the object's centre].")
-@click.option("--fov", type=float, default=None, help="Vertical field of view, degrees [default 40].")
-@click.option("--effects", default=None,
-              help="Comma-separated: shading, normal_mapping, texture, shadows, ambient_occlusion, hole_map "
-                   "(or none) [default shading].")
-@click.option("--channels", default=None,
-              help="Comma-separated: color, depth, normal, hit, iterations, holes, lod [default color]; the "
-                   "others are written beside OUT as OUT-stem.<channel>.<ext> (beside each frame of a space-time "
-                   "model).")
-@click.option("--channel-format", type=click.Choice(["png", "exr"]), default="png", show_default=True,
-              help="File format of the extra channels (exr keeps raw values).")
-@click.option("--mode", type=click.Choice(["fixed", "threshold"]), default=None,
-              help="Sphere tracing: fixed iterations per level (the paper's) or a distance threshold with a cap.")
-@click.option("--iterations", default=None, help="Iterations per level, coarse to fine, e.g. 30,30 (0 skips a level).")
-@click.option("--guaranteed", is_flag=True, default=None, help="Cast primary rays with range analysis (slower, exact).")
-@click.option("--no-skip", is_flag=True, default=False, help="Turn off empty-space skipping.")
-@click.option("--frames", type=int, default=24, show_default=True, help="Frames of a space-time model's animation.")
-@click.option("--time-range", default=None, help="T0,T1 of a space-time model [default: the model's].")
-@click.option("--t", "times", default=None,
-              help="Frame times of a space-time model: START:STOP:COUNT (e.g. 0:1:60) or a list 0,0.5,1 "
-                   "(instead of --frames and --time-range).")
-@click.option("--fps", type=float, default=12.0, show_default=True, help="Animation frame rate.")
-@click.option("--stats", "stats_path", type=click.Path(dir_okay=False), default=None,
-              help="Write evaluation counters per network and effect, timings and pixel counts as JSON.")
-@click.option("--precision", type=click.Choice(["fp32", "auto"]), default="fp32", show_default=True,
-              help="Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster on this CPU/GPU).")
-@click.option("--force", is_flag=True,
-              help="Render a texture fitted in another frame or on another surface than MODEL (with a warning).")
 @verbosity_options
-def command(model, out, scene_path, print_config, device, texture_path, size, camera_pos, look_at, fov, effects,
-            channels, channel_format, mode, iterations, guaranteed, no_skip, frames, time_range, times, fps,
-            stats_path, precision, force):
+def command(model, out, scene_path, print_config, config):
     """Render MODEL (an SDF or nested sequence file) straight from its networks into OUT."""
     from dataclasses import replace
 
@@ -114,16 +148,20 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
                                     render_sequence, write_render)
     from neural_bake.render.scene import EFFECTS, SceneError, parse_list
 
+    ctx = click.get_current_context()
+    o = config
+    device, texture_path, size, camera_pos, look_at, fov = o.device, o.texture, o.size, o.camera, o.look_at, o.fov
+    channel_format, iterations, frames, time_range, times, fps = (o.channel_format, o.iterations, o.frames,
+                                                                  o.time_range, o.t, o.fps)
     scene = load_scene(scene_path) if scene_path else Scene()
     obj = scene.objects[0] if scene.objects else None
     tex = texture_path or (obj.texture if obj else None)
     wh = _size(size)
-    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=precision,
-                       force=force, force_option="--force")
+    asset = load_asset(model, texture=tex, deltas=obj.deltas if obj else None, device=device, precision=o.precision,
+                       force=o.force, force_option="--force")
     if not isinstance(asset, SpaceTimeAsset):
-        ctx = click.get_current_context()
-        given = [opt for name, opt in (("times", "--t"), ("time_range", "--time-range"), ("frames", "--frames"))
-                 if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE]
+        given = [opt for name, opt in (("t", "--t"), ("time_range", "--time-range"), ("frames", "--frames"))
+                 if ConfigCommand.given(ctx, name)]
         if given:
             raise SceneError(f"{given[0]}: MODEL {model} is a static SDF and has no time (it takes x, y, z); "
                              f"times are for a space-time model")
@@ -131,15 +169,15 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
         raise SceneError(f"{scene_path}: the render verb draws MODEL as the scene's one object; the scene has "
                          f"{len(scene.objects)} (render several objects from Python with render([...], scene))")
     changes = {}
-    if effects is not None:
-        changes["effects"] = parse_list(effects, "--effects", EFFECTS)
+    if o.effects:
+        changes["effects"] = parse_list(o.effects, "--effects", EFFECTS)
     elif texture_path and "texture" not in scene.effects:
         changes["effects"] = tuple(scene.effects) + ("texture",)
-    if channels is not None:
-        changes["channels"] = channels
+    if o.channels:
+        changes["channels"] = o.channels
     trace_changes = {}
-    if mode is not None:
-        trace_changes["mode"] = mode
+    if o.mode:
+        trace_changes["mode"] = o.mode
     if iterations is not None:
         try:
             trace_changes["iterations"] = tuple(int(i) for i in iterations.split(","))
@@ -147,10 +185,10 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
             raise SceneError(f"--iterations: expected whole numbers per level, e.g. 30,30; got {iterations!r}") from None
     if trace_changes:
         changes["trace"] = replace(scene.trace, **trace_changes)
-    if guaranteed:
-        changes["guaranteed"] = True
-    if no_skip:
-        changes["skip"] = False
+    if ConfigCommand.given(ctx, "guaranteed"):
+        changes["guaranteed"] = o.guaranteed
+    if ConfigCommand.given(ctx, "skip"):
+        changes["skip"] = o.skip
     scene = scene.with_(**changes) if changes else scene
 
     first = asset.at(asset.time_range[0]) if isinstance(asset, SpaceTimeAsset) else asset
@@ -234,9 +272,9 @@ def command(model, out, scene_path, print_config, device, texture_path, size, ca
         say(f"wrote {', '.join(str(p) for p in paths)} ({s['pixels']['hit']} of {s['pixels']['total']} "
                    f"pixels hit, {s['seconds']['total']:.2f} s)")
         stats = s
-    if stats_path:
-        atomic_write_text(stats_path, dumps(finite(stats)))
-        say(f"wrote {stats_path}")
+    if o.stats:
+        atomic_write_text(o.stats, dumps(finite(stats)))
+        say(f"wrote {o.stats}")
 
 
 def _time_range(text):

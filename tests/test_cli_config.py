@@ -40,7 +40,7 @@ def all_verbs():
     return out
 
 
-@pytest.mark.parametrize("path", CONFIG_VERBS, ids=" ".join)
+@pytest.mark.parametrize("path", [*CONFIG_VERBS, ("render",)], ids=" ".join)
 def test_every_config_field_has_an_option_with_one_help_line(path):
     cmd = command_of(path)
     assert isinstance(cmd, ConfigCommand)
