@@ -78,19 +78,20 @@ class TexelBake:
     seconds: float = 0.0
 
 
-def load_field(path, option: str, want: str, device=None) -> Any:
-    """The field file given to ``option``: an SDF or nested sequence (``want="sdf"``) or a texture field, its
-    networks on ``device``."""
+def load_field(path, parameter: str, want: str, device=None) -> Any:
+    """The field file given as ``parameter`` (named by errors): an SDF or nested sequence (``want="sdf"``) or a
+    texture field, its networks on ``device``."""
     from ..fields import NestedSequence, SdfField, TextureField
     from ..fields import load_field as _load
 
     if not Path(path).exists():
-        raise ModelFileError(f"{option} {path}: no such model file")
+        raise ModelFileError(f"{parameter} {path}: no such model file", parameter=parameter)
     f = _load(path, device=device)
     types, expected = ((SdfField, NestedSequence), "an SDF (kind 'sdf' or a nested sequence)") if want == "sdf" \
         else ((TextureField,), "a texture field (kind 'texture')")
     if not isinstance(f, types):
-        raise ModelFileError(f"{option} {path}: a {type(f).__name__} file, expected {expected}")
+        raise ModelFileError(f"{parameter} {path}: a {type(f).__name__} file, expected {expected}",
+                             parameter=parameter)
     return f
 
 
@@ -115,9 +116,9 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
     from ..io.mesh_io import load_mesh
 
     t0 = time.perf_counter()
-    sdf_file = load_field(sdf_path, "--sdf", "sdf", device)
+    sdf_file = load_field(sdf_path, "sdf", "sdf", device)
     sdf = sdf_for(sdf_file, coarse)
-    tex = load_field(texture_path, "--texture-model", "texture", device) if texture_path else None
+    tex = load_field(texture_path, "texture_model", "texture", device) if texture_path else None
     if delta is None and sdf.delta is None and tex is not None and tex.delta is not None:
         delta = tex.delta  # the band the texture was fitted in: where neural attribute mapping is valid
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(texture_path).name}")
