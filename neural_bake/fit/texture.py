@@ -60,6 +60,7 @@ from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
+from .record import FitRecord
 from .training import PresetLoopSettings
 
 __all__ = [
@@ -140,8 +141,8 @@ PRESETS: dict[str, dict] = {
 
 
 @dataclass
-class TextureFit:
-    """The result of :func:`fit_texture`.
+class TextureFit(FitRecord):
+    """The result of :func:`fit_texture` (:class:`~neural_bake.fit.record.FitRecord`).
 
     - ``model``: the colour :class:`Siren` (in 3, out 3), unit-frame points -> RGB in ``encoding``.
     - ``encoding``: "srgb" or "linear", what the network's outputs hold (:meth:`field` decodes them).
@@ -161,20 +162,12 @@ class TextureFit:
     - ``threads``: the CPU threads the steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`).
     """
 
-    model: Siren
-    frame: Frame
-    delta: float
-    lam: float
-    config: TextureFitConfig
-    history: list[dict] = field(default_factory=list)
-    steps: int = 0
-    seconds: float = 0.0
-    stopped_reason: str = "steps"
-    restarts: int = 0
+    config: TextureFitConfig = field(default_factory=TextureFitConfig)
+    delta: float = DEFAULT_DELTA
+    lam: float = 0.0
     budget: dict | None = None
     fitted_against: dict | None = None
     encoding: str = "linear"
-    threads: dict | None = None
 
     def metadata(self) -> dict:
         """The JSON metadata stored with the model file (with ``budget`` when the fit had a time budget)."""
@@ -182,11 +175,11 @@ class TextureFit:
                          self.encoding)
         if self.budget is not None:
             meta["budget"] = self.budget
-        # the loss curve (last 200 logged rows, finite ones: JSON has no NaN) for reports' accuracy-vs-time plots
-        rows = [h for h in self.history[-200:]
-                if all(math.isfinite(v) for v in h.values() if isinstance(v, float))]
-        meta["training"] = {"steps": int(self.steps), "seconds": round(float(self.seconds), 3), "history": rows,
-                            "threads": self.threads}
+        # the loss curve (finite rows: JSON has no NaN) for reports' accuracy-vs-time plots
+        training = self.training()
+        rows = [h for h in training["history"] if all(math.isfinite(v) for v in h.values() if isinstance(v, float))]
+        training.update(history=rows, final=rows[-1] if rows else {})
+        meta["training"] = training
         return meta
 
     def field(self) -> TextureField:

@@ -7,7 +7,7 @@ from neural_bake.fit.sdf import SdfFit
 from neural_bake.fit.sdf_config import SdfFitConfig
 from neural_bake.fit.spacetime import SpaceTimeFit
 from neural_bake.fit.spacetime_config import SpaceTimeFitConfig
-from neural_bake.fit.texture import TextureFitConfig
+from neural_bake.fit.texture import TextureFit, TextureFitConfig
 from neural_bake.fit.training import LoopConfig
 from neural_bake.nets.siren import Siren
 from neural_bake.types import Frame
@@ -27,6 +27,14 @@ def test_training_table_round_trips_for_every_fit_result():
     assert FitRecord.training_fields(None)["steps"] == 0 and FitRecord.training_fields({"threads": 3})["threads"] is None
     with pytest.raises(ValueError):
         FitRecord.training_fields({"steps": "many"})
+
+
+def test_a_texture_file_keeps_the_finite_rows_of_its_training_table():
+    rows = [{"step": 1, "loss": 0.5}, {"step": 2, "loss": float("nan")}]
+    fit = TextureFit(model=Siren(8, 0, 3, 3), frame=Frame(), history=rows, steps=2, seconds=0.5)
+    training = fit.metadata()["training"]
+    assert training["history"] == rows[:1] and training["final"] == rows[0] and training["steps"] == 2
+    assert FitRecord.training_fields(training)["stopped_reason"] == "steps"
 
 
 def test_every_fit_config_makes_its_loop_config_from_its_own_fields():
