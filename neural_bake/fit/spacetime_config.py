@@ -18,18 +18,17 @@ __all__ = ["SpaceTimeFitConfig", "config_from", "parse_times", "MORPH_METHODS", 
 #: The morph methods of :func:`~neural_bake.fit.spacetime.fit_morph` (see that module's docstring).
 MORPH_METHODS = ("lse", "interpolate")
 
-#: The in-between methods of :func:`fit_sequence` (see the module docstring).
+#: The in-between methods of :func:`~neural_bake.fit.spacetime.fit_sequence` (see that module's docstring).
 SEQUENCE_METHODS = ("interpolate", "eikonal")
 
 
 @dataclass
 class SpaceTimeFitConfig(LoopSettings):
-    """Settings of :func:`fit_morph` and :func:`fit_sequence` (the loop's first:
-    :class:`~neural_bake.fit.training.LoopSettings`)."""
+    """Settings of :func:`~neural_bake.fit.spacetime.fit_morph` and :func:`~neural_bake.fit.spacetime.fit_sequence`
+    (the loop's first: :class:`~neural_bake.fit.training.LoopSettings`)."""
 
     steps: int = 3000  # the loop's settings with this fit's defaults
     lr: float = 2e-4
-
     width: int = 128
     """Hidden width W of the space-time Siren."""
     depth: int = 2

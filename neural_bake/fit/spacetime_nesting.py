@@ -5,6 +5,7 @@ fixed times (:func:`nesting_by_time`)."""
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -12,6 +13,10 @@ import torch
 from ..errors import FitError, NeuralBakeWarning
 from ..fields.spacetime import time_to_tau
 from ..nets.timeslice import fix_last_input
+
+if TYPE_CHECKING:
+    from .nested import NestedFitConfig
+    from .spacetime import SpaceTimeFit
 
 __all__ = ["nest_spacetime", "choose_deltas", "nesting_by_time", "DELTA_POLICIES"]
 
@@ -21,8 +26,8 @@ __all__ = ["nest_spacetime", "choose_deltas", "nesting_by_time", "DELTA_POLICIES
 DELTA_POLICIES = ("certified", "estimated")
 
 
-def nest_spacetime(fit, config=None, *, check_times: int = 11, delta: str = "certified",
-                   **overrides):
+def nest_spacetime(fit: SpaceTimeFit, config: NestedFitConfig | None = None, *, check_times: int = 11,
+                   delta: str = "certified", **overrides):
     """Coarse space-time levels distilled from ``fit``'s network, with one δ per level that holds for every t
     of the fitted range: :func:`~neural_bake.fit.nested.fit_nested` with ``config`` (a
     :class:`~neural_bake.fit.nested.NestedFitConfig`; default: one (64, 1) level) and ``overrides`` (its
