@@ -138,6 +138,11 @@ HYBRID_SDF_TOL = 0.01
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be.
 HYBRID_ANGLE_DEG = 20.0
 
+#: A bake report compares a map larger than this (side, texels) with the truth and the classical baseline on a
+#: lattice of its texels, every k-th of each row and column (k = ceil(side / this)), and draws its error maps
+#: at that lattice: the figures are then a systematic subsample stated with their confidence intervals.
+REPORT_LATTICE_SIDE = 1024
+
 #: Hybrid bake with a texture: a texel whose neural colour differs from the source texture's at the same source
 #: point by more than this CIEDE2000 ΔE (about 1 to 2 is just noticeable, 10 a clearly different colour) takes the
 #: source's colour.

@@ -183,9 +183,10 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
     texture is baked and the source has one (``hybrid_color_tol`` finite). ``keep_baseline``: the hybrid keeps
-    its classical bake of every sample for the report. ``keep``: the coarse mesh is the source itself (the
-    texture is read at the point)."""
+    its classical bake of every sample for the report (when the report measures every texel: a map up to the
+    report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point)."""
     from .baker import Baker
+    from .report import lattice_step
 
     t0 = time.perf_counter()
     baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
@@ -202,7 +203,8 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
         from .hybrid import HybridFallback
 
         fallback = HybridFallback(reference, inputs.sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
-                                  keep_baseline=keep_baseline and baker.cache, decide=hybrid_decide,
+                                  keep_baseline=keep_baseline and baker.cache and lattice_step((size, size)) == 1,
+                                  decide=hybrid_decide,
                                   color_tol=colour_tol)
     res = baker.bake(inputs.sdf, tex if "albedo" in maps else None, delta=inputs.delta,
                      report_samples=int(report_samples), hybrid=fallback, adaptive=adaptive, precision=precision,
@@ -272,7 +274,8 @@ def report_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, baseline: 
                 log: Callable[[str], None] = print) -> tuple[dict, list[str]]:
     """The quality report of ``baked`` (:func:`~neural_bake.bake.report.bake_report`), its error maps written
     into ``stage``: against the analytic truth of a bundled sample, the source mesh, or (no source) ∇f; with
-    the classical baseline on the same texels when ``baseline``. Returns (report entries, files written)."""
+    the classical baseline on the same texels when ``baseline`` (the hybrid's, when it kept one over every
+    texel). Returns (report entries, files written)."""
     from .report import bake_report
 
     res, baker, hybrid, reference = baked.result, baked.baker, baked.hybrid, inputs.reference
@@ -280,13 +283,11 @@ def report_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, baseline: 
     if baseline and reference is not None:
         from .baseline import baseline_bake, raycasting_scene
 
-        if res.normals is not None:  # every texel sample in memory: one baseline bake of them all
-            base = hybrid.baseline() if hybrid is not None else None  # the hybrid's, if it kept it
-            if base is None:
-                base = baseline_bake(baker.mesh, reference, baker.texels, cage=cage)
+        base = hybrid.baseline() if hybrid is not None and res.normals is not None else None  # the hybrid's
+        if base is not None:
             log(f"baseline (mesh-to-mesh rays): {base['seconds']['total']:.1f} s, "
                 f"{base['fallback']} closest-point fallbacks")
-        else:  # streamed: the report runs it on its sampled texels and band by band for the error map
+        else:  # on the texels the report measures (all, its lattice, or its sample and band by band)
             scene = raycasting_scene(reference)
 
             def base_fn(texels):
@@ -302,6 +303,10 @@ def report_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, baseline: 
     if inputs.mesh_path is None:
         rep["truth"] = ("none: no source mesh; the map is measured against ∇f of the finest level "
                         "(vs_gradient_deg), and there is no classical baseline")
+    if base_fn is not None and "baseline" in rep and res.normals is not None:
+        b = rep["baseline"]
+        log(f"baseline (mesh-to-mesh rays) on {b['samples']} texel samples: {b['seconds']['total']:.1f} s, "
+            f"{b['fallback']} closest-point fallbacks")
     every = rep.get("baseline", {}).get("all_texels")
     if every:
         log(f"baseline (mesh-to-mesh rays) over all {every['samples']} samples: {every['seconds']:.1f} s, "

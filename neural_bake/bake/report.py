@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..constants import DIRECTION_EPS, UV_MATCH_TOL
+from ..constants import DIRECTION_EPS, REPORT_LATTICE_SIDE, UV_MATCH_TOL
 from ..errors import NeuralBakeError
 from ..geometry import angular_error, interpolate_corners
 from ..types import Mesh
@@ -148,12 +148,15 @@ class _ErrorImage:
     """A (H, W) float32 error map accumulated band by band: each texel gets the weighted mean of its
     samples' errors over ``max_deg`` (a texel's samples all lie in one band), clipped to [0, 1]."""
 
-    def __init__(self, shape: tuple[int, int], max_deg: float = ERROR_MAP_MAX_DEG):
-        self.img = np.zeros(shape, dtype=np.float32)
+    def __init__(self, shape: tuple[int, int], max_deg: float = ERROR_MAP_MAX_DEG, step: int = 1):
+        self.step = int(step)
+        self.img = np.zeros((-(-shape[0] // self.step), -(-shape[1] // self.step)), dtype=np.float32)
         self.max_deg = max_deg
 
     def add(self, err: np.ndarray, texels) -> None:
-        pix = np.asarray(texels.pixel)
+        """Add ``err`` (one per sample of ``texels``) at the samples' texels; with a lattice ``step``, only
+        samples of lattice texels (row and column multiples of it) are given, each at its lattice cell."""
+        pix = np.asarray(texels.pixel) // self.step
         if len(pix) == 0:
             return
         w = self.img.shape[1]
@@ -239,8 +242,10 @@ def bake_report(
     Per-sample figures are measured on all texel samples when the bake kept them (a cached Baker), else on
     ``result.sample`` (a streamed bake's seeded uniform subsample); ``"sampling"`` says which
     (``{"samples": N, "of": M, "seed", "sampled": [entries measured on the N], "note"}``, with the median's
-    95 % confidence interval ``median_ci95`` added to each sampled error entry when N < M). Coverage,
-    misses, invalid-gradient counts, seams and the error maps always cover every texel.
+    95 % confidence interval ``median_ci95`` added to each sampled error entry when N < M). A map wider than
+    :data:`~neural_bake.constants.REPORT_LATTICE_SIDE` is compared with the truth and the baseline on the
+    lattice of every k-th texel of each row and column (``"lattice_step"`` k), and its error maps are drawn
+    at that lattice. Coverage, misses, invalid-gradient counts, seams and the masks cover every texel.
 
     - ``truth``: callable, unit-frame points (M, 3) -> ground-truth unit normals (M, 3) (analytic);
       otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point.
@@ -268,9 +273,20 @@ def bake_report(
     if baseline is not None and baseline_fn is not None:
         raise NeuralBakeError("bake_report: give baseline or baseline_fn, not both")
     full = baker.texels is not None and result.normals is not None
+    step = lattice_step(result.coverage.shape)
+    pick = None
     if full:
         tx, normals, valid, total = baker.texels, result.normals, result.valid, len(result.normals)
         replaced, neural = result.replaced, result.neural
+        neural_colors = getattr(result, "neural_colors", None)
+        if step > 1:  # a large map: the lattice of its texels (constants.REPORT_LATTICE_SIDE)
+            pick = on_lattice(tx, step)
+            tx = _texel_subset(tx, pick)
+            normals, valid = normals[pick], valid[pick]
+            replaced, neural, neural_colors = (None if a is None else a[pick] for a in (replaced, neural, neural_colors))
+            if baseline is not None:
+                baseline = {**baseline, **{k: None if baseline.get(k) is None else baseline[k][pick]
+                                           for k in ("normals", "colors", "points", "hit", "distance")}}
     elif getattr(result, "sample", None) is not None:
         smp = result.sample
         tx, normals, valid, total = smp.texels, smp.normals, smp.valid, smp.total
@@ -312,7 +328,7 @@ def bake_report(
         k = min(3, truth_c.shape[1])
         ours = linear_to_srgb(result.albedo[tx.pixel[:, 0], tx.pixel[:, 1], :k].astype(np.float64))
         rep["color_psnr_db"] = psnr(_quantise(ours, bits), linear_to_srgb(truth_c[:, :k]))
-        neural_c = getattr(result, "neural_colors", None) if full else None
+        neural_c = neural_colors if full else None
         if neural_c is not None:  # a hybrid bake that decided colours: what the texture network alone gives
             rep["neural_color_psnr_db"] = psnr(_quantise(linear_to_srgb(neural_c[:, :k].astype(np.float64)), bits),
                                                linear_to_srgb(truth_c[:, :k]))
@@ -335,23 +351,31 @@ def bake_report(
         rep["baseline"] = b
     rep["seconds"] = {**result.stats.get("seconds", {}), **(timings or {})}
     measured = [k for k in SAMPLED_FIGURES if _has(rep, k)]
+    if pick is not None:
+        note = (f"the texels of every {step}th row and column ({n} of {total} texel samples): "
+                f"{', '.join(measured)} and the error maps; all other figures over every texel")
+    elif sampled:
+        note = (f"sampled {n} of {total} texel samples (uniform, seed {result.sample.seed}): "
+                f"{', '.join(measured)}; all other figures and the error maps over every texel")
+    else:
+        note = f"all {total} texel samples"
     rep["sampling"] = {
         "samples": n,
         "of": total,
         "seed": result.sample.seed if not full else None,
+        "lattice_step": step if pick is not None else None,
         "sampled": measured if sampled else [],
-        "note": (f"sampled {n} of {total} texel samples (uniform, seed {result.sample.seed}): "
-                 f"{', '.join(measured)}; all other figures and the error maps over every texel") if sampled
-        else f"all {total} texel samples",
+        "note": note,
     }
     if out_dir is not None:
         from ..io.images import write_image
 
         out_dir = Path(out_dir)
         shape = result.coverage.shape
-        err_img = _ErrorImage(shape) if truth_n is not None else None
-        # the baseline's map needs its normals at every texel: all of them cached, or baseline_fn per band
-        base_img = _ErrorImage(shape) if base_err is not None and (full or baseline_fn is not None) else None
+        err_img = _ErrorImage(shape, step=step) if truth_n is not None else None
+        # the baseline's map needs its normals at every (lattice) texel: all of them cached, or baseline_fn per band
+        base_img = _ErrorImage(shape, step=step) if base_err is not None and (full or baseline_fn is not None) \
+            else None
         if full:
             if err_img is not None:
                 err_img.add(err, tx)
@@ -381,6 +405,28 @@ def bake_report(
     return rep
 
 
+def lattice_step(shape: tuple[int, int]) -> int:
+    """The report's lattice step of a map of ``shape`` (H, W): 1 up to
+    :data:`~neural_bake.constants.REPORT_LATTICE_SIDE`, else ceil(side / it)."""
+    return max(1, -(-max(int(shape[0]), int(shape[1])) // REPORT_LATTICE_SIDE))
+
+
+def on_lattice(texels, step: int) -> np.ndarray:
+    """Indices of the samples of ``texels`` whose texel's row and column are multiples of ``step``."""
+    pix = np.asarray(texels.pixel)
+    return np.flatnonzero((pix[:, 0] % step == 0) & (pix[:, 1] % step == 0))
+
+
+def _texel_subset(texels, pick: np.ndarray):
+    """The :class:`~neural_bake.mesh.texels.TexelSet` of the samples ``pick`` of ``texels`` (its coverage kept)."""
+    import dataclasses
+
+    from .baker import _TEXEL_FIELDS
+
+    return dataclasses.replace(texels, **{k: np.take(np.asarray(getattr(texels, k)), pick, axis=0)
+                                          for k in _TEXEL_FIELDS})
+
+
 def _has(rep: dict, key: str) -> bool:
     head, _, tail = key.partition(".")
     return head in rep and (not tail or tail in rep[head])
@@ -392,7 +438,10 @@ def _stream_error_maps(result, baker, ground: _Truth, baseline_fn, bits, err_img
     evaluation), the final map decoded and compared with the truth (and the baseline run) band by band.
     Returns the baseline's totals over all samples (or None without ``baseline_fn``)."""
     seconds, fallback, count = 0.0, 0, 0
+    step = err_img.step
     for band in baker.bands():
+        if step > 1:
+            band = _texel_subset(band, on_lattice(band, step))
         if band.n_samples == 0:
             continue
         truth_n, _ = ground(band, colours=False)

@@ -180,7 +180,8 @@ def test_streamed_report_keeping_every_sample_equals_the_cached_report(dirs):
     _, cres, sres, cached, streamed = _reports(dirs, report_samples=1 << 20)
     m = len(cres.normals)
     assert sres.sample.n_samples == sres.sample.total == m  # the limit exceeds M: every sample, in order
-    assert cached["sampling"] == {"samples": m, "of": m, "seed": None, "sampled": [], "note": f"all {m} texel samples"}
+    assert cached["sampling"] == {"samples": m, "of": m, "seed": None, "lattice_step": None, "sampled": [],
+                                  "note": f"all {m} texel samples"}
     assert streamed["sampling"]["samples"] == streamed["sampling"]["of"] == m and streamed["sampling"]["sampled"] == []
     assert cached["miss_texels"] > 0
     for key in (*EXACT, "vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
@@ -237,3 +238,44 @@ def test_subsample_is_uniform_and_seeded():
     assert not np.array_equal(other.index, sres.sample.index)
     again = sb.bake(SdfField(lambda p: p.norm(dim=1) - R), report_samples=500, seed=1).sample
     assert np.array_equal(again.index, sres.sample.index)
+
+
+def test_large_map_is_compared_on_a_lattice_of_its_texels(tmp_path, baked, monkeypatch):
+    """A map wider than the report's lattice side is compared on every k-th texel of each row and column:
+    the lattice error maps are the full ones at those texels, the figures those of the lattice's samples
+    (with a confidence interval), and the baseline runs on the lattice only."""
+    from neural_bake.bake import report as report_mod
+
+    baker, res = baked
+    fine = fine_sphere()
+    calls = []
+
+    def base_fn(texels):
+        calls.append(texels.n_samples)
+        return baseline_bake(baker.mesh, fine, texels, cage=0.2)
+
+    (tmp_path / "all").mkdir()
+    (tmp_path / "lat").mkdir()
+    every = bake_report(res, baker, truth=truth, baseline_fn=base_fn, out_dir=tmp_path / "all")
+    monkeypatch.setattr(report_mod, "REPORT_LATTICE_SIDE", 32)
+    assert report_mod.lattice_step((64, 64)) == 2 and report_mod.lattice_step((32, 32)) == 1
+    lat = bake_report(res, baker, truth=truth, baseline_fn=base_fn, out_dir=tmp_path / "lat")
+    pix = baker.texels.pixel
+    on = (pix[:, 0] % 2 == 0) & (pix[:, 1] % 2 == 0)
+    assert calls == [baker.texels.n_samples, int(on.sum())]  # the baseline ray-casts the lattice only
+    s = lat["sampling"]
+    assert s["lattice_step"] == 2 and s["samples"] == on.sum() and s["of"] == baker.texels.n_samples
+    assert "vs_truth_deg" in s["sampled"] and "median_ci95" in lat["vs_truth_deg"]
+    assert every["sampling"]["lattice_step"] is None and not every["sampling"]["sampled"]
+    for name in ("error_normal.png", "error_baseline.png"):
+        full = read_image(tmp_path / "all" / name, colour="data")
+        small = read_image(tmp_path / "lat" / name, colour="data")
+        assert small.shape[:2] == (32, 32)
+        np.testing.assert_array_equal(small, full[::2, ::2])
+    # the lattice's figures are those of the full comparison at its samples
+    dec = report_mod.decode_map(res.normal_map, baker.texels, baker.normal_space, baker.y_convention, 8)
+    err = angular_error(dec, truth(baker.texels.points))
+    assert lat["vs_truth_deg"]["max"] == pytest.approx(err[on].max()) and lat["vs_truth_deg"]["count"] == on.sum()
+    # masks and counts still cover every texel
+    assert read_image(tmp_path / "lat" / "miss.png", colour="data").shape[:2] == (64, 64)
+    assert lat["texels_covered"] == every["texels_covered"]
