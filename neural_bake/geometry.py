@@ -14,7 +14,8 @@ from .errors import MeshError
 from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
 __all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "frame_mismatch",
-           "interpolate_corners", "mismatch_problem", "raycasting_scene", "sampleable_faces", "vertex_normals"]
+           "interpolate_corners", "mismatch_problem", "prefetch_raycasting", "raycasting_scene", "sampleable_faces",
+           "vertex_normals"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -179,6 +180,26 @@ def edge_report(faces: np.ndarray) -> dict:
 
 _SCENES: OrderedDict[bytes, object] = OrderedDict()
 _SCENES_LOCK = threading.Lock()
+_PREFETCH: list[threading.Thread] = []
+
+
+def prefetch_raycasting() -> None:
+    """Start importing open3d (what :func:`raycasting_scene` needs) in a background thread, once per process,
+    so a job that will cast rays later pays for the import while it does other work (loading, coarsening,
+    rasterising). The first :func:`raycasting_scene` waits for it; an import error surfaces there."""
+    with _SCENES_LOCK:
+        if _PREFETCH:
+            return
+
+        def load():
+            try:
+                import open3d  # noqa: F401
+            except Exception:  # noqa: BLE001 - raycasting_scene imports it again and raises there
+                pass
+
+        t = threading.Thread(target=load, name="prefetch-open3d", daemon=True)
+        _PREFETCH.append(t)
+    t.start()
 
 
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):

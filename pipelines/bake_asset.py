@@ -202,6 +202,10 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             log(f"no source mesh: the coarse mesh is the model marched ({MODEL_ONLY_COARSE}), not {coarse}")
             coarse = MODEL_ONLY_COARSE
     keep = kind == "keep"
+    if mesh is not None and (cfg.hybrid or cfg.baseline):  # rays will be cast: their library loads meanwhile
+        from neural_bake.geometry import prefetch_raycasting
+
+        prefetch_raycasting()
     nested = isinstance(out, OutputFolder)
     folder = out if nested else OutputFolder(out)
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging

@@ -155,3 +155,18 @@ def test_angle_measure_is_exact_near_zero(dtype, rng):
     b = a * np.cos(theta)[:, None] + np.cross(axis, a) * np.sin(theta)[:, None]  # a turned by theta about axis
     tol = 1e-9 if dtype == np.float64 else 1e-3
     np.testing.assert_allclose(geometry.angular_error(a.astype(dtype), b.astype(dtype)), np.degrees(theta), atol=tol)
+
+
+def test_prefetch_loads_open3d_once_in_the_background_and_scenes_still_answer():
+    import sys
+    import threading
+
+    geometry.prefetch_raycasting()
+    geometry.prefetch_raycasting()  # once per process
+    threads = [t for t in threading.enumerate() if t.name == "prefetch-open3d"]
+    assert len(geometry._PREFETCH) == 1 and len(threads) <= 1
+    geometry._PREFETCH[0].join(timeout=120)
+    assert "open3d" in sys.modules
+    tri = trimesh.creation.icosphere(subdivisions=1)
+    scene = raycasting_scene(np.asarray(tri.vertices), np.asarray(tri.faces))
+    assert scene is raycasting_scene(np.asarray(tri.vertices), np.asarray(tri.faces))
