@@ -10,8 +10,8 @@ See :mod:`neural_bake.samples.shapes` for the shapes and their analytic function
 
 from .animated import ANIMATED, SplittingSphere, TravellingBumps, TwistingTorus, get_animation
 from .generate import DATA_DIR, FRAMES_FILE, generate, sample_path, write_animation
-from .shapes import SAMPLES, BumpySphere, Jack, SampleMesh, Sphere, Torus, get_sample, unit_frame_normals
+from .shapes import SAMPLES, BumpySphere, Dots, Jack, SampleMesh, Sphere, Torus, get_sample, unit_frame_normals
 
-__all__ = ["SAMPLES", "SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "get_sample", "generate",
+__all__ = ["SAMPLES", "SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "Dots", "get_sample", "generate",
            "sample_path", "DATA_DIR", "unit_frame_normals", "ANIMATED", "TravellingBumps", "TwistingTorus",
            "SplittingSphere", "get_animation", "write_animation", "FRAMES_FILE"]

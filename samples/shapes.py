@@ -16,7 +16,8 @@ unit-frame distances with ``d / mesh.frame.scale``.
 
 Shapes: ``sphere`` (smooth colour field), ``torus`` (genus 1, checker texture), ``bumpy_sphere`` (radial
 sinusoidal bumps a coarse mesh cannot hold: the baking case), ``jack`` (a ball with six thin spikes: thin,
-non-convex parts, a hard fitting case).
+non-convex parts, a hard fitting case), ``dots`` (the torus with a flat-colour texture of small sharp discs:
+the hard texture case, with analytic edges).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "SAMPLES", "get_sample"]
+__all__ = ["SampleMesh", "Sphere", "Torus", "BumpySphere", "Jack", "Dots", "SAMPLES", "get_sample"]
 
 
 class SampleMesh(NamedTuple):
@@ -337,6 +338,68 @@ class Torus:
         return np.where(odd[:, None], np.asarray(self.colors[1]), np.asarray(self.colors[0]))
 
 
+# -------------------------------------------------------------------------------------------------- dots
+
+
+@dataclass(frozen=True)
+class Dots(Torus):
+    """The torus with a flat-colour texture of small sharp dots (discs) of a few sizes: the hard case of a
+    colour network (a single SIREN blurs the dots and rings at their edges) and an analytic oracle of a bake's
+    small features and their edges.
+
+    Geometry, ``sdf``, ``normal`` and ``uv_of`` as :class:`Torus`; the texture is square (``texture_size``²).
+    In texel coordinates of that default texture (x = u·T, y = (1 - v)·T, T = ``texture_size``, row 0 at the
+    top), cell (row r, column k) of side ``spacing`` holds one disc centred in it, ``dot_texels[r % n]``
+    texels across, of colour ``dot_colors[k % m]``; the rest is ``background``. The dots are fixed in uv: a
+    texture of another size (``mesh(texture_size=…)``) scales them with it. Texels are painted at their
+    centres without antialiasing, so every edge is sharp.
+    """
+
+    name: str = "dots"
+    texture_size: int = 1024
+    """Default texture side; ``dot_texels`` and ``spacing`` are in its texels."""
+    dot_texels: tuple[float, ...] = (8.0, 12.0, 16.0, 24.0)
+    """Disc diameters in texels, one per row of cells (cycled)."""
+    spacing: int = 32
+    """Side of a cell in texels (one disc per cell; only whole cells hold a disc)."""
+    background: tuple[float, float, float] = (0.75, 0.62, 0.38)
+    """Linear RGB of the flat background."""
+    dot_colors: tuple = ((0.02, 0.02, 0.03), (0.7, 0.04, 0.03), (0.03, 0.12, 0.6), (0.9, 0.9, 0.85))
+    """Linear RGB of the discs, one per column of cells (cycled)."""
+
+    def mesh(self, resolution: int | None = None, texture_size: int | None = None) -> SampleMesh:
+        m = Torus.mesh(self, resolution, 8)
+        w = int(texture_size or self.texture_size)
+        tex = self.albedo_uv(_texel_uv(w, w).reshape(-1, 2)).reshape(w, w, 3)
+        return SampleMesh(m.vertices, m.faces, m.uv, tex.astype(np.float32))
+
+    def cells(self) -> int:
+        """Cells per side of the texture (each holds one disc)."""
+        return int(self.texture_size) // int(self.spacing)
+
+    def dots(self) -> list[dict]:
+        """Every disc: ``{"row", "col", "centre": (x, y), "diameter", "color"}``, centre and diameter in
+        texel units of the default texture (x to the right from the left edge, y down from the top edge)."""
+        n, s = self.cells(), float(self.spacing)
+        return [{"row": r, "col": k, "centre": ((k + 0.5) * s, (r + 0.5) * s),
+                 "diameter": float(self.dot_texels[r % len(self.dot_texels)]),
+                 "color": tuple(self.dot_colors[k % len(self.dot_colors)])} for r in range(n) for k in range(n)]
+
+    def albedo_uv(self, uv, texture_size: int | None = None) -> np.ndarray:
+        """Colour at texture coordinates (N, 2): the disc's inside a disc (its boundary excluded), else the
+        background (independent of ``texture_size``: the dots are fixed in uv)."""
+        uv = np.asarray(uv, dtype=np.float64)
+        t, s, n = float(self.texture_size), float(self.spacing), self.cells()
+        x, y = uv[:, 0] * t, (1.0 - uv[:, 1]) * t
+        col, row = np.floor(x / s).astype(np.int64), np.floor(y / s).astype(np.int64)
+        ok = (col >= 0) & (col < n) & (row >= 0) & (row < n)
+        diam = np.asarray(self.dot_texels, dtype=np.float64)[np.where(ok, row, 0) % len(self.dot_texels)]
+        dist = np.hypot(x - (col + 0.5) * s, y - (row + 0.5) * s)
+        inside = ok & (dist < diam / 2.0)
+        dot = np.asarray(self.dot_colors, dtype=np.float64)[np.where(ok, col, 0) % len(self.dot_colors)]
+        return np.where(inside[:, None], dot, np.asarray(self.background, dtype=np.float64))
+
+
 # -------------------------------------------------------------------------------------------------- jack
 
 
@@ -483,7 +546,7 @@ def _paint(verts, faces, uv, colour_fn, width: int, height: int) -> np.ndarray:
 
 
 #: The samples by name, in the order ``generate`` writes them.
-SAMPLES = {s.name: s for s in (Sphere(), BumpySphere(), Torus(), Jack())}
+SAMPLES = {s.name: s for s in (Sphere(), BumpySphere(), Torus(), Jack(), Dots())}
 
 
 def get_sample(name: str):

@@ -36,7 +36,7 @@ def test_unknown_name_is_a_one_line_error(tmp_path, capsys):
     code = main(["samples", "--out", str(tmp_path), "--names", "teapot"])
     assert code == 2
     err = capsys.readouterr().err
-    assert err.strip() == ("neural-bake: error: unknown sample 'teapot' (known: sphere, bumpy_sphere, torus, jack, "
+    assert err.strip() == ("neural-bake: error: unknown sample 'teapot' (known: sphere, bumpy_sphere, torus, jack, dots, "
                            "travelling_bumps, twisting_torus, splitting_sphere)")
     assert not any(tmp_path.iterdir())
 

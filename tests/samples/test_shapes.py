@@ -14,7 +14,8 @@ from neural_bake.samples import (DATA_DIR, SAMPLES, BumpySphere, Jack, Sphere, T
                                  unit_frame_normals)
 from neural_bake.samples.generate import obj_text
 
-LATLONG_AND_TORUS = ["sphere", "bumpy_sphere", "torus"]
+LATLONG_AND_TORUS = ["sphere", "bumpy_sphere", "torus", "dots"]
+SHARP = ("torus", "dots")  # sharp-edged textures: bilinear lookups blur their edges
 
 
 def _surface_points(sample, n=500, seed=0, resolution=4000):
@@ -119,7 +120,7 @@ def test_meshes_are_closed_outward_and_on_the_surface(name):
     s = SAMPLES[name]
     m = s.mesh(1000 if name != "jack" else 3000, 32)
     assert m.faces.dtype == np.int64 and m.uv.shape == (len(m.faces), 3, 2) and m.texture.dtype == np.float32
-    assert m.texture.shape == ((16, 32, 3) if name != "jack" else (32, 32, 3))
+    assert m.texture.shape == ((16, 32, 3) if name not in ("jack", "dots") else (32, 32, 3))
     assert np.abs(s.sdf(m.vertices)).max() < 1e-9
     mesh = mesh_from_arrays(m.vertices, m.faces, m.uv, m.texture, normalise=False)
     assert mesh.watertight and not mesh.warnings
@@ -131,12 +132,19 @@ def test_meshes_are_closed_outward_and_on_the_surface(name):
 @pytest.mark.parametrize("name", LATLONG_AND_TORUS)
 def test_texture_is_the_albedo_at_the_texels(name):
     s = SAMPLES[name]
-    size = 512 if name == "torus" else 64
+    size = 512 if name in SHARP else 64
     m = s.mesh(500, size)
     mesh = mesh_from_arrays(m.vertices, m.faces, m.uv, m.texture, normalise=False)
     smp = sample_surface(mesh, 3000, seed=2)
     err = np.abs(smp.colors - s.albedo_uv(smp.uv, size)).max(1)
-    if name == "torus":  # sharp checker: bilinear blur within one texel of an edge only
+    if name == "dots":  # exact but within a texel and a half of a disc's edge (bilinear lookups)
+        x, y = smp.uv[:, 0] * s.texture_size, (1.0 - smp.uv[:, 1]) * s.texture_size
+        cell = np.floor(np.stack([x, y], 1) / s.spacing)
+        r = np.hypot(*(np.stack([x, y], 1) - (cell + 0.5) * s.spacing).T)
+        diameter = np.asarray(s.dot_texels)[cell[:, 1].astype(int) % len(s.dot_texels)]
+        near_edge = np.abs(r - diameter / 2) * size / s.texture_size < 1.5
+        assert err[~near_edge].max() < 1e-6 and near_edge.mean() < 0.5
+    elif name in SHARP:  # sharp edges: bilinear blur within one texel of an edge only
         assert np.mean(err < 1e-6) > 0.9
     else:
         assert err.max() < 0.01
@@ -178,7 +186,7 @@ def test_bundled_files_load_and_match_the_analytic_functions(name):
     assert np.abs(s.sdf(src)).max() < 2e-6  # 6 decimals in the file
     smp = sample_surface(mesh, 3000, seed=4)
     err = np.abs(smp.colors - s.albedo(mesh.frame.to_source(smp.points))).max(1)
-    if name == "torus":
+    if name in SHARP:
         assert np.mean(err < 0.01) > 0.9
     else:  # 8-bit sRGB quantisation + bilinear + tessellation
         assert np.quantile(err, 0.99) < 0.01 and err.max() < 0.05
@@ -191,7 +199,7 @@ def test_generate_writes_atomically_named_files(tmp_path):
 
 
 def test_errors(tmp_path):
-    with pytest.raises(NeuralBakeError, match=r"unknown sample 'cube' \(known: sphere, bumpy_sphere, torus, jack\)"):
+    with pytest.raises(NeuralBakeError, match=r"unknown sample 'cube' \(known: sphere, bumpy_sphere, torus, jack, dots\)"):
         get_sample("cube")
     with pytest.raises(NeuralBakeError, match="unknown sample 'cube'"):
         sample_path("cube")
