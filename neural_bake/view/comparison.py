@@ -17,7 +17,6 @@ maps and the colour error between their albedos, texel by texel, are in ``pairs`
 
 from __future__ import annotations
 
-import html
 import json
 import math
 import shutil
@@ -28,6 +27,8 @@ from typing import Callable
 import numpy as np
 
 from .meshes import ViewError, ViewMesh
+from .html import esc as _esc
+from .html import fmt as _fmt
 
 __all__ = ["CompareConfig", "write_comparison", "read_bake", "fit_summaries", "figures_rows", "error_time_svg",
            "COMPARISON_JSON"]
@@ -343,20 +344,6 @@ def _tree_node(d: dict):
 
 
 # ---------------------------------------------------------------------------------------------------- page
-
-def _esc(x) -> str:
-    return html.escape(str(x))
-
-
-def _fmt(v, nd=2) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, float):
-        if math.isinf(v):
-            return "∞"
-        return f"{v:.{nd}f}"
-    return _esc(v)
-
 
 def _bytes(n) -> str:
     if n is None:

@@ -14,7 +14,6 @@ report.json names). Differences are measured against the source, and between the
 
 from __future__ import annotations
 
-import html
 import json
 import shutil
 import tempfile
@@ -29,6 +28,8 @@ from ..render.camera import Camera
 from ..render.shading import Material
 from .compare import difference_image, image_metrics, silhouette_iou
 from .meshes import ViewError, ViewMesh, view_mesh_from_glb, view_mesh_from_mesh
+from .html import esc as _esc
+from .html import fmt as _fmt
 from .raycast import DEFAULT_BACKGROUND, MeshRender, render_mesh
 from .stages import StageNode, stage_bar_svg, stage_tree
 from .turntable import to_srgb8, turntable_cameras, view_camera, write_gif
@@ -161,20 +162,6 @@ def _heat_render(baked: ViewMesh, heat: np.ndarray, camera: Camera) -> np.ndarra
     out = render_mesh(painted, camera, lights=[], material=Material(ambient=1.0, specular=0.0),
                       background=(0.2, 0.2, 0.2))
     return out.rgb
-
-
-def _esc(x) -> str:
-    return html.escape(str(x))
-
-
-def _fmt(v, nd=2) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, float):
-        if v == float("inf"):
-            return "∞"
-        return f"{v:.{nd}f}" if abs(v) >= 10 ** -nd or v == 0 else f"{v:.2e}"
-    return _esc(v)
 
 
 def write_asset_report(folder, config: ReportConfig | None = None, *,
