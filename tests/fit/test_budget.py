@@ -362,7 +362,7 @@ def test_texture_steps_budget_runs_the_presets_reference_steps(monkeypatch, tmp_
 
 
 def test_batch_stages_take_a_steps_budget():
-    from pipelines.stages import resolve_stages
+    from neural_bake.pipelines.stages import resolve_stages
 
     stages = resolve_stages({"sdf": {"preset": "quick", "budget": "steps"}, "texture": {"budget": "steps"}})
     assert stages["sdf"].budget == "steps" and stages["texture"].budget == "steps"
