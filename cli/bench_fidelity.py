@@ -23,12 +23,20 @@ from .bench import bench_options, report
                    "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
 @click.option("--steps", default=None, metavar="LIST",
               help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")
+@click.option("--texture-steps", type=int, default=None,
+              help="Adam steps of every texture fit (default: the preset's steps on the reference machine, "
+                   "--budget steps; --quick: 200).")
+@click.option("--only-textures", is_flag=True,
+              help="Only the texture rows, on the textured assets (default: all of them; --quick: spot).")
 @click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None, metavar="DIRECTORY",
               help="Also save every fitted SDF as DIR/MESH-PRESET.sdf (e.g. for bench bake --anchor-model).")
-def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps, save_dir) -> None:
+def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps, texture_steps,
+            only_textures, save_dir) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
-    without their caps); times; texture PSNR; storage. Meshes not present are skipped, saying so."""
+    without their caps); times; texture PSNR; storage. Textured assets add a texture row: the albedo of the
+    network alone, of the hybrid colour rule and of the classical transfer against the source texture (PSNR,
+    SSIM) and the time of each bake. Meshes not present are skipped, saying so."""
     from neural_bake.bench.fidelity import SAMPLINGS, run
 
     variants = None if sampling is None else [v.strip() for v in sampling.split(",") if v.strip()]
@@ -39,9 +47,12 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
         counts = None if steps is None else [int(n) for n in steps.split(",") if n.strip()]
     except ValueError:
         counts = []
+    if texture_steps is not None and texture_steps < 1:
+        raise click.BadParameter(f"expected a positive integer, got {texture_steps}", param_hint="--texture-steps")
     if counts is not None and (not counts or min(counts) < 1):
         raise click.BadParameter(f"expected positive integers separated by commas, got {steps!r}",
                                  param_hint="--steps")
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
-               minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir, log=click.echo),
+               minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir,
+               texture_steps=texture_steps, only_textures=only_textures, log=click.echo),
            json_path)

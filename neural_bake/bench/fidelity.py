@@ -8,6 +8,10 @@ source mesh's (median, p95) for the hybrid map, ∇f alone, the classical mesh-t
 mesh's own normals, all on the same texels; the share of hybrid texels; times of each stage; the texture
 PSNR of textured assets (a texture fit at the same preset name); and storage (the networks' KB against the
 source file's MB).
+
+Textured assets also get a texture row (:mod:`neural_bake.bench.fidelity_texture`): the albedo of the network
+alone, of the hybrid colour rule and of the classical transfer, each against the source texture at the
+closest points (PSNR, SSIM), the network's two against the classical one, and the time of each bake.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import HYBRID_COLOR_DELTA_E
 from ..errors import NeuralBakeError
 from .common import data_folder, load_note, machine_info
 
@@ -36,6 +41,9 @@ MESHES: dict[str, dict] = {
     "spot": {"path": "spot/spot_triangulated.obj", "texture": "spot/spot_texture.png"},
     "bunny": {"path": "bunny/bunny_closed.obj"},
 }
+
+#: The meshes of :data:`MESHES` with a texture (their own, or a named image): the texture rows' default.
+TEXTURED = ("cabinet", "tea_set", "spot")
 
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
 #: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings.
@@ -200,7 +208,8 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
 def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[str] | None = None,
         faces: int | None = None, size: int | None = None, minutes: float | None = None, texture: bool | None = None,
         data: str | os.PathLike | None = None, sampling: list[str] | None = None, steps: list[int] | None = None,
-        save_dir: str | os.PathLike | None = None, log=None) -> dict:
+        save_dir: str | os.PathLike | None = None, texture_steps: int | None = None, only_textures: bool = False,
+        log=None) -> dict:
     """Run the fidelity benchmark; returns ``{"name", "machine", "quick", "rows", "notes"}``.
 
     - ``meshes``: names of :data:`MESHES` or mesh file paths (default: every mesh the data folder holds;
@@ -216,6 +225,14 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
       methods fairly on a loaded machine; the per-step cost ratio says what a step costs more).
     - ``save_dir``: also save every fitted SDF as ``save_dir/MESH-PRESET[-STEPS][-VARIANT].sdf`` (to re-bake
       or time them, e.g. ``bench bake --anchor-model``).
+    - ``texture_steps``: Adam steps of every texture fit (default: the preset's steps on the quiet reference
+      machine, ``budget="steps"``, so the figures do not follow the machine's load; quick 200).
+    - ``only_textures``: the texture rows alone (textured assets only; no SDF metrics, no normal bake), the SDF
+      fitted with ``budget="steps"`` unless ``minutes`` or ``steps`` is given (default meshes: those of
+      :data:`MESHES` with a texture; quick: spot).
+
+    The result has ``"texture_rows"`` (one per textured case with a texture fit) and, when there are any,
+    ``"tables"`` (the normal rows and the texture rows, as the bench report prints them).
     """
     from ..fit.metrics import sdf_metrics
     from ..fit.sdf import fit_sdf
@@ -227,11 +244,17 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     faces = int(faces or (1000 if quick else 3000))
     size = int(size or (256 if quick else 1024))
     minutes = minutes if minutes is not None else (0.3 if quick else None)
-    texture = (not quick) if texture is None else bool(texture)
+    texture = (not quick or only_textures) if texture is None else bool(texture)
+    if only_textures and not texture:
+        raise NeuralBakeError("fidelity: only_textures needs the texture fits (texture=False given)")
+    texture_steps = texture_steps if texture_steps is not None else (200 if quick else None)
+    if texture_steps is not None and (isinstance(texture_steps, bool) or int(texture_steps) < 1):
+        raise NeuralBakeError(f"fidelity: texture_steps must be a positive integer, got {texture_steps!r}")
     notes: list[str] = []
     folder = data_folder(data)
     jobs: list[tuple[str, Path, dict]] = []
-    wanted = meshes or (["fandisk"] if quick else list(MESHES))
+    textured = [m for m in MESHES if m in TEXTURED]
+    wanted = meshes or ((["spot"] if quick else textured) if only_textures else (["fandisk"] if quick else list(MESHES)))
     for m in wanted:
         if m in MESHES:
             if folder is None:
@@ -257,9 +280,13 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             Path(save_dir).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise NeuralBakeError(f"{save_dir}: cannot create the models folder ({exc.strerror or exc})") from None
-    rows = []
+    rows: list[dict] = []
+    texture_rows: list[dict] = []
     for name, path, spec in jobs:
         mesh = load_mesh(path, spec.get("texture"))
+        if only_textures and (mesh.texture is None or mesh.uv is None):
+            notes.append(f"{name}: skipped, no texture (texture rows only)")
+            continue
         source_mb = _source_bytes(path) / 2**20
         coarse = spec.get("coarse", f"decimate:{faces}")
         cases = [(p, n, v) for p in presets for n in caps_of_steps for v in sampling]
@@ -271,16 +298,19 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             over = {} if minutes is None else {"minutes": minutes}
             if step_cap is not None:
                 over = {"minutes": None, "steps": step_cap}
-            fit = fit_sdf(mesh, preset=preset, progress=False, **over, **SAMPLINGS[variant])
+            sdf_over = {"budget": "steps"} if only_textures and not over else over
+            fit = fit_sdf(mesh, preset=preset, progress=False, **sdf_over, **SAMPLINGS[variant])
             fit_s = time.perf_counter() - t0
             if save_dir is not None:
                 stem = "-".join([Path(name).stem, preset, *([] if step_cap is None else [str(step_cap)]),
                                  *([] if variant == "preset" else [variant])])
                 fit.save(Path(save_dir) / f"{stem}.sdf")
             n, res = (20_000, 96) if quick else (50_000, 128)
-            metrics = sdf_metrics(fit.model, mesh, n=n, resolution=res)
-            caps = None if mesh.watertight else open_caps(fit.model, mesh, n=n, resolution=res,
-                                                           mesh_to_net_max=metrics["mesh_to_net_max"])
+            metrics = caps = None
+            if not only_textures:
+                metrics = sdf_metrics(fit.model, mesh, n=n, resolution=res)
+                caps = None if mesh.watertight else open_caps(fit.model, mesh, n=n, resolution=res,
+                                                               mesh_to_net_max=metrics["mesh_to_net_max"])
             with tempfile.TemporaryDirectory(prefix="bench-fidelity-") as tmp:
                 sdf_path = Path(tmp) / "f.sdf"
                 fit.save(sdf_path)
@@ -290,11 +320,17 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                     from ..fit.texture import fit_texture
 
                     say(f"{label}: fitting the texture")
-                    tfit = fit_texture(mesh, str(sdf_path), preset=preset, **over)
+                    tover = {"budget": "steps"} if texture_steps is None else {"steps": int(texture_steps),
+                                                                                "minutes": None}
+                    tfit = fit_texture(mesh, str(sdf_path), preset=preset, **tover)
                     tex_path = Path(tmp) / "g.tex"
                     tfit.save(tex_path)
                     tex = {"params": sum(p.numel() for p in tfit.model.parameters()), "seconds": tfit.seconds}
                     maps = "normal,albedo"
+                    texture_rows.append(_texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size,
+                                                     fit, tfit, label, say))
+                if only_textures:
+                    continue
                 say(f"{label}: baking {size}² onto {coarse}")
                 t0 = time.perf_counter()
                 rep = bake_asset(path, str(sdf_path), Path(tmp) / "out",
@@ -313,11 +349,36 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             if fit.budget and fit.budget.get("warning"):
                 notes.append(f"{label}: {fit.budget['warning']}")
     _with_ratios(rows)
-    notes.append("bakes are forced past the SDF/mesh agreement check: a weak fit is measured, not refused "
-                 "(the hybrid share says how much of its map is classical)")
-    notes.append("errors: angle between the baked normal (as a renderer decodes the 8-bit map) and the source "
-                 "mesh's interpolated normal at the closest point, on the same texels for every column; a "
-                 "glTF's own vertex normals are the reference")
+    if texture_rows:
+        notes.append("texture rows: albedo PSNR (dB) and SSIM on the 8-bit sRGB maps over the covered texels, "
+                     "against the source texture at each texel's closest source point and (vs_classical) against "
+                     "the classical transfer of the same texels; hybrid: the default colour tolerance (ΔE "
+                     f"{HYBRID_COLOR_DELTA_E:g}); *_time_ratio: a bake's seconds over the network alone's")
+    if not only_textures:
+        notes.append("bakes are forced past the SDF/mesh agreement check: a weak fit is measured, not refused "
+                     "(the hybrid share says how much of its map is classical)")
+        notes.append("errors: angle between the baked normal (as a renderer decodes the 8-bit map) and the source "
+                     "mesh's interpolated normal at the closest point, on the same texels for every column; a "
+                     "glTF's own vertex normals are the reference")
     notes.append(load_note())
-    return {"name": "fidelity", "title": "fidelity on real assets (normal error in degrees vs the source mesh)",
-            "machine": machine_info(), "quick": quick, "faces": faces, "size": size, "rows": rows, "notes": notes}
+    out = {"name": "fidelity", "title": "fidelity on real assets (normal error in degrees vs the source mesh)",
+           "machine": machine_info(), "quick": quick, "faces": faces, "size": size, "rows": rows,
+           "texture_rows": texture_rows, "notes": notes}
+    if texture_rows:
+        out["tables"] = {"textures": texture_rows} if only_textures else {"normals": rows, "textures": texture_rows}
+    return out
+
+
+def _texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size, fit, tfit, label, say) -> dict:
+    """The texture row of one case (:func:`~neural_bake.bench.fidelity_texture.texture_row`) with its fits."""
+    from ..bake.job import load_inputs, make_coarse
+    from .fidelity_texture import texture_row
+
+    inputs = load_inputs(str(path), str(sdf_path), str(tex_path), coarse=coarse, texture_image=spec.get("texture"),
+                         force=True, log=lambda s: None)
+    coarse_m, _ = make_coarse(inputs, coarse)
+    say(f"{label}: texture rows ({size}² onto {coarse})")
+    row = {"mesh": name, "preset": preset, "texture_net": f"{tfit.config.width}x{tfit.config.depth}",
+           "texture_steps": tfit.steps, "texture_fit_s": tfit.seconds, "sdf_steps": fit.steps}
+    row.update(texture_row(inputs, coarse_m, size=size, keep=coarse == "keep", log=None))
+    return row

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from neural_bake.bench.fidelity import open_caps, run
+from neural_bake.errors import NeuralBakeError
 from neural_bake.fit.sdf import load_sdf
 from neural_bake.types import Mesh
 
@@ -118,3 +119,49 @@ def test_targets_are_marked_met_or_not_by_the_map_median():
     assert target_text("nefertiti", 5.0, 0.52) == "halving 1.25°: met, 0.42×"
     assert target_text("ogre", 5.0, 1.5) == "halving 2.95°: NOT met, 0.51×"
     assert target_text("nefertiti", 8.0, 0.5) is None and target_text("spot", 2.0, 0.5) is None
+
+
+def test_albedo_scores_of_equal_and_of_offset_images():
+    from neural_bake.bench.fidelity_texture import albedo_scores
+
+    rng = np.random.default_rng(0)
+    a = rng.random((32, 32, 3))
+    covered = np.zeros((32, 32), dtype=bool)
+    covered[4:28, 2:30] = True
+    same = albedo_scores(a, a, covered)
+    assert same["psnr_db"] == float("inf") and same["ssim"] == pytest.approx(1.0)
+    b = a.copy()
+    b[covered] += 0.01  # a constant offset over the covered texels: MSE 1e-4, 40 dB
+    b[~covered] = 0.7  # what lies outside the covered texels does not count
+    off = albedo_scores(a, b, covered)
+    assert off["psnr_db"] == pytest.approx(40.0, abs=1e-6) and 0.9 < off["ssim"] < 1.0
+    assert albedo_scores(a, b, np.zeros((32, 32), dtype=bool)) == {"psnr_db": None, "ssim": None}
+
+
+def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
+    """Texture rows alone on a small sphere with a smooth texture: the classical transfer is close to the
+    source, the hybrid colour rule is never worse than the network alone, ratios are of the same run."""
+    from neural_bake.samples import Sphere
+    from neural_bake.samples.generate import write_sample
+
+    path = write_sample(Sphere().mesh(2000, 64), tmp_path, "ball")
+    trimesh.creation.box().export(tmp_path / "box.obj")
+    res = run(quick=True, meshes=[str(path), str(tmp_path / "box.obj")], only_textures=True, steps=[5], size=48,
+              faces=300, texture_steps=20)
+    assert res["rows"] == [] and list(res["tables"]) == ["textures"]
+    assert any(n == "box: skipped, no texture (texture rows only)" for n in res["notes"])
+    (row,) = res["texture_rows"]
+    assert row["mesh"] == "ball" and row["texture_net"] == "64x1" and row["texture_steps"] == 20
+    assert row["sdf_steps"] == 5 and row["size"] == 48 and row["texels"] > 500
+    assert row["classical_psnr_db"] > 30 and row["classical_ssim"] > 0.9
+    for ref in ("", "_vs_classical"):
+        assert row[f"hybrid{ref}_psnr_db"] >= row[f"network{ref}_psnr_db"]
+        assert row[f"hybrid{ref}_ssim"] >= row[f"network{ref}_ssim"]
+        for who in ("network", "hybrid"):
+            assert -1.0 <= row[f"{who}{ref}_ssim"] <= 1.0
+    assert 0 < row["hybrid_color_pct"] <= 100  # a 20-step network is far from its texture
+    for who in ("hybrid", "classical"):
+        assert row[f"{who}_time_ratio"] == pytest.approx(row[f"{who}_bake_s"] / row["network_bake_s"])
+    json.dumps(res)
+    with pytest.raises(NeuralBakeError, match="texture_steps must be a positive integer"):
+        run(quick=True, meshes=[str(path)], only_textures=True, texture_steps=0)
