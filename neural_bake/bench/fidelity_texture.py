@@ -74,6 +74,7 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None) -> dict:
     from ..bake.classical import classical_bake
     from ..bake.job import bake_maps
     from ..constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
+    from ..io.colour import linear_to_srgb
     from ..mesh.unwrap import unwrap
 
     say = log or (lambda s: None)
@@ -97,8 +98,6 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None) -> dict:
     covered = np.asarray(baked["network"].result.coverage, dtype=bool)
     truth, pix = _closest_source_colours(baker, inputs.reference)
     source = np.zeros((*covered.shape, 3))
-    from ..io.colour import linear_to_srgb
-
     source[pix[:, 0], pix[:, 1]] = np.clip(linear_to_srgb(truth[:, :3]), 0.0, 1.0)
     row: dict = {"size": int(size), "texels": int(covered.sum())}
     for label in ("network", "hybrid", "classical"):
