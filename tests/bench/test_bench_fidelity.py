@@ -102,7 +102,8 @@ def test_bad_sampling_and_steps_are_refused(tmp_path, capsys):
     assert main(["bench", "fidelity", "--quick", "--mesh", "x.obj", "--save-models", str(tmp_path / "file" / "m")]) == 2
     err = capsys.readouterr().err.strip()
     assert "cannot create the models folder" in err and len(err.splitlines()) == 1, err
-    for args, hint in ((["--sampling", "uniform,curvy"], "--sampling"), (["--steps", "10,x"], "--steps")):
+    for args, hint in ((["--sampling", "uniform,curvy"], "--sampling"), (["--steps", "10,x"], "--steps"),
+                       (["--texture-steps", "0"], "--texture-steps")):
         assert main(["bench", "fidelity", "--quick", *args]) == 2
         assert f"Invalid value for {hint}" in capsys.readouterr().err
 
