@@ -60,7 +60,7 @@ def bake_classical(neural_folder, out, *, cage: float | None = None, log: Callab
         # the neural bake's coarse mesh and UV layout, in the source's unit frame (the GLB is in its frame)
         coarse = glb.without_maps().to_mesh(fine.frame, source=str(neural_folder / "asset.glb"))
         timings["load"] = time.perf_counter() - t0
-        log(f"classical bake of {src.name} onto the coarse mesh of {neural_folder} ({coarse.n_faces} faces, "
+        log(f"classical bake of {src.name} onto the neural bake's coarse mesh ({coarse.n_faces} faces, "
             f"{size[0]}² maps)")
         result, baker = classical_bake(coarse, reference, int(size[0]), supersample=int(bake.get("supersample") or 1),
                                        cage=cage)
