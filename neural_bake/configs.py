@@ -170,7 +170,7 @@ def read_config(cls, table: dict, *, where: str, extra: typing.Iterable[str] = (
             out[key] = convert(value, hints[key], f"{where}: {key}", text=False)
         else:
             raise NeuralBakeError(f"{where}: unknown key {key!r} (the keys are the options' names with underscores, "
-                                  f"e.g. {next(iter(hints), 'steps')}; --print-config lists them)")
+                                  f"e.g. {next(iter(hints), 'steps')}; a command's --print-config lists them)")
     return out
 
 

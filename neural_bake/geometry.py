@@ -14,7 +14,7 @@ from .errors import MeshError
 from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
 __all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "frame_mismatch",
-           "interpolate_corners", "mismatch_problem", "prefetch_raycasting", "raycasting_scene", "sampleable_faces",
+           "interpolate_corners", "finish_prefetch", "mismatch_problem", "prefetch_raycasting", "raycasting_scene", "sampleable_faces",
            "vertex_normals"]
 
 
@@ -200,6 +200,13 @@ def prefetch_raycasting() -> None:
         t = threading.Thread(target=load, name="prefetch-open3d", daemon=True)
         _PREFETCH.append(t)
     t.start()
+
+
+def finish_prefetch() -> None:
+    """Wait for :func:`prefetch_raycasting`'s import to end (if one was started): a process must not exit while
+    an extension module is half-loaded in another thread (open3d's exit then fails)."""
+    for t in list(_PREFETCH):
+        t.join()
 
 
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):

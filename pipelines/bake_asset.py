@@ -170,11 +170,7 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
     batch's coarse stage, from ``config.coarse``) to bake onto instead of making it here.
     Raises NeuralBakeError (one line) for bad input, before anything is written.
     """
-    from neural_bake.bake import job
     from neural_bake.errors import NeuralBakeError
-    from neural_bake.io.atomic import atomic_write_text
-    from neural_bake.io.jsonio import dumps
-    from neural_bake.io.outdir import OutputFolder
     from neural_bake.mesh.coarse import parse_coarse
 
     cfg = config or BakeAssetConfig()
@@ -203,9 +199,27 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             coarse = MODEL_ONLY_COARSE
     keep = kind == "keep"
     if mesh is not None and (cfg.hybrid or cfg.baseline):  # rays will be cast: their library loads meanwhile
-        from neural_bake.geometry import prefetch_raycasting
+        from neural_bake.geometry import finish_prefetch, prefetch_raycasting
 
         prefetch_raycasting()
+        try:
+            return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model,
+                                   coarse_mesh, t_start, log)
+        finally:  # an error must not end the process while the import runs
+            finish_prefetch()
+    return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model, coarse_mesh,
+                           t_start, log)
+
+
+def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, coarse: str, keep: bool,
+                    texture_model, coarse_mesh, t_start: float, log) -> dict:
+    """:func:`bake_asset`'s steps in its output folder (its settings checked)."""
+    from neural_bake.bake import job
+    from neural_bake.io.atomic import atomic_write_text
+    from neural_bake.io.jsonio import dumps
+    from neural_bake.io.outdir import OutputFolder
+
+    truth = cfg.truth
     nested = isinstance(out, OutputFolder)
     folder = out if nested else OutputFolder(out)
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging

@@ -366,7 +366,8 @@ def sample_truth(path: str, mesh, choice: str):
     tol = 0.02 * float(np.ptp(mesh.frame.to_source(mesh.vertices), axis=0).max())
     if np.abs(sample.sdf(src)).max() > tol:
         if choice.startswith("sample:"):
-            raise NeuralBakeError(f"--truth {choice}: {path} is not the {name} sample (vertices off its surface)")
+            raise NeuralBakeError(f"truth {choice}: {path} is not the {name} sample (vertices off its surface)",
+                                  parameter="truth")
         return None, None, None
 
     normals = unit_frame_normals(sample, mesh.frame)

@@ -53,8 +53,8 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
     """
     field = read_field(path, device=device)
     if _is_texture(field):
-        raise RenderError(f"MODEL {path}: a texture field; give an SDF or nested sequence (and the texture with "
-                          "--texture)")
+        raise RenderError(f"{path}: a texture field; give an SDF or nested sequence (and the texture as the "
+                          "texture model)")
     tex = None
     if texture is not None:
         tex = read_field(texture, argument="texture", device=device)
