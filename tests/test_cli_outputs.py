@@ -1,4 +1,4 @@
-"""Fault injection on the real `neural-bake` process: the output guarantees of issue "outputs that never lose data".
+"""Fault injection on the real `neural-bake` process: the output guarantees (outputs that never lose data).
 
 Each run is a subprocess of the installed console script on a tiny bake (a low-resolution sphere sample, an
 untrained 16x1 network, 16² maps, no baseline). ``NEURAL_BAKE_FAULT=STEP[#N]:SIGNAL`` makes the process send
@@ -216,7 +216,7 @@ def test_second_writer_fails_at_once_naming_the_first(files, old_set):
         assert second.returncode == 1
         assert second.stderr == (f"neural-bake: error: {out}: another neural-bake run (pid {first.pid}) is writing "
                                  f"it; wait for it to finish or choose another output\n")
-        # a run refused for its options does not touch the folder either (issue item 1: --truth sample:bogus)
+        # a run refused for its options does not touch the folder either (--truth sample:bogus)
         bogus = cli("bake", files["obj"], "--sdf", files["sdf"], *TINY, "--truth", "sample:bogus", "-o", out)
         assert bogus.returncode == 2 and "--truth sample:bogus: unknown sample 'bogus'" in bogus.stderr
         assert which_set(out, old) == "old"
@@ -228,7 +228,7 @@ def test_second_writer_fails_at_once_naming_the_first(files, old_set):
 
 
 def test_failed_run_into_a_new_folder_deletes_nothing_another_run_made(files, tmp_path):
-    """Issue item 1: a run that fails while another commits the same new folder must not remove its result."""
+    """A run that fails while another commits the same new folder must not remove its result."""
     out = tmp_path / "fresh"
     r = cli("bake", files["obj"], "--sdf", files["sdf"], *TINY, "--truth", "sample:bogus", "-o", out)
     assert r.returncode == 2 and not out.exists()

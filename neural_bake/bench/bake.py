@@ -6,7 +6,7 @@ Two tables, measured in the same run:
   SIREN (random initialisation: the cost of a bake does not depend on the weights) on the bumpy sphere
   decimated to 2,000 faces. Columns: set-up time (unwrap, tangent frames, rasterisation), bake time with
   GEMM normals, texels per second, and the same bake with autograd normals (what a user would otherwise
-  write) and the speed-up. Target of issue 6: 2048² in ≤ 60 s.
+  write) and the speed-up. Target: 2048² in ≤ 60 s.
 - ``error vs time``: the bumpy sphere sample with its ANALYTIC normal field as the SDF field (no trained
   model needed), baked onto decimated coarse meshes of several face counts at several map sizes; the
   angular error (degrees) of the 8-bit map as a renderer decodes it against the analytic normals, beside

@@ -20,7 +20,7 @@ import torch
 
 __all__ = ["run", "TARGET_RENDER_MINUTES", "EIKONAL_TIMES"]
 
-#: Minutes the 60 frames at 256² may take (the issue's target).
+#: Minutes the 60 frames at 256² may take (the target).
 TARGET_RENDER_MINUTES = 5.0
 
 #: Times at which the morphs' eikonal residual is measured.

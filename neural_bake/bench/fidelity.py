@@ -55,11 +55,11 @@ SAMPLINGS: dict[str, dict] = {
     "curvature+error": {"curvature_sampling": 0.5, "error_sampling": 0.25},
 }
 
-#: Issue 27's targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the
+#: The targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the
 #: fit's time budget in minutes (at equal time: the 2-minute and the 10-minute presets).
 TARGETS = {("nefertiti", 2.0): 1.4, ("nefertiti", 10.0): 1.0}
 
-#: The median baked normal errors the issue's "halve at every preset" starts from, by the fit's budget in
+#: The median baked normal errors the "halve at every preset" target starts from, by the fit's budget in
 #: minutes: the detailed scans with the 2-, 5- and 10-minute presets of that time (64x1, 128x2 and 256x3;
 #: BENCHMARKS.md, "Previous presets" and the 5-minute rows).
 HALVE_FROM = {("nefertiti", 2.0): 2.64, ("ogre", 2.0): 4.88, ("nefertiti", 5.0): 1.25, ("ogre", 5.0): 2.95,
@@ -67,7 +67,7 @@ HALVE_FROM = {("nefertiti", 2.0): 2.64, ("ogre", 2.0): 4.88, ("nefertiti", 5.0):
 
 
 def target_text(name: str, minutes: float | None, median: float | None) -> str | None:
-    """The issue's targets a row of ``name`` at a ``minutes`` budget is held to, each marked met or NOT met
+    """The targets a row of ``name`` at a ``minutes`` budget is held to, each marked met or NOT met
     by its map ``median`` (degrees); None when no target applies."""
     parts = []
     limit, start = TARGETS.get((name, minutes)), HALVE_FROM.get((name, minutes))

@@ -22,7 +22,7 @@ Two tables, measured in the same run:
 - **accuracy vs time**: for each mesh and preset, :func:`~neural_bake.fit.sdf.fit_sdf` with the preset's
   time budget, then :func:`~neural_bake.fit.metrics.sdf_metrics` (Chamfer-L1, Hausdorff, normal error against
   the mesh's faces; unit frame; for the bundled samples also ∇f's normal error against the analytic surface,
-  beside the mesh's own face normals' error against it) and the issue's targets ((256, 3): Hausdorff ≤ 0.005
+  beside the mesh's own face normals' error against it) and the fit's targets ((256, 3): Hausdorff ≤ 0.005
   and median normal error ≤ 3° in 10 minutes; (64, 1): Hausdorff ≤ 0.01 in 2 minutes). A preset with an
   L-BFGS polish (``SdfFitConfig.polish_evals``) is also fitted without it, Adam for the whole budget — the
   loop a user would otherwise run — and the polished row carries the ratios ``*_vs_no_polish``.

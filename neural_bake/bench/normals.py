@@ -256,7 +256,7 @@ def _chunk_sweep(quick: bool, repeat: int, seed: int) -> list[dict]:
 
 
 def _targets(rows: list[dict], roof: dict, targets: dict) -> list[str]:
-    """The issue's targets, checked on the rows that exist in this run."""
+    """The normals' targets, checked on the rows that exist in this run."""
     notes = []
     by = {(r["network"], r["points"], r["method"]): r for r in rows}
     key = ("(256, 3)", 262_144)

@@ -38,7 +38,7 @@ from .common import load_note, machine_info
 
 __all__ = ["run", "straightforward_render", "TARGETS"]
 
-#: The issue's targets for this CPU.
+#: The render's targets for this CPU.
 TARGETS = {"nm_speedup_min": 5.0, "ms_30_30_mse_max": 1e-3}
 
 

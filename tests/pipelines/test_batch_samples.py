@@ -1,4 +1,4 @@
-"""The bundled samples through `neural-bake batch --preset quick`, end to end (the issue's smoke run)."""
+"""The bundled samples through `neural-bake batch --preset quick`, end to end (the smoke run of the samples)."""
 
 import json
 

@@ -133,7 +133,7 @@ def test_bumpy_sphere_bake_renders_like_the_analytic_surface(bumpy_bake, tmp_pat
 
 
 def test_bake_render_matches_the_neural_preview_of_its_fields(bumpy_bake):
-    """The issue's check: the neural preview (sphere tracing, GEMM-free analytic normals and colours of the
+    """The check: the neural preview (sphere tracing, GEMM-free analytic normals and colours of the
     same fields the bake holds) and the render of the baked GLB agree within BAKED_RENDER_MIN_PSNR_DB; the
     flipped green channel and the bare coarse mesh do not."""
     preview = neural_renderer(analytic_render_asset(bumpy_bake))
