@@ -108,7 +108,7 @@ class TextureFitConfig(PresetLoopSettings):
     delta: float | None = None
     """δ: band half-width in the unit frame; None: the SDF model file's "delta", else DEFAULT_DELTA."""
     orth_method: str = "jacobian"
-    """How ⟨∇g_c, n⟩ is computed: "jacobian" (differentiable GEMM Jacobian) or "directional" (same values, ~2× cheaper)."""
+    """How ⟨∇g_c, n⟩ is computed: "jacobian" (differentiable GEMM Jacobian) or "directional" (same values, one directional derivative instead of the Jacobian)."""
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 1_000_000
