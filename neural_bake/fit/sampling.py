@@ -24,7 +24,7 @@ Sign methods (``sign=`` of :func:`signed_distance`, :func:`sample_near`, :func:`
   Only right for watertight meshes; fastest.
 - ``"hybrid"`` — ray parity along :data:`HYBRID_RAYS` fixed directions; where they all agree that is the
   answer, where they disagree (a hole or a crack is in view) the accelerated winding number decides.
-  Faster than ``"winding"`` when holes are small (most points see none; BENCHMARKS.md has the figures for a
+  Faster than ``"winding"`` when holes are small (most points see none; docs/findings.md has the figures for a
   holed mesh), but a point that sees a hole along none (or all) of the directions keeps the rays' answer: a
   heuristic, not the winding number's sign everywhere.
 - ``"auto"`` (default) — ``"raycast"`` for watertight meshes (``mesh.watertight``), ``"winding"`` otherwise.
