@@ -381,4 +381,8 @@ def _texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size, fit
     row = {"mesh": name, "preset": preset, "texture_net": f"{tfit.config.width}x{tfit.config.depth}",
            "texture_steps": tfit.steps, "texture_fit_s": tfit.seconds, "sdf_steps": fit.steps}
     row.update(texture_row(inputs, coarse_m, size=size, keep=coarse == "keep", log=None))
+    db = {k: "—" if row[f"{k}_psnr_db"] is None else f"{row[f'{k}_psnr_db']:.1f}" for k in ("network", "hybrid",
+                                                                                         "classical")}
+    say(f"{label}: albedo vs the source, network alone {db['network']} dB, hybrid {db['hybrid']} dB "
+        f"({row['hybrid_color_pct']:.1f} % of texels replaced), classical {db['classical']} dB")
     return row
