@@ -30,8 +30,8 @@ def _resolve(preset, values):
 
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "default", "high"),
-                  costs={"quick": "1000 faces, 512² maps: about 5 s",
-                         "default": "2000 faces, 2048² maps: about 30 s",
+                  costs={"quick": "1000 faces, 512² maps: about 6 s",
+                         "default": "2000 faces, 2048² maps: about 20 s",
                          "high": "5000 faces, 4096² maps, 2×2 samples: about 10 min"},
                   preset_help="Coarse mesh and maps (none: the defaults below)", required=("sdf_path", "output"))
 

@@ -352,7 +352,7 @@ def bake_report(
     rep["seconds"] = {**result.stats.get("seconds", {}), **(timings or {})}
     measured = [k for k in SAMPLED_FIGURES if _has(rep, k)]
     if pick is not None:
-        note = (f"the texels of every {step}-th row and column ({n} of {total} texel samples): "
+        note = (f"the texels on rows and columns that are multiples of {step} ({n} of {total} texel samples): "
                 f"{', '.join(measured)} and the error maps; all other figures over every texel")
     elif sampled:
         note = (f"sampled {n} of {total} texel samples (uniform, seed {result.sample.seed}): "
