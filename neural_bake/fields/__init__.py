@@ -3,8 +3,8 @@
 Everything above (fit, bake, render, the CLI) reaches model files only through this layer.
 """
 
-from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, load_field, load_sdf_field, register_kind, save_field,
-                    save_model, to_sdf_field)
+from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, fit_records, load_field, load_sdf_field, register_kind,
+                    save_field, save_model, to_sdf_field)
 from .imported import import_siren
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, closest_surface_points, unit_normals
@@ -22,6 +22,7 @@ __all__ = [
     "check_texture_matches_sdf",
     "NestedSequence",
     "load_field",
+    "fit_records",
     "save_field",
     "save_model",
     "load_sdf_field",

@@ -27,7 +27,7 @@ from .sdf import SdfField
 from .texture import ENCODINGS, TextureField
 
 __all__ = ["load_field", "save_field", "save_model", "load_sdf_field", "to_sdf_field", "register_kind",
-           "FieldKind", "KINDS", "BARE_NETWORK_HINT"]
+           "FieldKind", "KINDS", "BARE_NETWORK_HINT", "fit_records"]
 
 #: What to do with a file holding a network without a kind (``save_model(model, path)`` with no metadata).
 BARE_NETWORK_HINT = ("save a fitted SDF with SdfFit.save(path) (what `neural-bake fit sdf` writes), or a "
@@ -88,6 +88,32 @@ def load_field(path: str | os.PathLike, *, device=None, dtype=None):
         known = ", ".join(sorted(KINDS))
         raise ModelFileError(f"{path}: unknown kind {kind!r:.40} (this neural_bake reads {known})")
     return entry.read(path, header, device=device, dtype=dtype)
+
+
+def fit_records(path: str | os.PathLike) -> list[dict]:
+    """The fits a field file records, from its header alone (no network is loaded): ``[{"fit": "fine" |
+    "level" | "model", "level": i or None, "width", "depth", "training": its record (steps, seconds, history,
+    budget, …)}]``: a nested sequence's fine fit (when it keeps one) and each level's distillation, or a model
+    file's training. Raises :class:`ModelFileError` for a file that is not a field file."""
+    from ..nets.model_io import MODEL_FORMAT, parse_header, read_model_metadata, read_raw_metadata
+
+    path = Path(path)
+    raw = read_raw_metadata(path)
+    if raw.get("format") == NESTED_FORMAT and "neural_bake" in raw:
+        header = parse_header(raw["neural_bake"], path)
+        out = []
+        fine = (header.get("metadata") or {}).get("fine_training")
+        if isinstance(fine, dict):
+            out.append({"fit": "fine", "level": None, "width": None, "depth": None, "training": fine})
+        for i, info in enumerate(header.get("levels_info") or []):
+            if isinstance(info, dict):
+                out.append({"fit": "level", "level": i, "width": info.get("width"), "depth": info.get("depth"),
+                            "training": info})
+        return out
+    if raw.get("format") != MODEL_FORMAT:
+        raise ModelFileError(f"{path}: a safetensors file but not a neural_bake field")
+    meta = read_model_metadata(path).get("metadata") or {}
+    return [{"fit": "model", "level": None, "width": None, "depth": None, "training": meta.get("training") or {}}]
 
 
 def to_sdf_field(field, *, band_level: int = 0) -> SdfField:

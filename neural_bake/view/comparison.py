@@ -83,7 +83,7 @@ def fit_summaries(folder, report: dict) -> list[dict]:
     """The fits behind a bake, from the model files its report names: ``[{"fit", "steps", "seconds",
     "budget_seconds", "expected_steps"}]`` (None where a file does not record it): the SDF fit (or a nested
     file's fine fit and each level's distillation) and the texture fit. Missing files give no row."""
-    from ..nets.model_io import parse_header, read_model_metadata, read_raw_metadata
+    from ..fields import fit_records
 
     folder = Path(folder)
     rows: list[dict] = []
@@ -98,21 +98,18 @@ def fit_summaries(folder, report: dict) -> list[dict]:
         if path is None:
             continue
         try:
-            raw = read_raw_metadata(path)
-            if "neural_bake" in raw and raw.get("format") != "neural_bake.model":  # a nested sequence
-                header = parse_header(raw["neural_bake"], path)
-                fine = (header.get("metadata") or {}).get("fine_training")
-                if isinstance(fine, dict):
-                    rows.append(row("SDF (fine level)", fine))
-                for i, info in enumerate(header.get("levels_info") or []):
-                    if isinstance(info, dict) and info.get("steps"):
-                        rows.append(row(f"nested level {i} ({info.get('width')}x{info.get('depth')})", info,
-                                        info.get("budget")))
-                continue
-            training = (read_model_metadata(path).get("metadata") or {}).get("training") or {}
+            records = fit_records(path)
         except Exception:  # noqa: BLE001 - a comparison without a fit's row beats no comparison
             continue
-        rows.append(row(label, training))
+        for r in records:
+            t = r["training"]
+            if r["fit"] == "fine":
+                rows.append(row("SDF (fine level)", t))
+            elif r["fit"] == "level":
+                if t.get("steps"):
+                    rows.append(row(f"nested level {r['level']} ({r['width']}x{r['depth']})", t, t.get("budget")))
+            else:
+                rows.append(row(label, t))
     return rows
 
 

@@ -82,7 +82,7 @@ def fit_histories(folder: Path, report: dict) -> dict[str, list[dict]]:
     """Every fit's loss history the model files named by a bake's report record, ``{label: rows}`` (rows:
     step, seconds, losses): the SDF fit, each nested level's distillation and the fine fit a nested file
     keeps, the texture fit. Files that are missing or unreadable give no curve."""
-    from ..nets.model_io import parse_header, read_model_metadata, read_raw_metadata
+    from ..fields import fit_records
 
     out: dict[str, list[dict]] = {}
     for key, label in (("sdf", "SDF fit"), ("texture_model", "texture fit")):
@@ -91,22 +91,19 @@ def fit_histories(folder: Path, report: dict) -> dict[str, list[dict]]:
         if path is None:
             continue
         try:
-            raw = read_raw_metadata(path)
-            if "neural_bake" in raw and raw.get("format") != "neural_bake.model":  # a nested sequence
-                header = parse_header(raw["neural_bake"], path)
-                fine = (header.get("metadata") or {}).get("fine_training") or {}
-                if fine.get("history"):
-                    out["SDF fit (fine level f)"] = list(fine["history"])
-                for i, info in enumerate(header.get("levels_info") or []):
-                    if isinstance(info, dict) and info.get("history"):
-                        out[f"nested level {i} ({info.get('width')}x{info.get('depth')})"] = list(info["history"])
-                continue
-            meta = read_model_metadata(path).get("metadata", {})
-            hist = list((meta.get("training") or {}).get("history") or [])
+            records = fit_records(path)
         except Exception:  # noqa: BLE001 - a report without a plot beats no report
-            hist = []
-        if hist:
-            out[label] = hist
+            continue
+        for r in records:
+            hist = list(r["training"].get("history") or [])
+            if not hist:
+                continue
+            if r["fit"] == "fine":
+                out["SDF fit (fine level f)"] = hist
+            elif r["fit"] == "level":
+                out[f"nested level {r['level']} ({r['width']}x{r['depth']})"] = hist
+            else:
+                out[label] = hist
     return out
 
 

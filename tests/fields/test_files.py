@@ -195,3 +195,23 @@ def test_bake_refuses_a_bare_network_with_the_hint(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "SdfFit.save(path)" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_fit_records_read_the_fits_from_the_header(tmp_path):
+    from neural_bake.fields import fit_records, save_model
+
+    hist = [{"step": 1, "seconds": 0.1, "loss": 2.0}, {"step": 2, "seconds": 0.2, "loss": 1.0}]
+    p = save_model(Siren(8, 1), tmp_path / "m.sdf", kind="sdf", frame=FRAME.to_dict(),
+                   training={"steps": 2, "seconds": 0.2, "history": hist})
+    (rec,) = fit_records(p)
+    assert rec["fit"] == "model" and rec["training"]["steps"] == 2 and rec["training"]["history"] == hist
+    seq = _sequence()
+    seq.metadata = {"fine_training": {"steps": 9, "history": hist}}
+    seq.save(tmp_path / "s.nested")
+    recs = fit_records(tmp_path / "s.nested")
+    assert [r["fit"] for r in recs] == ["fine"] + ["level"] * len(seq.levels)
+    assert recs[0]["training"]["steps"] == 9 and [r["level"] for r in recs[1:]] == list(range(len(seq.levels)))
+    assert recs[1]["width"] == seq.levels_info[0]["width"]
+    (tmp_path / "x.safetensors").write_bytes(b"not a model")
+    with pytest.raises(ModelFileError):
+        fit_records(tmp_path / "x.safetensors")
