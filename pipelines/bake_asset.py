@@ -67,11 +67,11 @@ class BakeAssetConfig:
     hybrid: bool = True
     """Texels where the neural field is not faithful take the classical mesh-to-mesh normal (hybrid bake)."""
     hybrid_tol: float | None = None
-    """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: HYBRID_SDF_TOL)."""
+    """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: 0.01, constants.HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
-    """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: HYBRID_ANGLE_DEG)."""
+    """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: 20, constants.HYBRID_ANGLE_DEG)."""
     hybrid_color_tol: float | None = None
-    """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: HYBRID_COLOR_DELTA_E; inf: colours stay neural)."""
+    """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: 2, constants.HYBRID_COLOR_DELTA_E; inf: colours stay neural)."""
     hybrid_decide: str = "lattice"
     """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
