@@ -4,18 +4,20 @@ the edge report, and one cached open3d ray-casting scene per triangle set."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import threading
 from collections import OrderedDict
+from typing import Iterator
 
 import numpy as np
 
 from .errors import MeshError
 from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
-__all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "frame_mismatch",
-           "interpolate_corners", "finish_prefetch", "mismatch_problem", "prefetch_raycasting", "raycasting_scene", "sampleable_faces",
-           "vertex_normals"]
+__all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "finish_prefetch",
+           "frame_mismatch", "interpolate_corners", "mismatch_problem", "prefetch_raycasting",
+           "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -207,6 +209,16 @@ def finish_prefetch() -> None:
     an extension module is half-loaded in another thread (open3d's exit then fails)."""
     for t in list(_PREFETCH):
         t.join()
+
+
+@contextlib.contextmanager
+def raycasting_prefetched() -> Iterator[None]:
+    """:func:`prefetch_raycasting` for the block, and :func:`finish_prefetch` on leaving it, however it ends."""
+    prefetch_raycasting()
+    try:
+        yield
+    finally:
+        finish_prefetch()
 
 
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):

@@ -105,7 +105,6 @@ def bake_config(preset: str | None = None, **overrides) -> BakeAssetConfig:
 
 def check_config(cfg: BakeAssetConfig) -> None:
     """Every setting of ``cfg`` checked, before any work or allocation: NeuralBakeError naming the parameter."""
-    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
     from neural_bake.errors import NeuralBakeError
     from neural_bake.limits import check_map_samples
 
@@ -123,9 +122,7 @@ def check_config(cfg: BakeAssetConfig) -> None:
     r = cfg.report_samples
     if isinstance(r, bool) or int(r) != r or r < 1:
         raise NeuralBakeError(f"report_samples {r!r}: must be a positive integer", parameter="report_samples")
-    tol = HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol
-    angle = HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle
-    colour = HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol
+    tol, angle, colour = _hybrid_tolerances(cfg)
     if not tol > 0:
         raise NeuralBakeError(f"hybrid_tol {tol}: must be a positive distance", parameter="hybrid_tol")
     if not 0 < angle <= 180:
@@ -198,17 +195,12 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             log(f"no source mesh: the coarse mesh is the model marched ({MODEL_ONLY_COARSE}), not {coarse}")
             coarse = MODEL_ONLY_COARSE
     keep = kind == "keep"
-    if mesh is not None and (cfg.hybrid or cfg.baseline):  # rays will be cast: their library loads meanwhile
-        from neural_bake.geometry import finish_prefetch, prefetch_raycasting
+    from neural_bake.geometry import raycasting_prefetched
 
-        prefetch_raycasting()
-        try:
-            return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model,
-                                   coarse_mesh, t_start, log)
-        finally:  # an error must not end the process while the import runs
-            finish_prefetch()
-    return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model, coarse_mesh,
-                           t_start, log)
+    # rays will be cast: their library loads while the bake loads, coarsens and rasterises
+    with raycasting_prefetched() if mesh is not None and (cfg.hybrid or cfg.baseline) else contextlib.nullcontext():
+        return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model, coarse_mesh,
+                               t_start, log)
 
 
 def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, coarse: str, keep: bool,
@@ -267,15 +259,13 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     said in ``log``."""
     from neural_bake.bake import job
     from neural_bake.bake.adaptive import AdaptiveOptions
-    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
 
-    hybrid_tol = HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol
-    hybrid_angle = HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle
+    hybrid_tol, hybrid_angle, hybrid_color_tol = _hybrid_tolerances(cfg)
     baked = job.bake_maps(
         inputs, coarse_m, maps=maps, size=cfg.size, supersample=cfg.supersample, normal_space=cfg.normal_space,
         directx=cfg.directx, padding=cfg.padding, cache_texels=cfg.cache_texels, report_samples=cfg.report_samples,
         keep=keep, hybrid=cfg.hybrid, hybrid_tol=hybrid_tol, hybrid_angle=hybrid_angle,
-        hybrid_color_tol=HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol,
+        hybrid_color_tol=hybrid_color_tol,
         hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
         adaptive=AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None,
         precision=cfg.precision)
@@ -303,6 +293,15 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
             f"against a full evaluation at {control['samples']} sampled: median "
             f"{control['angle_deg']['median'] or 0:.4f}°, max {control['angle_deg']['max'] or 0:.4f}°")
     return baked
+
+
+def _hybrid_tolerances(cfg: BakeAssetConfig) -> tuple[float, float, float]:
+    """The hybrid's (|f| tolerance, angle, colour ΔE): the config's, or the library's defaults where None."""
+    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
+
+    return (HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol,
+            HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle,
+            HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol)
 
 
 def _log_summary(report: dict, mesh, out_dir, written: list[str], log) -> None:
