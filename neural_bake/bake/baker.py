@@ -147,7 +147,8 @@ class BakeResult:
       the (x + 1)/2 encoding).
     - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
     - ``stats``: counts and seconds per stage, and the CPU threads the evaluations ran with (``threads``:
-      :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) (JSON-ready).
+      :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) and what was done to malloc (``heap``:
+      :func:`~neural_bake.nets.heap.keep_freed_memory`) (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
@@ -464,6 +465,10 @@ class Baker:
         self.normal_space, self.y_convention = normal_space, y_convention
         self.padding, self.padding_pixels = padding, padding_pixels
         self.timings: dict[str, float] = {}
+        from ..nets.heap import keep_freed_memory
+
+        # the layout's and the bake's arrays reuse freed memory instead of page-faulting afresh (nets.heap)
+        self.heap = keep_freed_memory()
 
         from ..mesh.tangents import tangent_frames
 
@@ -643,6 +648,7 @@ class Baker:
             },
             "texels_per_second": float(maps.n_texels / secs["bake"]) if secs["bake"] > 0 else None,
             "threads": threads.as_dict(),
+            "heap": self.heap,
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

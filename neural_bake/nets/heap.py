@@ -10,7 +10,8 @@ the next step reuses them: a handful of faults per step, and markedly faster ste
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
 :data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it
 owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
-CLI's ``fit`` commands) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and
+CLI's ``fit`` commands), the baker (:class:`neural_bake.bake.baker.Baker`: the layout's and the maps' arrays of
+a 2048² bake are rasterised, evaluated and freed band after band) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and
 with ``NEURAL_BAKE_KEEP_HEAP=0``) nothing changes. :func:`status` says what happened.
 """
 

@@ -85,6 +85,10 @@ def test_plane_bakes_to_flat_tangent_colour():
     assert res.coverage.all()
     assert np.allclose(res.normal_map, (0.5, 0.5, 1.0), atol=1e-6)
     assert res.stats["invalid_gradients"] == 0 and res.stats["texels_covered"] == 32 * 32
+    # the baker tuned malloc for its arrays (nets.heap) and says what it did
+    from neural_bake.nets import heap
+
+    assert res.stats["heap"] == heap.status() != "not called yet"
 
 
 def test_tilted_field_on_plane_encodes_tangent_coordinates():
