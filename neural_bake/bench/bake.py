@@ -21,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from .common import load_note, machine_info
+from .common import last_error_line, load_note, machine_info, run_command
 
 __all__ = ["run"]
 
@@ -399,8 +399,6 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict])
     most twice Blender's whole script."""
     import json
     import os
-    import subprocess
-    import sys
     import tempfile
     from pathlib import Path
 
@@ -423,13 +421,9 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict])
             out = Path(tmp) / f"bake-{size}"
             args = ["bake", str(mesh_file), "--sdf", str(model), "--coarse", "decimate:2000", "--maps", "normal",
                     "--size", str(size), "--no-baseline", *force, "-o", str(out)]
-            t0 = time.perf_counter()
-            proc = subprocess.run([sys.executable, "-m", "neural_bake.cli.main", *args], capture_output=True,
-                                  text=True)
-            wall = time.perf_counter() - t0
+            wall, proc = run_command(args)
             if proc.returncode != 0:
-                notes.append(f"the user's command at {size}² failed: "
-                             f"{(proc.stderr.strip().splitlines() or ['(no message)'])[-1]}")
+                notes.append(f"the user's command at {size}² failed: {last_error_line(proc)}")
                 continue
             rep = json.loads((out / "report.json").read_text())
             sec = rep.get("seconds") or {}

@@ -17,13 +17,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-from .common import load_note, machine_info
+from .common import last_error_line, load_note, machine_info, run_command
 
 __all__ = ["run", "COLUMNS", "settings"]
 
@@ -78,11 +76,10 @@ def _run_verbs(meshes: dict[str, Path], root: Path, s: dict) -> tuple[float, int
         out.mkdir(parents=True)
         seed = {"sdf": {**s["sdf"], "seed": int(name.endswith("_b"))}}
         for args in _verb_commands(mesh, out, {**s, **seed}):
-            proc = subprocess.run([sys.executable, "-m", "neural_bake.cli.main", *args], capture_output=True,
-                                  text=True)
+            _, proc = run_command(args)
             if proc.returncode != 0:
                 raise RuntimeError(f"bench batch: `neural-bake {' '.join(args[:2])}` on {name} failed: "
-                                   f"{proc.stderr.strip().splitlines()[-1:]}")
+                                   f"{last_error_line(proc)}")
         ok += 1
         rep = json.loads((out / "bake" / "report.json").read_text())
         errors.append((rep.get("vs_truth_deg") or {}).get("median"))

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -17,7 +19,8 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..io.jsonio import dumps
 
-__all__ = ["data_folder", "data_file", "timeit", "timeit_interleaved", "format_table", "write_json", "machine_info", "load_note"]
+__all__ = ["data_folder", "data_file", "timeit", "timeit_interleaved", "run_command", "last_error_line", "format_table",
+           "write_json", "machine_info", "load_note"]
 
 
 def data_folder(path: str | os.PathLike | None = None) -> Path | None:
@@ -68,6 +71,21 @@ def timeit_interleaved(methods: dict[str, Callable[[], object]], repeat: int = 3
             fn()
             best[name] = min(best[name], time.perf_counter() - t0)
     return best
+
+
+def run_command(args: Sequence[str], *, env: dict[str, str] | None = None) -> tuple[float, subprocess.CompletedProcess]:
+    """Run ``neural-bake ARGS`` as a user does, in a process of its own (``python -m neural_bake.cli.main``,
+    with ``env`` as its environment, default this one's): its wall seconds, start-up included, and the finished
+    process (exit code, output captured as text)."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "neural_bake.cli.main", *args], env=env, capture_output=True,
+                          text=True)
+    return time.perf_counter() - t0, proc
+
+
+def last_error_line(proc: subprocess.CompletedProcess) -> str:
+    """The last line a finished command wrote to stderr (its one-line error), or "(no message)"."""
+    return (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
 
 
 def load_note() -> str:

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import NeuralBakeError
-from .common import load_note, machine_info
+from .common import last_error_line, load_note, machine_info, run_command
 
 __all__ = ["run", "COLUMNS", "WORKLOADS", "competitor", "rows_from", "TARGETS"]
 
@@ -68,14 +68,9 @@ def competitor(busy: bool = True) -> Iterator[int | None]:
 def _cli(args: list[str], threads: str) -> float:
     """Run `neural-bake ARGS` with NEURAL_BAKE_THREADS=``threads``; its wall seconds (RuntimeError naming the
     command's last error line if it fails)."""
-    env = {**os.environ, "NEURAL_BAKE_THREADS": threads}
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "neural_bake.cli.main", *args], env=env, capture_output=True,
-                          text=True)
-    seconds = time.perf_counter() - t0
+    seconds, proc = run_command(args, env={**os.environ, "NEURAL_BAKE_THREADS": threads})
     if proc.returncode != 0:
-        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise RuntimeError(f"bench contention: `neural-bake {' '.join(args[:2])}` failed: {last}")
+        raise RuntimeError(f"bench contention: `neural-bake {' '.join(args[:2])}` failed: {last_error_line(proc)}")
     return seconds
 
 

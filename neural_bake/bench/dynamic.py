@@ -207,17 +207,17 @@ def run(quick: bool = False, *, steps: int | None = None, frames: int | None = N
                  for r in check]
 
     # render the morph (single network: sphere tracing with its own GEMM normals) and bake frames
-    from ..cli.main import main as cli
+    from .common import last_error_line, run_command
 
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
         model = d / "morph.safetensors"
         fine.save(model)
-        t0 = time.perf_counter()
-        code = cli(["render", str(model), "-o", str(d / "morph.gif"), "--frames", str(n_frames), "--size", str(px),
-                    "--effects", "shading,normal_mapping"])
-        render_s = time.perf_counter() - t0
-        rendered = code == 0
+        render_s, proc = run_command(["render", str(model), "-o", str(d / "morph.gif"), "--frames", str(n_frames),
+                                      "--size", str(px), "--effects", "shading,normal_mapping"])
+        rendered = proc.returncode == 0
+        if not rendered:
+            notes.append(f"render: `neural-bake render` failed: {last_error_line(proc)}")
 
         def coarse_at(t):
             return fix_last_input(nested.levels[0], float(fine.tau(t)))
@@ -263,7 +263,9 @@ def run(quick: bool = False, *, steps: int | None = None, frames: int | None = N
     notes.append(f"nesting, bake: the {best} morph (the better one at equal steps); delta is the certified bound "
                  f"(range analysis over space-time boxes, certify_s its cost: guaranteed at every t), "
                  f"delta_estimated the sampled fallback (tighter, not guaranteed)")
-    notes.append(f"render: one space-time network (no coarse level), shading + neural normals, fixed camera; "
+    notes.append(f"render: `neural-bake render` of the morph's file to a GIF in a process of its own, as a user runs "
+                 f"it (render_total_s: its wall time, start-up included); one space-time network (no coarse level), "
+                 f"shading + neural normals, fixed camera; "
                  f"storage: the model file against {n_frames} PLY frames of the per-frame bake; bake: marching + "
                  f"GEMM normals + per-vertex colours (the sphere sample's analytic colours) + PLY")
     from .common import load_note

@@ -142,7 +142,7 @@ def run(
 def _run(quick, seed, omega, model_path, methods, truncate_keep) -> dict:
     g = torch.Generator().manual_seed(seed)
     if model_path is not None:
-        from ..nets.model_io import load_model  # any network: range analysis does not care what it is
+        from ..fields import load_model  # any network: range analysis does not care what it is
 
         model, _ = load_model(model_path, dtype=torch.float32)
         nets = [(f"{model_path} ({model.width},{model.depth})", model)]

@@ -3,8 +3,8 @@
 Everything above (fit, bake, render, the CLI) reaches model files only through this layer.
 """
 
-from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, fit_records, load_field, load_sdf_field, register_kind,
-                    save_field, save_model, to_sdf_field)
+from .files import (BARE_NETWORK_HINT, KINDS, FieldKind, fit_records, load_field, load_model, load_sdf_field,
+                    register_kind, save_field, save_model, to_sdf_field)
 from .imported import import_siren
 from .nested import NESTED_FORMAT, NestedSequence
 from .sdf import SdfField, closest_surface_points, unit_normals
@@ -25,6 +25,7 @@ __all__ = [
     "fit_records",
     "save_field",
     "save_model",
+    "load_model",
     "load_sdf_field",
     "to_sdf_field",
     "register_kind",

@@ -11,6 +11,10 @@ Two containers exist, both safetensors with a JSON header (no pickle; loading ne
 same time mapping. A field of another nature registers its own kind and callers of :func:`load_field` do not
 change. Every header value is checked before anything is allocated: one-line :class:`ModelFileError` naming
 the file and the field.
+
+:func:`save_model` and :func:`load_model` write and read one network with its metadata as saved, whatever its
+kind: ``load_model`` is for a reader that takes any network (range analysis) or checks the header itself (a
+space-time fit's record); every other reader takes a field from :func:`load_field`.
 """
 
 from __future__ import annotations
@@ -21,12 +25,13 @@ from pathlib import Path
 from typing import Callable
 
 from ..errors import ModelFileError
+from ..nets.model_io import load_model
 from .header import check_delta, check_frame
 from .nested import NESTED_FORMAT, NESTED_FORMAT_VERSION, NestedSequence, nested_tensors, read_nested
 from .sdf import SdfField
 from .texture import ENCODINGS, TextureField
 
-__all__ = ["load_field", "save_field", "save_model", "load_sdf_field", "to_sdf_field", "register_kind",
+__all__ = ["load_field", "save_field", "save_model", "load_model", "load_sdf_field", "to_sdf_field", "register_kind",
            "FieldKind", "KINDS", "BARE_NETWORK_HINT", "fit_records"]
 
 #: What to do with a file holding a network without a kind (``save_model(model, path)`` with no metadata).

@@ -308,7 +308,7 @@ def spacetime_from_header(model: Siren, meta: dict, path) -> SpaceTimeFit:
 
 def load_spacetime(path, *, device=None) -> SpaceTimeFit:
     """Read a space-time SDF model file written by :meth:`SpaceTimeFit.save` (ModelFileError otherwise)."""
-    from ..nets.model_io import load_model
+    from ..fields import load_model
 
     model, meta = load_model(path, device=device)
     return spacetime_from_header(model, meta, path)
