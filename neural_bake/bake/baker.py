@@ -21,7 +21,7 @@ from ..errors import NeuralBakeError
 from ..fields import SdfField, TextureField, closest_surface_points
 from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
-from ..mesh.texels import TexelSet
+from ..mesh.texels import TexelSet, kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .padding import PADDING_METHODS, pad_charts
@@ -148,7 +148,8 @@ class BakeResult:
     - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
     - ``stats``: counts and seconds per stage, and the CPU threads the evaluations ran with (``threads``:
       :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) and what was done to malloc (``heap``:
-      :func:`~neural_bake.nets.heap.keep_freed_memory`) (JSON-ready).
+      :func:`~neural_bake.nets.heap.keep_freed_memory`) and which rasteriser ran (``rasteriser``:
+      :func:`~neural_bake.mesh.texels.kernel_status`) (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
@@ -649,6 +650,7 @@ class Baker:
             "texels_per_second": float(maps.n_texels / secs["bake"]) if secs["bake"] > 0 else None,
             "threads": threads.as_dict(),
             "heap": self.heap,
+            "rasteriser": kernel_status(),
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import ctypes
+import threading
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -14,12 +17,49 @@ from ..constants import (TEXEL_INSIDE_EPS, TEXEL_OVERLAP_EPS, TEXEL_SPAN_TOL, TE
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Mesh
 from ..geometry import vertex_normals
+from ..nets.native import build
 from .tangents import tangent_frames, vertex_uv
 
-__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points"]
+__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "kernel_status", "ENV_SWITCH"]
 
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
+
+#: 0/off/false: the numpy rasteriser even where the C kernel (texels.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_RASTER"
+
+_kernel_lock = threading.Lock()
+_kernel_state: dict = {}
+
+
+def _kernel():
+    """The loaded C kernel (texels.c, built on first use: :func:`neural_bake.nets.native.build`) or None."""
+    if "lib" not in _kernel_state:
+        with _kernel_lock:
+            if "lib" not in _kernel_state:
+                lib, msg = build(Path(__file__).with_name("texels.c"), switch=ENV_SWITCH)
+                if lib is not None:
+                    p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+                    lib.nb_sample_owners.argtypes = [p, p, p, i64, p, p, i64, i64, f64, f64, f64, f64, p, p]
+                    lib.nb_sample_owners.restype = None
+                    lib.nb_collect_hits.argtypes = [p, p, p, i64, i64, i64, i64, p, p, p, p]
+                    lib.nb_collect_hits.restype = i64
+                    lib.nb_border_hits.argtypes = [p, p, p, p, i64, p, p, p, p, i64, i64, p, f64, f64, p, p, p]
+                    lib.nb_border_hits.restype = None
+                    lib.nb_interpolate_corners.argtypes = [p, i64, p, p, i64, f64, p, p, p, p]
+                    lib.nb_interpolate_corners.restype = None
+                _kernel_state.update(lib=lib, status=msg)
+    return _kernel_state["lib"]
+
+
+def kernel_status() -> str:
+    """Which rasteriser runs here: the C kernel (and its file), or why the numpy one does."""
+    lib = _kernel()
+    return _kernel_state["status"] if lib is not None else f"numpy ({_kernel_state['status']})"
+
+
+def _ptr(a: np.ndarray) -> int:
+    return a.ctypes.data
 
 
 @dataclass
@@ -215,11 +255,24 @@ def _sample_hits(xs, ys, hs, ws, rows):
     # sample centres inside the span are enumerated (no rejected bounding-box candidates). Each sample keeps
     # the lowest copy index whose triangle holds it (``owner``); samples strictly inside several triangles
     # are counted as overlaps.
-    nr = r1[live] - r0[live] + 1
     n_samples = (b - a) * ws
     none = np.iinfo(np.int64).max
     owner = np.full(n_samples, none, dtype=np.int64)
     strict_count = np.zeros(n_samples, dtype=np.int64)
+    lib = _kernel()
+    if lib is not None:
+        xs, ys = np.ascontiguousarray(xs, dtype=np.float64), np.ascontiguousarray(ys, dtype=np.float64)
+        live = np.ascontiguousarray(live, dtype=np.int64)
+        lib.nb_sample_owners(_ptr(xs), _ptr(ys), _ptr(live), len(live), _ptr(r0), _ptr(r1), a, ws, TEXEL_SPAN_TOL,
+                             UV_FLAT_EDGE_EPS, TEXEL_INSIDE_EPS, TEXEL_STRICT_EPS, _ptr(owner), _ptr(strict_count))
+        m = int(np.count_nonzero(owner != none))
+        k, rr, cc = (np.empty(m, dtype=np.int64) for _ in range(3))
+        bary = np.empty((m, 3))
+        if m:
+            lib.nb_collect_hits(_ptr(xs), _ptr(ys), _ptr(owner), n_samples, none, a, ws, _ptr(k), _ptr(rr), _ptr(cc),
+                                _ptr(bary))
+        return k, rr, cc, bary, int(np.count_nonzero(strict_count > 1))
+    nr = r1[live] - r0[live] + 1
     for sl in _chunks_by_budget(nr, _MAX_CANDIDATES // 4):
         ids = live[sl]
         slot = np.repeat(np.arange(len(ids)), nr[sl])
@@ -291,6 +344,18 @@ def _border_hits(xs, ys, h, w, rows, covered):
     r1 = np.minimum(np.floor(ys.max(axis=1) + 0.5), b - 1).astype(np.int64)
     area2 = (xs[:, 1] - xs[:, 0]) * (ys[:, 2] - ys[:, 0]) - (xs[:, 2] - xs[:, 0]) * (ys[:, 1] - ys[:, 0])
     live = np.flatnonzero((c1 >= c0) & (r1 >= r0) & (np.abs(area2) > UV_AREA_EPS))
+    lib = _kernel()
+    if lib is not None:
+        xs, ys = np.ascontiguousarray(xs, dtype=np.float64), np.ascontiguousarray(ys, dtype=np.float64)
+        cov = np.ascontiguousarray(covered, dtype=np.uint8)
+        best_d = np.full(cov.size, np.inf)
+        best_k = np.full(cov.size, -1, dtype=np.int64)
+        best_b = np.zeros((cov.size, 3))
+        lib.nb_border_hits(_ptr(xs), _ptr(ys), _ptr(area2), _ptr(live), len(live), _ptr(r0), _ptr(r1), _ptr(c0),
+                           _ptr(c1), a, w, _ptr(cov), TEXEL_OVERLAP_EPS, UV_AREA_EPS, _ptr(best_d), _ptr(best_k),
+                           _ptr(best_b))
+        tid = np.flatnonzero(best_k >= 0)
+        return best_k[tid], tid // w + a, tid % w, best_b[tid]
     ks, rs, cs, ds, bs = [], [], [], [], []
     if live.size:
         nr, nc = r1[live] - r0[live] + 1, c1[live] - c0[live] + 1
@@ -358,6 +423,16 @@ def _interpolate_corners(table: torch.Tensor, face: np.ndarray, bary: np.ndarray
     the per-corner ``table`` (3, F, 10) of :func:`iter_texels` (corner, face, attribute) at the samples'
     faces and barycentrics (torch, float64, on the CPU's threads). Normals and tangents too short to
     normalise are NaN rows."""
+    lib = _kernel()
+    if lib is not None and table.is_contiguous() and table.dtype == torch.float64:
+        face = np.ascontiguousarray(face, dtype=np.int64)
+        bary = np.ascontiguousarray(bary, dtype=np.float64)
+        m = len(face)
+        points, normal, tangent = np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+        sign = np.empty(m)
+        lib.nb_interpolate_corners(table.data_ptr(), table.shape[1], _ptr(face), _ptr(bary), m, UNDERFLOW_EPS,
+                                   _ptr(points), _ptr(normal), _ptr(tangent), _ptr(sign))
+        return points, normal, tangent, sign
     f = torch.from_numpy(np.ascontiguousarray(face, dtype=np.int64))
     b = torch.from_numpy(np.ascontiguousarray(bary, dtype=np.float64))
     acc = table[0].index_select(0, f).mul_(b[:, 0:1])

@@ -5,9 +5,7 @@ pre-activation. torch computes them as two passes with two range reductions, and
 two passes are most of the cost (each costs about as much as a 64×64 GEMM of the same chunk). ``sincos.c``
 computes both from one shared reduction in one vectorised pass, for about the cost of ``torch.sin`` alone.
 
-The C file is compiled on first use with the system's C compiler (``$CC``, cc, gcc or clang) into
-``$XDG_CACHE_HOME/neural_bake`` (else ``~/.cache/neural_bake``, else the temp folder), named by a hash of
-source, flags, compiler and platform, written atomically, and loaded with ctypes. On x86-64 with GCC it
+The C file is compiled on first use and loaded with ctypes (:func:`neural_bake.nets.native.build`). On x86-64 with GCC it
 carries an AVX2/FMA clone and a baseline one, chosen at run time. The kernel runs on the calling thread: on
 a 2-core machine splitting it across a second thread was slower (torch's OpenMP workers spin on the other
 core after each GEMM; docs/findings.md). Because machines with many cores may run torch's parallel sin + cos faster than one thread, the
@@ -27,12 +25,6 @@ being traced by ``torch.compile``) takes torch's functions. Accuracy: ≤ 2e-7 a
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import os
-import platform
-import shutil
-import subprocess
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -40,6 +32,7 @@ from pathlib import Path
 import torch
 
 from .compiled import env_switch
+from .native import build
 
 __all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_available", "sin_kernel_available",
            "ENV_SWITCH"]
@@ -49,58 +42,24 @@ __all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_availabl
 ENV_SWITCH = "NEURAL_BAKE_FAST_SINCOS"
 
 _SOURCE = Path(__file__).with_name("sincos.c")
-_FLAGS = ["-O3", "-fPIC", "-shared", "-fno-math-errno"]
+_FLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno")
 _lock = threading.Lock()
 _state: dict = {"built": None, "fn": None, "status": None, "sin_fn": None, "sin_status": None}
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or (Path.home() / ".cache")
-    for d in (Path(base) / "neural_bake", Path(tempfile.gettempdir()) / f"neural_bake-{os.getuid()}"):
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-            if os.access(d, os.W_OK):
-                return d
-        except OSError:
-            continue
-    raise OSError("no writable cache folder")
-
-
-def _compiler() -> str | None:
-    for c in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if c and shutil.which(c):
-            return shutil.which(c)
-    return None
-
-
 def _build() -> tuple[tuple | None, str]:
     """The compiled (sincos, sin) entries, or None and why (the caller names the fallback)."""
-    if env_switch(ENV_SWITCH) is False:
-        return None, f"off ({ENV_SWITCH}=0)"
-    cc = _compiler()
-    if cc is None:
-        return None, "no C compiler found"
-    src = _SOURCE.read_bytes()
-    key = hashlib.sha256(src + " ".join(_FLAGS).encode() + cc.encode() + platform.machine().encode()).hexdigest()[:16]
+    lib, msg = build(_SOURCE, switch=ENV_SWITCH, flags=_FLAGS)
+    if lib is None:
+        return None, msg
     try:
-        lib_path = _cache_dir() / f"sincos-{key}.so"
-        if not lib_path.is_file():
-            tmp = lib_path.with_name(f".{lib_path.name}.{os.getpid()}.tmp")
-            proc = subprocess.run([cc, *_FLAGS, "-o", str(tmp), str(_SOURCE), "-lm"], capture_output=True,
-                                  text=True, timeout=120)
-            if proc.returncode != 0:
-                tmp.unlink(missing_ok=True)
-                first = (proc.stderr.strip().splitlines() or ["?"])[0][:200]
-                return None, f"the C kernel did not build ({first})"
-            os.replace(tmp, lib_path)  # atomic: a concurrent process sees the old state or the whole file
-        lib = ctypes.CDLL(str(lib_path))
         fn, sin_fn = lib.nb_sincos_f32, lib.nb_sin_f32
-    except (OSError, subprocess.SubprocessError, AttributeError) as exc:
+    except AttributeError as exc:
         return None, f"the C kernel could not be built or loaded ({exc})"
     fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
     sin_fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
     fn.restype = sin_fn.restype = None
-    return (fn, sin_fn), f"fused C kernel ({Path(cc).name}, {lib_path.name})"
+    return (fn, sin_fn), "fused " + msg
 
 
 def _calibrate(kernel, reference) -> tuple[float, float]:

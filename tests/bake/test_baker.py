@@ -89,6 +89,9 @@ def test_plane_bakes_to_flat_tangent_colour():
     from neural_bake.nets import heap
 
     assert res.stats["heap"] == heap.status() != "not called yet"
+    from neural_bake.mesh.texels import kernel_status
+
+    assert res.stats["rasteriser"] == kernel_status()
 
 
 def test_tilted_field_on_plane_encodes_tangent_coordinates():

@@ -269,3 +269,67 @@ def test_property_centres_match_slow_reference_and_frames_finite(seed, h, w, n, 
     sums = np.bincount(full.texel, weights=full.weight, minlength=h * w)
     np.testing.assert_allclose(sums[full.coverage.ravel()], 1.0)
     np.testing.assert_array_equal(sums[~full.coverage.ravel()], 0.0)
+
+
+# ---- the C kernel (texels.c) against the numpy rasteriser it replaces
+
+from neural_bake.mesh import texels as texels_module  # noqa: E402
+
+_EXACT = ("pixel", "points", "face", "bary", "weight", "texel", "coverage", "border")
+_FRAME = ("normal", "tangent", "bitangent")
+
+
+def _both(monkeypatch, mesh, size, **kw):
+    """(C kernel, numpy) rasterisations of ``mesh``; skips where the kernel does not build."""
+    if texels_module._kernel() is None:
+        pytest.skip(f"no C kernel here: {texels_module.kernel_status()}")
+    fast = rasterize_texels(mesh, size, **kw)
+    with monkeypatch.context() as mp:
+        mp.setattr(texels_module, "_kernel_state", {"lib": None, "status": "off (test)"})
+        assert texels_module.kernel_status() == "numpy (off (test))"
+        slow = rasterize_texels(mesh, size, **kw)
+    return fast, slow
+
+
+def _assert_same(fast, slow):
+    for name in _EXACT:
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+    assert fast.overlaps == slow.overlaps
+    for name in _FRAME:  # torch divides by a broadcast length as a product with its reciprocal: ≤ 1 ulp apart
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=0, atol=4.5e-16, err_msg=name)
+
+
+@pytest.mark.parametrize("size,supersample", [(37, 1), (128, 2), (300, 1)])
+def test_kernel_equals_numpy_on_an_unwrapped_sphere(monkeypatch, size, supersample):
+    from neural_bake.mesh.unwrap import unwrap
+
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=0.7)
+    m = unwrap(Mesh(vertices=np.asarray(ico.vertices, dtype=np.float64), faces=np.asarray(ico.faces)),
+               resolution=128)
+    _assert_same(*_both(monkeypatch, m, size, supersample=supersample))
+
+
+def test_kernel_equals_numpy_on_degenerate_overlapping_and_wrapped_uvs(monkeypatch):
+    m = plane(uv_shift=(0.25, 0.0))
+    m.vertices = np.concatenate([m.vertices, [[0.5, 0.5, 0.5]] * 3])
+    m.faces = np.concatenate([m.faces, [[4, 5, 6], [4, 4, 5]]])
+    m.uv = np.concatenate([m.uv, [[[0.5, 0.5]] * 3, [[0.1, 0.1], [0.4, 0.1], [0.1, 0.4]]]])
+    with pytest.warns(NeuralBakeWarning):
+        fast, slow = _both(monkeypatch, m, 16, tangents=np.tile([1.0, 0, 0, 1], (7, 1)))
+    _assert_same(fast, slow)
+    assert fast.overlaps > 0
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(1, 40), w=st.integers(1, 40), n=st.integers(1, 12),
+       s=st.integers(1, 3), tiny=st.booleans())
+def test_property_kernel_equals_numpy_on_random_triangles(seed, h, w, n, s, tiny):
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(0.0, 1.0, size=(n, 3, 2))
+    if tiny:  # sub-texel triangles: only the conservative border pass gives them texels
+        uv = uv[:, :1] + 0.01 * (uv - uv[:, :1])
+    m = Mesh(vertices=rng.normal(size=(3 * n, 3)), faces=np.arange(3 * n).reshape(n, 3), uv=uv)
+    with pytest.MonkeyPatch.context() as mp:
+        fast, slow = _both(mp, m, (h, w), supersample=s)
+    _assert_same(fast, slow)
+    assert not tiny or fast.border.any() or not fast.coverage.any()

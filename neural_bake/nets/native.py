@@ -1,0 +1,75 @@
+"""Small C kernels built on first use with the system's C compiler and loaded with ctypes.
+
+A kernel is one C file beside the module that uses it. :func:`build` compiles it with ``$CC`` (else cc, gcc or
+clang) into ``$XDG_CACHE_HOME/neural_bake`` (else ``~/.cache/neural_bake``, else the temp folder), named by the
+file's stem and a hash of its source, the flags, the compiler and the platform, written atomically (a concurrent
+process sees no file or the whole one), and loads it. Every caller keeps a pure numpy or torch path for when
+no compiler is found, the build fails or its switch is off, and says which one ran.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from .compiled import env_switch
+
+__all__ = ["build", "cache_dir", "compiler", "FLAGS"]
+
+#: Optimised, position independent, no errno from libm; no contraction into FMAs, so a kernel's arithmetic
+#: is the same, operation by operation, as the numpy reference it replaces.
+FLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno", "-ffp-contract=off")
+
+
+def cache_dir() -> Path:
+    """The folder compiled kernels are kept in (created; the first writable of the module docstring's)."""
+    base = os.environ.get("XDG_CACHE_HOME") or (Path.home() / ".cache")
+    for d in (Path(base) / "neural_bake", Path(tempfile.gettempdir()) / f"neural_bake-{os.getuid()}"):
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            if os.access(d, os.W_OK):
+                return d
+        except OSError:
+            continue
+    raise OSError("no writable cache folder")
+
+
+def compiler() -> str | None:
+    """The C compiler's path ($CC, cc, gcc, clang: the first found), or None."""
+    for c in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if c and shutil.which(c):
+            return shutil.which(c)
+    return None
+
+
+def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS) -> tuple[ctypes.CDLL | None, str]:
+    """``(library, message)``: ``source`` compiled and loaded, or ``(None, why not)``.
+
+    ``switch`` names the environment variable that turns the kernel off (0/off/false)."""
+    if env_switch(switch) is False:
+        return None, f"off ({switch}=0)"
+    cc = compiler()
+    if cc is None:
+        return None, "no C compiler found"
+    src = Path(source).read_bytes()
+    key = hashlib.sha256(src + " ".join(flags).encode() + cc.encode() + platform.machine().encode()).hexdigest()[:16]
+    try:
+        lib_path = cache_dir() / f"{Path(source).stem}-{key}.so"
+        if not lib_path.is_file():
+            tmp = lib_path.with_name(f".{lib_path.name}.{os.getpid()}.tmp")
+            proc = subprocess.run([cc, *flags, "-o", str(tmp), str(source), "-lm"], capture_output=True,
+                                  text=True, timeout=120)
+            if proc.returncode != 0:
+                tmp.unlink(missing_ok=True)
+                first = (proc.stderr.strip().splitlines() or ["?"])[0][:200]
+                return None, f"the C kernel did not build ({first})"
+            os.replace(tmp, lib_path)
+        return ctypes.CDLL(str(lib_path)), f"C kernel ({Path(cc).name}, {lib_path.name})"
+    except (OSError, subprocess.SubprocessError) as exc:
+        return None, f"the C kernel could not be built or loaded ({exc})"
