@@ -63,6 +63,18 @@ MAX_NET_IN_DIM = 8
 #: Largest output dimension a model file may declare (1 for an SDF, 3 or 4 for colour).
 MAX_NET_OUT_DIM = 16
 
+#: Most levels a feature-grid network may declare (:class:`~neural_bake.nets.grid.GridNet`).
+MAX_GRID_LEVELS = 32
+
+#: Most features per grid vertex a feature-grid network may declare.
+MAX_GRID_FEATURES = 16
+
+#: Largest log2 of a feature-grid level's table size (entries per level) a network may declare.
+MAX_GRID_LOG2_TABLE = 24
+
+#: Finest grid resolution (cells per side of the unit frame) a feature-grid network may declare.
+MAX_GRID_RESOLUTION = 1 << 16
+
 #: Most levels a nested-sequence file may declare.
 MAX_NESTED_LEVELS = 16
 

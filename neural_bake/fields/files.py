@@ -144,14 +144,16 @@ def load_sdf_field(path: str | os.PathLike, *, band_level: int = 0, device=None,
 
 
 def save_model(model, path: str | os.PathLike, **metadata) -> Path:
-    """Write a :class:`~neural_bake.nets.siren.Siren` and JSON ``metadata`` to ``path`` atomically.
+    """Write a :class:`~neural_bake.nets.siren.Siren` (or a texture's :class:`~neural_bake.nets.grid.GridNet`)
+    and JSON ``metadata`` to ``path`` atomically.
 
     A file :func:`load_field` reads needs ``kind`` ("sdf" or "texture") and ``frame`` in ``metadata``;
     :func:`save_field` and the fits' ``save`` methods write them. The folder must exist; an existing file is
     replaced only on success.
 
     Raises:
-        ModelFileError: not a Siren, metadata not JSON-serialisable (NaN included), or a missing folder.
+        ModelFileError: not a Siren or GridNet, metadata not JSON-serialisable (NaN included), or a missing
+            folder.
     """
     from ..io.atomic import atomic_write_bytes
     from ..nets.model_io import encode_model
@@ -208,14 +210,19 @@ def _check_folder(path: Path) -> None:
 
 # ---------------------------------------------------------------------------------------------- the readers
 def _read_network(path: Path, header: dict, device, dtype):
-    from ..nets.model_io import build_siren, expected_shapes, read_state
+    from ..nets.model_io import build_network, expected_network_shapes, read_state
 
     arch = header["architecture"]
-    return build_siren(arch, read_state(path, expected_shapes(arch)), path, device=device, dtype=dtype)
+    return build_network(arch, read_state(path, expected_network_shapes(arch)), path, device=device, dtype=dtype)
 
 
 def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
+    from ..nets.model_io import network_kind
+
     arch, meta = header["architecture"], header["metadata"]
+    if network_kind(arch) != "siren":
+        raise ModelFileError(f"{path}: kind 'sdf' is a SIREN (its normals are GEMM gradients), this file holds a "
+                             f"{network_kind(arch)} network")
     if arch["in_dim"] != 3 or arch["out_dim"] != 1:
         st = " (a space-time SDF is kind 'spacetime_sdf', with its time range)" if arch["in_dim"] == 4 else ""
         raise ModelFileError(f"{path}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps "

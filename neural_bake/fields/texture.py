@@ -34,7 +34,8 @@ def decode_colors(out: torch.Tensor, encoding: str) -> torch.Tensor:
 class TextureField:
     """A colour field g, fitted on the surface of an SDF's mesh and read at the closest points of f = 0.
 
-    - ``fn``: callable on (N, 3) tensors (a Siren with 3 or 4 outputs, or analytic).
+    - ``fn``: callable on (N, 3) tensors (a Siren or a :class:`~neural_bake.nets.grid.GridNet` with 3 or 4
+      outputs, or analytic).
     - ``frame``: the unit frame the field lives in (None = the mesh's).
     - ``name``: what messages and reports call it.
     - ``delta``: half-width of the band |f| ≤ δ the field was fitted for (or None): a bake moves a read at most δ
@@ -44,7 +45,7 @@ class TextureField:
       :data:`~neural_bake.constants.TEXTURE_SURFACE_SAMPLES` points [x, y, z] of the fitted mesh's surface
       (unit frame), where :func:`check_texture_matches_sdf` reads another SDF.
     - ``metadata``: provenance, the file's JSON metadata (λ, training config…).
-    - ``model``: the Siren of a fitted field, None for an analytic one.
+    - ``model``: the network of a fitted field (a Siren or a GridNet), None for an analytic one.
     - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
     - ``encoding``: what ``fn`` outputs, "linear" or "srgb" (:data:`ENCODINGS`); :meth:`color` gives linear RGB.
     """
@@ -64,7 +65,7 @@ class TextureField:
     def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren", delta: float | None = None,
                    fitted_against: dict | None = None, metadata: dict | None = None,
                    encoding: str = "linear") -> "TextureField":
-        """A Siren with 3 (RGB) or 4 (RGBA) outputs, holding ``encoding`` colours."""
+        """A network (Siren or GridNet) with 3 (RGB) or 4 (RGBA) outputs, holding ``encoding`` colours."""
         if getattr(model, "out_dim", 3) not in (3, 4):
             raise ModelFileError(f"{name}: a texture model must have 3 or 4 outputs, this one has {model.out_dim}")
         return cls(model, frame=frame, name=name, delta=delta, fitted_against=fitted_against, metadata=metadata,
@@ -74,9 +75,21 @@ class TextureField:
                        ) -> tuple["TextureField", str, str]:
         """``(field, resolved, reason)`` as :meth:`neural_bake.fields.sdf.SdfField.with_precision`; with
         ``probe`` points, "auto" keeps float32 when the colours there differ from float32 ones by more than
-        :data:`~neural_bake.constants.ADAPTIVE_COLOR_TOL` (median of the largest channel difference)."""
+        :data:`~neural_bake.constants.ADAPTIVE_COLOR_TOL` (median of the largest channel difference). A network
+        other than a Siren runs in its own dtype (fp32; "bf16" is refused naming ``precision``)."""
         from ..constants import ADAPTIVE_COLOR_TOL
-        from ..nets.precision import reduced_copy
+        from ..errors import NeuralBakeError
+        from ..nets.precision import PRECISIONS, reduced_copy
+        from ..nets.siren import Siren
+
+        if self.model is not None and not isinstance(self.model, Siren):
+            if precision not in PRECISIONS:
+                raise NeuralBakeError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}",
+                                      parameter="precision")
+            why = f"a {type(self.model).__name__} has no reduced-precision path"
+            if precision == "bf16":
+                raise NeuralBakeError(f"precision bf16: {why}", parameter="precision")
+            return self, "fp32", why
 
         out, resolved, reason = reduced_copy(self, precision, measure=measure)
         if out is self:

@@ -58,6 +58,7 @@ from ..geometry import frame_mismatch
 from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
 from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
+from ..nets.grid import GridNet, check_grid_settings
 from ..nets.siren import Siren
 from ..types import Frame, Mesh
 from .record import FitRecord
@@ -73,6 +74,8 @@ __all__ = [
     "texture_targets",
     "texel_face_weights",
     "band_orthogonality",
+    "make_texture_network",
+    "NETWORKS",
 ]
 
 #: δ (unit frame) used when neither the config nor the SDF model file gives one: 1/60 of the unit-frame
@@ -91,12 +94,27 @@ class TextureFitConfig(PresetLoopSettings):
     steps: int = 2000  # the loop's settings with this fit's defaults
     progress: bool = False
 
+    network: str = "siren"
+    """The colour network: "siren" (a sine MLP of the point) or "grid" (a multiresolution feature grid, the
+    grid_* settings, in front of a small MLP whose width and depth are width and depth)."""
     width: int = 256
-    """W: width of the colour SIREN's hidden layers."""
+    """W: width of the colour network's hidden layers."""
     depth: int = 3
     """D: number of hidden W×W matrices (D + 1 hidden layers); (256, 3) is the paper's fine net."""
+    grid_levels: int = 16
+    """network "grid": number of grid levels, coarse to fine."""
+    grid_features: int = 2
+    """network "grid": features per grid vertex."""
+    grid_log2_table: int = 16
+    """network "grid": log2 of a level's most table entries (finer levels share them through a spatial hash)."""
+    grid_base_resolution: int = 16
+    """network "grid": cells per side of the unit frame's cube at the coarsest level."""
+    grid_max_resolution: int = 1024
+    """network "grid": cells per side at the finest level (about the texture's texels across the asset)."""
+    grid_activation: str = "relu"
+    """network "grid": the MLP's hidden activation, "relu" or "sine" (sin(ω x), ω = hidden_omega)."""
     omega_0: float = 30.0
-    """ω0 of the first layer (frequency of the colour field over the unit frame)."""
+    """ω0 of the SIREN's first layer (frequency of the colour field over the unit frame)."""
     hidden_omega: float = 30.0
     """ω of the later hidden layers."""
     batch: int = 4096
@@ -128,6 +146,13 @@ class TextureFitConfig(PresetLoopSettings):
     """Torch dtype for training ("float32" or "float64")."""
 
 
+#: The colour networks :class:`TextureFitConfig` builds (``network``).
+NETWORKS = ("siren", "grid")
+
+#: The settings of a grid network (``network="grid"``) beside width and depth.
+GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_resolution", "grid_max_resolution",
+               "grid_activation")
+
 #: Named presets (fields overridden on top of the defaults). Times are wall-time budgets; the step caps are
 #: safety nets far above what a budget reaches, so a preset runs its whole budget. What they reach:
 #: BENCHMARKS.md. Names: :mod:`neural_bake.fit.presets` (fast, medium and fine are aliases of quick, default
@@ -144,7 +169,8 @@ PRESETS: dict[str, dict] = {
 class TextureFit(FitRecord):
     """The result of :func:`fit_texture` (:class:`~neural_bake.fit.record.FitRecord`).
 
-    - ``model``: the colour :class:`Siren` (in 3, out 3), unit-frame points -> RGB in ``encoding``.
+    - ``model``: the colour network (in 3, out 3; a :class:`Siren`, or a :class:`~neural_bake.nets.grid.GridNet`
+      with ``network="grid"``), unit-frame points -> RGB in ``encoding``.
     - ``encoding``: "srgb" or "linear", what the network's outputs hold (:meth:`field` decodes them).
     - ``frame``: the mesh's frame (unit <-> source); the model works in the unit frame.
     - ``delta``, ``lam``: the band half-width and λ used.
@@ -349,18 +375,25 @@ def _band_pool(points, normals, sdf: SdfField, delta: float, n_uniform: int, gen
 # loss
 
 
-def band_orthogonality(model: Siren, points: torch.Tensor, normals: torch.Tensor,
+def band_orthogonality(model: Siren | GridNet, points: torch.Tensor, normals: torch.Tensor,
                        *, differentiable: bool = True, method: str = "jacobian") -> torch.Tensor:
     """Per-point Σ_c ⟨∇g_c(p), n(p)⟩² of the colour net ``model`` (out_dim 3) at ``points``.
 
     - ``points``: (N, 3) unit frame; ``normals``: (N, 3) the unit ∇f there (zero rows count as 0).
-    - ``method="jacobian"``: ∇g is the GEMM Jacobian (N, 3, 3) (out, in) of :func:`gemm_gradient`, then
-      contracted with n. ``"directional"``: the same numbers as one forward-mode tangent stream along n
-      (``t_0 = n``, ``t_i = cos A_i ⊙ (W_i t_{i-1})``, ``J n = W_out t_D``): one GEMM stream instead of three.
-    - ``differentiable=True`` keeps the graph to the weights (one ordinary backward, no double-backward).
+    - A :class:`Siren`: ``method="jacobian"``: ∇g is the GEMM Jacobian (N, 3, 3) (out, in) of
+      :func:`gemm_gradient`, then contracted with n. ``"directional"``: the same numbers as one forward-mode
+      tangent stream along n (``t_0 = n``, ``t_i = cos A_i ⊙ (W_i t_{i-1})``, ``J n = W_out t_D``): one GEMM
+      stream instead of three.
+    - A :class:`~neural_bake.nets.grid.GridNet`: ``"jacobian"``: ∇g by autograd (one reverse pass per output,
+      the graph kept for the double backward when ``differentiable``); ``"directional"``: the same numbers from
+      :meth:`~neural_bake.nets.grid.GridNet.directional` (closed form, one ordinary backward).
+    - ``differentiable=True`` keeps the graph to the weights.
 
     Returns (N,) in the points' dtype.
     """
+    if isinstance(model, GridNet):
+        d = _grid_normal_derivative(model, points, normals, differentiable=differentiable, method=method)
+        return (d * d).sum(dim=1)
     if method == "jacobian":
         _, jac = _gemm_gradient(model, points, differentiable=differentiable)
         d = torch.einsum("noi,ni->no", jac.reshape(points.shape[0], -1, 3), normals)
@@ -377,6 +410,35 @@ def band_orthogonality(model: Siren, points: torch.Tensor, normals: torch.Tensor
     else:
         raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {method!r}")
     return (d * d).sum(dim=1)
+
+
+def _grid_normal_derivative(model: GridNet, points: torch.Tensor, normals: torch.Tensor, *, differentiable: bool,
+                            method: str) -> torch.Tensor:
+    """J_g(p) n (N, out_dim) of a grid network, by autograd ("jacobian") or in closed form ("directional")."""
+    with torch.set_grad_enabled(differentiable and torch.is_grad_enabled() or method == "jacobian"):
+        if method == "directional":
+            d = model.directional(points, normals)[1]
+        elif method == "jacobian":
+            x = points.detach().requires_grad_(True)
+            out = model(x)
+            create = differentiable and torch.is_grad_enabled()
+            rows = [torch.autograd.grad(out[:, c].sum(), x, create_graph=create, retain_graph=True)[0]
+                    for c in range(out.shape[1])]
+            d = torch.stack([(r * normals).sum(dim=1) for r in rows], dim=1)
+        else:
+            raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {method!r}")
+    return d if differentiable else d.detach()
+
+
+def make_texture_network(config: TextureFitConfig, generator: torch.Generator | None = None) -> Siren | GridNet:
+    """The untrained colour network of ``config`` (3 inputs, 3 outputs): a :class:`Siren` (width, depth, ω0,
+    hidden ω) or, with ``network="grid"``, a :class:`~neural_bake.nets.grid.GridNet` (the grid settings, its MLP
+    of width and depth)."""
+    if config.network == "grid":
+        return GridNet(config.grid_levels, config.grid_features, config.grid_log2_table,
+                       config.grid_base_resolution, config.grid_max_resolution, config.width, config.depth, 3,
+                       config.grid_activation, config.hidden_omega, generator=generator)
+    return Siren(config.width, config.depth, 3, 3, config.omega_0, config.hidden_omega, generator=generator)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -441,6 +503,11 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"budget: must be 'time' or 'steps', got {c.budget!r}")
     if c.encoding not in ("auto", *ENCODINGS):
         raise FitError(f"encoding: must be 'auto', 'srgb' or 'linear', got {c.encoding!r}")
+    if c.network not in NETWORKS:
+        raise FitError(f"network: must be one of {', '.join(NETWORKS)}, got {c.network!r}", parameter="network")
+    check_grid_settings(levels=c.grid_levels, features=c.grid_features, log2_table=c.grid_log2_table,
+                        base_resolution=c.grid_base_resolution, max_resolution=c.grid_max_resolution,
+                        activation=c.grid_activation, error=FitError, prefix="grid_")
 
 
 def _resolve_delta(config: TextureFitConfig, sdf: SdfField) -> float:
@@ -508,8 +575,11 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     preset = overrides.get("preset")
     config = _resolve_config(config, overrides)
     key = None if preset is None else resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
-    arch = {k: getattr(config, k) for k in ("width", "depth", "batch")}
-    same = key is not None and all(PRESETS[key][k] == v for k, v in arch.items())  # the preset's step cost
+    grid = GRID_FIELDS if config.network == "grid" else ()
+    arch = {k: getattr(config, k) for k in ("network", "width", "depth", "batch", *grid)}
+    default = TextureFitConfig()
+    same = key is not None and all(PRESETS[key].get(k, getattr(default, k)) == v
+                                   for k, v in arch.items())  # the preset's step cost
     cost_key = f"texture:{key}" if same else None
     if config.budget == "steps":  # the preset's steps on the quiet reference machine, no time stop
         n_steps = reference_steps(cost_key)
@@ -524,8 +594,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     device, dtype = torch.device(config.device), getattr(torch, config.dtype)
 
     init_gen = torch.Generator().manual_seed(int(config.seed))
-    model = Siren(config.width, config.depth, 3, 3, config.omega_0, config.hidden_omega, generator=init_gen)
-    model = model.to(device, dtype)
+    model = make_texture_network(config, init_gen).to(device, dtype)
 
     samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share)
     pts = torch.as_tensor(samples["points"], dtype=torch.float64)

@@ -9,6 +9,12 @@ One file per network. The tensors are the module's ``state_dict`` (``layers.<i>.
   "metadata"}`` with ``architecture`` = :attr:`Siren.architecture` (width, depth, in_dim, out_dim, ω0,
   hidden ω) and ``metadata`` the caller's JSON-serialisable keywords (frame dict, kind, δ, training config…).
 
+A network other than a SIREN says which in its architecture: ``"network": "grid"`` is a
+:class:`~neural_bake.nets.grid.GridNet` (its :attr:`~neural_bake.nets.grid.GridNet.architecture`; tensors
+``table`` and ``layers.<i>.*``), written as format version 2 so that readers that know only SIRENs refuse it
+with "upgrade" instead of misreading it. An architecture without ``"network"`` is a SIREN (every file of
+version 1).
+
 This module encodes (:func:`encode_model`, bytes; writing them atomically is the field layer's job,
 :func:`neural_bake.fields.save_model`) and reads. Reading parses the header and the raw tensor bytes only —
 no pickle, no code from the file is ever run — and checks everything before allocating: the JSON nesting
@@ -32,16 +38,23 @@ import torch
 from .. import __version__
 from ..constants import MAX_HEADER_DEPTH, MAX_NET_DEPTH, MAX_NET_IN_DIM, MAX_NET_OUT_DIM, MAX_NET_WIDTH
 from ..errors import ModelFileError
+from .grid import GridNet, check_grid_settings
 from .siren import Siren
 
 __all__ = ["encode_model", "encode_file", "load_model", "read_model_metadata", "read_raw_metadata",
-           "parse_header", "check_architecture", "expected_shapes", "read_state", "build_siren",
+           "parse_header", "check_architecture", "check_network_architecture", "expected_shapes",
+           "expected_network_shapes", "read_state", "build_siren", "build_network", "network_kind",
            "MODEL_FORMAT", "MODEL_FORMAT_VERSION"]
 
 #: The ``format`` value of every model file.
 MODEL_FORMAT = "neural_bake.model"
-#: Version of the layout described above; files of a newer version are refused.
-MODEL_FORMAT_VERSION = 1
+#: Version of the layout described above; files of a newer version are refused. A SIREN's file is written as
+#: version 1 (what every reader reads), another network's as :data:`NETWORK_FORMAT_VERSION`.
+MODEL_FORMAT_VERSION = 2
+#: The version a file holding a network other than a SIREN (``"network"`` in its architecture) is written as.
+NETWORK_FORMAT_VERSION = 2
+#: The networks a model file may hold besides SIRENs, by their architecture's ``"network"``.
+NETWORKS = ("grid",)
 
 _ARCH_INT = ("width", "depth", "in_dim", "out_dim")
 _ARCH_FLOAT = ("omega_0", "hidden_omega")
@@ -54,7 +67,8 @@ def encode_model(model: Siren, path: str | os.PathLike = "<model>", **metadata) 
     """The bytes of a model file holding ``model`` and ``metadata`` (see the module docstring).
 
     Args:
-        model: a :class:`Siren` on any device and dtype (tensors are stored as they are, moved to CPU).
+        model: a :class:`Siren` or :class:`~neural_bake.nets.grid.GridNet` on any device and dtype (tensors are
+            stored as they are, moved to CPU).
         path: only named in error messages.
         **metadata: JSON-serialisable values (dicts, lists, str, numbers, bool, None); objects with a
             ``to_dict()`` (e.g. :class:`~neural_bake.types.Frame`), dataclasses (training configs), numpy
@@ -64,11 +78,11 @@ def encode_model(model: Siren, path: str | os.PathLike = "<model>", **metadata) 
     Raises:
         ModelFileError: ``model`` is not a Siren or a metadata value is not serialisable.
     """
-    if not isinstance(model, Siren):
-        raise ModelFileError(f"{path}: save_model expects a Siren, got {type(model).__name__}")
+    if not isinstance(model, (Siren, GridNet)):
+        raise ModelFileError(f"{path}: save_model expects a Siren or a GridNet, got {type(model).__name__}")
     header = {
         "format": MODEL_FORMAT,
-        "format_version": MODEL_FORMAT_VERSION,
+        "format_version": 1 if isinstance(model, Siren) else NETWORK_FORMAT_VERSION,
         "package_version": __version__,
         "architecture": model.architecture,
         "metadata": metadata,
@@ -97,7 +111,7 @@ def encode_file(tensors: dict[str, torch.Tensor], header: dict, fmt: str, path: 
 
 def load_model(
     path: str | os.PathLike, *, device: str | torch.device | None = None, dtype: torch.dtype | None = None
-) -> tuple[Siren, dict]:
+) -> tuple[Siren | GridNet, dict]:
     """Read a model file (see the module docstring).
 
     Args:
@@ -106,7 +120,8 @@ def load_model(
         dtype: floating dtype of the network (default: the stored one, float32 for trained models).
 
     Returns:
-        ``(model, metadata)``: the :class:`Siren` in eval mode with the stored weights, and the caller's
+        ``(model, metadata)``: the network (a :class:`Siren`, or the network its architecture names) in eval
+        mode with the stored weights, and the caller's
         metadata dict as saved (plain JSON values, not checked here: :mod:`neural_bake.fields` checks the
         frame, δ and kind). The full header (format, versions, architecture) is given by
         :func:`read_model_metadata`.
@@ -118,8 +133,8 @@ def load_model(
     path = Path(path)
     header = read_model_metadata(path)
     arch = header["architecture"]
-    state = read_state(path, expected_shapes(arch))
-    return build_siren(arch, state, path, device=device, dtype=dtype), header["metadata"]
+    state = read_state(path, expected_network_shapes(arch))
+    return build_network(arch, state, path, device=device, dtype=dtype), header["metadata"]
 
 
 def read_model_metadata(path: str | os.PathLike) -> dict:
@@ -136,7 +151,7 @@ def read_model_metadata(path: str | os.PathLike) -> dict:
         raise ModelFileError(f"{path}: a safetensors file but not a neural_bake model (no '{MODEL_FORMAT}' header)")
     header = parse_header(raw["neural_bake"], path)
     check_version(header, MODEL_FORMAT_VERSION, path)
-    header["architecture"] = check_architecture(header.get("architecture"), path)
+    header["architecture"] = check_network_architecture(header.get("architecture"), path)
     if not isinstance(header.get("metadata"), dict):
         raise ModelFileError(f"{path}: corrupt model header (metadata is not a JSON object)")
     return header
@@ -222,6 +237,60 @@ def check_architecture(arch, path, where: str = "") -> dict:
     return {**{k: arch[k] for k in _ARCH_INT}, **{k: float(arch[k]) for k in _ARCH_FLOAT}}
 
 
+def network_kind(arch: dict) -> str:
+    """What network an architecture dict describes: ``"siren"`` (no ``"network"`` key) or its ``"network"``."""
+    return str(arch.get("network", "siren")) if isinstance(arch, dict) else "siren"
+
+
+#: The keys of a grid network's architecture, ints and strings/floats apart.
+_GRID_INT = ("levels", "features", "log2_table", "base_resolution", "max_resolution", "width", "depth", "in_dim",
+             "out_dim")
+
+
+def check_network_architecture(arch, path, where: str = "") -> dict:
+    """``arch`` checked as the architecture of any network a model file may hold: a SIREN's
+    (:func:`check_architecture`) or, with ``"network"``, one of :data:`NETWORKS` (a grid network's:
+    :attr:`~neural_bake.nets.grid.GridNet.architecture`, its sizes within the caps). Returns a checked copy."""
+    if not isinstance(arch, dict) or "network" not in arch:
+        return check_architecture(arch, path, where)
+    if arch["network"] not in NETWORKS:
+        raise ModelFileError(f"{path}: corrupt model header ({where}network = {arch['network']!r:.40} is not one of "
+                             f"siren, {', '.join(NETWORKS)})")
+    keys = {"network", "activation", "omega", *_GRID_INT}
+    if set(arch) != keys:
+        raise ModelFileError(f"{path}: corrupt model header ({where}architecture {arch!r:.120})")
+    for key in _GRID_INT:
+        v = arch[key]
+        if not isinstance(v, int) or isinstance(v, bool):
+            raise ModelFileError(f"{path}: corrupt model header ({where}{key} = {v!r:.40} is not an integer)")
+    if arch["in_dim"] != 3 or not 1 <= arch["out_dim"] <= MAX_NET_OUT_DIM:
+        raise ModelFileError(f"{path}: corrupt model header ({where}a grid network maps R^3 to R^1..R^"
+                             f"{MAX_NET_OUT_DIM}, this one R^{arch['in_dim']} to R^{arch['out_dim']})")
+    try:
+        check_grid_settings(**{k: arch[k] for k in ("levels", "features", "log2_table", "base_resolution",
+                                                     "max_resolution", "width", "depth", "activation", "omega")},
+                            error=ModelFileError)
+    except ModelFileError as exc:
+        raise ModelFileError(f"{path}: corrupt model header ({where}{exc})") from None
+    return {**arch, "omega": float(arch["omega"])}
+
+
+def expected_network_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int, ...]]:
+    """The state_dict names (with ``prefix``) and shapes of the network ``arch`` describes (any of them)."""
+    if network_kind(arch) == "siren":
+        return expected_shapes(arch, prefix)
+    from .grid import grid_resolutions, grid_table_sizes
+
+    rows = sum(grid_table_sizes(grid_resolutions(arch["levels"], arch["base_resolution"], arch["max_resolution"]),
+                                arch["log2_table"]))
+    shapes = {f"{prefix}table": (rows, arch["features"])}
+    dims = [arch["levels"] * arch["features"]] + [arch["width"]] * (arch["depth"] + 1) + [arch["out_dim"]]
+    for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
+        shapes[f"{prefix}layers.{i}.weight"] = (b, a)
+        shapes[f"{prefix}layers.{i}.bias"] = (b,)
+    return shapes
+
+
 def expected_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int, ...]]:
     """The state_dict names (with ``prefix``) and shapes of ``Siren(**arch)``, without building it."""
     dims = [arch["in_dim"]] + [arch["width"]] * (arch["depth"] + 1) + [arch["out_dim"]]
@@ -275,6 +344,26 @@ def build_siren(arch: dict, state: dict[str, torch.Tensor], path, *, prefix: str
         raise ModelFileError(f"{path}: invalid architecture {arch} ({exc})") from None
     stored_dtype = state[f"{prefix}layers.0.weight"].dtype
     model = model.to(dtype=dtype or stored_dtype)
+    with torch.no_grad():
+        for name, p in model.state_dict().items():
+            p.copy_(state[prefix + name])
+    model = model.to(device=device or "cpu")
+    model.eval()
+    return model
+
+
+def build_network(arch: dict, state: dict[str, torch.Tensor], path, *, prefix: str = "",
+                  device: str | torch.device | None = None, dtype: torch.dtype | None = None) -> Siren | GridNet:
+    """The network ``arch`` describes (a SIREN: :func:`build_siren`; a grid network) holding
+    ``state[prefix + name]``, in eval mode on ``device``."""
+    if network_kind(arch) == "siren":
+        return build_siren(arch, state, path, prefix=prefix, device=device, dtype=dtype)
+    kwargs = {k: v for k, v in arch.items() if k != "network"}
+    try:
+        model = GridNet(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: invalid architecture {arch} ({exc})") from None
+    model = model.to(dtype=dtype or state[f"{prefix}table"].dtype)
     with torch.no_grad():
         for name, p in model.state_dict().items():
             p.copy_(state[prefix + name])

@@ -215,3 +215,43 @@ def test_fit_records_read_the_fits_from_the_header(tmp_path):
     (tmp_path / "x.safetensors").write_bytes(b"not a model")
     with pytest.raises(ModelFileError):
         fit_records(tmp_path / "x.safetensors")
+
+
+def _grid_net(out=3):
+    from neural_bake.nets.grid import GridNet
+
+    net = GridNet(levels=3, features=2, log2_table=8, base_resolution=2, max_resolution=16, width=8, depth=1,
+                  out_dim=out, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        net.table.normal_(generator=torch.Generator().manual_seed(6))
+    return net
+
+
+def test_grid_texture_round_trips_and_reads_colours(tmp_path):
+    from neural_bake.nets.grid import GridNet
+
+    net = _grid_net()
+    tex = TextureField.from_model(net, frame=FRAME, delta=0.02, name="g", encoding="srgb",
+                                  fitted_against={"name": "f", "kind": "sdf", "delta": 0.02, "surface": [[0, 0, 0.9]]})
+    path = save_field(tex, tmp_path / "g.tex")
+    back = load_field(path)
+    assert isinstance(back, TextureField) and isinstance(back.model, GridNet)
+    assert back.frame == FRAME and back.delta == 0.02 and back.encoding == "srgb"
+    assert back.fitted_against["surface"] == [[0, 0, 0.9]]
+    x = torch.rand(64, 3) * 2 - 1
+    assert torch.equal(back.color(x), tex.color(x))
+    with torch.no_grad():
+        np.testing.assert_array_equal(tex.color(x).numpy(), srgb_to_linear(net(x).clamp(0, 1)).numpy())
+    # no reduced precision for a grid network: fp32 (auto included), bf16 refused naming the parameter
+    same, resolved, why = back.with_precision("auto")
+    assert same is back and resolved == "fp32" and "GridNet" in why
+    with pytest.raises(Exception, match=r"precision bf16: a GridNet has no reduced-precision path") as err:
+        back.with_precision("bf16")
+    assert err.value.parameter == "precision"
+
+
+def test_grid_network_is_not_an_sdf(tmp_path):
+    path = save_model(_grid_net(out=1), tmp_path / "g.sdf", kind="sdf", frame=FRAME.to_dict(), delta=0.01)
+    with pytest.raises(ModelFileError, match=r"g.sdf: kind 'sdf' is a SIREN \(its normals are GEMM gradients\), "
+                                             r"this file holds a grid network"):
+        load_field(path)

@@ -84,7 +84,7 @@ def test_save_replaces_atomically_and_keeps_good_file_on_failure(tmp_path):
 def test_save_errors(tmp_path):
     with pytest.raises(ModelFileError, match=r"x.safetensors: metadata is not JSON-serialisable \(a NaN or infinite"):
         save_model(_siren(), tmp_path / "x.safetensors", delta=float("nan"))
-    with pytest.raises(ModelFileError, match=r"x.safetensors: save_model expects a Siren, got Linear"):
+    with pytest.raises(ModelFileError, match=r"x.safetensors: save_model expects a Siren or a GridNet, got Linear"):
         save_model(torch.nn.Linear(3, 1), tmp_path / "x.safetensors")
     with pytest.raises(ModelFileError, match=r"nope/x.safetensors: folder .*nope does not exist"):
         save_model(_siren(), tmp_path / "nope" / "x.safetensors")
@@ -170,7 +170,7 @@ def test_integer_tensor_refused(tmp_path):
 @pytest.mark.parametrize(
     "change,message",
     [
-        ({"format_version": 99}, r"model format version 99 is newer than this neural_bake reads \(1\)"),
+        ({"format_version": 99}, r"model format version 99 is newer than this neural_bake reads \(2\)"),
         ({"format_version": "1"}, r"corrupt model header \(format_version '1'\)"),
         ({"architecture": {"width": 8}}, r"corrupt model header \(architecture"),
         ({"metadata": [1, 2]}, r"corrupt model header \(metadata is not a JSON object\)"),
@@ -221,3 +221,65 @@ class _Config:
 def test_dataclass_and_path_metadata(tmp_path):
     path = save_model(_siren(), tmp_path / "cfg.safetensors", config=_Config(), f32=np.float32(0.5))
     assert load_model(path)[1] == {"config": {"steps": 3, "lr": 1e-4, "out": "a/b"}, "f32": 0.5}
+
+
+# ------------------------------------------------------------------------------------------ grid networks
+def _grid(seed=0, **kw):
+    from neural_bake.nets.grid import GridNet
+
+    args = dict(levels=3, features=2, log2_table=8, base_resolution=2, max_resolution=16, width=8, depth=1)
+    net = GridNet(**{**args, **kw}, generator=torch.Generator().manual_seed(seed))
+    with torch.no_grad():
+        net.table.normal_(generator=torch.Generator().manual_seed(seed + 1))
+    return net
+
+
+@pytest.mark.parametrize("activation", ["relu", "sine"])
+def test_grid_round_trip_exact_as_version_2(tmp_path, activation):
+    from neural_bake.nets.grid import GridNet
+
+    model = _grid(activation=activation, omega=2.5)
+    path = save_model(model, tmp_path / "g.safetensors", kind="texture", delta=0.01)
+    loaded, meta = load_model(path)
+    assert isinstance(loaded, GridNet) and not loaded.training
+    assert loaded.architecture == model.architecture and meta == {"kind": "texture", "delta": 0.01}
+    assert list(loaded.state_dict()) == list(model.state_dict())
+    for (name, a), (_, b) in zip(model.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(a, b), name
+    x = torch.rand(50, 3) * 2 - 1
+    with torch.no_grad():
+        assert torch.equal(model(x), loaded(x))
+    header = read_model_metadata(path)
+    assert header["format_version"] == 2 and header["architecture"]["network"] == "grid"
+    # a SIREN's file stays version 1: readers that know only SIRENs read it
+    assert read_model_metadata(save_model(_siren(), tmp_path / "s.safetensors"))["format_version"] == 1
+    loaded64, _ = load_model(path, dtype=torch.float64)
+    assert loaded64.table.dtype == torch.float64 and torch.equal(loaded64.table, model.table.double())
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"network": "octree"}, r"network = 'octree' is not one of siren, grid"),
+    ({"levels": 0}, r"corrupt model header \(levels: must be an integer in 1\.\.32, got 0\)"),
+    ({"log2_table": 40}, r"corrupt model header \(log2_table: must be an integer in 4\.\.24, got 40\)"),
+    ({"activation": "gelu"}, r"corrupt model header \(activation: must be one of relu, sine"),
+    ({"width": 10**9}, r"corrupt model header \(width: must be an integer in 1\.\.4096"),
+    ({"levels": True}, r"corrupt model header \(levels = True is not an integer\)"),
+    ({"in_dim": 4}, r"a grid network maps R\^3 to R\^1\.\.R\^16, this one R\^4 to R\^3"),
+    ({"extra": 1}, r"corrupt model header \(architecture"),
+])
+def test_bad_grid_architectures(tmp_path, change, message):
+    model = _grid()
+    arch = {**model.architecture, **change}
+    p = _write_raw(tmp_path / "g.safetensors", model.state_dict(),
+                   _header(model, format_version=2, architecture=arch))
+    with pytest.raises(ModelFileError, match=message) as err:
+        load_model(p)
+    assert "\n" not in str(err.value)
+
+
+def test_grid_tensors_must_match_the_architecture(tmp_path):
+    model = _grid()
+    state = dict(model.state_dict(), table=torch.zeros(5, 2))
+    p = _write_raw(tmp_path / "g.safetensors", state, _header(model, format_version=2))
+    with pytest.raises(ModelFileError, match=r"tensor table has shape \(5, 2\), the architecture needs \(\d+, 2\)"):
+        load_model(p)

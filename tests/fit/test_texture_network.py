@@ -1,0 +1,137 @@
+"""Texture fits with the feature-grid network (``network="grid"``): a flat-colour disc keeps its edge, the
+orthogonality term applies to it, the model file round-trips, and bad settings are one-line errors.
+
+The disc oracle: a flat square (z = 0, unit frame) whose UVs map it onto a 64² texture holding a flat background
+and one disc 20 texels across; its SDF is f(x) = z. The fitted network, read at every texel's centre, is
+classified disc or background (nearer one colour than the other along the line between them) and compared with
+the analytic disc.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from neural_bake.errors import FitError
+from neural_bake.fields import TextureField, load_field
+from neural_bake.fit.texture import TextureFitConfig, band_orthogonality, fit_texture, make_texture_network
+from neural_bake.io.colour import linear_to_srgb
+from neural_bake.nets.grid import GridNet
+from neural_bake.nets.siren import Siren
+from neural_bake.types import Mesh
+
+SIDE = 64  # texels per side of the disc texture
+HALF = 0.9  # the square is [-HALF, HALF]² at z = 0
+DIAMETER = 20.0  # the disc, in texels
+BACKGROUND, DISC = np.array([0.75, 0.62, 0.38]), np.array([0.03, 0.12, 0.6])  # linear RGB
+GRID = dict(network="grid", grid_levels=6, grid_features=2, grid_log2_table=14, grid_base_resolution=8,
+            grid_max_resolution=128, width=32, depth=1)
+
+
+def disc_square(n: int = 8) -> Mesh:
+    """The flat square as an n×n grid of quads, uv = (x, y) mapped onto [0, 1]², with the disc texture."""
+    t = np.linspace(-HALF, HALF, n + 1)
+    X, Y = np.meshgrid(t, t, indexing="xy")
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    uv = (V[:, :2] + HALF) / (2 * HALF)
+    yy, xx = np.mgrid[0:SIDE, 0:SIDE] + 0.5  # texel centres, row 0 at the top (v = 1)
+    inside = np.hypot(xx - SIDE / 2, yy - SIDE / 2) < DIAMETER / 2
+    tex = np.where(inside[..., None], DISC, BACKGROUND).astype(np.float32)
+    vn = np.tile([0.0, 0.0, 1.0], (len(V), 1))
+    return Mesh(vertices=V, faces=F, uv=uv[F], texture=tex, vertex_normals=vn, watertight=False)
+
+
+def plane_sdf(x: torch.Tensor):
+    return x[:, 2], torch.zeros_like(x) + torch.tensor([0.0, 0.0, 1.0], dtype=x.dtype)
+
+
+def texel_points() -> tuple[np.ndarray, np.ndarray]:
+    """The unit-frame points of every texel centre (SIDE², 3) and their distance to the disc's centre in texels."""
+    yy, xx = np.mgrid[0:SIDE, 0:SIDE] + 0.5
+    u, v = xx / SIDE, 1.0 - yy / SIDE
+    pts = np.stack([u * 2 * HALF - HALF, v * 2 * HALF - HALF, np.zeros_like(u)], -1).reshape(-1, 3)
+    return pts, np.hypot(xx - SIDE / 2, yy - SIDE / 2).ravel()
+
+
+@pytest.fixture(scope="module")
+def disc_fit():
+    torch.set_num_threads(1)
+    return fit_texture(disc_square(), plane_sdf, steps=400, minutes=None, batch=2048, pool=40000, lr=1e-2,
+                       texel_share=0.0, seed=1, **GRID)
+
+
+def test_a_flat_colour_disc_keeps_its_edge_within_a_texel(disc_fit):
+    assert isinstance(disc_fit.model, GridNet) and disc_fit.encoding == "srgb"
+    pts, r = texel_points()
+    with torch.no_grad():
+        got = linear_to_srgb(disc_fit.field().color(torch.as_tensor(pts, dtype=torch.float32)).double().numpy())
+    bg, disc = linear_to_srgb(BACKGROUND), linear_to_srgb(DISC)
+    t = ((got - bg) @ (disc - bg)) / float((disc - bg) @ (disc - bg))
+    baked, truth = t > 0.5, r < DIAMETER / 2
+    wrong = baked != truth
+    assert np.all(np.abs(r[wrong] - DIAMETER / 2) <= 1.0), np.sort(np.abs(r[wrong] - DIAMETER / 2))[-5:]
+    assert abs(np.sqrt(baked.sum() / np.pi) - np.sqrt(truth.sum() / np.pi)) <= 0.5
+    # flat inside and out: away from the edge, every texel within 0.05 of its colour (sRGB) in each channel
+    far = np.abs(r - DIAMETER / 2) > 2.0
+    want = np.where(truth[:, None], disc, bg)
+    assert np.abs(got - want)[far].max() < 0.05
+
+
+def test_grid_fit_saves_and_loads_exactly(disc_fit, tmp_path):
+    path = disc_fit.save(tmp_path / "g.tex")
+    back = load_field(path)
+    assert isinstance(back, TextureField) and isinstance(back.model, GridNet)
+    assert back.metadata["config"]["network"] == "grid" and back.metadata["config"]["grid_levels"] == 6
+    x = torch.rand(500, 3) * 2 - 1
+    assert torch.equal(back.color(x), disc_fit.field().color(x))
+
+
+def test_orthogonality_term_of_a_grid_network():
+    """Both methods give Σ_c ⟨∇g_c, n⟩² as finite differences do, and train the table and the MLP."""
+    net = make_texture_network(TextureFitConfig(**GRID), torch.Generator().manual_seed(0)).double()
+    with torch.no_grad():
+        net.table.normal_(generator=torch.Generator().manual_seed(1))
+    gen = torch.Generator().manual_seed(2)
+    x = torch.rand(64, 3, generator=gen, dtype=torch.float64) * 1.6 - 0.8
+    n = torch.nn.functional.normalize(torch.randn(64, 3, generator=gen, dtype=torch.float64), dim=1)
+    eps = 1e-7
+    fd = (net(x + eps * n) - net(x - eps * n)) / (2 * eps)
+    want = (fd ** 2).sum(1)
+    for method in ("jacobian", "directional"):
+        got = band_orthogonality(net, x, n, method=method)
+        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6 * want.max().item())
+        net.zero_grad()
+        got.mean().backward()
+        assert net.table.grad.abs().sum() > 0 and net.layers[0].weight.grad.abs().sum() > 0
+        assert not band_orthogonality(net, x, n, method=method, differentiable=False).requires_grad
+
+
+def test_grid_fit_with_the_orthogonality_term_runs():
+    torch.set_num_threads(1)
+    fit = fit_texture(disc_square(4), plane_sdf, steps=20, minutes=None, batch=256, pool=4000, lam=1e-3, delta=0.05,
+                      **GRID)
+    assert all(np.isfinite(h["orth"]) for h in fit.history if "orth" in h)
+
+
+def test_siren_stays_the_default_network():
+    assert TextureFitConfig().network == "siren"
+    assert isinstance(make_texture_network(TextureFitConfig(width=8, depth=1)), Siren)
+
+
+@pytest.mark.parametrize("over,message", [
+    ({"network": "octree"}, r"^network: must be one of siren, grid, got 'octree'$"),
+    ({"grid_levels": 0}, r"^grid_levels: must be an integer in 1\.\.32, got 0$"),
+    ({"grid_features": 99}, r"^grid_features: must be an integer in 1\.\.16, got 99$"),
+    ({"grid_log2_table": 3}, r"^grid_log2_table: must be an integer in 4\.\.24, got 3$"),
+    ({"grid_base_resolution": 2048}, r"^grid_base_resolution: must be an integer in 1\.\.1024, got 2048$"),
+    ({"grid_max_resolution": 0}, r"^grid_max_resolution: must be an integer in 1\.\.65536, got 0$"),
+    ({"grid_activation": "tanh"}, r"^grid_activation: must be one of relu, sine, got 'tanh'$"),
+])
+def test_bad_network_settings_are_one_line_errors(over, message):
+    with pytest.raises(FitError, match=message) as err:
+        fit_texture(disc_square(2), plane_sdf, steps=1, **over)
+    assert err.value.parameter == message.split(":")[0].lstrip("^")
