@@ -14,10 +14,15 @@ Conventions (docs/design.md, "Tangent space"):
 
 from __future__ import annotations
 
+import ctypes
+import threading
+from pathlib import Path
+
 import numpy as np
 
 from ..constants import DIRECTION_EPS, TBN_DET_REL_EPS
 from ..errors import NeuralBakeError
+from ..nets.native import build
 
 __all__ = [
     "NORMAL_SPACES",
@@ -28,7 +33,36 @@ __all__ = [
     "colors_to_normals",
     "splat",
     "splat_into",
+    "kernel_status",
+    "ENV_SWITCH",
 ]
+
+#: 0/off/false: the numpy encoding even where the C kernel (maps.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_MAPS"
+
+_kernel_lock = threading.Lock()
+_kernel_state: dict = {}
+
+
+def _kernel():
+    """The loaded C kernel (maps.c, built on first use: :func:`neural_bake.nets.native.build`) or None."""
+    if "lib" not in _kernel_state:
+        with _kernel_lock:
+            if "lib" not in _kernel_state:
+                lib, msg = build(Path(__file__).with_name("maps.c"), switch=ENV_SWITCH)
+                if lib is not None:
+                    p = ctypes.c_void_p
+                    lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double,
+                                                      ctypes.c_int, p, p]
+                    lib.nb_encode_tangent.restype = None
+                _kernel_state.update(lib=lib, status=msg)
+    return _kernel_state["lib"]
+
+
+def kernel_status() -> str:
+    """Which tangent-space encoding runs here: the C kernel (and its file), or why the numpy one does."""
+    lib = _kernel()
+    return _kernel_state["status"] if lib is not None else f"numpy ({_kernel_state['status']})"
 
 NORMAL_SPACES = ("tangent", "object")
 Y_CONVENTIONS = ("opengl", "directx")
@@ -59,6 +93,13 @@ def encode_tangent_space(
         raise NeuralBakeError(f"y_convention must be one of {Y_CONVENTIONS}, got {y_convention!r}")
     n = np.asarray(normals, dtype=np.float64)
     t, b, g = (np.asarray(v, dtype=np.float64) for v in (tangent, bitangent, normal))
+    lib = _kernel()
+    if lib is not None and n.ndim == 2 and n.shape[1] == 3 and t.shape == b.shape == g.shape == n.shape:
+        n, t, b, g = (np.ascontiguousarray(v) for v in (n, t, b, g))
+        out, ok = np.empty_like(n), np.empty(len(n), dtype=np.uint8)
+        lib.nb_encode_tangent(n.ctypes.data, t.ctypes.data, b.ctypes.data, g.ctypes.data, len(n), TBN_DET_REL_EPS,
+                              DIRECTION_EPS, int(y_convention == "directx"), out.ctypes.data, ok.ctypes.data)
+        return out, ok.view(bool)
     # inverse of the matrix with columns T, B, N: rows cross(B, N), cross(N, T), cross(T, B) over det
     r0, r1, r2 = _cross(b, g), _cross(g, t), _cross(t, b)
     det = np.einsum("ij,ij->i", t, r0)

@@ -55,3 +55,63 @@ def test_splat_into_adds_the_same_sums_in_place(rng, unique):
     acc2 = start.copy()
     splat_into(acc2, None, values, pixel, weight)  # without weight sums
     np.testing.assert_array_equal(acc2, acc)
+
+
+# ---- tangent-space encoding: the C kernel (maps.c) against the numpy path, and analytic oracles
+
+from neural_bake.bake import maps as maps_module  # noqa: E402
+from neural_bake.bake.maps import decode_tangent_space, encode_tangent_space  # noqa: E402
+
+
+def _frames(rng, m, dtype):
+    """Random non-orthogonal frames and unit normals, with singular, degenerate and non-finite rows."""
+    t, b, g = (rng.normal(size=(m, 3)) for _ in range(3))
+    n = rng.normal(size=(m, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    b[0] = t[0]  # singular: two equal columns
+    g[1] = 0.0  # a zero normal
+    n[2] = np.nan  # a non-finite input
+    t[3] *= 1e-6  # a short (but regular) tangent: the relative threshold keeps it
+    n[4] = 0.0  # a zero normal to encode: no direction
+    return tuple(v.astype(dtype) for v in (n, t, b, g))
+
+
+def _numpy_encode(monkeypatch, *args, **kw):
+    with monkeypatch.context() as mp:
+        mp.setattr(maps_module, "_kernel_state", {"lib": None, "status": "off (test)"})
+        assert maps_module.kernel_status() == "numpy (off (test))"
+        return encode_tangent_space(*args, **kw)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("convention", ["opengl", "directx"])
+def test_encode_kernel_equals_the_numpy_path(monkeypatch, rng, dtype, convention):
+    if maps_module._kernel() is None:
+        pytest.skip(f"no C kernel here: {maps_module.kernel_status()}")
+    n, t, b, g = _frames(rng, 2000, dtype)
+    fast, fast_ok = encode_tangent_space(n, t, b, g, convention)
+    slow, slow_ok = _numpy_encode(monkeypatch, n, t, b, g, convention)
+    np.testing.assert_array_equal(fast_ok, slow_ok)
+    assert not fast_ok[[0, 1, 2, 4]].any() and fast_ok[3]
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)  # ill-conditioned random frames: more than ulps
+
+
+@pytest.mark.parametrize("numpy_path", [False, True])
+def test_encode_oracles_orthonormal_frame_round_trip_and_directx(monkeypatch, rng, numpy_path):
+    encode = (lambda *a: _numpy_encode(monkeypatch, *a)) if numpy_path else encode_tangent_space
+    # an orthonormal frame: the coordinates are the dot products with T, B, N
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    t, b, g = (np.tile(q[:, i], (500, 1)) for i in range(3))
+    n = rng.normal(size=(500, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    x, ok = encode(n, t, b, g, "opengl")
+    assert ok.all()
+    np.testing.assert_allclose(x, n @ q, atol=1e-12)
+    xd, _ = encode(n, t, b, g, "directx")
+    np.testing.assert_allclose(xd, x * [1, -1, 1], atol=0)
+    # a skewed frame: decoding what was encoded gives the normal back
+    n2, t2, b2, g2 = _frames(rng, 500, np.float64)
+    x2, ok2 = encode(n2, t2, b2, g2, "opengl")
+    back = decode_tangent_space(x2[ok2], t2[ok2], b2[ok2], g2[ok2])
+    np.testing.assert_allclose(back, n2[ok2], atol=1e-9)
+    np.testing.assert_array_equal(x2[~ok2], np.tile([0.0, 0.0, 1.0], ((~ok2).sum(), 1)))

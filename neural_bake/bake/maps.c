@@ -1,0 +1,51 @@
+/* Tangent-space encoding of object-space normals: the C kernel of neural_bake.bake.maps.encode_tangent_space
+   (its numpy path is the reference; the tests hold the two within a few ulps).
+
+   nb_encode_tangent(n, t, b, g, m, det_rel_eps, direction_eps, directx, out, ok): per sample, the inverse of
+   the matrix with columns T, B, N applied to n (rows cross(B, N), cross(N, T), cross(T, B), the sign of the
+   determinant), renormalised; a singular frame (|det| not above det_rel_eps · |T||B||N|), a non-finite
+   input or a zero result gives (0, 0, 1) and ok = 0. directx negates y. All arrays (m, 3) float64 row-major,
+   ok (m,) uint8. */
+#include <math.h>
+#include <stdint.h>
+
+static inline void nb_cross(const double *a, const double *b, double *o) {
+    o[0] = a[1] * b[2] - a[2] * b[1];
+    o[1] = a[2] * b[0] - a[0] * b[2];
+    o[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static inline double nb_dot(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+void nb_encode_tangent(const double *n, const double *t, const double *b, const double *g, int64_t m,
+                       double det_rel_eps, double direction_eps, int directx, double *out, uint8_t *ok) {
+    for (int64_t s = 0; s < m; s++) {
+        const double *ns = n + 3 * s, *ts = t + 3 * s, *bs = b + 3 * s, *gs = g + 3 * s;
+        double r0[3], r1[3], r2[3], x[3];
+        nb_cross(bs, gs, r0);
+        nb_cross(gs, ts, r1);
+        nb_cross(ts, bs, r2);
+        double det = nb_dot(ts, r0);
+        double scale = sqrt(nb_dot(ts, ts)) * sqrt(nb_dot(bs, bs)) * sqrt(nb_dot(gs, gs));
+        int good = isfinite(det) && fabs(det) > det_rel_eps * (scale > direction_eps ? scale : direction_eps)
+                   && isfinite(ns[0]) && isfinite(ns[1]) && isfinite(ns[2]);
+        double sg = det > 0.0 ? 1.0 : (det < 0.0 ? -1.0 : 0.0);
+        x[0] = nb_dot(r0, ns) * sg;
+        x[1] = nb_dot(r1, ns) * sg;
+        x[2] = nb_dot(r2, ns) * sg;
+        double norm = sqrt(nb_dot(x, x));
+        good = good && norm > direction_eps && isfinite(norm);
+        double *o = out + 3 * s;
+        if (good) {
+            o[0] = x[0] / norm;
+            o[1] = x[1] / norm;
+            o[2] = x[2] / norm;
+        } else {
+            o[0] = 0.0;
+            o[1] = 0.0;
+            o[2] = 1.0;
+        }
+        if (directx) o[1] = -o[1];
+        ok[s] = (uint8_t)good;
+    }
+}
