@@ -86,11 +86,11 @@ def compare_colours(baked: ViewMesh, source: Mesh) -> ColourComparison:
     from ..bake.baseline import closest_surface
     from ..io.colour import sample_texture
 
-    if baked.albedo is None or baked.uv is None:
+    if baked.texture is None or baked.uv is None:
         raise ViewError(f"{baked.name}: no baked albedo to compare")
     if source.texture is None or source.uv is None:
         raise ViewError(f"{source.source or 'source mesh'}: no texture to compare the baked albedo with")
-    shape = baked.albedo.shape[:2]
+    shape = baked.texture.shape[:2]
     pixel, points = _texel_points(baked, shape)
     near = closest_surface(source, source.frame.to_unit(points))
     uv = np.einsum("mk,mkc->mc", near["bary"], np.asarray(source.uv, dtype=np.float64)[near["face"]])
@@ -98,7 +98,7 @@ def compare_colours(baked: ViewMesh, source: Mesh) -> ColourComparison:
     if tex.shape[2] < 3:
         tex = np.repeat(tex[..., :1], 3, axis=2)
     src = sample_texture(tex[..., :3], uv, source.uv_policy)
-    ours = baked.albedo[pixel[:, 0], pixel[:, 1], :3]
+    ours = baked.texture[pixel[:, 0], pixel[:, 1], :3]
     err = colour_error(ours, src)
     coverage = np.zeros(shape, dtype=bool)
     coverage[pixel[:, 0], pixel[:, 1]] = True
@@ -110,5 +110,5 @@ def compare_colours(baked: ViewMesh, source: Mesh) -> ColourComparison:
     if err.size:
         stats.update(median=float(np.median(err)), mean=float(err.mean()), p95=float(np.percentile(err, 95)),
                      max=float(err.max()), count=int(err.size))
-    return ColourComparison(source=src_img, baked=np.asarray(baked.albedo[..., :3], dtype=np.float32),
+    return ColourComparison(source=src_img, baked=np.asarray(baked.texture[..., :3], dtype=np.float32),
                             error=error, coverage=coverage, stats=stats)

@@ -177,9 +177,9 @@ def _texel_angles(a: ViewMesh, b: ViewMesh) -> dict | None:
         ang = np.degrees(np.arccos(np.clip((na * nb).sum(axis=1), -1.0, 1.0)))
         out["normal_map_angle_deg"] = {"median": float(np.median(ang)), "p95": float(np.percentile(ang, 95)),
                                        "max": float(ang.max()), "count": int(ang.size)}
-    if a.albedo is not None and b.albedo is not None and a.albedo.shape == b.albedo.shape:
-        pixel, _ = _texel_points(a, a.albedo.shape[:2])
-        err = colour_error(a.albedo[pixel[:, 0], pixel[:, 1]], b.albedo[pixel[:, 0], pixel[:, 1]])
+    if a.texture is not None and b.texture is not None and a.texture.shape == b.texture.shape:
+        pixel, _ = _texel_points(a, a.texture.shape[:2])
+        err = colour_error(a.texture[pixel[:, 0], pixel[:, 1]], b.texture[pixel[:, 0], pixel[:, 1]])
         out["albedo_error_levels"] = {"median": float(np.median(err)), "p95": float(np.percentile(err, 95)),
                                       "max": float(err.max()), "count": int(err.size)}
     return out or None
@@ -290,7 +290,7 @@ def _write(stage: Path, folders: list[Path], reports: list[dict], labels: list[s
                    render_psnr_vs_first_db=_mean_psnr(vs_first[i]) if i else None,
                    stages=_tree_dict(stage_tree(r.get("seconds") or {}, r.get("seconds_total"))))
         row["colour_error_levels"] = None
-        if m.albedo is not None and source_mesh is not None and source_mesh.texture is not None \
+        if m.texture is not None and source_mesh is not None and source_mesh.texture is not None \
                 and source_mesh.uv is not None:
             row["colour_error_levels"] = compare_colours(m, source_mesh).stats
         bakes.append(row)

@@ -69,14 +69,14 @@ def shading_normals(mesh: ViewMesh, face: np.ndarray, bary: np.ndarray, *, use_n
     of the face's corners 0, 1, 2), decoded from the normal map when ``use_normal_map`` and the mesh has one
     (``uv`` (M, 2): the interpolated texture coordinates, v up; computed when None)."""
     corners = mesh.faces[face]
-    n = _unit(np.einsum("mk,mkd->md", bary, mesh.normals[corners]))
+    n = _unit(np.einsum("mk,mkd->md", bary, mesh.vertex_normals[corners]))
     if not (use_normal_map and mesh.normal_map is not None):
         return n
     if uv is None:
         uv = np.einsum("mk,mkd->md", bary, mesh.uv[face])
     tan = mesh.tangents[corners]  # (M, 3, 4)
     w = np.where(tan[..., 3:] < 0, -1.0, 1.0)
-    b_vertex = w * np.cross(mesh.normals[corners], tan[..., :3])
+    b_vertex = w * np.cross(mesh.vertex_normals[corners], tan[..., :3])
     t = _unit(np.einsum("mk,mkd->md", bary, tan[..., :3]))
     b = _unit(np.einsum("mk,mkd->md", bary, b_vertex))
     x = sample_texture(mesh.normal_map, uv).astype(np.float64) * 2.0 - 1.0
@@ -126,8 +126,8 @@ def render_mesh(
         normals = shading_normals(mesh, face, bary, use_normal_map=use_normal_map, uv=uv)
     if albedo_fn is not None:
         albedo = np.asarray(albedo_fn(points), dtype=np.float64)[:, :3]
-    elif use_albedo and mesh.albedo is not None:
-        albedo = sample_texture(mesh.albedo, uv).astype(np.float64)
+    elif use_albedo and mesh.texture is not None:
+        albedo = sample_texture(mesh.texture, uv).astype(np.float64)
     elif mesh.vertex_colors is not None:
         albedo = np.einsum("mk,mkd->md", bary, mesh.vertex_colors[mesh.faces[face]])
     else:

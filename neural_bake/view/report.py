@@ -154,7 +154,7 @@ def _heat_render(baked: ViewMesh, heat: np.ndarray, camera: Camera) -> np.ndarra
     """The baked mesh wearing an error map (display values) as its colour, unlit: the errors over the model."""
     from dataclasses import replace
 
-    painted = replace(baked, albedo=heat[..., :3] if heat.shape[2] >= 3 else np.repeat(heat, 3, axis=2),
+    painted = replace(baked, texture=heat[..., :3] if heat.shape[2] >= 3 else np.repeat(heat, 3, axis=2),
                       normal_map=None)
     out = render_mesh(painted, camera, lights=[], material=Material(ambient=1.0, specular=0.0),
                       background=(0.2, 0.2, 0.2))
@@ -321,7 +321,7 @@ def _colour_section(baked: ViewMesh, source_mesh, stage: Path, cams: list[Camera
     over the model into ``stage``; return (the error's figures and file names, or None; why not)."""
     from .colour import COLOUR_ERROR_SCALE, colour_heat, compare_colours
 
-    if baked.albedo is None:
+    if baked.texture is None:
         return None, "the bake has no albedo map"
     if source_mesh is None or source_mesh.texture is None or source_mesh.uv is None:
         return None, "the source mesh has no texture (or was not found)"

@@ -41,7 +41,7 @@ def quad(normal_map=None, w=1.0):
     uv = v[:, :2][f]
     n = np.tile([0.0, 0.0, 1.0], (4, 1))
     t = np.tile([1.0, 0.0, 0.0, w], (4, 1))
-    return ViewMesh(v, f, n, uv=uv, tangents=t, normal_map=normal_map, name="quad")
+    return ViewMesh(v, f, uv=uv, vertex_normals=n, tangents=t, normal_map=normal_map, source="quad")
 
 
 @pytest.mark.parametrize("w", [1.0, -1.0])
@@ -84,7 +84,7 @@ def test_glb_normals_match_the_bakers_own_decode(bumpy_bake):
 def test_sphere_silhouette_and_depth_match_ray_sphere_oracle():
     r = 0.7
     ico = trimesh.creation.icosphere(subdivisions=5, radius=r)
-    m = ViewMesh(np.asarray(ico.vertices), np.asarray(ico.faces), np.asarray(ico.vertex_normals))
+    m = ViewMesh(np.asarray(ico.vertices), np.asarray(ico.faces), vertex_normals=np.asarray(ico.vertex_normals))
     cam = Camera(position=(0.3, 0.2, 3.0), look_at=(0, 0, 0), width=96, height=80)
     out = render_mesh(m, cam, background=(0.0, 0.0, 1.0))
     d = cam.pixel_directions().reshape(-1, 3)
@@ -160,7 +160,7 @@ def test_source_mesh_keeps_its_texture_and_normals(bumpy_bake, tmp_path):
 
     obj = sample_path("sphere")
     a = load_view_mesh(obj)
-    assert a.albedo is not None and a.uv is not None and a.normal_map is None
+    assert a.texture is not None and a.uv is not None and a.normal_map is None
     b = view_mesh_from_mesh(load_mesh(obj))
     cam = view_camera(a, width=48, height=48)
     ra, rb = render_mesh(a, cam), render_mesh(b, cam)
@@ -194,13 +194,13 @@ def test_errors_are_one_line(tmp_path):
     v = np.zeros((3, 3))
     f = np.array([[0, 1, 2]])
     with pytest.raises(ViewError, match="out of range"):
-        ViewMesh(v, np.array([[0, 1, 3]]), v)
+        ViewMesh(v, np.array([[0, 1, 3]]), vertex_normals=v)
     with pytest.raises(ViewError, match="normals must have shape"):
-        ViewMesh(v, f, np.zeros((2, 3)))
+        ViewMesh(v, f, vertex_normals=np.zeros((2, 3)))
     with pytest.raises(ViewError, match="needs UVs"):
-        ViewMesh(v, f, v, albedo=np.zeros((2, 2, 3)))
+        ViewMesh(v, f, vertex_normals=v, texture=np.zeros((2, 2, 3)))
     with pytest.raises(ViewError, match="needs tangents"):
-        ViewMesh(v, f, v, uv=np.zeros((1, 3, 2)), normal_map=np.zeros((2, 2, 3)))
+        ViewMesh(v, f, uv=np.zeros((1, 3, 2)), vertex_normals=v, normal_map=np.zeros((2, 2, 3)))
     with pytest.raises(ViewError, match="no such GLB"):
         view_mesh_from_glb(tmp_path / "missing.glb")
     (tmp_path / "bad.glb").write_bytes(b"not a glb at all, not at all")

@@ -34,7 +34,7 @@ def _source(tex):
 def _baked(albedo, flip_u=True):
     v, f, uv = _plane(flip_u)
     t = np.tile([-1.0 if flip_u else 1.0, 0, 0, 1], (4, 1))
-    return ViewMesh(v, f, np.tile([0.0, 0, 1], (4, 1)), uv=uv, tangents=t, albedo=albedo)
+    return ViewMesh(v, f, uv=uv, texture=albedo, vertex_normals=np.tile([0.0, 0, 1], (4, 1)), tangents=t)
 
 
 def test_a_bake_of_its_own_texture_through_another_uv_layout_has_no_error():
@@ -72,4 +72,4 @@ def test_compare_colours_needs_both_textures():
         compare_colours(_baked(tex), _source(None))
     v, f, uv = _plane(False)
     with pytest.raises(ViewError, match="no baked albedo"):
-        compare_colours(ViewMesh(v, f, np.tile([0.0, 0, 1], (4, 1))), _source(tex))
+        compare_colours(ViewMesh(v, f, vertex_normals=np.tile([0.0, 0, 1], (4, 1))), _source(tex))
