@@ -47,15 +47,15 @@ def export_usd(path, mesh: Mesh, *, base_colour=None, normal_map=None, normals: 
     Raises :class:`~neural_bake.errors.MissingExtraError` without usd-core, :class:`MeshError` for maps on a
     mesh without UVs, :class:`~neural_bake.errors.NeuralBakeError` from :func:`neural_bake.io.usd.write_usd`.
     """
-    from ..io.usd import write_usd
+    from ..io.usd import StageOptions, write_usd
     from ..mesh.tangents import vertex_uv
 
     if (base_colour is not None or normal_map is not None) and mesh.uv is None:
         raise MeshError(f"{mesh.name}: export_usd: texture maps need a mesh with UVs")
     uv = vertex_uv(mesh) if mesh.uv is not None else None
     return write_usd(path, mesh.frame.to_source(mesh.vertices), mesh.faces, uv=uv, normals=_unit_normals(mesh, normals),
-                     base_colour=base_colour, normal_map=normal_map, meters_per_unit=SOURCE_METERS_PER_UNIT,
-                     up_axis=SOURCE_UP_AXIS)
+                     base_colour=base_colour, normal_map=normal_map,
+                     options=StageOptions(meters_per_unit=SOURCE_METERS_PER_UNIT, up_axis=SOURCE_UP_AXIS))
 
 
 def usd_frame(mesh: Mesh, normals: np.ndarray | None = None, colours: np.ndarray | None = None) -> dict:

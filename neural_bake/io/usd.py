@@ -3,8 +3,9 @@
 :func:`write_usd` writes one mesh with UVs, normals and a ``UsdPreviewSurface`` material (base-colour and
 tangent-space normal map) as a ``.usd``/``.usda``/``.usdc`` stage that references the map files beside it, or
 as a ``.usdz`` package that holds them. :func:`write_usd_frames` writes frames of per-vertex bakes as one
-stage with time samples. Both write atomically (:mod:`neural_bake.io.atomic`): a failed write replaces nothing.
-Without usd-core they raise :class:`~neural_bake.errors.MissingExtraError` saying how to install it.
+stage with time samples. Both take a :class:`StageOptions` (the stage's unit, up axis and prim name) and write
+atomically (:mod:`neural_bake.io.atomic`): a failed write replaces nothing. Without usd-core they raise
+:class:`~neural_bake.errors.MissingExtraError` saying how to install it.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,8 +22,8 @@ import numpy as np
 from ..errors import MissingExtraError, NeuralBakeError, OutputError
 from .atomic import atomic_path
 
-__all__ = ["USD_SUFFIXES", "USD_INSTALL", "import_pxr", "usd_available", "write_usd", "write_usd_frames", "NORMAL_MAP_SCALE",
-           "NORMAL_MAP_BIAS"]
+__all__ = ["USD_SUFFIXES", "USD_INSTALL", "import_pxr", "usd_available", "StageOptions", "write_usd", "write_usd_frames",
+           "NORMAL_MAP_SCALE", "NORMAL_MAP_BIAS"]
 
 #: File suffixes :func:`write_usd` writes: a stage (crate, text, crate) or a package.
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
@@ -32,6 +34,19 @@ USD_INSTALL = "pip install 'neural-bake[usd]' (Pixar's usd-core)"
 #: UsdUVTexture scale and bias that decode a normal map stored as (n + 1) / 2 into n (UsdPreviewSurface spec).
 NORMAL_MAP_SCALE = (2.0, 2.0, 2.0, 1.0)
 NORMAL_MAP_BIAS = (-1.0, -1.0, -1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class StageOptions:
+    """What a stage states besides its geometry; checked by the writers (one-line NeuralBakeError naming the
+    field)."""
+
+    meters_per_unit: float = 1.0
+    """The stage's linear unit: metres per unit of the points (positive)."""
+    up_axis: str = "Y"
+    """The stage's up axis: "Y" or "Z"."""
+    name: str = "neural_bake"
+    """The root prim (the stage's default prim), and the name of the material; the mesh is ``/<name>/mesh``."""
 
 
 def import_pxr() -> SimpleNamespace:
@@ -84,16 +99,40 @@ def _check_destination(path: Path, suffixes: tuple[str, ...]) -> None:
         raise OutputError(f"{path}: folder {path.parent} does not exist")
 
 
-def _stage_metadata(px, stage, root, meters_per_unit: float, up_axis: str) -> None:
-    if not (np.isfinite(meters_per_unit) and meters_per_unit > 0):
-        raise NeuralBakeError(f"meters_per_unit {meters_per_unit!r}: must be a positive length",
-                              parameter="meters_per_unit")
+def _check_options(options: StageOptions | None) -> StageOptions:
+    """``options`` (default :class:`StageOptions`) with every field checked."""
+    options = StageOptions() if options is None else options
+    mpu, up_axis, name = options.meters_per_unit, options.up_axis, options.name
+    if not (np.isfinite(mpu) and mpu > 0):
+        raise NeuralBakeError(f"meters_per_unit {mpu!r}: must be a positive length", parameter="meters_per_unit")
     if up_axis not in ("Y", "Z"):
         raise NeuralBakeError(f"up_axis {up_axis!r}: must be Y or Z", parameter="up_axis")
-    px.UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
-    px.UsdGeom.SetStageUpAxis(stage, px.UsdGeom.Tokens.y if up_axis == "Y" else px.UsdGeom.Tokens.z)
+    if not name.isidentifier():
+        raise NeuralBakeError(f"name {name!r}: must be a prim name (letters, digits, _)", parameter="name")
+    return options
+
+
+def _new_stage(px, options: StageOptions):
+    """An in-memory stage stating ``options``, with its root prim (the default prim, a component) and an empty
+    polygon mesh ``/<name>/mesh`` (no subdivision: its normals are used as given; right-handed): ``(stage,
+    mesh)``."""
+    stage = px.Usd.Stage.CreateInMemory()
+    root = px.UsdGeom.Xform.Define(stage, f"/{options.name}").GetPrim()
+    px.UsdGeom.SetStageMetersPerUnit(stage, float(options.meters_per_unit))
+    px.UsdGeom.SetStageUpAxis(stage, px.UsdGeom.Tokens.y if options.up_axis == "Y" else px.UsdGeom.Tokens.z)
     stage.SetDefaultPrim(root)
     px.Usd.ModelAPI(root).SetKind(px.Kind.Tokens.component)
+    mesh = px.UsdGeom.Mesh.Define(stage, f"/{options.name}/mesh")
+    mesh.CreateSubdivisionSchemeAttr(px.UsdGeom.Tokens.none)
+    mesh.CreateOrientationAttr(px.UsdGeom.Tokens.rightHanded)
+    return stage, mesh
+
+
+def _export_stage(stage, path: Path) -> None:
+    """Write ``stage``'s root layer to ``path`` atomically, in the format its suffix names."""
+    with atomic_path(path) as tmp:
+        if not stage.GetRootLayer().Export(str(tmp), args=_format_args(path)):
+            raise OSError(f"{path}: usd-core could not write the stage")
 
 
 def _vec3f(px, a: np.ndarray):
@@ -113,9 +152,7 @@ def write_usd(
     normals=None,
     base_colour=None,
     normal_map=None,
-    meters_per_unit: float = 1.0,
-    up_axis: str = "Y",
-    name: str = "neural_bake",
+    options: StageOptions | None = None,
 ) -> Path:
     """Write a baked mesh and its maps as a USD stage or a USDZ package at ``path`` (atomically); return it.
 
@@ -133,13 +170,13 @@ def write_usd(
             (n + 1) / 2 linear data: read with ``sourceColorSpace = raw``, scale :data:`NORMAL_MAP_SCALE` and
             bias :data:`NORMAL_MAP_BIAS` into ``normal``. USD has no tangent attribute: a renderer rebuilds
             the tangent frame from ``st`` and the normals.
-        meters_per_unit, up_axis: the stage's linear unit and up axis ("Y" or "Z").
-        name: the root prim (the stage's default prim) and the names of the mesh and material.
+        options: the stage's unit, up axis and prim name (default :class:`StageOptions`).
 
     A stage references each map by its path relative to ``path`` (keep them beside it); a package copies
     them in. Raises :class:`~neural_bake.errors.MissingExtraError` without usd-core,
     :class:`NeuralBakeError` (naming the parameter) for arrays of the wrong shape, maps without ``uv``, a map
-    file that does not exist, or another suffix; :class:`~neural_bake.errors.OutputError` for a missing folder.
+    file that does not exist, another suffix or a bad option; :class:`~neural_bake.errors.OutputError` for a
+    missing folder.
     """
     path = Path(path)
     _check_destination(path, USD_SUFFIXES)
@@ -152,11 +189,10 @@ def write_usd(
             raise NeuralBakeError(f"{key} {file}: no such image file", parameter=key)
         if uv_a is None:
             raise NeuralBakeError(f"{key}: a texture map needs uv", parameter=key)
-    if not name.isidentifier():
-        raise NeuralBakeError(f"name {name!r}: must be a prim name (letters, digits, _)", parameter="name")
+    options = _check_options(options)
     px = import_pxr()
     try:
-        _write_usd(px, path, pts, tri, uv_a, nrm, maps, meters_per_unit, up_axis, name)
+        _write_usd(px, path, pts, tri, uv_a, nrm, maps, options)
     except OSError as exc:  # name the user's file, never a temporary one
         if exc.filename is not None and Path(exc.filename) != path:
             raise OSError(exc.errno, exc.strerror, str(path)) from None
@@ -164,7 +200,7 @@ def write_usd(
     return path
 
 
-def _write_usd(px, path: Path, pts, tri, uv_a, nrm, maps: dict, meters_per_unit, up_axis, name) -> None:
+def _write_usd(px, path: Path, pts, tri, uv_a, nrm, maps: dict, options: StageOptions) -> None:
     package = path.suffix.lower() == ".usdz"
     folder = path.parent if str(path.parent) else Path(".")
     with tempfile.TemporaryDirectory(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=folder) as d:
@@ -175,12 +211,7 @@ def _write_usd(px, path: Path, pts, tri, uv_a, nrm, maps: dict, meters_per_unit,
                 refs[key] = f"./{file.name}"
         else:
             refs = {k: "./" + Path(os.path.relpath(v, folder)).as_posix() for k, v in maps.items()}
-        stage = px.Usd.Stage.CreateInMemory()
-        root = px.UsdGeom.Xform.Define(stage, f"/{name}").GetPrim()
-        _stage_metadata(px, stage, root, meters_per_unit, up_axis)
-        mesh = px.UsdGeom.Mesh.Define(stage, f"/{name}/mesh")
-        mesh.CreateSubdivisionSchemeAttr(px.UsdGeom.Tokens.none)  # a polygon mesh: its normals are used as given
-        mesh.CreateOrientationAttr(px.UsdGeom.Tokens.rightHanded)
+        stage, mesh = _new_stage(px, options)
         mesh.CreatePointsAttr(_vec3f(px, pts))
         mesh.CreateExtentAttr(_extent(px, pts))
         mesh.CreateFaceVertexCountsAttr(px.Vt.IntArray.FromNumpy(np.full(len(tri), 3, dtype=np.int32)))
@@ -193,19 +224,16 @@ def _write_usd(px, path: Path, pts, tri, uv_a, nrm, maps: dict, meters_per_unit,
                                                           px.UsdGeom.Tokens.vertex)
             st.Set(px.Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv_a, dtype=np.float32)))
         if refs:
-            _material(px, stage, mesh, name, refs)
-        layer = stage.GetRootLayer()
+            _material(px, stage, mesh, options.name, refs)
         if package:
-            inner = Path(d) / f"{name}.usdc"
-            if not layer.Export(str(inner)):
+            inner = Path(d) / f"{options.name}.usdc"
+            if not stage.GetRootLayer().Export(str(inner)):
                 raise OSError(f"{path}: usd-core could not write the stage")
             with atomic_path(path) as tmp:
                 if not px.UsdUtils.CreateNewARKitUsdzPackage(str(inner), str(tmp)):
                     raise OSError(f"{path}: usd-core could not write the package")
         else:
-            with atomic_path(path) as tmp:
-                if not layer.Export(str(tmp), args=_format_args(path)):
-                    raise OSError(f"{path}: usd-core could not write the stage")
+            _export_stage(stage, path)
 
 
 def _format_args(path: Path) -> dict:
@@ -252,9 +280,7 @@ def write_usd_frames(
     *,
     fps: float = 24.0,
     times=None,
-    meters_per_unit: float = 1.0,
-    up_axis: str = "Y",
-    name: str = "neural_bake",
+    options: StageOptions | None = None,
 ) -> Path:
     """Write frames of per-vertex bakes as one USD stage with time samples at ``path`` (atomically); return it.
 
@@ -268,11 +294,10 @@ def write_usd_frames(
             fps; start and end time codes are 0 and len(frames) − 1.
         times: the field's time of each frame (any units), recorded in the layer's custom data
             (``neural_bake:times``); None: none recorded.
-        meters_per_unit, up_axis: the stage's linear unit and up axis ("Y" or "Z").
-        name: the root prim (the default prim); the mesh is ``/<name>/mesh``.
+        options: the stage's unit, up axis and prim name (default :class:`StageOptions`).
 
     Raises :class:`~neural_bake.errors.MissingExtraError` without usd-core, :class:`NeuralBakeError`
-    (naming the parameter) for no frames, arrays of the wrong shape or a bad ``fps``,
+    (naming the parameter) for no frames, arrays of the wrong shape, a bad ``fps`` or a bad option,
     :class:`~neural_bake.errors.OutputError` for a missing folder.
     """
     path = Path(path)
@@ -291,19 +316,15 @@ def write_usd_frames(
         col = None if fr.get("colours") is None else np.clip(_array("colours", np.asarray(fr["colours"])[:, :3], 3,
                                                                     len(pts)), 0, 1)
         checked.append((pts, tri, nrm, col))
+    options = _check_options(options)
     px = import_pxr()
-    stage = px.Usd.Stage.CreateInMemory()
-    root = px.UsdGeom.Xform.Define(stage, f"/{name}").GetPrim()
-    _stage_metadata(px, stage, root, meters_per_unit, up_axis)
+    stage, mesh = _new_stage(px, options)
     stage.SetTimeCodesPerSecond(float(fps))
     stage.SetFramesPerSecond(float(fps))
     stage.SetStartTimeCode(0)
     stage.SetEndTimeCode(len(frames) - 1)
     if times is not None:
         stage.GetRootLayer().customLayerData = {"neural_bake:times": px.Vt.DoubleArray([float(t) for t in times])}
-    mesh = px.UsdGeom.Mesh.Define(stage, f"/{name}/mesh")
-    mesh.CreateSubdivisionSchemeAttr(px.UsdGeom.Tokens.none)
-    mesh.CreateOrientationAttr(px.UsdGeom.Tokens.rightHanded)
     attrs = {"points": mesh.CreatePointsAttr(), "extent": mesh.CreateExtentAttr(),
              "counts": mesh.CreateFaceVertexCountsAttr(), "indices": mesh.CreateFaceVertexIndicesAttr()}
     if any(c[2] is not None for c in checked):
@@ -321,7 +342,5 @@ def write_usd_frames(
             attrs["normals"].Set(_vec3f(px, nrm if nrm is not None else np.zeros((0, 3))), tc)
         if "colours" in attrs:
             attrs["colours"].Set(_vec3f(px, col if col is not None else np.zeros((0, 3))), tc)
-    with atomic_path(path) as tmp:
-        if not stage.GetRootLayer().Export(str(tmp), args=_format_args(path)):
-            raise OSError(f"{path}: usd-core could not write the stage")
+    _export_stage(stage, path)
     return path

@@ -12,7 +12,7 @@ import pytest
 from neural_bake.errors import MissingExtraError, NeuralBakeError, OutputError
 from neural_bake.io import usd as usd_io
 from neural_bake.io.images import write_image
-from neural_bake.io.usd import NORMAL_MAP_BIAS, NORMAL_MAP_SCALE, write_usd, write_usd_frames
+from neural_bake.io.usd import NORMAL_MAP_BIAS, NORMAL_MAP_SCALE, StageOptions, write_usd, write_usd_frames
 
 pxr = pytest.importorskip("pxr", reason="usd-core (the extra usd) is in the test extras")
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402
@@ -202,8 +202,8 @@ def test_bad_input_is_one_line_naming_the_parameter(tmp_path, maps):
         (dict(uv=uv * np.nan), "uv: holds NaN", "uv"),
         (dict(base_colour=tmp_path / "none.png"), "base_colour .*none.png: no such image file", "base_colour"),
         (dict(uv=None, normal_map=maps[1]), "normal_map: a texture map needs uv", "normal_map"),
-        (dict(up_axis="X"), "up_axis 'X': must be Y or Z", "up_axis"),
-        (dict(meters_per_unit=0.0), "meters_per_unit 0.0: must be a positive length", "meters_per_unit"),
+        (dict(options=StageOptions(up_axis="X")), "up_axis 'X': must be Y or Z", "up_axis"),
+        (dict(options=StageOptions(meters_per_unit=0.0)), "meters_per_unit 0.0: must be a positive length", "meters_per_unit"),
     ]
     for change, message, parameter in cases:
         args = dict(path=tmp_path / "a.usd", points=pts, faces=faces, uv=uv, normals=nrm) | change
