@@ -10,8 +10,8 @@ from .bench import bench_options, report
 @click.command("fidelity")
 @bench_options
 @click.option("--mesh", "meshes", multiple=True,
-              help="A mesh of the data folder by name (nefertiti, fandisk, cabinet, …) or a mesh file; repeatable "
-                   "(default: all of them; --quick: fandisk).")
+              help="A mesh of the data folder by name (nefertiti, fandisk, cabinet, …), the generated dots sample "
+                   "(dots), or a mesh file; repeatable (default: all of the data folder's; --quick: fandisk).")
 @click.option("--preset", "presets", multiple=True, help="SDF preset, repeatable (default quick and high; --quick: quick).")
 @click.option("--faces", type=int, default=None, help="Decimation target (default 3000; --quick 1000).")
 @click.option("--size", type=int, default=None, help="Map side in texels (default 1024; --quick 256).")
@@ -26,18 +26,25 @@ from .bench import bench_options, report
 @click.option("--texture-steps", type=int, default=None,
               help="Adam steps of every texture fit (default: the preset's steps on the reference machine, "
                    "--budget steps; --quick: 200).")
+@click.option("--texture-network", "texture_networks", default=None, metavar="LIST",
+              help="Comma-separated colour-network constructions fitted side by side, one texture row each: siren "
+                   "(the preset's), siren-wide (twice as wide, one matrix deeper), grid (feature grid + 64x1 MLP); "
+                   "default siren. Anything but siren alone runs every texture fit at the preset's time budget "
+                   "(equal time) unless --texture-steps or --texture-minutes is given.")
+@click.option("--texture-minutes", type=float, default=None,
+              help="Time budget of every texture fit (equal time; the steps made follow the machine).")
 @click.option("--only-textures", is_flag=True,
               help="Only the texture rows, on the textured assets (default: all of them; --quick: spot).")
 @click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None, metavar="DIRECTORY",
               help="Also save every fitted SDF as DIR/MESH-PRESET.sdf (e.g. for bench bake --anchor-model).")
 def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps, texture_steps,
-            only_textures, save_dir) -> None:
+            texture_networks, texture_minutes, only_textures, save_dir) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
     without their caps); times; texture PSNR; storage. Textured assets add a texture row: the albedo of the
     network alone, of the hybrid colour rule and of the classical transfer against the source texture (PSNR,
     SSIM) and the time of each bake. Meshes not present are skipped, saying so."""
-    from neural_bake.bench.fidelity import SAMPLINGS, run
+    from neural_bake.bench.fidelity import SAMPLINGS, TEXTURE_NETWORKS, run
 
     variants = None if sampling is None else [v.strip() for v in sampling.split(",") if v.strip()]
     bad = [v for v in variants or [] if v not in SAMPLINGS]
@@ -47,6 +54,12 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
         counts = None if steps is None else [int(n) for n in steps.split(",") if n.strip()]
     except ValueError:
         counts = []
+    nets = None if texture_networks is None else [v.strip() for v in texture_networks.split(",") if v.strip()]
+    if nets is not None and (not nets or any(v not in TEXTURE_NETWORKS for v in nets)):
+        raise click.BadParameter(f"choose among {', '.join(TEXTURE_NETWORKS)}, got {texture_networks!r}",
+                                 param_hint="--texture-network")
+    if texture_minutes is not None and not texture_minutes > 0:
+        raise click.BadParameter(f"expected a positive number, got {texture_minutes}", param_hint="--texture-minutes")
     if texture_steps is not None and texture_steps < 1:
         raise click.BadParameter(f"expected a positive integer, got {texture_steps}", param_hint="--texture-steps")
     if counts is not None and (not counts or min(counts) < 1):
@@ -54,5 +67,6 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
                                  param_hint="--steps")
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
                minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir,
-               texture_steps=texture_steps, only_textures=only_textures, log=click.echo),
+               texture_steps=texture_steps, only_textures=only_textures, texture_networks=nets,
+               texture_minutes=texture_minutes, log=click.echo),
            json_path)

@@ -45,6 +45,44 @@ MESHES: dict[str, dict] = {
 #: The meshes of :data:`MESHES` with a texture (their own, or a named image): the texture rows' default.
 TEXTURED = ("cabinet", "tea_set", "spot")
 
+#: Generated samples the benchmark takes by name (no data folder needed), with their bake settings. ``dots``:
+#: flat colour with sharp discs down to 8 texels across (at 1024²), baked onto itself; its texture rows also
+#: score each 8-texel disc's window (:func:`~neural_bake.bench.fidelity_texture.dot_windows`).
+SAMPLE_MESHES: dict[str, dict] = {"dots": {"sample": "dots", "coarse": "keep", "features": "dots"}}
+
+#: Colour-network constructions the texture rows compare (``texture_networks``): "siren", the preset's own
+#: network; "siren-wide", the preset's SIREN twice as wide and one hidden matrix deeper; "grid", a
+#: multiresolution feature grid in front of a 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2).
+TEXTURE_NETWORKS = ("siren", "siren-wide", "grid")
+
+#: The fit settings of the "grid" construction beside the preset's.
+GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2}
+
+
+def texture_network_settings(name: str, preset: str) -> dict:
+    """The texture-fit overrides of construction ``name`` (:data:`TEXTURE_NETWORKS`) at texture ``preset``."""
+    from ..fit.presets import TEXTURE_ALIASES, resolve_preset
+    from ..fit.texture import PRESETS, TextureFitConfig
+
+    key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
+    base = {**vars(TextureFitConfig()), **(PRESETS[key] if key is not None else {})}
+    if name == "siren":
+        return {"network": "siren"}
+    if name == "siren-wide":
+        return {"network": "siren", "width": 2 * int(base["width"]), "depth": int(base["depth"]) + 1}
+    if name == "grid":
+        return dict(GRID_TEXTURE)
+    raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
+
+
+def network_label(model) -> str:
+    """A colour network in a row: "WxD" for a SIREN, "grid L×F 2^T R0–Rmax, WxD relu" for a grid network."""
+    arch = getattr(model, "architecture", {})
+    if arch.get("network") == "grid":
+        return (f"grid {arch['levels']}x{arch['features']} 2^{arch['log2_table']} {arch['base_resolution']}–"
+                f"{arch['max_resolution']}, {arch['width']}x{arch['depth']} {arch['activation']}")
+    return f"{arch.get('width')}x{arch.get('depth')}"
+
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
 #: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings.
 SAMPLINGS: dict[str, dict] = {
@@ -209,11 +247,11 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         faces: int | None = None, size: int | None = None, minutes: float | None = None, texture: bool | None = None,
         data: str | os.PathLike | None = None, sampling: list[str] | None = None, steps: list[int] | None = None,
         save_dir: str | os.PathLike | None = None, texture_steps: int | None = None, only_textures: bool = False,
-        log=None) -> dict:
+        texture_networks: list[str] | None = None, texture_minutes: float | None = None, log=None) -> dict:
     """Run the fidelity benchmark; returns ``{"name", "machine", "quick", "rows", "notes"}``.
 
-    - ``meshes``: names of :data:`MESHES` or mesh file paths (default: every mesh the data folder holds;
-      quick: fandisk).
+    - ``meshes``: names of :data:`MESHES` or :data:`SAMPLE_MESHES`, or mesh file paths (default: every mesh the
+      data folder holds; quick: fandisk).
     - ``presets``: SDF presets (default quick: "quick"; full: "quick" and "high").
     - ``faces``, ``size``: decimation target and map side (default 3,000 and 1024; quick 1,000 and 256).
     - ``minutes``: override every preset's time budget (default: the preset's; quick 0.3).
@@ -230,6 +268,11 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     - ``only_textures``: the texture rows alone (textured assets only; no SDF metrics, no normal bake), the SDF
       fitted with ``budget="steps"`` unless ``minutes`` or ``steps`` is given (default meshes: those of
       :data:`MESHES` with a texture; quick: spot).
+    - ``texture_networks``: colour-network constructions (:data:`TEXTURE_NETWORKS`) fitted and scored side by
+      side, one texture row each (default: "siren"); the normal rows' texture PSNR is the first's. With any
+      but "siren" alone and neither ``texture_steps`` nor ``texture_minutes``, every texture fit runs the
+      preset's time budget (equal time).
+    - ``texture_minutes``: the time budget of every texture fit (equal time; the steps made follow the machine).
 
     The result has ``"texture_rows"`` (one per textured case with a texture fit) and, when there are any,
     ``"tables"`` (the normal rows and the texture rows, as the bench report prints them).
@@ -247,16 +290,40 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     texture = (not quick or only_textures) if texture is None else bool(texture)
     if only_textures and not texture:
         raise NeuralBakeError("fidelity: only_textures needs the texture fits (texture=False given)")
-    texture_steps = texture_steps if texture_steps is not None else (200 if quick else None)
+    networks = list(texture_networks or ["siren"])
+    bad_nets = [n for n in networks if n not in TEXTURE_NETWORKS]
+    if bad_nets or len(set(networks)) != len(networks):
+        raise NeuralBakeError(f"fidelity: texture_networks must be distinct names among {', '.join(TEXTURE_NETWORKS)}, "
+                              f"got {', '.join(networks)}", parameter="texture_networks")
+    if texture_minutes is not None and not (isinstance(texture_minutes, (int, float)) and math.isfinite(texture_minutes)
+                                            and texture_minutes > 0):
+        raise NeuralBakeError(f"fidelity: texture_minutes must be a positive number, got {texture_minutes!r}",
+                              parameter="texture_minutes")
+    if texture_minutes is not None and texture_steps is not None:
+        raise NeuralBakeError("fidelity: give texture_steps or texture_minutes, not both", parameter="texture_minutes")
+    default_steps = 200 if quick and texture_minutes is None else None
+    texture_steps = texture_steps if texture_steps is not None else default_steps
     if texture_steps is not None and (isinstance(texture_steps, bool) or int(texture_steps) < 1):
         raise NeuralBakeError(f"fidelity: texture_steps must be a positive integer, got {texture_steps!r}")
+    if texture_steps is not None:
+        texture_budget: dict = {"steps": int(texture_steps), "minutes": None}
+    elif texture_minutes is not None:
+        texture_budget = {"minutes": float(texture_minutes), "budget": "time"}
+    elif networks == ["siren"]:
+        texture_budget = {"budget": "steps"}  # the preset's steps on the reference machine: not the load's
+    else:
+        texture_budget = {"budget": "time"}  # the preset's time budget for every construction: equal time
     notes: list[str] = []
     folder = data_folder(data)
     jobs: list[tuple[str, Path, dict]] = []
     textured = [m for m in MESHES if m in TEXTURED]
     wanted = meshes or ((["spot"] if quick else textured) if only_textures else (["fandisk"] if quick else list(MESHES)))
     for m in wanted:
-        if m in MESHES:
+        if m in SAMPLE_MESHES:
+            from ..samples import sample_path
+
+            jobs.append((m, sample_path(SAMPLE_MESHES[m]["sample"]), dict(SAMPLE_MESHES[m])))
+        elif m in MESHES:
             if folder is None:
                 notes.append(f"{m}: skipped, no data folder (set NEURAL_BAKE_DATA)")
                 continue
@@ -319,16 +386,19 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                 if texture and mesh.texture is not None and mesh.uv is not None:
                     from ..fit.texture import fit_texture
 
-                    say(f"{label}: fitting the texture")
-                    tover = {"budget": "steps"} if texture_steps is None else {"steps": int(texture_steps),
-                                                                                "minutes": None}
-                    tfit = fit_texture(mesh, str(sdf_path), preset=preset, **tover)
-                    tex_path = Path(tmp) / "g.tex"
-                    tfit.save(tex_path)
-                    tex = {"params": sum(p.numel() for p in tfit.model.parameters()), "seconds": tfit.seconds}
+                    for k, net in enumerate(networks):
+                        say(f"{label}: fitting the texture ({net})")
+                        tfit = fit_texture(mesh, str(sdf_path), preset=preset, **texture_budget,
+                                           **texture_network_settings(net, preset))
+                        path_k = Path(tmp) / f"g{k}.tex"
+                        tfit.save(path_k)
+                        if tex_path is None:
+                            tex_path = path_k
+                            tex = {"params": sum(p.numel() for p in tfit.model.parameters()),
+                                   "seconds": tfit.seconds}
+                        texture_rows.append(_texture_row(name, preset, path, sdf_path, path_k, spec, coarse, size,
+                                                         fit, tfit, f"{label} {net}", say, network=net))
                     maps = "normal,albedo"
-                    texture_rows.append(_texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size,
-                                                     fit, tfit, label, say))
                 if only_textures:
                     continue
                 say(f"{label}: baking {size}² onto {coarse}")
@@ -369,20 +439,32 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     return out
 
 
-def _texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size, fit, tfit, label, say) -> dict:
-    """The texture row of one case (:func:`~neural_bake.bench.fidelity_texture.texture_row`) with its fits."""
+def _texture_row(name, preset, path, sdf_path, tex_path, spec, coarse, size, fit, tfit, label, say,
+                 network: str = "siren") -> dict:
+    """The texture row of one case (:func:`~neural_bake.bench.fidelity_texture.texture_row`) with its fits:
+    the construction's name, its network, steps, seconds, milliseconds per step, threads and kilobytes."""
     from ..bake.job import load_inputs, make_coarse
-    from .fidelity_texture import texture_row
+    from .fidelity_texture import dot_windows, texture_row
 
     inputs = load_inputs(str(path), str(sdf_path), str(tex_path), coarse=coarse, texture_image=spec.get("texture"),
                          force=True, log=lambda s: None)
     coarse_m, _ = make_coarse(inputs, coarse)
     say(f"{label}: texture rows ({size}² onto {coarse})")
-    row = {"mesh": name, "preset": preset, "texture_net": f"{tfit.config.width}x{tfit.config.depth}",
-           "texture_steps": tfit.steps, "texture_fit_s": tfit.seconds, "sdf_steps": fit.steps}
-    row.update(texture_row(inputs, coarse_m, size=size, keep=coarse == "keep", log=None))
+    params = sum(p.numel() for p in tfit.model.parameters())
+    row = {"mesh": name, "preset": preset, "texture_network": network, "texture_net": network_label(tfit.model),
+           "texture_steps": tfit.steps, "texture_fit_s": tfit.seconds,
+           "texture_step_ms": 1000.0 * tfit.seconds / tfit.steps if tfit.steps else None,
+           "texture_threads": (tfit.threads or {}).get("threads"),
+           "texture_kb": params * 4 / 1024.0, "sdf_steps": fit.steps}
+    features = dot_windows(size) if spec.get("features") == "dots" else None
+    row.update(texture_row(inputs, coarse_m, size=size, keep=coarse == "keep", log=None, features=features))
     db = {k: "—" if row[f"{k}_psnr_db"] is None else f"{row[f'{k}_psnr_db']:.1f}" for k in ("network", "hybrid",
                                                                                          "classical")}
+    dots = ""
+    if row.get("network_feature_ssim_min") is not None:
+        dots = (f"; 8-texel dots, worst SSIM: network {row['network_feature_ssim_min']:.3f}, hybrid "
+                f"{row['hybrid_feature_ssim_min']:.3f}")
     say(f"{label}: albedo vs the source, network alone {db['network']} dB, hybrid {db['hybrid']} dB "
-        f"({row['hybrid_color_pct']:.1f} % of texels replaced), classical {db['classical']} dB")
+        f"({row['hybrid_color_pct']:.1f} % of texels replaced), classical {db['classical']} dB; "
+        f"{row['texture_steps']} steps, {row['texture_fit_s']:.0f} s{dots}")
     return row

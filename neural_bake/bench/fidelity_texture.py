@@ -17,7 +17,12 @@ import time
 
 import numpy as np
 
-__all__ = ["albedo_scores", "srgb8", "texture_row"]
+__all__ = ["albedo_scores", "srgb8", "texture_row", "feature_ssim", "dot_windows", "FEATURE_SSIM_FLOOR"]
+
+#: SSIM a small feature's window must keep against the source for the feature to count as surviving: the hybrid
+#: rule's ΔE 2 leaves SSIM above 0.98 on a flat-colour feature even if every texel were that far off, while a
+#: blurred feature (its contrast spread over its neighbours, its peak lowered) scores well below.
+FEATURE_SSIM_FLOOR = 0.95
 
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
@@ -43,6 +48,35 @@ def albedo_scores(a: np.ndarray, b: np.ndarray, covered: np.ndarray) -> dict:
     return {"psnr_db": psnr(a[covered], b[covered]), "ssim": float(np.mean(full[covered]))}
 
 
+def dot_windows(size: int, diameter: float = 8.0) -> list[tuple[slice, slice]]:
+    """The (rows, columns) windows of the ``dots`` sample's discs ``diameter`` texels across (in its default
+    texture's texels), on a map of side ``size`` in the sample's own UV layout: twice the disc's diameter wide,
+    centred on it (the dots are fixed in uv, so they scale with the map)."""
+    from ..samples import Dots
+
+    sample = Dots()
+    k = float(size) / float(sample.texture_size)
+    half = int(round(diameter * k))
+    out = []
+    for dot in sample.dots():
+        if dot["diameter"] != diameter:
+            continue
+        x, y = dot["centre"][0] * k, dot["centre"][1] * k
+        r0, c0 = int(round(y - half)), int(round(x - half))
+        out.append((slice(r0, r0 + 2 * half), slice(c0, c0 + 2 * half)))
+    return out
+
+
+def feature_ssim(a: np.ndarray, b: np.ndarray, windows: list[tuple[slice, slice]]) -> list[float] | None:
+    """SSIM of sRGB images ``a`` and ``b`` (H, W, 3) over each window (7×7 SSIM windows, colour channels); None
+    when a window is smaller than 7 texels."""
+    from skimage.metrics import structural_similarity
+
+    if not windows or any(r.stop - r.start < 7 or c.stop - c.start < 7 for r, c in windows):
+        return None
+    return [float(structural_similarity(a[r, c], b[r, c], channel_axis=2, data_range=1.0)) for r, c in windows]
+
+
 def _closest_source_colours(baker, reference) -> tuple[np.ndarray, np.ndarray]:
     """(linear colours (M, C) of ``reference``'s texture at the closest point of every texel sample of
     ``baker``, the samples' (M, 2) texel rows and columns)."""
@@ -59,10 +93,15 @@ def _closest_source_colours(baker, reference) -> tuple[np.ndarray, np.ndarray]:
     return sample_texture(reference.texture, uv, reference.uv_policy).astype(np.float64), np.asarray(tx.pixel)
 
 
-def texture_row(inputs, coarse, *, size: int, keep: bool, log=None) -> dict:
+def texture_row(inputs, coarse, *, size: int, keep: bool, log=None,
+                features: list[tuple[slice, slice]] | None = None) -> dict:
     """The texture row of one asset: ``inputs`` a :class:`~neural_bake.bake.job.BakeInputs` with a texture
     field and a textured source, ``coarse`` the coarse mesh (unwrapped here once when it has no UVs, so the
-    three bakes share one layout), ``size`` the map side, ``keep`` the coarse mesh is the source itself.
+    three bakes share one layout), ``size`` the map side, ``keep`` the coarse mesh is the source itself,
+    ``features``: windows (rows, columns) of the map holding small features (e.g. :func:`dot_windows`), scored
+    one by one: the row then has ``network_feature_ssim_min`` and ``hybrid_feature_ssim_min`` (the worst
+    window's SSIM against the source) and ``network_features_survive`` / ``hybrid_features_survive`` (every
+    window at least :data:`FEATURE_SSIM_FLOOR`).
 
     Returns ``{"psnr_db", "ssim"}`` of the network alone (``network_*``), the hybrid (``hybrid_*``, with
     ``hybrid_color_pct``: the share of covered texels that took the source's colour) and the classical
@@ -106,6 +145,11 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None) -> dict:
     for label in ("network", "hybrid"):
         s = albedo_scores(maps[label], maps["classical"], covered)
         row[f"{label}_vs_classical_psnr_db"], row[f"{label}_vs_classical_ssim"] = s["psnr_db"], s["ssim"]
+    if features:
+        for label in ("network", "hybrid"):
+            scores = feature_ssim(maps[label], source, features)
+            row[f"{label}_feature_ssim_min"] = None if scores is None else min(scores)
+            row[f"{label}_features_survive"] = None if scores is None else min(scores) >= FEATURE_SSIM_FLOOR
     stats = baked["hybrid"].result.stats
     row["hybrid_color_pct"] = 100.0 * float(stats.get("hybrid_color_fraction", 0.0))
     for label in ("network", "hybrid", "classical"):

@@ -148,11 +148,19 @@ def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
     path = write_sample(Sphere().mesh(2000, 64), tmp_path, "ball")
     trimesh.creation.box().export(tmp_path / "box.obj")
     res = run(quick=True, meshes=[str(path), str(tmp_path / "box.obj")], only_textures=True, steps=[5], size=48,
-              faces=300, texture_steps=20)
+              faces=300, texture_steps=20, texture_networks=["siren", "grid"])
     assert res["rows"] == [] and list(res["tables"]) == ["textures"]
     assert any(n == "box: skipped, no texture (texture rows only)" for n in res["notes"])
-    (row,) = res["texture_rows"]
+    row, grid = res["texture_rows"]  # one row per construction, same SDF, coarse mesh and layout
     assert row["mesh"] == "ball" and row["texture_net"] == "64x1" and row["texture_steps"] == 20
+    assert row["texture_network"] == "siren" and grid["texture_network"] == "grid"
+    assert grid["texture_net"] == "grid 16x2 2^16 16–1024, 64x1 relu" and grid["texture_steps"] == 20
+    assert grid["texels"] == row["texels"] and grid["classical_psnr_db"] == row["classical_psnr_db"]
+    for r in (row, grid):
+        assert r["texture_step_ms"] == pytest.approx(1000 * r["texture_fit_s"] / r["texture_steps"])
+        assert r["texture_threads"] >= 1 and "network_feature_ssim_min" not in r
+    assert row["texture_kb"] == pytest.approx((3 * 64 + 64 + 64 * 64 + 64 + 64 * 3 + 3) * 4 / 1024)
+    assert grid["texture_kb"] > 1000  # the grid's tables
     assert row["sdf_steps"] == 5 and row["size"] == 48 and row["texels"] > 500
     assert row["classical_psnr_db"] > 30 and row["classical_ssim"] > 0.9
     for ref in ("", "_vs_classical"):
@@ -166,3 +174,49 @@ def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
     json.dumps(res)
     with pytest.raises(NeuralBakeError, match="texture_steps must be a positive integer"):
         run(quick=True, meshes=[str(path)], only_textures=True, texture_steps=0)
+
+
+def test_texture_network_constructions():
+    from neural_bake.bench.fidelity import texture_network_settings
+
+    assert texture_network_settings("siren", "quick") == {"network": "siren"}
+    assert texture_network_settings("siren-wide", "quick") == {"network": "siren", "width": 128, "depth": 2}
+    assert texture_network_settings("siren-wide", "default") == {"network": "siren", "width": 384, "depth": 4}
+    assert texture_network_settings("grid", "high")["network"] == "grid"
+    with pytest.raises(NeuralBakeError, match=r"texture_networks must be distinct names among siren, siren-wide, "
+                                              r"grid, got siren, siren"):
+        run(quick=True, meshes=["x.obj"], texture_networks=["siren", "siren"])
+    with pytest.raises(NeuralBakeError, match=r"texture_minutes must be a positive number, got 0"):
+        run(quick=True, meshes=["x.obj"], texture_minutes=0)
+    with pytest.raises(NeuralBakeError, match=r"give texture_steps or texture_minutes, not both"):
+        run(quick=True, meshes=["x.obj"], texture_minutes=1.0, texture_steps=5)
+
+
+def test_cli_refuses_bad_texture_networks(capsys):
+    from neural_bake.cli.main import main
+
+    for args, hint in ((["--texture-network", "siren,octree"], "--texture-network"),
+                       (["--texture-minutes", "-1"], "--texture-minutes")):
+        assert main(["bench", "fidelity", "--quick", *args]) == 2
+        assert f"Invalid value for {hint}" in capsys.readouterr().err
+
+
+def test_dot_windows_and_their_scores():
+    """The 8-texel discs of the dots sample (every fourth row of its 32 × 32 cells): windows twice their diameter,
+    centred on them, at the sample's size and scaled with the map; an exact map keeps SSIM 1 in each, a blurred
+    one falls below the floor."""
+    from scipy.ndimage import uniform_filter
+
+    from neural_bake.bench.fidelity_texture import FEATURE_SSIM_FLOOR, dot_windows, feature_ssim
+    from neural_bake.io.colour import linear_to_srgb
+    from neural_bake.samples import Dots
+
+    windows = dot_windows(1024)
+    assert len(windows) == 8 * 32 and all(r.stop - r.start == 16 == c.stop - c.start for r, c in windows)
+    assert windows[0] == (slice(8, 24), slice(8, 24))  # the first cell (32 texels) holds an 8-texel disc at (16, 16)
+    assert [(r.start, c.start) for r, c in dot_windows(512)] == [(r.start // 2, c.start // 2) for r, c in windows]
+    tex = np.round(linear_to_srgb(Dots().mesh(200).texture) * 255) / 255
+    assert feature_ssim(tex, tex, windows) == [1.0] * len(windows)
+    blurred = uniform_filter(tex, size=(5, 5, 1))
+    assert max(feature_ssim(blurred, tex, windows)) < FEATURE_SSIM_FLOOR
+    assert feature_ssim(tex, tex, dot_windows(256)) is None  # 4-texel windows: too small for 7x7 SSIM
