@@ -204,6 +204,7 @@ def test_bad_input_is_one_line_naming_the_parameter(tmp_path, maps):
         (dict(uv=None, normal_map=maps[1]), "normal_map: a texture map needs uv", "normal_map"),
         (dict(options=StageOptions(up_axis="X")), "up_axis 'X': must be Y or Z", "up_axis"),
         (dict(options=StageOptions(meters_per_unit=0.0)), "meters_per_unit 0.0: must be a positive length", "meters_per_unit"),
+        (dict(options=StageOptions(name="a b")), "name 'a b': must be a prim name", "name"),
     ]
     for change, message, parameter in cases:
         args = dict(path=tmp_path / "a.usd", points=pts, faces=faces, uv=uv, normals=nrm) | change
@@ -216,4 +217,6 @@ def test_bad_input_is_one_line_naming_the_parameter(tmp_path, maps):
         write_usd_frames(tmp_path / "f.usd", [{"points": pts, "faces": faces}], fps=0)
     with pytest.raises(NeuralBakeError, match="frames: give at least one frame"):
         write_usd_frames(tmp_path / "f.usd", [])
+    with pytest.raises(NeuralBakeError, match="name 'a b': must be a prim name"):
+        write_usd_frames(tmp_path / "f.usd", [{"points": pts, "faces": faces}], options=StageOptions(name="a b"))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["albedo.png", "normal.png"]

@@ -5,7 +5,6 @@ Where Chromium, Playwright or model-viewer is missing the test is skipped with t
 environment variable CI set) it fails instead, so it never passes silently there."""
 
 import json
-import os
 import shutil
 
 import numpy as np
@@ -17,18 +16,13 @@ from neural_bake.io.images import read_image
 from neural_bake.render.camera import Camera
 from neural_bake.samples.generate import sample_path
 from neural_bake.view import ViewError, image_metrics, render_mesh, view_mesh_from_glb
-from neural_bake.view.browser import browser_missing, screenshot_viewer
+from neural_bake.view.browser import screenshot_viewer
 from neural_bake.view.compare import detail_correlation, silhouette_iou
 from neural_bake.view.report import ReportConfig, write_asset_report
 
 
 @pytest.fixture(scope="module")
-def browser_report(tmp_path_factory, make_analytic_bake):
-    why = browser_missing()
-    if why:
-        if os.environ.get("CI"):
-            pytest.fail(f"browser test cannot run under CI: {why}")
-        pytest.skip(why)
+def browser_report(tmp_path_factory, make_analytic_bake, browser_ready):
     folder = tmp_path_factory.mktemp("browser")
     bake = make_analytic_bake(folder, faces=1200, size=256)
     (folder / "report.json").write_text(json.dumps({"mesh": str(sample_path("bumpy_sphere"))}))

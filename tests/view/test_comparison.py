@@ -3,7 +3,6 @@
 viewers orbit together."""
 
 import json
-import os
 import re
 import shutil
 
@@ -120,14 +119,7 @@ def test_a_folder_that_is_not_a_bake_is_one_line_and_nothing_is_written(bakes, t
 
 
 @pytest.fixture(scope="module")
-def browser_page(bakes, tmp_path_factory):
-    from neural_bake.view.browser import browser_missing
-
-    why = browser_missing()
-    if why:
-        if os.environ.get("CI"):
-            pytest.fail(f"browser test cannot run under CI: {why}")
-        pytest.skip(why)
+def browser_page(bakes, tmp_path_factory, browser_ready):
     root, (few, many), _, _ = bakes
     out = tmp_path_factory.mktemp("cmp-page")
     assert main(["compare", str(few), str(many), "-o", str(out / "page"), "--views", "1", "--size", "192"]) == 0
