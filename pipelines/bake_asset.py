@@ -283,6 +283,10 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
             log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "
                 f"around the unfaithful); a full decision at {c['samples']} others sampled found "
                 f"{c['missed']} more")
+        e = hs["estimate_check"]
+        if e["estimated"]:
+            log(f"hybrid: f at the source estimated to first order at {e['estimated']} samples (short rays); "
+                f"evaluated at {e['samples']} of them as a check, {e['missed']} estimated wrongly")
     log(f"baked {res.stats['texels_covered']} texels of {size}x{size} in {res.stats['seconds']['bake']:.1f} s"
         f" ({res.stats['invalid_gradients']} zero gradients, {res.stats['miss_texels']} texels off the band)")
     prec = res.stats["precision"]

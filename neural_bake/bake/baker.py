@@ -611,7 +611,7 @@ class Baker:
             if hybrid is not None:
                 t1 = time.perf_counter()
                 band.neural, band.neural_colors = normals, band.colors
-                out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors)
+                out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors, values=values)
                 band.normals, band.replaced = out[0], np.asarray(out[1], dtype=bool)
                 if len(out) > 2 and out[2] is not None:
                     band.colors, band.colors_replaced = out[2], np.asarray(out[3], dtype=bool)
@@ -841,7 +841,8 @@ class _Kept:
             self.parts["neural_colors"].append(band.neural_colors)
 
     def arrays(self) -> dict[str, np.ndarray | None]:
-        return {k: np.concatenate(v) if v else None for k, v in self.parts.items()}
+        # one band (a cached layout): its arrays as they are, not a copy
+        return {k: (v[0] if len(v) == 1 else np.concatenate(v)) if v else None for k, v in self.parts.items()}
 
 
 def bake_texels(

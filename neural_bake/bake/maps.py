@@ -15,14 +15,13 @@ Conventions (docs/design.md, "Tangent space"):
 from __future__ import annotations
 
 import ctypes
-import threading
 from pathlib import Path
 
 import numpy as np
 
 from ..constants import DIRECTION_EPS, TBN_DET_REL_EPS
 from ..errors import NeuralBakeError
-from ..nets.native import build
+from ..nets.native import Kernel
 
 __all__ = [
     "NORMAL_SPACES",
@@ -40,29 +39,22 @@ __all__ = [
 #: 0/off/false: the numpy encoding even where the C kernel (maps.c) builds (A/B checks).
 ENV_SWITCH = "NEURAL_BAKE_NATIVE_MAPS"
 
-_kernel_lock = threading.Lock()
-_kernel_state: dict = {}
+
+def _declare(lib) -> None:
+    p = ctypes.c_void_p
+    lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int, p, p]
+    lib.nb_encode_tangent.restype = None
 
 
-def _kernel():
-    """The loaded C kernel (maps.c, built on first use: :func:`neural_bake.nets.native.build`) or None."""
-    if "lib" not in _kernel_state:
-        with _kernel_lock:
-            if "lib" not in _kernel_state:
-                lib, msg = build(Path(__file__).with_name("maps.c"), switch=ENV_SWITCH)
-                if lib is not None:
-                    p = ctypes.c_void_p
-                    lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double,
-                                                      ctypes.c_int, p, p]
-                    lib.nb_encode_tangent.restype = None
-                _kernel_state.update(lib=lib, status=msg)
-    return _kernel_state["lib"]
+#: The C kernel (maps.c, :class:`neural_bake.nets.native.Kernel`); numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("maps.c"), switch=ENV_SWITCH, declare=_declare)
+_kernel = KERNEL.lib
 
 
 def kernel_status() -> str:
     """Which tangent-space encoding runs here: the C kernel (and its file), or why the numpy one does."""
-    lib = _kernel()
-    return _kernel_state["status"] if lib is not None else f"numpy ({_kernel_state['status']})"
+    return KERNEL.status()
+
 
 NORMAL_SPACES = ("tangent", "object")
 Y_CONVENTIONS = ("opengl", "directx")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ctypes
-import threading
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +16,7 @@ from ..constants import (TEXEL_INSIDE_EPS, TEXEL_OVERLAP_EPS, TEXEL_SPAN_TOL, TE
 from ..errors import MeshError, NeuralBakeError, NeuralBakeWarning
 from ..types import Mesh
 from ..geometry import vertex_normals
-from ..nets.native import build
+from ..nets.native import Kernel
 from .tangents import tangent_frames, vertex_uv
 
 __all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "kernel_status", "ENV_SWITCH"]
@@ -28,34 +27,27 @@ _MAX_CANDIDATES = 1 << 21
 #: 0/off/false: the numpy rasteriser even where the C kernel (texels.c) builds (A/B checks).
 ENV_SWITCH = "NEURAL_BAKE_NATIVE_RASTER"
 
-_kernel_lock = threading.Lock()
-_kernel_state: dict = {}
+
+def _declare(lib) -> None:
+    p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+    lib.nb_sample_owners.argtypes = [p, p, p, i64, p, p, i64, i64, f64, f64, f64, f64, p, p]
+    lib.nb_sample_owners.restype = None
+    lib.nb_collect_hits.argtypes = [p, p, p, i64, i64, i64, i64, p, p, p, p]
+    lib.nb_collect_hits.restype = i64
+    lib.nb_border_hits.argtypes = [p, p, p, p, i64, p, p, p, p, i64, i64, p, f64, f64, p, p, p]
+    lib.nb_border_hits.restype = None
+    lib.nb_interpolate_corners.argtypes = [p, i64, p, p, i64, f64, p, p, p, p]
+    lib.nb_interpolate_corners.restype = None
 
 
-def _kernel():
-    """The loaded C kernel (texels.c, built on first use: :func:`neural_bake.nets.native.build`) or None."""
-    if "lib" not in _kernel_state:
-        with _kernel_lock:
-            if "lib" not in _kernel_state:
-                lib, msg = build(Path(__file__).with_name("texels.c"), switch=ENV_SWITCH)
-                if lib is not None:
-                    p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
-                    lib.nb_sample_owners.argtypes = [p, p, p, i64, p, p, i64, i64, f64, f64, f64, f64, p, p]
-                    lib.nb_sample_owners.restype = None
-                    lib.nb_collect_hits.argtypes = [p, p, p, i64, i64, i64, i64, p, p, p, p]
-                    lib.nb_collect_hits.restype = i64
-                    lib.nb_border_hits.argtypes = [p, p, p, p, i64, p, p, p, p, i64, i64, p, f64, f64, p, p, p]
-                    lib.nb_border_hits.restype = None
-                    lib.nb_interpolate_corners.argtypes = [p, i64, p, p, i64, f64, p, p, p, p]
-                    lib.nb_interpolate_corners.restype = None
-                _kernel_state.update(lib=lib, status=msg)
-    return _kernel_state["lib"]
+#: The C kernel (texels.c, :class:`neural_bake.nets.native.Kernel`); numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("texels.c"), switch=ENV_SWITCH, declare=_declare)
+_kernel = KERNEL.lib
 
 
 def kernel_status() -> str:
     """Which rasteriser runs here: the C kernel (and its file), or why the numpy one does."""
-    lib = _kernel()
-    return _kernel_state["status"] if lib is not None else f"numpy ({_kernel_state['status']})"
+    return KERNEL.status()
 
 
 def _ptr(a: np.ndarray) -> int:
@@ -532,15 +524,15 @@ def iter_texels(
         coverage.reshape(-1)[uniq] = True
         yield TexelSet(
             size=(h, w),
-            pixel=np.stack([tr, tc], axis=1).astype(np.int64),
+            pixel=np.stack([tr, tc], axis=1).astype(np.int64, copy=False),
             points=points,
             normal=n,
             tangent=t,
             bitangent=wsign[:, None] * _cross(n, t),
-            face=face.astype(np.int64),
+            face=face.astype(np.int64, copy=False),
             bary=bary,
             weight=weight,
-            texel=texel.astype(np.int64),
+            texel=texel.astype(np.int64, copy=False),
             coverage=coverage,
             border=border,
             supersample=s,

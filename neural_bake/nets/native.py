@@ -16,11 +16,12 @@ import platform
 import shutil
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 
 from .compiled import env_switch
 
-__all__ = ["build", "cache_dir", "compiler", "FLAGS"]
+__all__ = ["Kernel", "build", "cache_dir", "compiler", "FLAGS"]
 
 #: Optimised, position independent, no errno from libm; no contraction into FMAs, so a kernel's arithmetic
 #: is the same, operation by operation, as the numpy reference it replaces.
@@ -73,3 +74,33 @@ def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS) -> tuple
         return ctypes.CDLL(str(lib_path)), f"C kernel ({Path(cc).name}, {lib_path.name})"
     except (OSError, subprocess.SubprocessError) as exc:
         return None, f"the C kernel could not be built or loaded ({exc})"
+
+
+class Kernel:
+    """A C file built and loaded on first use (:func:`build`), once per process, thread-safe.
+
+    ``declare(lib)`` sets the entries' ctypes signatures. :meth:`lib` is the library or None (the caller's
+    numpy or torch path runs); :meth:`status` says which runs and why."""
+
+    def __init__(self, source: Path, *, switch: str, declare):
+        self.source, self.switch, self.declare = Path(source), switch, declare
+        self._lock = threading.Lock()
+        self._state: dict = {}
+
+    def lib(self) -> ctypes.CDLL | None:
+        if "lib" not in self._state:
+            with self._lock:
+                if "lib" not in self._state:
+                    lib, msg = build(self.source, switch=self.switch)
+                    if lib is not None:
+                        try:
+                            self.declare(lib)
+                        except AttributeError as exc:
+                            lib, msg = None, f"the C kernel could not be built or loaded ({exc})"
+                    self._state.update(lib=lib, status=msg)
+        return self._state["lib"]
+
+    def status(self) -> str:
+        """The C kernel (and its file) when it runs, else "numpy (why not)"."""
+        lib = self.lib()
+        return self._state["status"] if lib is not None else f"numpy ({self._state['status']})"

@@ -270,3 +270,55 @@ def test_bad_colour_tolerance_and_a_source_without_texture_raise(tol):
         HybridFallback(red_textured_sphere(), sphere_field(), color_tol=tol)
     with pytest.raises(NeuralBakeError, match="UVs and a texture"):
         HybridFallback(ico(1), sphere_field(), color_tol=5.0)
+
+
+def _analytic_band(field, baker):
+    """f, unit ∇f and a valid mask at every texel sample of ``baker`` (its cached layout)."""
+    import torch
+
+    tx = baker.texels
+    p = torch.as_tensor(np.asarray(tx.points), dtype=torch.float64).requires_grad_(True)
+    f = field.fn(p)
+    (g,) = torch.autograd.grad(f.sum(), p)
+    g = g / g.norm(dim=1, keepdim=True)
+    return tx, f.detach().numpy(), g.numpy(), np.ones(tx.n_samples, dtype=bool)
+
+
+def test_first_order_estimate_spares_forward_passes_and_decides_alike(monkeypatch):
+    """With f known at the texel points, f at the source points is estimated to first order where the ray is
+    short and the estimate well inside the tolerance: the same samples are replaced as when f is evaluated at
+    every source point, with the forward pass run at a fraction of them; the check finds no wrong estimate."""
+    coarse = unwrap(ico(3), resolution=256)  # its faces lie within sdf_tol / 2 of the sphere
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 128)
+    tx, values, normals, valid = _analytic_band(field, baker)
+    evaluated = np.ones(tx.n_samples, dtype=bool)
+    exact = HybridFallback(ico(5), field)
+    estimated = HybridFallback(ico(5), field)
+    evaluated_points = []
+    real = HybridFallback.field_values
+    monkeypatch.setattr(HybridFallback, "field_values",
+                        lambda self, pts: (evaluated_points.append(len(pts)) if self is estimated else None)
+                        or real(self, pts))
+    a = exact(baker.mesh, tx, normals, valid, evaluated)
+    b = estimated(baker.mesh, tx, normals, valid, evaluated, values=values)
+    assert a.replaced.sum() > 200
+    np.testing.assert_array_equal(a.replaced, b.replaced)
+    s = estimated.summary()["estimate_check"]
+    assert s["estimated"] > 0.5 * tx.n_samples and sum(evaluated_points) < 0.5 * tx.n_samples
+    assert s["samples"] >= 256 and s["missed"] == 0 and s["missed_fraction"] == 0.0
+    assert exact.summary()["estimate_check"] == {"estimated": 0, "samples": 0, "missed": 0, "missed_fraction": None}
+
+
+def test_estimate_check_catches_and_decides_a_wrong_estimate():
+    """f values that put every texel point on the surface of a field that is far from the source: every
+    estimate says faithful, the checked ones are evaluated, found far, counted as missed and replaced."""
+    plank = thin_box()
+    baker = Baker(unwrap(plank, resolution=128), 64)
+    tx = baker.texels
+    normals, valid = np.asarray(tx.normal, dtype=np.float64), np.ones(tx.n_samples, dtype=bool)
+    hybrid = HybridFallback(plank, sphere_field(0.3))
+    out = hybrid(baker.mesh, tx, normals, valid, np.ones(tx.n_samples, dtype=bool), values=np.zeros(tx.n_samples))
+    s = hybrid.summary()["estimate_check"]
+    assert s["samples"] >= 256 and s["missed"] > 0.5 * s["samples"]
+    assert out.replaced.sum() == s["missed"] and s["estimated"] + s["samples"] == tx.n_samples

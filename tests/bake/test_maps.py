@@ -78,7 +78,7 @@ def _frames(rng, m, dtype):
 
 def _numpy_encode(monkeypatch, *args, **kw):
     with monkeypatch.context() as mp:
-        mp.setattr(maps_module, "_kernel_state", {"lib": None, "status": "off (test)"})
+        mp.setattr(maps_module.KERNEL, "_state", {"lib": None, "status": "off (test)"})
         assert maps_module.kernel_status() == "numpy (off (test))"
         return encode_tangent_space(*args, **kw)
 

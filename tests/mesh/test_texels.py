@@ -285,7 +285,7 @@ def _both(monkeypatch, mesh, size, **kw):
         pytest.skip(f"no C kernel here: {texels_module.kernel_status()}")
     fast = rasterize_texels(mesh, size, **kw)
     with monkeypatch.context() as mp:
-        mp.setattr(texels_module, "_kernel_state", {"lib": None, "status": "off (test)"})
+        mp.setattr(texels_module.KERNEL, "_state", {"lib": None, "status": "off (test)"})
         assert texels_module.kernel_status() == "numpy (off (test))"
         slow = rasterize_texels(mesh, size, **kw)
     return fast, slow
