@@ -7,6 +7,13 @@ so every step touches new pages, and each first touch is a page fault (tens of t
 step). :func:`keep_freed_memory` raises both thresholds (``mallopt``), so freed blocks stay in the heap and
 the next step reuses them: a handful of faults per step, and markedly faster steps (docs/findings.md).
 
+numpy asks the kernel for transparent huge pages for its large arrays (``madvise``), and a fresh huge page is
+zeroed whole at its first touch. Arrays larger than the mmap threshold (a 2048² bake's per-sample arrays) are
+mapped afresh at every allocation, so a bake zeroed gigabytes: on a virtual machine whose fresh memory is
+slow to hand out, a 2048² rasterisation took 6.6 s of which 5 s in the kernel zeroing pages, and 1.0 s with
+ordinary pages (docs/findings.md). :func:`keep_freed_memory` turns numpy's request off as well
+(``NUMPY_MADVISE_HUGEPAGE=0``, the setting numpy reads at import, does the same for a whole program).
+
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
 :data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it
 owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
@@ -56,7 +63,20 @@ def _tune() -> str:
         return "mallopt refused the mmap threshold: malloc left as it is"
     if mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) != 1:
         return f"mallopt refused the trim threshold: blocks up to {MMAP_THRESHOLD >> 20} MB come from the heap"
-    return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse"
+    return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse" + _small_pages()
+
+
+def _small_pages() -> str:
+    """numpy's large arrays on ordinary pages (module docstring); what was done, as a clause."""
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:
+        try:
+            from numpy.core.multiarray import _set_madvise_hugepage
+        except ImportError:
+            return ""
+    _set_madvise_hugepage(False)
+    return "; numpy's arrays on ordinary pages, not transparent huge pages"
 
 
 def keep_freed_memory() -> str:

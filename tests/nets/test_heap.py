@@ -108,3 +108,21 @@ def test_switch_off_and_idempotent(monkeypatch):
         assert "keeps freed blocks" in first
     else:
         assert "left as it is" in first
+
+
+@pytest.mark.skipif(not GLIBC, reason="the tuning applies to glibc's malloc only")
+def test_numpy_arrays_leave_transparent_huge_pages():
+    """numpy's request for transparent huge pages (on by default on Linux) is off once tuned, and says so;
+    switched off, numpy is left as it is."""
+    script = textwrap.dedent("""
+        import sys
+        from numpy._core.multiarray import _get_madvise_hugepage, _set_madvise_hugepage
+        _set_madvise_hugepage(True)
+        from neural_bake.nets.heap import keep_freed_memory
+        print(keep_freed_memory(), file=sys.stderr)
+        print(int(_get_madvise_hugepage()))
+    """)
+    on, on_status = _faults(script, None)
+    off, off_status = _faults(script, "0")
+    assert on == 0 and "ordinary pages" in on_status
+    assert off == 1 and "ordinary pages" not in off_status
