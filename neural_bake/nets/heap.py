@@ -68,14 +68,18 @@ def _tune() -> str:
 
 def _small_pages() -> str:
     """numpy's large arrays on ordinary pages (module docstring); what was done, as a clause."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:
+    import importlib
+
+    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):  # numpy 2, numpy 1
         try:
-            from numpy.core.multiarray import _set_madvise_hugepage
+            setter = getattr(importlib.import_module(name), "_set_madvise_hugepage", None)
         except ImportError:
-            return ""
-    _set_madvise_hugepage(False)
+            continue
+        if setter is not None:
+            break
+    else:
+        return ""
+    setter(False)
     return "; numpy's arrays on ordinary pages, not transparent huge pages"
 
 
