@@ -632,6 +632,9 @@ class Baker:
             t_band = time.perf_counter()
         t0 = time.perf_counter()
         normal_map, albedo = maps.finish()
+        # the maps are float32 from here (what the result holds): padding runs on half the bytes
+        normal_map = normal_map.astype(np.float32)
+        albedo = None if albedo is None else albedo.astype(np.float32, copy=False)
         secs["maps"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if self.padding is not None:
@@ -660,8 +663,8 @@ class Baker:
         }
         per_sample = kept.arrays() if kept is not None else {}
         return BakeResult(
-            normal_map=normal_map.astype(np.float32),
-            albedo=None if albedo is None else albedo.astype(np.float32),
+            normal_map=normal_map,
+            albedo=albedo,
             coverage=maps.covered,
             miss=maps.miss,
             stats=stats,
