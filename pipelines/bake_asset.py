@@ -72,6 +72,8 @@ class BakeAssetConfig:
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: 20, constants.HYBRID_ANGLE_DEG)."""
     hybrid_color_tol: float | None = None
     """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: 2, constants.HYBRID_COLOR_DELTA_E; inf: colours stay neural)."""
+    hybrid_color_psnr: float | None = None
+    """Hybrid bake with --texture-model: a neural colour whose PSNR against the source texture's at the same point (sRGB, dB) is below this takes the source's, so the colours' PSNR against the source is at least this (None: no such rule)."""
     hybrid_decide: str = "lattice"
     """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
@@ -130,6 +132,9 @@ def check_config(cfg: BakeAssetConfig) -> None:
     if not colour > 0:
         raise NeuralBakeError(f"hybrid_color_tol {colour}: must be a positive ΔE (inf: colours stay neural)",
                               parameter="hybrid_color_tol")
+    p = cfg.hybrid_color_psnr
+    if p is not None and not (isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < float("inf")):
+        raise NeuralBakeError(f"hybrid_color_psnr {p!r}: must be a positive number of dB", parameter="hybrid_color_psnr")
     if cfg.adaptive:
         from neural_bake.bake.adaptive import AdaptiveOptions
 
@@ -265,7 +270,7 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
         inputs, coarse_m, maps=maps, size=cfg.size, supersample=cfg.supersample, normal_space=cfg.normal_space,
         directx=cfg.directx, padding=cfg.padding, cache_texels=cfg.cache_texels, report_samples=cfg.report_samples,
         keep=keep, hybrid=cfg.hybrid, hybrid_tol=hybrid_tol, hybrid_angle=hybrid_angle,
-        hybrid_color_tol=hybrid_color_tol,
+        hybrid_color_tol=hybrid_color_tol, hybrid_color_psnr=cfg.hybrid_color_psnr,
         hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
         adaptive=AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None,
         precision=cfg.precision)
@@ -274,10 +279,12 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
         log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
             f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
         hs = hybrid.summary()
-        if baked.colour_tol is not None:
+        if baked.colour_tol is not None or baked.colour_psnr is not None:
+            rules = ([f"ΔE > {baked.colour_tol:g}"] if baked.colour_tol is not None else []) + (
+                [f"PSNR < {baked.colour_psnr:g} dB"] if baked.colour_psnr is not None else [])
             log(f"hybrid colours: {res.stats['hybrid_color_texels']} texels "
                 f"({100 * res.stats['hybrid_color_fraction']:.1f} %) took the source texture's colour "
-                f"(ΔE > {baked.colour_tol:g})")
+                f"({' or '.join(rules)})")
         if hs["lattice_check"] is not None and hs["decided_fraction"] < 1:
             c = hs["lattice_check"]
             log(f"hybrid decided at {100 * hs['decided_fraction']:.1f} % of the samples (the evaluated ones and "

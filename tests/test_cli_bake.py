@@ -118,6 +118,8 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
         (["--hybrid-color-tol", "0"], "--hybrid-color-tol 0.0: must be a positive ΔE (inf: colours stay neural)"),
+        (["--hybrid-color-psnr", "0"], "--hybrid-color-psnr 0.0: must be a positive number of dB"),
+        (["--hybrid-color-psnr", "inf"], "--hybrid-color-psnr inf: must be a positive number of dB"),
         (["--tolerance", "0"], "--tolerance must be a number of degrees in (0, 90), got 0.0"),
         (["--tolerance", "nan"], "--tolerance must be a number of degrees in (0, 90), got nan"),
     ],

@@ -6,9 +6,11 @@ disagrees with the source mesh's normal there by more than ``angle_deg``, or whe
 Such samples take the classical bake's normal (:func:`~neural_bake.bake.baseline.baseline_bake`), so no
 texel of the map is further than ``angle_deg`` from the source mesh's normal.
 
-Colours follow the same rule when a texture is baked and ``color_tol`` is set: a sample whose neural colour
-differs from the source's texture at the same source point by more than ``color_tol`` (CIEDE2000 ΔE, on the
-sRGB-encoded colours) takes the source's colour. The decision uses the same rays and the same samples as the
+Colours follow the same rule when a texture is baked and ``color_tol`` or ``color_psnr`` is set: a sample whose
+neural colour differs from the source's texture at the same source point by more than ``color_tol``
+(CIEDE2000 ΔE, on the sRGB-encoded colours), or whose PSNR against it (the sRGB-encoded RGB, peak 1) is
+below ``color_psnr`` dB, takes the source's colour. The PSNR rule holds per sample, so the hybrid colours'
+PSNR against the source's at the same points is at least ``color_psnr`` over any set of samples. The decision uses the same rays and the same samples as the
 normals' (a sample near an unfaithful colour is decided too).
 
 Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
@@ -42,7 +44,7 @@ from ..constants import ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTIO
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
-__all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "HYBRID_DECISIONS"]
+__all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "colour_psnr", "HYBRID_DECISIONS"]
 
 #: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
 HYBRID_DECISIONS = ("lattice", "all")
@@ -80,6 +82,20 @@ def colour_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(deltaE_ciede2000(lab[0], lab[1]), dtype=np.float64)
 
 
+def colour_psnr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """PSNR (M,) in dB of linear RGB(A) colours ``a`` against ``b`` (M, ≥3) (alpha ignored), per colour: the mean
+    squared difference of the sRGB-encoded RGB (peak 1); inf for equal colours."""
+    from ..io.colour import linear_to_srgb
+
+    if len(a) == 0:
+        return np.zeros(0)
+    d = linear_to_srgb(np.clip(np.asarray(a, dtype=np.float64)[:, :3], 0.0, 1.0)) \
+        - linear_to_srgb(np.clip(np.asarray(b, dtype=np.float64)[:, :3], 0.0, 1.0))
+    mse = np.einsum("ij,ij->i", d, d) / 3.0
+    with np.errstate(divide="ignore"):
+        return -10.0 * np.log10(mse)
+
+
 class HybridBand(NamedTuple):
     """What :class:`HybridFallback` gives for one band: the normals (M, 3) with the unfaithful samples
     replaced and their mask (M,), and the colours (M, C) with the replaced ones and their mask (None when no
@@ -105,8 +121,9 @@ class HybridFallback:
     - ``decide``: "lattice" (default) or "all" (:data:`HYBRID_DECISIONS`, module docstring); ``reach``:
       the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side).
     - ``seed``: of the lattice rule's check subsample.
-    - ``color_tol``: ΔE (CIEDE2000) above which a neural colour takes the source texture's (None: colours
-      are not decided). Needs ``fine`` with UVs and a texture.
+    - ``color_tol``: ΔE (CIEDE2000) above which a neural colour takes the source texture's; ``color_psnr``: the
+      least PSNR (dB) a neural colour keeps against the source's (None, None: colours are not decided).
+      Need ``fine`` with UVs and a texture.
 
     Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
     texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
@@ -118,7 +135,7 @@ class HybridFallback:
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
                  decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0,
-                 color_tol: float | None = None):
+                 color_tol: float | None = None, color_psnr: float | None = None):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
             raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
@@ -129,19 +146,22 @@ class HybridFallback:
                                   parameter="decide")
         if isinstance(reach, bool) or int(reach) != reach or reach < 1:
             raise NeuralBakeError(f"hybrid reach must be a positive integer, got {reach!r}", parameter="reach")
-        if color_tol is not None:
-            if not (color_tol > 0):  # NaN and non-positive
-                raise NeuralBakeError(f"hybrid color_tol must be a positive ΔE, got {color_tol!r}",
-                                      parameter="color_tol")
-            if fine.uv is None or fine.texture is None:
-                raise NeuralBakeError(f"{fine.name}: hybrid colours need a source mesh with UVs and a texture",
-                                      parameter="color_tol")
+        if color_tol is not None and not (color_tol > 0):  # NaN and non-positive
+            raise NeuralBakeError(f"hybrid color_tol must be a positive ΔE, got {color_tol!r}", parameter="color_tol")
+        if color_psnr is not None and not (np.isfinite(color_psnr) and color_psnr > 0):
+            raise NeuralBakeError(f"hybrid color_psnr must be a positive number of dB, got {color_psnr!r}",
+                                  parameter="color_psnr")
+        if (color_tol is not None or color_psnr is not None) and (fine.uv is None or fine.texture is None):
+            raise NeuralBakeError(f"{fine.name}: hybrid colours need a source mesh with UVs and a texture",
+                                  parameter="color_tol" if color_tol is not None else "color_psnr")
         from .baseline import raycasting_scene
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
         self.cage, self.keep_baseline, self.chunk_size = cage, bool(keep_baseline), int(chunk_size)
         self.decide, self.reach, self.seed = decide, int(reach), int(seed)
         self.color_tol = None if color_tol is None else float(color_tol)
+        self.color_psnr = None if color_psnr is None else float(color_psnr)
+        self.decides_colours = self.color_tol is not None or self.color_psnr is not None
         self.scene = raycasting_scene(fine)
         self.baselines: list[dict] = []
         self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0,
@@ -212,7 +232,12 @@ class HybridFallback:
         self.f_abs.append(np.abs(f_surf))
         why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
         if colors is not None:
-            why["color"] = colour_difference(colors[idx], b["colors"]) > self.color_tol
+            bad = np.zeros(len(idx), dtype=bool)
+            if self.color_tol is not None:
+                bad |= colour_difference(colors[idx], b["colors"]) > self.color_tol
+            if self.color_psnr is not None:
+                bad |= ~(colour_psnr(colors[idx], b["colors"]) >= self.color_psnr)
+            why["color"] = bad
         return why, b
 
     def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray) -> np.ndarray:
@@ -251,7 +276,7 @@ class HybridFallback:
         normals = np.asarray(normals, dtype=np.float64)
         valid = np.asarray(valid, dtype=bool)
         m = len(normals)
-        colors = None if colors is None or self.color_tol is None else np.asarray(colors, dtype=np.float64)
+        colors = None if colors is None or not self.decides_colours else np.asarray(colors, dtype=np.float64)
         color_mask = np.zeros(m, dtype=bool) if colors is not None else None
         source_colors = np.zeros_like(colors) if colors is not None else None
         base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene) if self.keep_baseline \
@@ -321,9 +346,10 @@ class HybridFallback:
         n = max(1, self.counts["samples"])
         c = self.check
         return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, "color_tol": self.color_tol,
+                "color_psnr": self.color_psnr,
                 "decide": self.decide, **self.counts,
                 "sample_fraction": self.counts["replaced"] / n,
-                "color_sample_fraction": self.counts["color_replaced"] / n if self.color_tol is not None else None,
+                "color_sample_fraction": self.counts["color_replaced"] / n if self.decides_colours else None,
                 "decided_fraction": self.counts["decided"] / n,
                 "lattice_check": None if self.decide == "all" else {
                     "samples": c["samples"], "missed": c["missed"],

@@ -69,13 +69,14 @@ class BakeInputs:
 @dataclass
 class TexelBake:
     """The texel maps of a bake: the Baker (layout, tangents, texels), its result, the hybrid fallback that
-    ran (or None) and the colour tolerance it used (or None)."""
+    ran (or None) and the colour rules it used (ΔE tolerance, least PSNR in dB: None where not used)."""
 
     baker: Baker
     result: BakeResult
     hybrid: HybridFallback | None
     colour_tol: float | None
     seconds: float = 0.0
+    colour_psnr: float | None = None
 
 
 def load_field(path, parameter: str, want: str, device=None) -> Any:
@@ -176,13 +177,14 @@ def check_uv_area(path, uv, size: int) -> None:
 def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int, supersample: int = 1,
               normal_space: str = "tangent", directx: bool = False, padding: str = "pull-push",
               cache_texels: bool | None = None, report_samples: int, keep: bool, hybrid: bool = True,
-              hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_decide: str = "lattice",
+              hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_color_psnr: float | None = None,
+              hybrid_decide: str = "lattice",
               cage: float | None = None, keep_baseline: bool = False, adaptive=None,
               precision: str = "auto") -> TexelBake:
     """Bake the texel maps (``maps`` "normal", "albedo") of ``inputs`` onto ``coarse_m`` (:class:`TexelBake`).
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
-    texture is baked and the source has one (``hybrid_color_tol`` finite). ``keep_baseline``: the hybrid keeps
+    texture is baked and the source has one (``hybrid_color_tol`` finite or ``hybrid_color_psnr`` set). ``keep_baseline``: the hybrid keeps
     its classical bake of every sample for the report (when the report measures every texel: a map up to the
     report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point)."""
     from .baker import Baker
@@ -195,23 +197,25 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
     prepare = time.perf_counter() - t0
     tex, reference = inputs.texture, inputs.reference
     # colours follow the hybrid rule where a texture is baked and the source has one to take colours from
-    colour_tol = hybrid_color_tol if (tex is not None and "albedo" in maps and reference is not None
-                                      and reference.uv is not None and reference.texture is not None
-                                      and np.isfinite(hybrid_color_tol)) else None
+    colours = (tex is not None and "albedo" in maps and reference is not None and reference.uv is not None
+               and reference.texture is not None)
+    colour_tol = hybrid_color_tol if colours and np.isfinite(hybrid_color_tol) else None
+    colour_psnr = hybrid_color_psnr if colours else None
     fallback = None
-    if hybrid and ("normal" in maps or colour_tol is not None) and reference is not None:
+    if hybrid and ("normal" in maps or colour_tol is not None or colour_psnr is not None) and reference is not None:
         from .hybrid import HybridFallback
 
         fallback = HybridFallback(reference, inputs.sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
                                   keep_baseline=keep_baseline and baker.cache and lattice_step((size, size)) == 1,
                                   decide=hybrid_decide,
-                                  color_tol=colour_tol)
+                                  color_tol=colour_tol, color_psnr=colour_psnr)
     res = baker.bake(inputs.sdf, tex if "albedo" in maps else None, delta=inputs.delta,
                      report_samples=int(report_samples), hybrid=fallback, adaptive=adaptive, precision=precision,
                      texture_at="point" if keep else "surface")
     if res.stats["texels_covered"] == 0:
         raise MeshError(f"{inputs.mesh_path}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
-    return TexelBake(baker=baker, result=res, hybrid=fallback, colour_tol=colour_tol, seconds=prepare)
+    return TexelBake(baker=baker, result=res, hybrid=fallback, colour_tol=colour_tol, seconds=prepare,
+                     colour_psnr=colour_psnr)
 
 
 def write_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, maps: list[str], formats: list[str],

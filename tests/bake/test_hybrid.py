@@ -272,6 +272,58 @@ def test_bad_colour_tolerance_and_a_source_without_texture_raise(tol):
         HybridFallback(ico(1), sphere_field(), color_tol=5.0)
 
 
+def test_colour_psnr_of_known_srgb_offsets():
+    from neural_bake.bake.hybrid import colour_psnr
+    from neural_bake.io.colour import linear_to_srgb, srgb_to_linear
+
+    rng = np.random.default_rng(1)
+    srgb = rng.uniform(0.2, 0.8, size=(40, 3))
+    offset = np.array([0.001, 0.01, 0.1, 0.0])  # the same sRGB offset on all three channels
+    a = srgb_to_linear(srgb)
+    for d in offset:
+        got = colour_psnr(srgb_to_linear(srgb + d), a)
+        want = np.full(40, np.inf) if d == 0 else np.full(40, -10 * np.log10(d * d))
+        np.testing.assert_allclose(got, want, rtol=1e-9)
+    assert np.allclose(linear_to_srgb(a), srgb)
+    np.testing.assert_allclose(colour_psnr(np.c_[a, np.zeros(40)], np.c_[a, np.ones(40)]), np.inf)  # alpha ignored
+
+
+def test_colour_psnr_rule_bounds_the_colours_psnr_against_the_source():
+    """Colours off the red source by a small sRGB step above the equator (50 dB) and a large one below (30 dB):
+    with a least PSNR of 40 dB the lower half takes the source's colour, the upper keeps the field's, and
+    the hybrid colours' PSNR against the source's is at least 40 dB; with 55 dB every colour is replaced."""
+    import torch
+
+    from neural_bake.bake.hybrid import colour_psnr
+    from neural_bake.fields import TextureField
+    from neural_bake.io.colour import linear_to_srgb, srgb_to_linear
+
+    red = linear_to_srgb(np.array([RED]))[0]
+    up, down = (torch.tensor(srgb_to_linear(red + d)) for d in (10 ** (-50 / 20), 10 ** (-30 / 20)))
+    tex = TextureField(lambda p: torch.where(p[:, 2:3] > 0, up.to(p.dtype), down.to(p.dtype)))
+    coarse = unwrap(ico(2), resolution=128)
+    field, fine = sphere_field(), red_textured_sphere()
+    z = np.asarray(Baker(coarse, 64).texels.points)[:, 2]
+    below, clear = z < 0, np.abs(z) > 0.02  # at the equator the field is read on either side
+    hybrid = HybridFallback(fine, field, color_psnr=40.0)
+    res = Baker(coarse, 64).bake(field, tex, hybrid=hybrid)
+    np.testing.assert_array_equal(res.colors_replaced[clear], below[clear])
+    source = np.tile(RED, (len(below), 1))
+    mse = np.mean(10 ** (-colour_psnr(res.colors, source) / 10))
+    assert -10 * np.log10(mse) >= 40.0 and hybrid.summary()["color_psnr"] == 40.0
+    strict = Baker(coarse, 64).bake(field, tex, hybrid=HybridFallback(fine, field, color_psnr=55.0))
+    assert strict.colors_replaced.all()
+    np.testing.assert_allclose(strict.colors, source, atol=1e-6)
+
+
+@pytest.mark.parametrize("psnr", [0.0, -3.0, float("nan"), float("inf")])
+def test_bad_colour_psnr_raises(psnr):
+    with pytest.raises(NeuralBakeError, match="color_psnr"):
+        HybridFallback(red_textured_sphere(), sphere_field(), color_psnr=psnr)
+    with pytest.raises(NeuralBakeError, match="UVs and a texture"):
+        HybridFallback(ico(1), sphere_field(), color_psnr=40.0)
+
+
 def _analytic_band(field, baker):
     """f, unit ∇f and a valid mask at every texel sample of ``baker`` (its cached layout)."""
     import torch
