@@ -25,8 +25,7 @@ f at the source point p of a sample the bake evaluated (where f(x) and ∇f(x) a
 is first estimated to first order, ``f(x) + n(x)·(p − x)`` with n the unit gradient: where the ray is shorter
 than ``sdf_tol / 2`` and the estimate is under ``sdf_tol / 2`` the sample is faithful as far as f goes, and
 the network's forward pass runs only at the others (a first-order error above ``sdf_tol / 2`` over such a
-distance would need second derivatives of f beyond what a fitted SDF has: the largest measured on a fitted
-(256, 3) SIREN was ``5e-4``). A seeded uniform subsample of the estimated samples is evaluated anyway as a
+distance would need second derivatives of f far beyond a fitted SDF's: docs/findings.md, "Baking"). A seeded uniform subsample of the estimated samples is evaluated anyway as a
 check (``summary()["estimate_check"]``: how many the estimate would have called faithful wrongly; they are
 decided on the evaluated f).
 

@@ -9,9 +9,8 @@ the next step reuses them: a handful of faults per step, and markedly faster ste
 
 numpy asks the kernel for transparent huge pages for its large arrays (``madvise``), and a fresh huge page is
 zeroed whole at its first touch. Arrays larger than the mmap threshold (a 2048² bake's per-sample arrays) are
-mapped afresh at every allocation, so a bake zeroed gigabytes: on a virtual machine whose fresh memory is
-slow to hand out, a 2048² rasterisation took 6.6 s of which 5 s in the kernel zeroing pages, and 1.0 s with
-ordinary pages (docs/findings.md). :func:`keep_freed_memory` turns numpy's request off as well
+mapped afresh at every allocation, so a bake zeroes gigabytes of huge pages, which a virtual machine may hand
+out slowly (the profile: docs/findings.md, "Baking"). :func:`keep_freed_memory` turns numpy's request off as well
 (``NUMPY_MADVISE_HUGEPAGE=0``, the setting numpy reads at import, does the same for a whole program).
 
 The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
