@@ -23,7 +23,7 @@ def _resolve(preset, values):
 
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "default", "high", "fast", "medium", "fine"),
-                  described=("quick", "default", "high"),
+                  described=("quick", "default", "high"), costs={"quick": "feature grid + 64x1, 1 min"},
                   preset_help="Network size and time budget (fast, medium and fine are older names of quick, "
                               "default and high; none: 256x3 for --steps)",
                   required=("mesh", "sdf_path", "output"), pass_preset=True)
@@ -75,7 +75,8 @@ def command(mesh, sdf_path, output, config, preset, texture_path, uv_policy, met
                 "estimated on this one")
     elif b is not None and b["expected_steps"]:
         how += f"; this machine makes ~{b['expected_steps']} in the budget"
-    say(f"fitted ({cfg.width}, {cfg.depth}) texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
+    net = f"feature grid + ({cfg.width}, {cfg.depth})" if cfg.network == "grid" else f"({cfg.width}, {cfg.depth})"
+    say(f"fitted {net} texture of {m.name}: {fit.steps} steps in {fit.seconds:.1f} s "
         f"({how}), λ = {fit.lam:g}, δ = {fit.delta:g} (unit frame), {fit.encoding} colours")
     if metrics:
         q = texture_metrics(fit.field(), m, sdf_path, delta=fit.delta, n=20000, n_views=4,

@@ -50,9 +50,10 @@ TEXTURED = ("cabinet", "tea_set", "spot")
 #: score each 8-texel disc's window (:func:`~neural_bake.bench.fidelity_texture.dot_windows`).
 SAMPLE_MESHES: dict[str, dict] = {"dots": {"sample": "dots", "coarse": "keep", "features": "dots"}}
 
-#: Colour-network constructions the texture rows compare (``texture_networks``): "siren", the preset's own
-#: network; "siren-wide", the preset's SIREN twice as wide and one hidden matrix deeper; "grid", a
-#: multiresolution feature grid in front of a 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2).
+#: Colour-network constructions the texture rows compare (``texture_networks``): "siren", the preset's SIREN
+#: (its own network, or :data:`~neural_bake.fit.texture.PRESET_SIRENS` where that is a grid); "siren-wide",
+#: that SIREN twice as wide and one hidden matrix deeper; "grid", a multiresolution feature grid in front of a
+#: 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2).
 TEXTURE_NETWORKS = ("siren", "siren-wide", "grid")
 
 #: The fit settings of the "grid" construction beside the preset's.
@@ -60,19 +61,32 @@ GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2}
 
 
 def texture_network_settings(name: str, preset: str) -> dict:
-    """The texture-fit overrides of construction ``name`` (:data:`TEXTURE_NETWORKS`) at texture ``preset``."""
+    """The texture-fit overrides of construction ``name`` (:data:`TEXTURE_NETWORKS`) at texture ``preset``:
+    empty when the construction is the preset's own network."""
     from ..fit.presets import TEXTURE_ALIASES, resolve_preset
-    from ..fit.texture import PRESETS, TextureFitConfig
+    from ..fit.texture import PRESET_SIRENS, PRESETS, TextureFitConfig
 
     key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
-    base = {**vars(TextureFitConfig()), **(PRESETS[key] if key is not None else {})}
+    own = {**vars(TextureFitConfig()), **(PRESETS[key] if key is not None else {})}
+    siren = {**own, **PRESET_SIRENS.get(key, {})} if own["network"] != "siren" else own
     if name == "siren":
-        return {"network": "siren"}
-    if name == "siren-wide":
-        return {"network": "siren", "width": 2 * int(base["width"]), "depth": int(base["depth"]) + 1}
-    if name == "grid":
-        return dict(GRID_TEXTURE)
-    raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
+        over = {"network": "siren"}
+    elif name == "siren-wide":
+        over = {"network": "siren", "width": 2 * int(siren["width"]), "depth": int(siren["depth"]) + 1}
+    elif name == "grid":
+        over = dict(GRID_TEXTURE)
+    else:
+        raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
+    return {} if all(own.get(k) == v for k, v in over.items()) else over
+
+
+def own_texture_network(preset: str) -> str:
+    """The construction (:data:`TEXTURE_NETWORKS`) a texture ``preset`` fits by itself: "grid" or "siren"."""
+    from ..fit.presets import TEXTURE_ALIASES, resolve_preset
+    from ..fit.texture import PRESETS
+
+    key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
+    return "siren" if key is None else str(PRESETS[key].get("network", "siren"))
 
 
 def network_label(model) -> str:
@@ -269,9 +283,10 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
       fitted with ``budget="steps"`` unless ``minutes`` or ``steps`` is given (default meshes: those of
       :data:`MESHES` with a texture; quick: spot).
     - ``texture_networks``: colour-network constructions (:data:`TEXTURE_NETWORKS`) fitted and scored side by
-      side, one texture row each (default: "siren"); the normal rows' texture PSNR is the first's. With any
-      but "siren" alone and neither ``texture_steps`` nor ``texture_minutes``, every texture fit runs the
-      preset's time budget (equal time).
+      side, one texture row each (default: the preset's own network: "grid" for quick, else "siren"); the
+      normal rows' texture PSNR is the first's. With neither ``texture_steps`` nor ``texture_minutes``, the
+      preset's own network alone runs the preset's steps on the reference machine, and any other
+      construction makes every texture fit run the preset's time budget (equal time).
     - ``texture_minutes``: the time budget of every texture fit (equal time; the steps made follow the machine).
 
     The result has ``"texture_rows"`` (one per textured case with a texture fit) and, when there are any,
@@ -290,7 +305,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     texture = (not quick or only_textures) if texture is None else bool(texture)
     if only_textures and not texture:
         raise NeuralBakeError("fidelity: only_textures needs the texture fits (texture=False given)")
-    networks = list(texture_networks or ["siren"])
+    networks = list(texture_networks or [])
     bad_nets = [n for n in networks if n not in TEXTURE_NETWORKS]
     if bad_nets or len(set(networks)) != len(networks):
         raise NeuralBakeError(f"fidelity: texture_networks must be distinct names among {', '.join(TEXTURE_NETWORKS)}, "
@@ -309,10 +324,8 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         texture_budget: dict = {"steps": int(texture_steps), "minutes": None}
     elif texture_minutes is not None:
         texture_budget = {"minutes": float(texture_minutes), "budget": "time"}
-    elif networks == ["siren"]:
-        texture_budget = {"budget": "steps"}  # the preset's steps on the reference machine: not the load's
-    else:
-        texture_budget = {"budget": "time"}  # the preset's time budget for every construction: equal time
+    else:  # resolved per preset: its steps on the reference machine when every construction is its own network
+        texture_budget = {}
     notes: list[str] = []
     folder = data_folder(data)
     jobs: list[tuple[str, Path, dict]] = []
@@ -386,10 +399,14 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                 if texture and mesh.texture is not None and mesh.uv is not None:
                     from ..fit.texture import fit_texture
 
-                    for k, net in enumerate(networks):
+                    names = networks or [own_texture_network(preset)]
+                    settings = [texture_network_settings(net, preset) for net in names]
+                    # the preset's own network alone: its steps on the reference machine (not the load's); any
+                    # other construction: every fit at the preset's time budget (equal time)
+                    budget = texture_budget or ({"budget": "steps"} if not any(settings) else {"budget": "time"})
+                    for k, (net, over) in enumerate(zip(names, settings)):
                         say(f"{label}: fitting the texture ({net})")
-                        tfit = fit_texture(mesh, str(sdf_path), preset=preset, **texture_budget,
-                                           **texture_network_settings(net, preset))
+                        tfit = fit_texture(mesh, str(sdf_path), preset=preset, **budget, **over)
                         path_k = Path(tmp) / f"g{k}.tex"
                         tfit.save(path_k)
                         if tex_path is None:

@@ -31,7 +31,7 @@ REFERENCE_STEPS: dict[str, int] = {
     "128x2": 19315,
     "256x2": 11480,
     "256x3": 11486,
-    "texture:quick": 32601,
+    "texture:quick": 3098,
     "texture:default": 13428,
     "texture:high": 40000,
 }

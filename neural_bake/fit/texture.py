@@ -76,6 +76,7 @@ __all__ = [
     "band_orthogonality",
     "make_texture_network",
     "NETWORKS",
+    "PRESET_SIRENS",
 ]
 
 #: δ (unit frame) used when neither the config nor the SDF model file gives one: 1/60 of the unit-frame
@@ -158,11 +159,16 @@ GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_res
 #: BENCHMARKS.md. Names: :mod:`neural_bake.fit.presets` (fast, medium and fine are aliases of quick, default
 #: and high).
 PRESETS: dict[str, dict] = {
-    "quick": {"width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048, "lr": 5e-4},
+    "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
+              "lr": 1e-2},
     "default": {"width": 192, "depth": 3, "omega_0": 60.0, "minutes": 4.0, "steps": 200_000, "batch": 4096,
                 "lr": 5e-4},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
+
+
+#: The SIREN settings of a preset whose network is a grid, applied when ``network="siren"`` is asked for with it.
+PRESET_SIRENS: dict[str, dict] = {"quick": {"width": 64, "depth": 1, "lr": 5e-4}}
 
 
 @dataclass
@@ -456,6 +462,8 @@ def _resolve_config(config: TextureFitConfig | None, overrides: dict) -> Texture
             raise FitError(f"preset: unknown preset {preset!r} (choose from {', '.join(PRESETS)}; "
                            f"{', '.join(TEXTURE_ALIASES)} are aliases)")
         config = replace(config, **PRESETS[key])
+        if overrides.get("network") == "siren" and key in PRESET_SIRENS:
+            config = replace(config, **PRESET_SIRENS[key])
     names = {f.name for f in fields(TextureFitConfig)}
     bad = sorted(set(overrides) - names)
     if bad:
