@@ -135,3 +135,16 @@ def test_bad_network_settings_are_one_line_errors(over, message):
     with pytest.raises(FitError, match=message) as err:
         fit_texture(disc_square(2), plane_sdf, steps=1, **over)
     assert err.value.parameter == message.split(":")[0].lstrip("^")
+
+
+def test_quick_preset_is_the_grid_and_network_siren_gives_its_siren():
+    from neural_bake.fit.texture import PRESET_SIRENS, _resolve_config
+
+    quick = _resolve_config(None, {"preset": "quick"})
+    assert (quick.network, quick.width, quick.depth, quick.lr) == ("grid", 64, 1, 1e-2)
+    siren = _resolve_config(None, {"preset": "quick", "network": "siren"})
+    assert (siren.network, siren.width, siren.depth, siren.lr) == ("siren", 64, 1, 5e-4) == (
+        "siren", *PRESET_SIRENS["quick"].values())
+    wide = _resolve_config(None, {"preset": "quick", "network": "siren", "width": 128})
+    assert (wide.width, wide.lr) == (128, 5e-4)
+    assert _resolve_config(None, {"preset": "default"}).network == "siren"
