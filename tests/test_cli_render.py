@@ -245,3 +245,23 @@ def test_times_an_image_cannot_hold_exit_2_with_one_line(growing, tmp_path, caps
     code, _, err = run([growing, "-o", str(out), "--size", "8", *extra], capsys)
     assert code == 2 and err.count("\n") == 1 and match.format(out=out) in err, err
     assert not out.exists()
+
+
+def test_a_space_time_model_with_a_feature_grid_texture_renders_its_colours(growing, models, tmp_path, capsys):
+    """A grid texture network (not a SIREN) beside a space-time SDF is read through its field's colours: the
+    hit pixels take its colour (a constant one here: the grid's output bias), the background stays."""
+    from neural_bake.nets.grid import GridNet
+
+    net = GridNet(levels=2, features=2, log2_table=6, base_resolution=2, max_resolution=4, width=8, depth=1,
+                  generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        for p in net.parameters():
+            p.zero_()
+        net.layers[-1].bias.copy_(torch.tensor([0.9, 0.2, 0.1]))
+    tex = save_model(net, tmp_path / "g.tex", kind="texture", frame=Frame((0.0, 0.0, 0.0), 0.5).to_dict())
+    code, _, err = run([growing, "-o", str(tmp_path / "g.png"), "--t", "0.5", "--size", "24", "--texture", str(tex),
+                        "--effects", "texture", "--channels", "hit", "--channel-format", "exr"], capsys)
+    assert code == 0, err
+    img = read_image(tmp_path / "g.png")
+    hit = read_image(tmp_path / "g.hit.exr", colour="data")[..., 0] > 0.5
+    assert hit.sum() > 0 and np.ptp(img[hit][:, :3], axis=0).max() < 1e-6  # one colour over the sphere

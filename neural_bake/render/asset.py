@@ -32,7 +32,7 @@ from ..types import Frame
 
 __all__ = [
     "RenderError", "TraceLevel", "TextureSource", "RenderAsset", "SpaceTimeAsset", "as_render_asset",
-    "siren_level", "analytic_level", "siren_texture", "analytic_texture", "level_names",
+    "siren_level", "analytic_level", "siren_texture", "analytic_texture", "as_texture", "level_names",
 ]
 
 
@@ -307,7 +307,7 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
         raise RenderError(f"asset: cannot render a {type(obj).__name__} (expected a nested sequence, an SDF "
                           "field or a Siren)")
     if texture is not None:
-        asset = asset.with_texture(_as_texture(texture, precision))
+        asset = asset.with_texture(as_texture(texture, precision))
     return asset
 
 
@@ -321,7 +321,9 @@ def _from_models(models: list[Siren], deltas, frame: Frame, precision: str = "fp
                        frame)
 
 
-def _as_texture(tex, precision: str = "fp32") -> TextureSource:
+def as_texture(tex, precision: str = "fp32") -> TextureSource:
+    """The :class:`TextureSource` of ``tex``: a SIREN (or a field holding one) through its GEMM forward pass,
+    any other texture field (a feature grid, an analytic one) through its ``color``."""
     if isinstance(tex, TextureSource):
         return tex
     if isinstance(tex, Siren):

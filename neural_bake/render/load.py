@@ -8,7 +8,7 @@ from pathlib import Path
 from ..errors import ModelFileError
 from ..nets.siren import Siren
 from ..types import Frame
-from .asset import (RenderAsset, RenderError, SpaceTimeAsset, as_render_asset, level_names, siren_level,
+from .asset import (RenderAsset, RenderError, SpaceTimeAsset, as_texture, as_render_asset, level_names, siren_level,
                     siren_texture)
 
 __all__ = ["load_asset", "read_field"]
@@ -83,12 +83,15 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
     time_range = tuple(time_range or getattr(field, "time_range", None) or (0.0, 1.0))
     time_input = time_input or getattr(field, "time_input", None) or float
 
+    # a texture network that is not a SIREN (a feature grid) is static: read through its field's colours
+    static_tx = None if tex is None or isinstance(tex_model, Siren) else as_texture(tex, precision)
+
     def at(t: float) -> RenderAsset:
         levels = [siren_level(m, 0.0 if i == len(nets) - 1 else float(d), name=n, time=time_input(t),
                               precision=precision)
                   for i, (m, d, n) in enumerate(zip(nets, ds, names))]
-        tx = None
-        if tex_model is not None:
+        tx = static_tx
+        if tex_model is not None and static_tx is None:
             tx = siren_texture(tex_model, time=t if int(tex_model.in_dim) == 4 else None, precision=precision,
                                encoding=getattr(tex, "encoding", "linear"))
         return RenderAsset(levels, frame or Frame(), tx)
