@@ -260,7 +260,7 @@ def test_a_space_time_model_with_a_feature_grid_texture_renders_its_colours(grow
         net.layers[-1].bias.copy_(torch.tensor([0.9, 0.2, 0.1]))
     tex = save_model(net, tmp_path / "g.tex", kind="texture", frame=Frame((0.0, 0.0, 0.0), 0.5).to_dict())
     code, _, err = run([growing, "-o", str(tmp_path / "g.png"), "--t", "0.5", "--size", "24", "--texture", str(tex),
-                        "--effects", "texture", "--channels", "hit", "--channel-format", "exr"], capsys)
+                        "--effects", "texture", "--channels", "color,hit", "--channel-format", "exr"], capsys)
     assert code == 0, err
     img = read_image(tmp_path / "g.png")
     hit = read_image(tmp_path / "g.hit.exr", colour="data")[..., 0] > 0.5
