@@ -342,8 +342,13 @@ def build_siren(arch: dict, state: dict[str, torch.Tensor], path, *, prefix: str
         model = Siren(**arch)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}: invalid architecture {arch} ({exc})") from None
-    stored_dtype = state[f"{prefix}layers.0.weight"].dtype
-    model = model.to(dtype=dtype or stored_dtype)
+    return _holding(model, state, prefix, "layers.0.weight", device, dtype)
+
+
+def _holding(model, state: dict[str, torch.Tensor], prefix: str, dtype_key: str, device, dtype):
+    """``model`` in the dtype of ``state[prefix + dtype_key]`` (unless ``dtype``) holding ``state``'s tensors,
+    in eval mode on ``device``."""
+    model = model.to(dtype=dtype or state[prefix + dtype_key].dtype)
     with torch.no_grad():
         for name, p in model.state_dict().items():
             p.copy_(state[prefix + name])
@@ -363,13 +368,7 @@ def build_network(arch: dict, state: dict[str, torch.Tensor], path, *, prefix: s
         model = GridNet(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}: invalid architecture {arch} ({exc})") from None
-    model = model.to(dtype=dtype or state[f"{prefix}table"].dtype)
-    with torch.no_grad():
-        for name, p in model.state_dict().items():
-            p.copy_(state[prefix + name])
-    model = model.to(device=device or "cpu")
-    model.eval()
-    return model
+    return _holding(model, state, prefix, "table", device, dtype)
 
 
 def _to_json(obj):
