@@ -32,7 +32,7 @@ REFERENCE_STEPS: dict[str, int] = {
     "256x2": 11480,
     "256x3": 11486,
     "texture:quick": 3098,
-    "texture:default": 13428,
+    "texture:default": 10396,
     "texture:high": 40000,
 }
 

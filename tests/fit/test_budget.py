@@ -40,9 +40,9 @@ def test_expected_steps_scale_with_rate_and_time():
     assert set(STEP_COST) == presets and all(c > 0 for c in STEP_COST.values())
     # larger networks cost more a step; the compiled 5-minute preset less than the eager 2-minute one
     assert STEP_COST["64x1"] < STEP_COST["128x2"] < STEP_COST["256x3"] < STEP_COST["high"]
-    # the 10-minute texture's (256, 3) of 2,048 points costs less than the 4-minute one's (192, 3) of 4,096; the
-    # 1-minute one's feature grid (gathers, scatters and an Adam update of its tables) about as much (measured:
-    # bench budget)
+    # the 10-minute texture's (256, 3) SIREN of 2,048 points costs less than the 4-minute one's feature grid of
+    # 4,096 (gathers, scatters and an Adam update of its tables), and the 1-minute one's grid of 2,048 points
+    # about as much (measured: bench budget)
     assert STEP_COST["texture:high"] < STEP_COST["texture:default"]
     assert STEP_COST["texture:high"] < STEP_COST["texture:quick"] < 2 * STEP_COST["texture:default"]
     assert STEP_COST["default"] < STEP_COST["quick"]

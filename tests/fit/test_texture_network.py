@@ -137,7 +137,7 @@ def test_bad_network_settings_are_one_line_errors(over, message):
     assert err.value.parameter == message.split(":")[0].lstrip("^")
 
 
-def test_quick_preset_is_the_grid_and_network_siren_gives_its_siren():
+def test_quick_and_default_presets_are_grids_and_network_siren_gives_their_sirens():
     from neural_bake.fit.texture import PRESET_SIRENS, _resolve_config
 
     quick = _resolve_config(None, {"preset": "quick"})
@@ -147,4 +147,8 @@ def test_quick_preset_is_the_grid_and_network_siren_gives_its_siren():
         "siren", *PRESET_SIRENS["quick"].values())
     wide = _resolve_config(None, {"preset": "quick", "network": "siren", "width": 128})
     assert (wide.width, wide.lr) == (128, 5e-4)
-    assert _resolve_config(None, {"preset": "default"}).network == "siren"
+    default = _resolve_config(None, {"preset": "default"})
+    assert (default.network, default.width, default.batch, default.lr) == ("grid", 64, 4096, 1e-2)
+    siren = _resolve_config(None, {"preset": "default", "network": "siren"})
+    assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr) == ("siren", 192, 3, 60.0, 5e-4)
+    assert _resolve_config(None, {"preset": "high"}).network == "siren"
