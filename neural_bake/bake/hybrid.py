@@ -190,27 +190,26 @@ class HybridFallback:
         """f at the source points of the samples ``idx``: estimated to first order from ``values`` (f at
         the texel points, None: not known) and the unit ``normals`` where that is safe (module docstring),
         the field's forward pass elsewhere and at a seeded check subsample of the estimated ones."""
-        from .baker import _to_field_frame, sample_keys
+        from .baker import _to_field_frame
 
         f = np.empty(len(idx))
-        exact = np.ones(len(idx), dtype=bool)
-        if values is not None and len(idx):
+        near = np.zeros(len(idx), dtype=bool)
+        check = np.zeros(len(idx), dtype=bool)
+        if values is not None:
             x = _to_field_frame(np.asarray(texels.points)[idx], coarse.frame, self.sdf.frame)
             p = _to_field_frame(np.asarray(source_points, dtype=np.float64), self.fine.frame, self.sdf.frame)
             step = p - x
             dist = np.sqrt(np.einsum("ij,ij->i", step, step))
             est = values[idx] + np.einsum("ij,ij->i", normals[idx], step)
             near = valid[idx] & np.isfinite(est) & (dist < 0.5 * self.sdf_tol) & (np.abs(est) < 0.5 * self.sdf_tol)
-            keys = sample_keys(self._seen + idx, self.seed + 2).astype(np.float64) / 2.0**64
-            check = near & (keys < max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / max(1, int(near.sum())))))
-            exact = ~near | check
+            check[near] = self._check_mask(idx[near], 2)
             f[near] = est[near]
-            self.estimate["estimated"] += int((near & ~check).sum())
-            self.estimate["samples"] += int(check.sum())
+        exact = ~near | check
         if exact.any():
             f[exact] = self.field_values(np.asarray(source_points)[exact])
-        if values is not None and len(idx):
-            self.estimate["missed"] += int((check & ~(np.abs(f) <= self.sdf_tol)).sum())
+        self.estimate["estimated"] += int((near & ~check).sum())
+        self.estimate["samples"] += int(check.sum())
+        self.estimate["missed"] += int((check & ~(np.abs(f) <= self.sdf_tol)).sum())
         return f
 
     def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
@@ -255,15 +254,20 @@ class HybridFallback:
         image = maximum_filter(image, size=2 * reach_texels + 1, mode="constant", cval=False)
         return image[pix[candidates, 0] - r0, pix[candidates, 1]]
 
-    def _check_pick(self, candidates: np.ndarray) -> np.ndarray:
-        """A seeded uniform choice among ``candidates`` (indices into the band)."""
+    def _check_mask(self, candidates: np.ndarray, stream: int) -> np.ndarray:
+        """(len(candidates),) bool: a seeded uniform choice among ``candidates`` (indices into the band) of
+        :data:`~neural_bake.constants.HYBRID_CHECK_FRACTION` of them, at least
+        :data:`~neural_bake.constants.HYBRID_CHECK_MIN`; ``stream`` keeps the checks' choices apart."""
         from .baker import sample_keys
 
         if not len(candidates):
-            return candidates
-        keys = sample_keys(self._seen + candidates, self.seed + 1).astype(np.float64) / 2.0**64
-        frac = max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates)))
-        return candidates[keys < frac]
+            return np.zeros(0, dtype=bool)
+        keys = sample_keys(self._seen + candidates, self.seed + stream).astype(np.float64) / 2.0**64
+        return keys < max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates)))
+
+    def _check_pick(self, candidates: np.ndarray) -> np.ndarray:
+        """The lattice rule's check: :meth:`_check_mask`'s choice among ``candidates``."""
+        return candidates[self._check_mask(candidates, 1)]
 
     def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None,
                  colors: np.ndarray | None = None, values: np.ndarray | None = None) -> HybridBand:
