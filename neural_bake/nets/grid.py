@@ -27,7 +27,7 @@ from ..constants import (MAX_GRID_FEATURES, MAX_GRID_LEVELS, MAX_GRID_LOG2_TABLE
                          MAX_NET_WIDTH)
 from ..errors import NeuralBakeError
 
-__all__ = ["GridNet", "ACTIVATIONS", "grid_resolutions", "grid_table_sizes", "check_grid_settings"]
+__all__ = ["GridNet", "ACTIVATIONS", "grid_resolutions", "grid_table_sizes", "grid_layer_dims", "check_grid_settings"]
 
 #: The MLP's hidden activations: ReLU (Instant-NGP's) or sine (sin(ω·(W x + b)), SIREN's initialisation).
 ACTIVATIONS = ("relu", "sine")
@@ -53,6 +53,11 @@ def grid_table_sizes(resolutions: list[int], log2_table: int) -> list[int]:
     """Entries of each level's table: its (R + 1)³ vertices when they fit in 2^``log2_table``, else that many."""
     cap = 1 << int(log2_table)
     return [min((r + 1) ** 3, cap) for r in resolutions]
+
+
+def grid_layer_dims(levels: int, features: int, width: int, depth: int, out_dim: int) -> list[int]:
+    """The MLP's layer sizes, input to output: the L·F features, D + 1 hidden layers of width W, the outputs."""
+    return [int(levels) * int(features)] + [int(width)] * (int(depth) + 1) + [int(out_dim)]
 
 
 def check_grid_settings(*, levels, features, log2_table, base_resolution, max_resolution, activation, width=None,
@@ -125,7 +130,7 @@ class GridNet(nn.Module):
         for s in self.sizes:
             offsets.append(offsets[-1] + s)
         self.table = nn.Parameter(torch.empty(offsets[-1], self.features))
-        dims = [self.levels * self.features] + [self.width] * (self.depth + 1) + [self.out_dim]
+        dims = grid_layer_dims(self.levels, self.features, self.width, self.depth, self.out_dim)
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         # per-level integer constants (not saved: they follow from the architecture)
         res = torch.tensor(self.resolutions, dtype=torch.int64)

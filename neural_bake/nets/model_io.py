@@ -279,12 +279,12 @@ def expected_network_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int
     """The state_dict names (with ``prefix``) and shapes of the network ``arch`` describes (any of them)."""
     if network_kind(arch) == "siren":
         return expected_shapes(arch, prefix)
-    from .grid import grid_resolutions, grid_table_sizes
+    from .grid import grid_layer_dims, grid_resolutions, grid_table_sizes
 
     rows = sum(grid_table_sizes(grid_resolutions(arch["levels"], arch["base_resolution"], arch["max_resolution"]),
                                 arch["log2_table"]))
     shapes = {f"{prefix}table": (rows, arch["features"])}
-    dims = [arch["levels"] * arch["features"]] + [arch["width"]] * (arch["depth"] + 1) + [arch["out_dim"]]
+    dims = grid_layer_dims(arch["levels"], arch["features"], arch["width"], arch["depth"], arch["out_dim"])
     for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
         shapes[f"{prefix}layers.{i}.weight"] = (b, a)
         shapes[f"{prefix}layers.{i}.bias"] = (b,)
