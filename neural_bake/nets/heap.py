@@ -7,15 +7,19 @@ so every step touches new pages, and each first touch is a page fault (tens of t
 step). :func:`keep_freed_memory` raises both thresholds (``mallopt``), so freed blocks stay in the heap and
 the next step reuses them: a handful of faults per step, and markedly faster steps (docs/findings.md).
 
-numpy asks the kernel for transparent huge pages for its large arrays (``madvise``), and a fresh huge page is
-zeroed whole at its first touch. Arrays larger than the mmap threshold (a 2048² bake's per-sample arrays) are
-mapped afresh at every allocation, so a bake zeroes gigabytes of huge pages, which a virtual machine may hand
-out slowly (the profile: docs/findings.md, "Baking"). :func:`keep_freed_memory` turns numpy's request off as well
-(``NUMPY_MADVISE_HUGEPAGE=0``, the setting numpy reads at import, does the same for a whole program).
+Blocks above that threshold (glibc caps it at 32 MB) would still be mapped afresh at every allocation and
+unmapped at every ``free``: a 2048² bake's per-sample arrays (tens of MB each) page-fault in full each time.
+:func:`keep_freed_memory` therefore also stops malloc from serving blocks with their own ``mmap``
+(``M_MMAP_MAX`` = 0): every block comes from the heap and is reused once freed. (A thread's own arena still
+maps a block larger than its heap; glibc falls back to that by itself.)
 
-The cost: memory a run freed stays with the process (its peak, not its current need), and blocks up to
-:data:`MMAP_THRESHOLD` come from the heap. It changes the whole process, so the library calls it where it
-owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
+numpy asks the kernel for transparent huge pages for its large arrays (``madvise``), and a fresh huge page is
+zeroed whole at its first touch, which a virtual machine may hand out slowly (the profile: docs/findings.md,
+"Baking"). :func:`keep_freed_memory` turns numpy's request off as well (``NUMPY_MADVISE_HUGEPAGE=0``, the
+setting numpy reads at import, does the same for a whole program).
+
+The cost: memory a run freed stays with the process (its peak, not its current need), and large blocks come
+from the heap. It changes the whole process, so the library calls it where it owns the process's work: the training loop (:func:`neural_bake.fit.training.train`, so every fitter and the
 CLI's ``fit`` commands), the baker (:class:`neural_bake.bake.baker.Baker`: the layout's and the maps' arrays of
 a 2048² bake are rasterised, evaluated and freed band after band) and the step timing of ``bench fit``. Only glibc on Linux is tuned; elsewhere (and
 with ``NEURAL_BAKE_KEEP_HEAP=0``) nothing changes. :func:`status` says what happened.
@@ -43,6 +47,7 @@ TRIM_THRESHOLD = 512 << 20
 
 _M_TRIM_THRESHOLD = -1  # glibc's malloc.h
 _M_MMAP_THRESHOLD = -3
+_M_MMAP_MAX = -4
 _lock = threading.Lock()
 _state: dict = {"status": None}
 
@@ -62,7 +67,9 @@ def _tune() -> str:
         return "mallopt refused the mmap threshold: malloc left as it is"
     if mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) != 1:
         return f"mallopt refused the trim threshold: blocks up to {MMAP_THRESHOLD >> 20} MB come from the heap"
-    return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse" + _small_pages()
+    if mallopt(_M_MMAP_MAX, 0) != 1:
+        return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse" + _small_pages()
+    return "glibc malloc keeps freed blocks of any size for reuse" + _small_pages()
 
 
 def _small_pages() -> str:
