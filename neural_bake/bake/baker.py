@@ -26,6 +26,7 @@ from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_pos
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
+from .padding import kernel_status as padding_kernel_status
 
 __all__ = ["TEXTURE_AT", "Baker", "BakeResult", "TexelSample", "sample_keys", "bake_texels", "bake_vertices",
            "welded_vertex_normals"]
@@ -149,9 +150,9 @@ class BakeResult:
     - ``valid``: (M,) bool, |∇f| was usable; ``values``: (M,) f at the samples; ``colors``: (M, C) or None.
     - ``stats``: counts and seconds per stage, and the CPU threads the evaluations ran with (``threads``:
       :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) and what was done to malloc (``heap``:
-      :func:`~neural_bake.nets.heap.keep_freed_memory`) and which rasteriser and tangent-space
-      encoding ran (``kernels``: C or numpy, :func:`neural_bake.mesh.texels.kernel_status`,
-      :func:`neural_bake.bake.maps.kernel_status`) (JSON-ready).
+      :func:`~neural_bake.nets.heap.keep_freed_memory`) and which rasteriser, tangent-space encoding and
+      padding ran (``kernels``: C or numpy, :func:`neural_bake.mesh.texels.kernel_status`,
+      :func:`neural_bake.bake.maps.kernel_status`, :func:`neural_bake.bake.padding.kernel_status`) (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
@@ -655,7 +656,8 @@ class Baker:
             "texels_per_second": float(maps.n_texels / secs["bake"]) if secs["bake"] > 0 else None,
             "threads": threads.as_dict(),
             "heap": self.heap,
-            "kernels": {"rasteriser": kernel_status(), "tangent_encoding": encoding_kernel_status()},
+            "kernels": {"rasteriser": kernel_status(), "tangent_encoding": encoding_kernel_status(),
+                        "padding": padding_kernel_status()},
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

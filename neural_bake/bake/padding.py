@@ -2,12 +2,41 @@
 
 from __future__ import annotations
 
+import ctypes
+from pathlib import Path
+
 import numpy as np
 from scipy import ndimage
 
 from ..errors import NeuralBakeError
+from ..nets.native import Kernel
 
-__all__ = ["pad_charts", "PADDING_METHODS"]
+__all__ = ["pad_charts", "PADDING_METHODS", "kernel_status", "ENV_SWITCH"]
+
+#: 0/off/false: the torch pull-push and numpy dilation even where the C kernel (padding.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_PADDING"
+
+
+def _declare(lib) -> None:
+    p, i64 = ctypes.c_void_p, ctypes.c_int64
+    lib.nb_pull_push_work.argtypes = [i64, i64, i64]
+    lib.nb_pull_push_work.restype = i64
+    for suffix in ("f32", "f64"):
+        getattr(lib, f"nb_pull_push_{suffix}").argtypes = [p, p, i64, i64, i64, p, p]
+        getattr(lib, f"nb_pull_push_{suffix}").restype = None
+        getattr(lib, f"nb_dilate_{suffix}").argtypes = [p, p, i64, i64, i64, i64]
+        getattr(lib, f"nb_dilate_{suffix}").restype = ctypes.c_int
+
+
+#: The C kernel (padding.c, :class:`neural_bake.nets.native.Kernel`); torch and numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("padding.c"), switch=ENV_SWITCH, declare=_declare)
+
+_SUFFIX = {np.dtype(np.float32): "f32", np.dtype(np.float64): "f64"}
+
+
+def kernel_status() -> str:
+    """Which padding runs here: the C kernel (and its file), or why the torch and numpy one does."""
+    return KERNEL.status()
 
 PADDING_METHODS = ("pull-push", "dilate")
 
@@ -50,7 +79,7 @@ def pad_charts(
     covered = cov > 0
     if not covered.any() or covered.all() or pixels == 0:
         return np.array(image, copy=True)
-    work = img.astype(np.float32 if img.dtype == np.float32 else np.float64)  # a copy: filled in place
+    work = np.array(img, dtype=np.float32 if img.dtype == np.float32 else np.float64, order="C")  # filled in place
     if method == "dilate":
         out = work
         _dilate(out, covered, 16 if pixels is None else int(pixels))
@@ -73,6 +102,17 @@ _NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
 def _dilate(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
+    """:func:`_dilate_numpy` by the C kernel where it runs (equal bit for bit), else by numpy."""
+    lib = KERNEL.lib()
+    if lib is not None and out.flags.c_contiguous and out.dtype in _SUFFIX:
+        state = np.ascontiguousarray(filled, dtype=np.uint8)  # a copy: the kernel marks the rings in it
+        h, w, c = out.shape
+        if getattr(lib, f"nb_dilate_{_SUFFIX[out.dtype]}")(out.ctypes.data, state.ctypes.data, h, w, c, int(steps)):
+            return
+    _dilate_numpy(out, filled, steps)
+
+
+def _dilate_numpy(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
     """``steps`` rings of dilation into ``out`` (H, W, C), in place: each ring gives the unfilled texels next
     to a filled one the mean of their filled 8-neighbours; only texels of ``filled`` and of earlier rings
     are read. After the first ring (one pass over the image) the work is proportional to the rings: the
@@ -109,6 +149,20 @@ def _dilate(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
+    """:func:`_pull_push_torch` by the C kernel where it runs (within a few ulps), else by torch."""
+    lib = KERNEL.lib()
+    if lib is not None and img.flags.c_contiguous and img.dtype in _SUFFIX:
+        h, w, c = img.shape
+        cov = np.ascontiguousarray(covered, dtype=np.uint8)
+        work = np.empty(int(lib.nb_pull_push_work(h, w, c)), dtype=img.dtype)
+        out = np.empty_like(img)
+        getattr(lib, f"nb_pull_push_{_SUFFIX[img.dtype]}")(img.ctypes.data, cov.ctypes.data, h, w, c,
+                                                           work.ctypes.data, out.ctypes.data)
+        return out
+    return _pull_push_torch(img, covered)
+
+
+def _pull_push_torch(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
     """Pull: 2×2 box-filter the (premultiplied colour, weight) pyramid; push: fill holes from coarser levels.
     The covered texels of the result hold pushed-down values too: the caller restores them.
 

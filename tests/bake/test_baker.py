@@ -89,10 +89,11 @@ def test_plane_bakes_to_flat_tangent_colour():
     from neural_bake.nets import heap
 
     assert res.stats["heap"] == heap.status() != "not called yet"
-    from neural_bake.bake import maps
+    from neural_bake.bake import maps, padding
     from neural_bake.mesh import texels
 
-    assert res.stats["kernels"] == {"rasteriser": texels.kernel_status(), "tangent_encoding": maps.kernel_status()}
+    assert res.stats["kernels"] == {"rasteriser": texels.kernel_status(), "tangent_encoding": maps.kernel_status(),
+                                    "padding": padding.kernel_status()}
 
 
 def test_tilted_field_on_plane_encodes_tangent_coordinates():

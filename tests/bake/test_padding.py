@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from neural_bake.bake import padding as padding_module
 from neural_bake.bake.padding import pad_charts
 from neural_bake.errors import NeuralBakeError
 from neural_bake.io.colour import sample_texture
@@ -110,11 +111,26 @@ def _pull_push_reference(img, covered):
     return cur
 
 
+def _without_kernel(monkeypatch):
+    monkeypatch.setattr(padding_module.KERNEL, "_state", {"lib": None, "status": "off (test)"})
+    assert padding_module.kernel_status() == "numpy (off (test))"
+
+
+def _need_kernel():
+    if padding_module.KERNEL.lib() is None:
+        pytest.skip(f"no C kernel here: {padding_module.kernel_status()}")
+
+
+@pytest.mark.parametrize("path", ["kernel", "torch"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("shape", [(40, 50), (37, 23), (1, 9)])  # even, odd and one-row sizes
-def test_pull_push_matches_the_plain_reference(rng, dtype, shape):
+def test_pull_push_matches_the_plain_reference(monkeypatch, rng, path, dtype, shape):
     from neural_bake.bake.padding import _pull_push
 
+    if path == "kernel":
+        _need_kernel()
+    else:
+        _without_kernel(monkeypatch)
     img = rng.uniform(0, 1, size=(*shape, 3)).astype(dtype)
     cov = rng.uniform(size=shape) < 0.1
     cov[0, 0] = True
@@ -123,3 +139,58 @@ def test_pull_push_matches_the_plain_reference(rng, dtype, shape):
     tol = 1e-5 if dtype == np.float32 else 1e-12
     # the covered texels are the caller's to restore: compared where the pyramid filled
     assert np.allclose(out[~cov], _pull_push_reference(img, cov)[~cov], atol=tol)
+
+
+def _charts(rng, shape, n):
+    cov = np.zeros(shape, bool)
+    for _ in range(n):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        cov[r: r + rng.integers(1, 12), c: c + rng.integers(1, 12)] = True
+    return cov
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(64, 48), (33, 71), (1, 1), (1, 17), (29, 1)])
+def test_pull_push_kernel_equals_the_torch_path(monkeypatch, rng, dtype, shape):
+    """The C pull-push against torch's at every texel: within a few ulps (the two sum and divide in
+    different orders)."""
+    from neural_bake.bake.padding import _pull_push_torch
+
+    _need_kernel()
+    img = rng.uniform(-1, 1, size=(*shape, 4)).astype(dtype)
+    cov = _charts(rng, shape, 6)
+    cov.reshape(-1)[0] = True
+    fast = padding_module._pull_push(img, cov)
+    slow = _pull_push_torch(img, cov)
+    assert fast.dtype == slow.dtype == dtype and fast.shape == slow.shape
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=4 * np.finfo(dtype).eps)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("steps", [1, 3, 40])  # 40: past the last empty texel
+def test_dilate_kernel_equals_the_numpy_path_bit_for_bit(rng, dtype, steps):
+    _need_kernel()
+    img = rng.uniform(0, 1, size=(37, 53, 3)).astype(dtype)
+    cov = _charts(rng, img.shape[:2], 5)
+    fast, slow = img.copy(), img.copy()
+    padding_module._dilate(fast, cov, steps)
+    padding_module._dilate_numpy(slow, cov, steps)
+    np.testing.assert_array_equal(fast, slow)
+    assert cov.sum() < cov.size and not np.array_equal(fast, img)  # a case with something to fill
+
+
+@pytest.mark.parametrize("method,pixels", [("pull-push", None), ("pull-push", 3), ("dilate", None), ("dilate", 2)])
+def test_pad_charts_the_same_with_and_without_the_kernel(monkeypatch, rng, method, pixels):
+    """The whole padding by the C kernel and by torch and numpy: covered texels kept bit for bit, the rest
+    within float32 ulps (pull-push) or equal (dilation)."""
+    _need_kernel()
+    img = rng.uniform(0, 1, size=(50, 61, 3)).astype(np.float32)
+    cov = _charts(rng, img.shape[:2], 8)
+    fast = pad_charts(img, cov, method=method, pixels=pixels)
+    with monkeypatch.context() as mp:
+        _without_kernel(mp)
+        slow = pad_charts(img, cov, method=method, pixels=pixels)
+    np.testing.assert_array_equal(fast[cov], img[cov])
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=4 * np.finfo(np.float32).eps)
+    if method == "dilate":
+        np.testing.assert_array_equal(fast, slow)
