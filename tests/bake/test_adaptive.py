@@ -162,6 +162,72 @@ def test_linear_field_is_interpolated_exactly_float64_and_float32():
         assert res["stats"]["evaluated"] < 0.1 * len(rows)
 
 
+@pytest.mark.parametrize("dtype,atol", [(torch.float64, 1e-10), (torch.float32, 2e-4)])
+def test_quadratic_weights_reproduce_quadratic_fields(dtype, atol, rng):
+    """On skewed cells in space (random affine images of the unit square) with nodes moved off their ideal
+    places, the weights reproduce any quadratic polynomial of the cell's coordinates at the nodes and at random
+    points, and sum to one."""
+    from neural_bake.bake.adaptive import _NODES, _quadratic_weights
+
+    n, m = 50, 30
+    origin, e_t, e_u = (rng.normal(size=(n, 3)) for _ in range(3))
+    ideal = _NODES / 2.0  # (9, 2): (t, u) of the nodes
+    tu_nodes = ideal[None] + rng.uniform(-0.04, 0.04, size=(n, 9, 2))
+    tu_nodes[:, [0, 2, 6, 8]] = ideal[[0, 2, 6, 8]]  # the corners define the cell's coordinates
+    tu_points = rng.uniform(-0.2, 1.2, size=(n, m, 2))
+
+    def place(tu):  # (n, k, 2) -> (3, n, k) points of each cell's parallelogram
+        return np.einsum("nkt,ntd->dnk", tu, np.stack([e_t, e_u], axis=1)) + origin.T[:, :, None]
+
+    coef = rng.normal(size=(n, 6))
+
+    def q(tu):  # a quadratic polynomial per cell
+        t, u = tu[..., 0], tu[..., 1]
+        return (coef[:, 0:1] + coef[:, 1:2] * t + coef[:, 2:3] * u + coef[:, 3:4] * t * t + coef[:, 4:5] * t * u
+                + coef[:, 5:6] * u * u)
+
+    nodes = torch.from_numpy(place(tu_nodes).transpose(0, 2, 1)).to(dtype)  # (3, 9, n)
+    for tu in (tu_nodes, tu_points):
+        w, good = _quadratic_weights(nodes, torch.from_numpy(place(tu)).to(dtype))
+        assert good.all() and w.dtype == dtype
+        np.testing.assert_allclose(w.sum(-1).double().numpy(), 1.0, atol=atol)
+        got = torch.einsum("nmk,nk->nm", w.double(), torch.from_numpy(q(tu_nodes))).numpy()
+        np.testing.assert_allclose(got, q(tu), atol=atol * 10)
+    degenerate = nodes.clone()
+    degenerate[:, :, 0] = degenerate[:, 0:1, 0]  # every node of cell 0 at one point
+    _, good = _quadratic_weights(degenerate, torch.from_numpy(place(tu_points)).to(dtype))
+    assert not good[0] and good[1:].all()
+
+
+def test_quadratic_pass_accepts_curved_fields_with_fewer_evaluations_within_tolerance(monkeypatch):
+    """A field whose normals bend quadratically across the band (a large sphere over the plane, 2.5° over 16
+    samples): bilinear cells fail at side 16 and 8 where quadratic ones pass. With the quadratic pass fewer
+    samples are evaluated, and every interpolated normal is within the tolerance of the true one."""
+    from neural_bake.bake import adaptive
+
+    r, c = np.meshgrid(np.arange(129), np.arange(129), indexing="ij")
+    rows, cols = r.reshape(-1), c.reshape(-1)
+    tx = grid_texels(rows, cols, (129, 129))
+    labels = np.zeros(len(rows), dtype=np.int64)
+    centre = np.array([0.64, 0.64, -3.0])
+
+    def evaluate(idx):
+        d = tx.points[idx] - centre
+        n = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return {"values": np.zeros(len(idx)), "normals": n, "valid": np.ones(len(idx), bool)}
+
+    opt = AdaptiveOptions(lattice=16, tolerance_deg=0.05)
+    with_quad = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
+    monkeypatch.setattr(adaptive, "_QUADRATIC_SIDE", 1 << 30)
+    without = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
+    assert with_quad["stats"]["cells_quadratic"] and not without["stats"]["cells_quadratic"]
+    assert with_quad["stats"]["evaluated"] < 0.8 * without["stats"]["evaluated"]
+    truth = evaluate(np.arange(len(rows)))["normals"]
+    for res in (with_quad, without):
+        assert (res["evaluated"] | res["interpolated"]).all()
+        assert angle_deg(res["normals"], truth).max() <= opt.tolerance_deg
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_spatial_weights_match_the_bilinear_reference(dtype, rng):
     # on a flat parallelogram the spatial coordinates are the parameters themselves: bilinear weights
