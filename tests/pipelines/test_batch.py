@@ -241,7 +241,7 @@ def test_budgeted_stages_record_expected_and_made_steps_and_warn(tmp_path, sampl
     # leaves most of it to the steps. With the injected rate the expected steps are the budget over the mesh's
     # own seconds a step (its sampling, the first pool build spread over the steps), so the premise (made under
     # half of expected) needs steps whose own work outweighs that: 9 s hold it with a margin on a loaded
-    # machine too (3 s did not)
+    # machine too (at 3 s the pool build's share can reverse it there)
     stages["sdf"] = {"preset": "64x1", "minutes": 0.15, "pool_surface": 8000, "pool_near": 8000, "pool_uniform": 2000,
                      "polish_evals": 0, "compile": "off", "gemm_dtype": "float32", "micro_batches": 1}
     stages["texture"] = {"preset": "quick", "minutes": 0.01, "pool": 4000}
