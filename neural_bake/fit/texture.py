@@ -136,6 +136,11 @@ class TextureFitConfig(PresetLoopSettings):
     """Part of the surface samples drawn by UV area (as densely as the texture's texels lie on the surface)
     instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
     edges) get many texels on little surface (0: all by area)."""
+    edge_share: float = 0.0
+    """Part of the surface samples drawn at the texture's edges: among :data:`EDGE_CANDIDATES` times as many
+    candidates (drawn like the others), each with probability proportional to the texture's colour step around
+    it (:func:`edge_strength`). Flat-colour textures change at sharp borders, where a network blurs and rings;
+    0: none."""
     encoding: str = "auto"
     """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
     unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
@@ -338,10 +343,34 @@ def texel_face_weights(mesh: Mesh, share: float) -> np.ndarray | None:
     return (1.0 - share) * area / area.sum() + share * uv_area / uv_area.sum()
 
 
+#: Candidates drawn per edge sample (:attr:`TextureFitConfig.edge_share`): the thin bands along a texture's
+#: edges hold a few percent of the surface, so the candidates must reach them many times over.
+EDGE_CANDIDATES = 16
+
+
+def edge_strength(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the largest colour step (any channel, linear RGB) between a texel and its 4-neighbours,
+    spread to the texels around it (3×3 maximum), so both sides of a border and the texels a bilinear lookup
+    blends across it count."""
+    from scipy import ndimage
+
+    img = np.asarray(rgb, dtype=np.float32)[..., :3]
+    step = np.zeros(img.shape[:2], dtype=np.float32)
+    dy = np.abs(np.diff(img, axis=0)).max(axis=2)
+    dx = np.abs(np.diff(img, axis=1)).max(axis=2)
+    np.maximum(step[1:], dy, out=step[1:])
+    np.maximum(step[:-1], dy, out=step[:-1])
+    np.maximum(step[:, 1:], dx, out=step[:, 1:])
+    np.maximum(step[:, :-1], dx, out=step[:, :-1])
+    return ndimage.maximum_filter(step, size=3, mode="nearest")
+
+
 def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None,
-                    texel_share: float = 0.0) -> dict:
+                    texel_share: float = 0.0, edge_share: float = 0.0) -> dict:
     """Surface samples of ``mesh`` with their texture colours: uniform by area, or with ``texel_share`` of
-    them by UV area (:func:`texel_face_weights`: as densely as the texture's texels lie; 1: texel-uniform).
+    them by UV area (:func:`texel_face_weights`: as densely as the texture's texels lie; 1: texel-uniform),
+    and ``edge_share`` of them at the texture's edges (:attr:`TextureFitConfig.edge_share`; none where the
+    texture has no edge).
 
     Returns float32 numpy arrays, unit frame: ``points`` (n, 3), ``normals`` (n, 3) unit outward mesh
     normals, ``uv`` (n, 2), ``colors`` (n, 3) linear RGB (bilinear lookup, ``mesh.uv_policy`` for UVs outside
@@ -350,14 +379,30 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     rgb = _texture_rgb(mesh, texture)
     from .sampling import sample_surface
 
-    s = sample_surface(mesh, int(n), seed=seed, face_weights=texel_face_weights(mesh, texel_share))
-    colors = sample_texture(rgb, np.asarray(s.uv, dtype=np.float64), mesh.uv_policy).astype(np.float32)
+    weights = texel_face_weights(mesh, texel_share)
+    n_edge = int(round(int(n) * float(edge_share)))
+    s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=weights)
+    parts = [(np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64),
+              np.asarray(s.face_index))]
+    if n_edge > 0:
+        cand = sample_surface(mesh, n_edge * EDGE_CANDIDATES, seed=seed + 1, face_weights=weights)
+        uv = np.asarray(cand.uv, dtype=np.float64)
+        strength = sample_texture(edge_strength(rgb)[..., None], uv, mesh.uv_policy)[:, 0].astype(np.float64)
+        total = strength.sum()
+        if total > 0 and np.isfinite(total):
+            pick = np.random.default_rng(seed + 2).choice(len(uv), size=n_edge, p=strength / total)
+        else:  # no edge anywhere: the candidates as they came
+            pick = np.arange(n_edge)
+        parts.append((np.asarray(cand.points)[pick], np.asarray(cand.normals)[pick], uv[pick],
+                      np.asarray(cand.face_index)[pick]))
+    points, normals, uvs, faces = (np.concatenate(a) for a in zip(*parts))
+    colors = sample_texture(rgb, uvs, mesh.uv_policy).astype(np.float32)
     return {
-        "points": np.asarray(s.points, dtype=np.float32),
-        "normals": np.asarray(s.normals, dtype=np.float32),
-        "uv": np.asarray(s.uv, dtype=np.float32),
+        "points": points.astype(np.float32),
+        "normals": normals.astype(np.float32),
+        "uv": uvs.astype(np.float32),
         "colors": colors,
-        "face_index": np.asarray(s.face_index, dtype=np.int64),
+        "face_index": faces.astype(np.int64),
     }
 
 
@@ -496,8 +541,10 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"delta: must be in (0, 1] (unit frame), got {c.delta!r}")
     if c.minutes is not None and not (math.isfinite(c.minutes) and c.minutes > 0):
         raise FitError(f"minutes: must be a positive number, got {c.minutes!r}")
-    if not (isinstance(c.texel_share, (int, float)) and 0 <= c.texel_share <= 1):
-        raise FitError(f"texel_share: must be in [0, 1], got {c.texel_share!r}")
+    for name in ("texel_share", "edge_share"):
+        v = getattr(c, name)
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 <= v <= 1):
+            raise FitError(f"{name}: must be in [0, 1], got {v!r}")
     if not 0 <= c.band_uniform_fraction <= 1:
         raise FitError(f"band_uniform_fraction: must be in [0, 1], got {c.band_uniform_fraction!r}")
     if c.dtype not in ("float32", "float64"):
@@ -605,7 +652,8 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     init_gen = torch.Generator().manual_seed(int(config.seed))
     model = make_texture_network(config, init_gen).to(device, dtype)
 
-    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share)
+    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share,
+                              edge_share=config.edge_share)
     pts = torch.as_tensor(samples["points"], dtype=torch.float64)
     nrm = torch.as_tensor(samples["normals"], dtype=torch.float64)
     encoding = _resolve_encoding(config.encoding, rgb)

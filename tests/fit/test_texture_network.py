@@ -15,7 +15,8 @@ import torch
 
 from neural_bake.errors import FitError
 from neural_bake.fields import TextureField, load_field
-from neural_bake.fit.texture import TextureFitConfig, band_orthogonality, fit_texture, make_texture_network
+from neural_bake.fit.texture import (TextureFitConfig, band_orthogonality, edge_strength, fit_texture,
+                                     make_texture_network, texture_targets)
 from neural_bake.io.colour import linear_to_srgb
 from neural_bake.nets.grid import GridNet
 from neural_bake.nets.siren import Siren
@@ -152,3 +153,52 @@ def test_quick_and_default_presets_are_grids_and_network_siren_gives_their_siren
     siren = _resolve_config(None, {"preset": "default", "network": "siren"})
     assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr) == ("siren", 192, 3, 60.0, 5e-4)
     assert _resolve_config(None, {"preset": "high"}).network == "siren"
+
+
+def _texel_distance_to_edge(uv: np.ndarray) -> np.ndarray:
+    """Distance in texels of UV points (n, 2) of the disc texture from the disc's border circle."""
+    xx, yy = uv[:, 0] * SIDE, (1.0 - uv[:, 1]) * SIDE
+    return np.abs(np.hypot(xx - SIDE / 2, yy - SIDE / 2) - DIAMETER / 2)
+
+
+def test_edge_strength_marks_both_sides_of_the_disc_border_only():
+    mesh = disc_square()
+    strength = edge_strength(mesh.texture)
+    yy, xx = np.mgrid[0:SIDE, 0:SIDE] + 0.5
+    dist = np.abs(np.hypot(xx - SIDE / 2, yy - SIDE / 2) - DIAMETER / 2)
+    step = np.abs(DISC - BACKGROUND).max()
+    assert strength[dist < 0.5].min() == pytest.approx(step, rel=1e-6)  # on the border: the full step
+    assert (strength[dist > 3.5] == 0).all()  # flat colour away from it: nothing
+    assert edge_strength(np.ones((8, 8, 3), np.float32)).max() == 0
+
+
+def test_edge_share_draws_that_part_of_the_samples_at_the_texture_edges():
+    """The disc oracle: the band within 3.5 texels of the border circle (the edge strength's support: the
+    texels on both sides of the border, spread by one, read bilinearly) holds about 11 % of the square; with
+    edge_share 0.3, 0.3 + 0.7 × that of the samples lie there, and their colours are the texture's."""
+    mesh = disc_square()
+    n = 40000
+    plain = texture_targets(mesh, n, seed=3)
+    edged = texture_targets(mesh, n, seed=3, edge_share=0.3)
+    assert len(edged["points"]) == n and edged["points"].dtype == np.float32
+    near_plain = (_texel_distance_to_edge(plain["uv"]) < 3.5).mean()
+    near_edged = (_texel_distance_to_edge(edged["uv"]) < 3.5).mean()
+    assert 0.08 < near_plain < 0.14
+    assert near_edged == pytest.approx(0.3 + 0.7 * near_plain, abs=0.02)
+    # every sample's colour is the texture's at its UV, and its point is the square's at that UV
+    np.testing.assert_allclose(edged["points"][:, :2], edged["uv"] * 2 * HALF - HALF, atol=1e-5)
+    inside = _texel_distance_to_edge(edged["uv"]) > 2.0  # past the pixelated border and its bilinear blend
+    disc = np.hypot(edged["uv"][:, 0] * SIDE - SIDE / 2, (1 - edged["uv"][:, 1]) * SIDE - SIDE / 2) < DIAMETER / 2
+    want = np.where(disc[:, None], DISC, BACKGROUND)
+    np.testing.assert_allclose(edged["colors"][inside], want[inside], atol=1e-6)
+    # edge_share 0 draws exactly what it drew before; a texture without edges draws its candidates as they came
+    np.testing.assert_array_equal(texture_targets(mesh, n, seed=3, edge_share=0.0)["points"], plain["points"])
+    flat = Mesh(vertices=mesh.vertices, faces=mesh.faces, uv=mesh.uv, texture=np.ones((8, 8, 3), np.float32),
+                vertex_normals=mesh.vertex_normals, watertight=False)
+    assert len(texture_targets(flat, 1000, seed=3, edge_share=0.5)["points"]) == 1000
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.5, True, "a"])
+def test_edge_share_out_of_range_is_a_one_line_error(value):
+    with pytest.raises(FitError, match=r"edge_share: must be in \[0, 1\]"):
+        fit_texture(disc_square(), plane_sdf, steps=1, minutes=None, edge_share=value, **GRID)
