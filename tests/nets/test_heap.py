@@ -39,6 +39,18 @@ _FAULTS = textwrap.dedent("""
 """)
 
 
+# The tail of a cycle script (which defines cycle()): three warm-up cycles, then the minor page faults of ten,
+# printed per cycle.
+_MEASURE = textwrap.dedent("""
+    for _ in range(3):
+        cycle()
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(10):
+        cycle()
+    print((resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 10)
+""")
+
+
 # A heap pattern glibc's adaptive thresholds never rescue: 64 KB blocks (below the initial 128 KB mmap
 # threshold, so they come from the heap) filling 80 MB at its top, written, then freed. Untuned, 80 MB is
 # past any trim threshold glibc adapts to by itself (at most twice its 32 MB mmap-threshold cap), so the top
@@ -58,13 +70,7 @@ _HEAP_TOP = textwrap.dedent("""
             ctypes.memset(p, 1, BLOCK)
         for p in reversed(ptrs):
             libc.free(p)
-    for _ in range(3):
-        cycle()
-    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    for _ in range(10):
-        cycle()
-    print((resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 10)
-""")
+""") + _MEASURE
 
 
 # Blocks above glibc's largest mmap threshold (32 MB): 64 MB numpy arrays, as a 2048² bake's per-sample
@@ -81,13 +87,7 @@ _LARGE = textwrap.dedent("""
         a = np.empty(8 << 20)  # 64 MB
         a.fill(1.0)
         del a
-    for _ in range(3):
-        cycle()
-    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    for _ in range(10):
-        cycle()
-    print((resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 10)
-""")
+""") + _MEASURE
 
 
 def _faults(script: str, env_value: str | None) -> tuple[float, str]:
