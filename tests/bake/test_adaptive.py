@@ -214,7 +214,8 @@ def test_quadratic_pass_accepts_curved_fields_with_fewer_evaluations_within_tole
     def evaluate(idx):
         d = tx.points[idx] - centre
         n = d / np.linalg.norm(d, axis=1, keepdims=True)
-        return {"values": np.zeros(len(idx)), "normals": n, "valid": np.ones(len(idx), bool)}
+        colours = 0.5 + 0.1 * np.stack([np.sin(tx.points[idx, 0]), tx.points[idx, 1] ** 2, tx.points[idx, 0]], 1)
+        return {"values": np.zeros(len(idx)), "normals": n, "valid": np.ones(len(idx), bool), "colors": colours}
 
     opt = AdaptiveOptions(lattice=16, tolerance_deg=0.05)
     with_quad = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
@@ -222,10 +223,11 @@ def test_quadratic_pass_accepts_curved_fields_with_fewer_evaluations_within_tole
     without = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
     assert with_quad["stats"]["cells_quadratic"] and not without["stats"]["cells_quadratic"]
     assert with_quad["stats"]["evaluated"] < 0.8 * without["stats"]["evaluated"]
-    truth = evaluate(np.arange(len(rows)))["normals"]
+    truth = evaluate(np.arange(len(rows)))
     for res in (with_quad, without):
         assert (res["evaluated"] | res["interpolated"]).all()
-        assert angle_deg(res["normals"], truth).max() <= opt.tolerance_deg
+        assert angle_deg(res["normals"], truth["normals"]).max() <= opt.tolerance_deg
+        assert np.abs(res["colors"] - truth["colors"]).max() <= opt.color_tol
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
