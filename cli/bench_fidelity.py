@@ -21,6 +21,11 @@ from .bench import bench_options, report
 @click.option("--sampling", default=None, metavar="LIST",
               help="Comma-separated SDF sampling variants to compare in one run: uniform, curvature, error, "
                    "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
+@click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
+              help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (the preset's "
+                   "fit, the default), residual (a 64-wide coarse level for a quarter of the budget, then the "
+                   "preset's network fitted as a residual inside the coarse level's band), residual-warm (the "
+                   "preset's network started from the coarse level). Rows get ratios against plain.")
 @click.option("--steps", default=None, metavar="LIST",
               help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")
 @click.option("--texture-steps", type=int, default=None,
@@ -37,19 +42,24 @@ from .bench import bench_options, report
               help="Only the texture rows, on the textured assets (default: all of them; --quick: spot).")
 @click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None, metavar="DIRECTORY",
               help="Also save every fitted SDF as DIR/MESH-PRESET.sdf (e.g. for bench bake --anchor-model).")
-def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, steps, texture_steps,
-            texture_networks, texture_minutes, only_textures, save_dir) -> None:
+def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, constructions, steps,
+            texture_steps, texture_networks, texture_minutes, only_textures, save_dir) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
     without their caps); times; texture PSNR; storage. Textured assets add a texture row: the albedo of the
     network alone, of the hybrid colour rule and of the classical transfer against the source texture (PSNR,
     SSIM) and the time of each bake. Meshes not present are skipped, saying so."""
     from neural_bake.bench.fidelity import SAMPLINGS, TEXTURE_NETWORKS, run
+    from neural_bake.fit.residual import CONSTRUCTIONS
 
     variants = None if sampling is None else [v.strip() for v in sampling.split(",") if v.strip()]
     bad = [v for v in variants or [] if v not in SAMPLINGS]
     if bad or variants == []:
         raise click.BadParameter(f"choose among {', '.join(SAMPLINGS)}, got {sampling!r}", param_hint="--sampling")
+    kinds = None if constructions is None else [v.strip() for v in constructions.split(",") if v.strip()]
+    if kinds is not None and (not kinds or any(v not in CONSTRUCTIONS for v in kinds) or len(set(kinds)) != len(kinds)):
+        raise click.BadParameter(f"choose distinct names among {', '.join(CONSTRUCTIONS)}, got {constructions!r}",
+                                 param_hint="--sdf-construction")
     try:
         counts = None if steps is None else [int(n) for n in steps.split(",") if n.strip()]
     except ValueError:
@@ -68,5 +78,5 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
                minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir,
                texture_steps=texture_steps, only_textures=only_textures, texture_networks=nets,
-               texture_minutes=texture_minutes, log=click.echo),
+               texture_minutes=texture_minutes, constructions=kinds, log=click.echo),
            json_path)

@@ -205,24 +205,59 @@ def _stats(rep: dict, key: str, what=("median", "p95")) -> tuple:
 
 
 def _adam_seconds_per_step(fit) -> float | None:
-    """Seconds per Adam step of a fit (its polish excluded)."""
+    """Seconds per Adam step of a fit (its polish excluded; a residual construction's fine level's)."""
     if not fit.steps:
         return None
-    return (fit.seconds - float((fit.polish or {}).get("seconds") or 0.0)) / fit.steps
+    seconds = fit.seconds if getattr(fit, "fine_seconds", None) is None else fit.fine_seconds
+    return (seconds - float((fit.polish or {}).get("seconds") or 0.0)) / fit.steps
+
+
+def _networks(fit) -> tuple[str, int]:
+    """A fit's networks as a row names them ("192x3", "64x3+192x3") and their parameters (a residual
+    construction's two networks', not the zero blocks of their sum as one network)."""
+    from ..fit.residual import ResidualSdfFit
+
+    if isinstance(fit, ResidualSdfFit) and fit.fine is not None and fit.coarse is not None:
+        params = sum(p.numel() for m in (fit.coarse.model, fit.fine) for p in m.parameters())
+        return fit.label, params
+    label = fit.label if isinstance(fit, ResidualSdfFit) else f"{fit.config.width}x{fit.config.depth}"
+    return label, sum(p.numel() for p in fit.model.parameters())
+
+
+def _baselines(rows: list[dict], column: str, value: str) -> dict:
+    """The row each row is compared with: the one of the same case whose ``column`` is ``value`` (the other
+    case columns equal), keyed by :func:`id` of the row (absent: no such row in the run)."""
+    case = ("mesh", "preset", "step_cap", "sampling", "construction")
+
+    def key(r):
+        return tuple(r.get(k) for k in case if k != column)
+
+    base = {key(r): r for r in rows if r.get(column) == value}
+    return {id(r): base[key(r)] for r in rows if key(r) in base}
+
+
+def _ratio_columns(r: dict, b: dict | None, pairs) -> None:
+    for key, out in pairs:
+        ok = b is not None and r.get(key) is not None and b.get(key)
+        r[out] = r[key] / b[key] if ok else None
 
 
 def _with_ratios(rows: list[dict]) -> None:
-    """Adds to each row its ratios against the "uniform" row of the same mesh, preset and step count
-    (measured in the same run): map median and p95, Hausdorff, seconds per Adam step, and the sampling's
-    cost ratio: (the baseline's step + this row's extra sampling seconds per step) / the baseline's step,
-    which a loaded machine disturbs less than the ratio of whole steps (the step's own work is the same)."""
-    base = {(r["mesh"], r["preset"], r["step_cap"]): r for r in rows if r["sampling"] == "uniform"}
+    """Adds to each row its ratios against the "uniform" row of the same mesh, preset, step count and
+    construction (measured in the same run): map median and p95, Hausdorff, seconds per Adam step, and the
+    sampling's cost ratio: (the baseline's step + this row's extra sampling seconds per step) / the baseline's
+    step, which a loaded machine disturbs less than the ratio of whole steps (the step's own work is the
+    same); and against the "plain" construction of the same mesh, preset, step count and sampling: map
+    median and p95, Hausdorff (``plain_*_ratio``)."""
+    base = _baselines(rows, "sampling", "uniform")
+    plain = _baselines(rows, "construction", "plain")
     for r in rows:
-        b = base.get((r["mesh"], r["preset"], r["step_cap"]))
-        for key, out in (("map_median_deg", "median_ratio"), ("map_p95_deg", "p95_ratio"),
-                         ("hausdorff", "hausdorff_ratio"), ("s_per_step", "step_cost_ratio")):
-            ok = b is not None and r.get(key) is not None and b.get(key)
-            r[out] = r[key] / b[key] if ok else None
+        b = base.get(id(r))
+        _ratio_columns(r, b, (("map_median_deg", "median_ratio"), ("map_p95_deg", "p95_ratio"),
+                              ("hausdorff", "hausdorff_ratio"), ("s_per_step", "step_cost_ratio")))
+        _ratio_columns(r, plain.get(id(r)), (("map_median_deg", "plain_median_ratio"),
+                                             ("map_p95_deg", "plain_p95_ratio"),
+                                             ("hausdorff", "plain_hausdorff_ratio")))
         ok = b is not None and all(x.get(k) is not None for x in (r, b) for k in ("s_per_step", "sampling_share"))
         r["sampling_cost_ratio"] = (1.0 + (r["s_per_step"] * r["sampling_share"] - b["s_per_step"] * b[
             "sampling_share"]) / b["s_per_step"]) if ok and b["s_per_step"] else None
@@ -233,10 +268,12 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
     n_med, n_p95 = _stats(rep, "neural_vs_truth_deg")
     b_med, b_p95 = _stats(rep, "baseline.vs_truth_deg")
     g_med, g_p95 = _stats(rep, "geometric_vs_truth_deg")
-    params = sum(p.numel() for p in fit.model.parameters())
+    net, params = _networks(fit)
+    coarse = getattr(fit, "coarse", None)
     row = {
-        "mesh": name, "preset": preset, "net": f"{fit.config.width}x{fit.config.depth}",
+        "mesh": name, "preset": preset, "net": net, "construction": getattr(fit, "construction", "plain"),
         "sampling": None, "step_cap": None, "steps": fit.steps, "s_per_step": _adam_seconds_per_step(fit),
+        "coarse_steps": None if coarse is None else coarse.steps, "band": getattr(fit, "band", None),
         "sampling_share": (None if not fit.sampling_seconds or not fit.seconds
                            else fit.sampling_seconds / (_adam_seconds_per_step(fit) * fit.steps)),
         "expected_steps": (fit.budget or {}).get("expected_steps"), "fit_s": fit_s,
@@ -261,7 +298,8 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         faces: int | None = None, size: int | None = None, minutes: float | None = None, texture: bool | None = None,
         data: str | os.PathLike | None = None, sampling: list[str] | None = None, steps: list[int] | None = None,
         save_dir: str | os.PathLike | None = None, texture_steps: int | None = None, only_textures: bool = False,
-        texture_networks: list[str] | None = None, texture_minutes: float | None = None, log=None) -> dict:
+        texture_networks: list[str] | None = None, texture_minutes: float | None = None,
+        constructions: list[str] | None = None, log=None) -> dict:
     """Run the fidelity benchmark; returns ``{"name", "machine", "quick", "rows", "notes"}``.
 
     - ``meshes``: names of :data:`MESHES` or :data:`SAMPLE_MESHES`, or mesh file paths (default: every mesh the
@@ -288,12 +326,17 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
       preset's own network alone runs the preset's steps on the reference machine, and any other
       construction makes every texture fit run the preset's time budget (equal time).
     - ``texture_minutes``: the time budget of every texture fit (equal time; the steps made follow the machine).
+    - ``constructions``: SDF constructions (:data:`~neural_bake.fit.residual.CONSTRUCTIONS`: "plain", today's
+      fit, the default; "residual", a fine level fitted on a coarse one inside its band; "residual-warm") fitted
+      at the same budget and baked side by side, one row each; rows get ratios against "plain" of the same
+      mesh, preset, step count and sampling (``plain_median_ratio``, ``plain_p95_ratio``,
+      ``plain_hausdorff_ratio``; add "plain" to have them).
 
     The result has ``"texture_rows"`` (one per textured case with a texture fit) and, when there are any,
     ``"tables"`` (the normal rows and the texture rows, as the bench report prints them).
     """
     from ..fit.metrics import sdf_metrics
-    from ..fit.sdf import fit_sdf
+    from ..fit.residual import CONSTRUCTIONS, fit_sdf_construction
     from ..io.mesh_io import load_mesh
     from ..pipelines.bake_asset import BakeAssetConfig, bake_asset
 
@@ -352,6 +395,14 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     unknown = [v for v in sampling if v not in SAMPLINGS]
     if unknown:
         raise NeuralBakeError(f"fidelity: sampling must be among {', '.join(SAMPLINGS)}, got {', '.join(unknown)}")
+    constructions = list(constructions or ["plain"])
+    bad = [c for c in constructions if c not in CONSTRUCTIONS]
+    if bad or len(set(constructions)) != len(constructions):
+        raise NeuralBakeError(f"fidelity: constructions must be distinct names among {', '.join(CONSTRUCTIONS)}, "
+                              f"got {', '.join(constructions)}", parameter="constructions")
+    if only_textures and constructions != ["plain"]:
+        raise NeuralBakeError("fidelity: only_textures fits the plain SDF (its reference steps); constructions "
+                              f"{', '.join(constructions)} are for the normal rows", parameter="constructions")
     caps_of_steps = [None] if not steps else [int(n) for n in steps]
     if any(n is not None and n < 1 for n in caps_of_steps):
         raise NeuralBakeError(f"fidelity: steps must be positive integers, got {steps!r}")
@@ -369,21 +420,23 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             continue
         source_mb = _source_bytes(path) / 2**20
         coarse = spec.get("coarse", f"decimate:{faces}")
-        cases = [(p, n, v) for p in presets for n in caps_of_steps for v in sampling]
-        for preset, step_cap, variant in cases:
+        cases = [(p, n, v, c) for p in presets for n in caps_of_steps for v in sampling for c in constructions]
+        for preset, step_cap, variant, construction in cases:
             label = f"{name} {preset}" + ("" if step_cap is None else f" {step_cap} steps") + (
-                "" if variant == "preset" else f" {variant}")
+                "" if variant == "preset" else f" {variant}") + ("" if construction == "plain" else f" {construction}")
             say(f"{label}: fitting the SDF")
             t0 = time.perf_counter()
             over = {} if minutes is None else {"minutes": minutes}
             if step_cap is not None:
                 over = {"minutes": None, "steps": step_cap}
             sdf_over = {"budget": "steps"} if only_textures and not over else over
-            fit = fit_sdf(mesh, preset=preset, progress=False, **sdf_over, **SAMPLINGS[variant])
+            fit = fit_sdf_construction(mesh, construction, preset=preset, progress=False, **sdf_over,
+                                       **SAMPLINGS[variant])
             fit_s = time.perf_counter() - t0
             if save_dir is not None:
                 stem = "-".join([Path(name).stem, preset, *([] if step_cap is None else [str(step_cap)]),
-                                 *([] if variant == "preset" else [variant])])
+                                 *([] if variant == "preset" else [variant]),
+                                 *([] if construction == "plain" else [construction])])
                 fit.save(Path(save_dir) / f"{stem}.sdf")
             n, res = (20_000, 96) if quick else (50_000, 128)
             metrics = caps = None

@@ -24,6 +24,7 @@ progress, checkpoints/resume, seeds and divergence recovery.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -47,7 +48,7 @@ from .record import FitRecord
 from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
 from .sdf_loss import (FIRST_ORDER_MIN_SLOPE, FOCUS_CAP, first_order_distance, focused_squares, mixed_gradient,
                        sdf_loss_terms, sdf_step_backward)
-from .sdf_pools import _draw, _error_cdf, _hard_indices, _Pools, _zero_set_samples
+from .sdf_pools import BASE_KEYS, _draw, _error_cdf, _hard_indices, _Pools, _zero_set_samples, band_pools
 from .sdf_tuning import TRAIN_CHUNK_ELEMENTS, TUNE_EVERY, MicroBatchTuner, _bf16_pays, micro_batch_count
 from .training import train
 
@@ -159,7 +160,8 @@ def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
 
 # ----------------------------------------------------------------------------------------------- fitting
 def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None,
-            clock: Callable[[], float] | None = None, **overrides) -> SdfFit:
+            clock: Callable[[], float] | None = None, base: Siren | None = None, band: float | None = None,
+            init: Siren | None = None, pool_cache: dict | None = None, **overrides) -> SdfFit:
     """Train a Siren SDF of ``mesh`` (unit frame) and return an :class:`SdfFit`.
 
     Args:
@@ -172,6 +174,15 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         clock: the seconds every budget decision of the run measures — Adam's budget, the share of bf16
             steps, the polish's reserve and deadline, the budget account's split of a step into sampling and
             its own work (default ``time.perf_counter``; tests simulate a slow or loaded machine with their own).
+        base: a frozen network h (unit frame): the model r is then trained as a residual level on it, every
+            loss term on the sum h + r, on the pool points inside h's band |h| < ``band`` only
+            (:func:`~neural_bake.fit.sdf_pools.band_pools`); r starts with a zero output layer (h + r = h).
+            Without hard examples, mined points, error sampling, polish or checkpoints (they rank or keep r
+            alone); the result's ``model`` is r and its ``distance_error`` None (the sum's is the caller's).
+        band: the band's half-width δ (unit frame; with ``base``).
+        init: a Siren of the config's width and depth to start from instead of a random one (warm start).
+        pool_cache: a dict shared by fits of this mesh with the same sampling settings: each sample pool is
+            drawn from the mesh once and taken from it by the next fit (e.g. the levels of one construction).
         **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
 
     Returns:
@@ -198,13 +209,25 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             raise FitError("fit_sdf: budget='steps' needs preset (one of "
                            f"{', '.join(PRESETS)}) with the preset's width, depth and batches, got preset {preset!r}")
         cfg = replace(cfg, steps=n_steps, minutes=None)
+    _check_residual(cfg, base, band, init)
     device = torch.device(cfg.device or "cpu")
     dtype = _DTYPES[cfg.dtype]
     gen = torch.Generator().manual_seed(int(cfg.seed))
     model = Siren(cfg.width, cfg.depth, omega_0=cfg.omega_0, generator=gen).to(device=device, dtype=dtype)
+    if init is not None:
+        model.load_state_dict(init.state_dict())
+    prepare: Callable[[dict], dict] | None = None
+    extra: tuple[str, ...] = ()
+    if base is not None:
+        with torch.no_grad():  # the residual starts at zero: h + r = h
+            model.layers[-1].weight.zero_()
+            model.layers[-1].bias.zero_()
+        base = copy.deepcopy(base).to(device=device, dtype=dtype).eval()  # the caller's network untouched
+        prepare, extra = band_pools(base, float(band or 0.0)), BASE_KEYS
     model.train()
     # a budgeted run keeps its pools longer where rebuilding them would eat its steps (POOL_REFRESH_MAX_SHARE)
-    pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None)
+    pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None,
+                   prepare=prepare, cache=pool_cache)
 
     fingerprint = _fingerprint(mesh, cfg)  # of the settings as asked ("auto" included)
     if cfg.gemm_dtype == "auto":
@@ -256,7 +279,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     def step_fn(step: int, g: torch.Generator) -> dict:
         t_sample = now()
         data = pools.get(step)
-        sp, sn, vp, vd = _draw(data, cfg, g, hard_set(step, data))
+        sp, sn, vp, vd, *at_base = _draw(data, cfg, g, hard_set(step, data), extra=extra)
         sampling["seconds"] += now() - t_sample
         sampling["steps"] += 1
         low = low_precision(step)
@@ -266,7 +289,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         k, timed = tuner.next(step, key) if tuner else (micro, False)
         t0 = time.perf_counter()  # the tuner measures the machine's real speed, whatever the budget's clock
         # back-propagated here, part by part (the loop sees a detached loss and skips its own backward)
-        terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low)
+        terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low,
+                                  base=tuple(at_base) if extra else None)
         if timed:
             tuner.record(k, time.perf_counter() - t0)
         return terms
@@ -304,7 +328,29 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     return SdfFit(model=model, frame=mesh.frame, history=res.history, steps=res.steps, seconds=seconds,
                   config=cfg, stopped_reason=res.stopped_reason, restarts=res.restarts, polish=polish,
                   micro_batch_tuning=tuner.history if tuner else None, budget=budget, threads=res.threads,
-                  sampling_seconds=sampling["seconds"], distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)))
+                  sampling_seconds=sampling["seconds"],
+                  distance_error=None if base is not None else sampled_distance_error(model, mesh, seed=int(cfg.seed)))
+
+
+def _check_residual(cfg: SdfFitConfig, base, band, init) -> None:
+    """FitError for a residual level (``base``) or warm start (``init``) fit_sdf cannot run."""
+    if init is not None and (not isinstance(init, Siren) or (init.width, init.depth, init.omega_0) != (
+            cfg.width, cfg.depth, cfg.omega_0)):
+        raise FitError(f"fit_sdf: init must be a Siren of width {cfg.width}, depth {cfg.depth} and omega_0 "
+                       f"{cfg.omega_0:g} (the config's)")
+    if base is None:
+        if band is not None:
+            raise FitError("fit_sdf: band is the residual level's band: it needs base")
+        return
+    if not isinstance(base, Siren) or base.in_dim != 3 or base.out_dim != 1:
+        raise FitError("fit_sdf: base must be a Siren R³ → R")
+    if band is None or not (math.isfinite(band) and band > 0):
+        raise FitError(f"fit_sdf: a residual level needs a positive band, got {band!r}")
+    used = [k for k in ("hard_fraction", "zero_fraction", "error_sampling", "polish_evals") if getattr(cfg, k)]
+    if cfg.checkpoint:
+        used.append("checkpoint")
+    if used:
+        raise FitError(f"fit_sdf: a residual level (base) does not support {', '.join(used)}; set them to 0/None")
 
 
 def _preset_key(preset: str | None, cfg: SdfFitConfig) -> str | None:

@@ -46,7 +46,7 @@ def mixed_gradient(model: Siren, points: torch.Tensor, gemm_dtype: torch.dtype =
 
 def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig, *, low_precision: bool = False,
                    totals: tuple[int, int] | None = None, power_weight: float = 0.0,
-                   power_scale: float = 1.0) -> dict:
+                   power_scale: float = 1.0, base: tuple | None = None) -> dict:
     """The loss terms of one step (scalar tensors) and their weighted sum ``"loss"``.
 
     Args:
@@ -62,6 +62,9 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
             r the first-order distance (:func:`first_order_distance`, p = ``cfg.polish_max_p``), is added to
             the loss with this weight (the polish's worst-distance term, linearised: :func:`_polish_loss`;
             the scale, e.g. the batch's largest |r|, keeps the p-th powers in float32's range).
+        base: None, or a fixed field's values and gradients at these points, ``(surface values (S,),
+            surface gradients (S, 3), off-surface values (V,), off-surface gradients (V, 3))``, added to the
+            model's: every term is then of the sum (a residual level trained on a frozen coarse one).
 
     ∇f of all S + V points comes from one differentiable GEMM pass (no double-backward).
     """
@@ -73,6 +76,9 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
     else:
         values, grads = gemm_gradient(model, pts, "reverse", differentiable=True)
     f = values[:, 0]
+    if base is not None:
+        f = f + torch.cat([base[0], base[2]])
+        grads = grads + torch.cat([base[1], base[3]])
     gnorm = torch.linalg.vector_norm(grads, dim=1)
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
@@ -132,22 +138,24 @@ def focused_squares(sq: torch.Tensor, tau: float) -> torch.Tensor:
 
 
 def sdf_step_backward(loss_fn, model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig, *,
-                      micro_batches: int = 1, low_precision: bool = False) -> dict:
+                      micro_batches: int = 1, low_precision: bool = False, base: tuple | None = None) -> dict:
     """Forward and backward of one training step in ``micro_batches`` parts; the detached loss terms.
 
     Each part (a slice of the surface points and one of the off-surface points) runs ``loss_fn``
     (:func:`sdf_loss_terms` or its compiled form) with the step's totals and is back-propagated at once,
     so its graph is freed before the next part is built; the parameters' ``.grad`` add up to the whole
-    step's. Returns the terms summed over the parts (the whole step's, detached).
+    step's. ``base``: a fixed field's values and gradients at the points (:func:`sdf_loss_terms`), split
+    with them. Returns the terms summed over the parts (the whole step's, detached).
     """
     totals = (surf_p.shape[0], vol_p.shape[0])
     k = max(1, min(int(micro_batches), totals[0] + totals[1]))
     out: dict = {}
-    parts = zip(*(torch.tensor_split(t, k) for t in (surf_p, surf_n, vol_p, vol_d)))
-    for sp, sn, vp, vd in parts:
+    parts = zip(*(torch.tensor_split(t, k) for t in (surf_p, surf_n, vol_p, vol_d, *(base or ()))))
+    for sp, sn, vp, vd, *part_base in parts:
         if sp.shape[0] + vp.shape[0] == 0:
             continue
-        terms = loss_fn(model, sp, sn, vp, vd, cfg, low_precision=low_precision, totals=totals)
+        extra = {"base": tuple(part_base)} if base is not None else {}
+        terms = loss_fn(model, sp, sn, vp, vd, cfg, low_precision=low_precision, totals=totals, **extra)
         terms["loss"].backward()
         for key, val in terms.items():
             out[key] = out[key] + val.detach() if key in out else val.detach()

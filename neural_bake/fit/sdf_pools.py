@@ -26,11 +26,16 @@ class _Pools:
     ``max_share`` (time-budgeted runs): a refresh is skipped, keeping the current pools, while the time of
     the builds so far plus the last build's (the next one's estimate) would exceed this share of the time
     since the first build began, as ``clock`` measures it; ``skipped`` holds the refresh indices skipped,
-    ``built`` counts the builds (:meth:`record`)."""
+    ``built`` counts the builds (:meth:`record`). ``prepare``: applied to every pool built (e.g.
+    :func:`band_pools`, which keeps a coarse level's band and adds its values), inside the build's time.
+    ``cache``: a dict shared by fits of one mesh, which then draw each pool from it once (keyed by the refresh
+    index and the sampling settings; ``prepare`` is applied to the cached pool, not stored)."""
 
     def __init__(self, mesh: Mesh, cfg: SdfFitConfig, device, dtype, *, max_share: float | None = None,
-                 clock: Callable[[], float] = time.perf_counter):
+                 clock: Callable[[], float] = time.perf_counter, prepare: Callable[[dict], dict] | None = None,
+                 cache: dict | None = None):
         self.mesh, self.cfg, self.device, self.dtype = mesh, cfg, device, dtype
+        self.prepare, self.cache = prepare, cache
         self.index = None
         self.face_weights = None  # curvature sampling's per-face probabilities (computed once)
         self.max_share, self.clock = max_share, clock
@@ -61,6 +66,18 @@ class _Pools:
         return self.data
 
     def _build(self, idx: int) -> None:
+        cfg = self.cfg
+        key = (idx, cfg.seed, cfg.pool_surface, cfg.pool_near, cfg.pool_uniform, tuple(cfg.sigmas),
+               cfg.curvature_sampling, cfg.surface_normals, str(self.device), self.dtype)
+        data = None if self.cache is None else self.cache.get(key)
+        if data is None:
+            data = self._sample(idx)
+            if self.cache is not None:
+                self.cache[key] = data
+        self.data = data if self.prepare is None else self.prepare(data)
+        self.index = idx
+
+    def _sample(self, idx: int) -> dict:
         from .sampling import curvature_face_weights, sample_near, sample_surface, sample_uniform
 
         cfg, mesh = self.cfg, self.mesh
@@ -87,9 +104,39 @@ class _Pools:
         vd = np.concatenate(vol_d) if vol_d else np.zeros(0, np.float32)
         finite = np.isfinite(vd) & np.isfinite(vp).all(axis=1)
         n_near = int(finite[: near.points.shape[0]].sum()) if near is not None else 0
-        self.data = {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]),
-                     "vol_d": t(vd[finite]), "n_near": n_near}
-        self.index = idx
+        return {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]), "vol_d": t(vd[finite]),
+                "n_near": n_near}
+
+
+#: The keys :func:`band_pools` adds to a pool: the base field's values and gradients at its points, in the
+#: order :func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` takes them (``base``).
+BASE_KEYS = ("surf_base", "surf_base_grad", "vol_base", "vol_base_grad")
+
+
+def band_pools(base: Siren, band: float, chunk: int = 65536) -> Callable[[dict], dict]:
+    """A pool ``prepare`` (:class:`_Pools`) for a level trained as a residual on the frozen network ``base``:
+    it keeps only the points with |base| < ``band`` (surface, near and uniform alike) and adds base's values
+    and GEMM gradients at them (:data:`BASE_KEYS`). FitError when no surface point is left in the band."""
+    from ..nets.gemm import gemm_gradient
+
+    def values(points: torch.Tensor):
+        if points.shape[0] == 0:
+            return points.new_zeros(0), points.new_zeros(0, 3)
+        v, g = gemm_gradient(base, points, "reverse", chunk_size=chunk)
+        return v[:, 0].to(points.dtype), g.to(points.dtype)
+
+    def prepare(data: dict) -> dict:
+        sv, sg = values(data["surf_p"])
+        vv, vg = values(data["vol_p"])
+        ks, kv = sv.abs() < band, vv.abs() < band
+        if not bool(ks.any()):
+            raise FitError(f"band_pools: no surface sample lies in the band |base| < {band:.3g}")
+        n_near = int(kv[: data["n_near"]].sum())
+        return {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": data["vol_p"][kv],
+                "vol_d": data["vol_d"][kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
+                "vol_base": vv[kv], "vol_base_grad": vg[kv]}
+
+    return prepare
 
 
 def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target: torch.Tensor | None = None):
@@ -160,10 +207,13 @@ def _with_hard(idx: torch.Tensor, hard: torch.Tensor | None, fraction: float, ge
     return idx
 
 
-def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None):
+def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None, extra: tuple = ()):
     """A step's batch; with ``hard`` ({"surf", "near"} index tensors) the tail of the surface and near
     batches (``hard_fraction`` of each) comes from the hard sets; with ``hard["error"]`` (a normal-error
-    cdf, :func:`_error_cdf`) the head of the surface batch (``error_sampling`` of it) is drawn by it."""
+    cdf, :func:`_error_cdf`) the head of the surface batch (``error_sampling`` of it) is drawn by it.
+    ``extra``: keys of further per-point pool arrays ("surf_*" beside the surface points, "vol_*" beside the
+    off-surface ones, e.g. :data:`BASE_KEYS`) drawn with the same indices, returned after the four (not with
+    mined zero-set points, which no pool array covers)."""
     dev = pools["surf_p"].device
     hard = hard or {}
     si = torch.randint(0, pools["surf_p"].shape[0], (cfg.batch,), generator=gen).to(dev)
@@ -185,8 +235,11 @@ def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | Non
     zero = hard.get("zero")
     n_zero = int(cfg.batch_near * cfg.zero_fraction) if zero is not None and cfg.batch_near and n_near else 0
     if n_zero:  # the head of the near batch: mined zero-set points with their true distances
+        if extra:
+            raise FitError("_draw: mined zero-set points have no pool arrays to draw beside them")
         pick = torch.randint(0, zero[0].shape[0], (n_zero,), generator=gen).to(dev)
         vp[:n_zero] = take(zero[0], 0, pick)
         vd[:n_zero] = take(zero[1], 0, pick)
-    return take(pools["surf_p"], 0, si), take(pools["surf_n"], 0, si), vp, vd
+    more = tuple(take(pools[k], 0, si if k.startswith("surf") else vi) for k in extra)
+    return (take(pools["surf_p"], 0, si), take(pools["surf_n"], 0, si), vp, vd, *more)
 

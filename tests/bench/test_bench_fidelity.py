@@ -220,3 +220,40 @@ def test_dot_windows_and_their_scores():
     blurred = uniform_filter(tex, size=(5, 5, 1))
     assert max(feature_ssim(blurred, tex, windows)) < FEATURE_SSIM_FLOOR
     assert feature_ssim(tex, tex, dot_windows(256)) is None  # 4-texel windows: too small for 7x7 SSIM
+
+
+def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
+    path = tmp_path / "block.obj"
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.2)
+    trimesh.Trimesh(v, f, process=False).export(path)
+    res = run(quick=True, meshes=[str(path)], steps=[8], constructions=["plain", "residual"], size=32, faces=100,
+              save_dir=tmp_path / "models")
+    plain, residual = res["rows"]
+    assert (plain["construction"], plain["net"], plain["steps"], plain["coarse_steps"]) == ("plain", "192x3", 8, None)
+    # the same 8 steps split: a quarter to the 64-wide coarse level, the rest to the residual
+    assert (residual["construction"], residual["net"], residual["steps"], residual["coarse_steps"]) == (
+        "residual", "64x3+192x3", 6, 2)
+    assert residual["band"] > 0 and plain["band"] is None
+    assert plain["plain_median_ratio"] == 1.0 and plain["plain_p95_ratio"] == 1.0
+    assert residual["plain_median_ratio"] == pytest.approx(residual["map_median_deg"] / plain["map_median_deg"])
+    assert residual["plain_hausdorff_ratio"] == pytest.approx(residual["hausdorff"] / plain["hausdorff"])
+    # the two networks' parameters, not the zero blocks of their sum as one network
+    params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
+    assert residual["networks_kb"] == pytest.approx((params(64) + params(192)) * 4 / 1024)
+    saved = load_sdf(tmp_path / "models" / "block-quick-8-residual.sdf")  # the sum, an ordinary SDF file
+    assert saved.model.width == 256 and saved.steps == 6
+    json.dumps(res)
+
+
+def test_unknown_sdf_construction_is_refused_in_one_line(capsys):
+    from neural_bake.cli.main import main
+
+    with pytest.raises(NeuralBakeError, match="constructions must be distinct names among plain, residual"):
+        run(quick=True, meshes=["x.obj"], constructions=["plain", "nested"])
+    with pytest.raises(NeuralBakeError, match="only_textures fits the plain SDF"):
+        run(quick=True, only_textures=True, constructions=["residual"])
+    for value in ("plain,nested", "residual,residual", ","):
+        assert main(["bench", "fidelity", "--quick", "--sdf-construction", value]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "Invalid value for --sdf-construction" in err and len(err.splitlines()) == 1, err
