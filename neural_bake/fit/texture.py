@@ -137,10 +137,9 @@ class TextureFitConfig(PresetLoopSettings):
     instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
     edges) get many texels on little surface (0: all by area)."""
     edge_share: float = 0.0
-    """Part of the surface samples drawn at the texture's edges: among :data:`EDGE_CANDIDATES` times as many
-    candidates (drawn like the others), each with probability proportional to the texture's colour step around
-    it (:func:`edge_strength`). Flat-colour textures change at sharp borders, where a network blurs and rings;
-    0: none."""
+    """Part of the surface samples drawn again from the others by the texture's edges: each with probability
+    proportional to the texture's colour step around it (:func:`edge_strength`), so the loss weighs the edges
+    more. Flat-colour textures change at sharp borders, where a network blurs and rings; 0: none."""
     encoding: str = "auto"
     """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
     unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
@@ -343,11 +342,6 @@ def texel_face_weights(mesh: Mesh, share: float) -> np.ndarray | None:
     return (1.0 - share) * area / area.sum() + share * uv_area / uv_area.sum()
 
 
-#: Candidates drawn per edge sample (:attr:`TextureFitConfig.edge_share`): the thin bands along a texture's
-#: edges hold a few percent of the surface, so the candidates must reach them many times over.
-EDGE_CANDIDATES = 16
-
-
 def edge_strength(rgb: np.ndarray) -> np.ndarray:
     """(H, W) float32: the largest colour step (any channel, linear RGB) between a texel and its 4-neighbours,
     spread to the texels around it (3×3 maximum), so both sides of a border and the texels a bilinear lookup
@@ -369,8 +363,8 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
                     texel_share: float = 0.0, edge_share: float = 0.0) -> dict:
     """Surface samples of ``mesh`` with their texture colours: uniform by area, or with ``texel_share`` of
     them by UV area (:func:`texel_face_weights`: as densely as the texture's texels lie; 1: texel-uniform),
-    and ``edge_share`` of them at the texture's edges (:attr:`TextureFitConfig.edge_share`; none where the
-    texture has no edge).
+    and ``edge_share`` of them drawn again from the others by the texture's edges
+    (:attr:`TextureFitConfig.edge_share`; uniformly where the texture has no edge).
 
     Returns float32 numpy arrays, unit frame: ``points`` (n, 3), ``normals`` (n, 3) unit outward mesh
     normals, ``uv`` (n, 2), ``colors`` (n, 3) linear RGB (bilinear lookup, ``mesh.uv_policy`` for UVs outside
@@ -379,22 +373,18 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     rgb = _texture_rgb(mesh, texture)
     from .sampling import sample_surface
 
-    weights = texel_face_weights(mesh, texel_share)
     n_edge = int(round(int(n) * float(edge_share)))
-    s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=weights)
+    s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=texel_face_weights(mesh, texel_share))
     parts = [(np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64),
               np.asarray(s.face_index))]
-    if n_edge > 0:
-        cand = sample_surface(mesh, n_edge * EDGE_CANDIDATES, seed=seed + 1, face_weights=weights)
-        uv = np.asarray(cand.uv, dtype=np.float64)
-        strength = sample_texture(edge_strength(rgb)[..., None], uv, mesh.uv_policy)[:, 0].astype(np.float64)
+    if n_edge > 0:  # drawn again from those samples, by the texture's edge strength at each
+        strength = sample_texture(edge_strength(rgb)[..., None], parts[0][2], mesh.uv_policy)[:, 0].astype(np.float64)
         total = strength.sum()
         if total > 0 and np.isfinite(total):
-            pick = np.random.default_rng(seed + 2).choice(len(uv), size=n_edge, p=strength / total)
-        else:  # no edge anywhere: the candidates as they came
-            pick = np.arange(n_edge)
-        parts.append((np.asarray(cand.points)[pick], np.asarray(cand.normals)[pick], uv[pick],
-                      np.asarray(cand.face_index)[pick]))
+            pick = np.random.default_rng(seed + 1).choice(len(strength), size=n_edge, p=strength / total)
+        else:  # no edge anywhere: uniform
+            pick = np.random.default_rng(seed + 1).integers(0, len(strength), size=n_edge)
+        parts.append(tuple(a[pick] for a in parts[0]))
     points, normals, uvs, faces = (np.concatenate(a) for a in zip(*parts))
     colors = sample_texture(rgb, uvs, mesh.uv_policy).astype(np.float32)
     return {

@@ -191,7 +191,7 @@ def test_edge_share_draws_that_part_of_the_samples_at_the_texture_edges():
     disc = np.hypot(edged["uv"][:, 0] * SIDE - SIDE / 2, (1 - edged["uv"][:, 1]) * SIDE - SIDE / 2) < DIAMETER / 2
     want = np.where(disc[:, None], DISC, BACKGROUND)
     np.testing.assert_allclose(edged["colors"][inside], want[inside], atol=1e-6)
-    # edge_share 0 draws exactly what it drew before; a texture without edges draws its candidates as they came
+    # edge_share 0 draws exactly what it drew before; a texture without edges draws its edge part uniformly
     np.testing.assert_array_equal(texture_targets(mesh, n, seed=3, edge_share=0.0)["points"], plain["points"])
     flat = Mesh(vertices=mesh.vertices, faces=mesh.faces, uv=mesh.uv, texture=np.ones((8, 8, 3), np.float32),
                 vertex_normals=mesh.vertex_normals, watertight=False)
