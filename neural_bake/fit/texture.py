@@ -137,9 +137,10 @@ class TextureFitConfig(PresetLoopSettings):
     instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
     edges) get many texels on little surface (0: all by area)."""
     edge_share: float = 0.0
-    """Part of the surface samples drawn again from the others by the texture's edges: each with probability
-    proportional to the texture's colour step around it (:func:`edge_strength`), so the loss weighs the edges
-    more. Flat-colour textures change at sharp borders, where a network blurs and rings; 0: none."""
+    """Part of the surface samples placed along the texture's edges: in texels drawn with probability
+    proportional to the texture's colour step around each (:func:`edge_strength`), at a random place in the
+    texel, so the loss weighs the edges more. Flat-colour textures change at sharp borders, where a network
+    blurs and rings; 0: none."""
     encoding: str = "auto"
     """Colours the network holds: "srgb" (encoded as an 8-bit colour map is), "linear", or "auto": sRGB
     unless the texture has values above 1 (HDR, fitted linear). Recorded in the model file."""
@@ -359,12 +360,69 @@ def edge_strength(rgb: np.ndarray) -> np.ndarray:
     return ndimage.maximum_filter(step, size=3, mode="nearest")
 
 
+#: How far (texels, each way in u and v) an edge sample moves from its texel's centre: anywhere in the texel.
+EDGE_JITTER = 0.5
+
+#: Draws of a moved edge sample's place before it keeps its own (a draw can fall off its face).
+EDGE_TRIES = 4
+
+
+def _jittered(mesh: Mesh, shape: tuple[int, int], points, normals, uv, faces, rng: np.random.Generator) -> tuple:
+    """Samples moved to a uniform random point within :data:`EDGE_JITTER` texels (in UV) of where they are,
+    on their own face (up to :data:`EDGE_TRIES` draws; a sample whose every draw falls off its face keeps its
+    place): fresh places along the same edges, not repeats. Face normals stay."""
+    h, w = shape
+    tuv = np.asarray(mesh.uv, dtype=np.float64)[faces]  # (n, 3, 2)
+    e1, e2 = tuv[:, 1] - tuv[:, 0], tuv[:, 2] - tuv[:, 0]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    points, uv = np.array(points, dtype=np.float64), np.array(uv, dtype=np.float64)
+    todo = np.flatnonzero(np.abs(det) > 1e-12)  # a face of no UV area has no place to move to
+    for _ in range(EDGE_TRIES):
+        if todo.size == 0:
+            break
+        target = uv[todo] + rng.uniform(-EDGE_JITTER, EDGE_JITTER, size=(todo.size, 2)) / np.array([w, h])
+        d = target - tuv[todo, 0]
+        b1 = (d[:, 0] * e2[todo, 1] - d[:, 1] * e2[todo, 0]) / det[todo]
+        b2 = (e1[todo, 0] * d[:, 1] - e1[todo, 1] * d[:, 0]) / det[todo]
+        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+        ok = (bary >= 0).all(axis=1)
+        at = todo[ok]
+        tri = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces[faces[at]]]
+        points[at] = np.einsum("nk,nkd->nd", bary[ok], tri)
+        uv[at] = target[ok]
+        todo = todo[~ok]
+    return points, normals, uv, faces
+
+
+def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator) -> tuple:
+    """``n`` surface samples (points, normals, uv, faces) at the texture's edges: texels drawn with probability
+    proportional to :func:`edge_strength` among those a face covers (:func:`~neural_bake.mesh.texels.
+    texel_centres`), each sample at a uniform random place in its texel on that face (:func:`_jittered`);
+    texels drawn uniformly where the texture has no edge."""
+    from ..mesh.texels import texel_centres
+
+    face, rows, cols, bary = texel_centres(mesh, rgb.shape[:2])
+    if len(face) == 0:  # no texel centre on a face (UVs of no area): anywhere on the surface
+        from .sampling import sample_surface
+
+        s = sample_surface(mesh, n, seed=int(rng.integers(1 << 31)))
+        return np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64), np.asarray(s.face_index)
+    strength = edge_strength(rgb)[rows, cols].astype(np.float64)
+    total = strength.sum()
+    pick = rng.choice(len(face), size=n, p=strength / total) if total > 0 and np.isfinite(total) else \
+        rng.integers(0, len(face), size=n)
+    face, bary = face[pick], bary[pick]
+    points = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces[face]])
+    uv = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.uv, dtype=np.float64)[face])
+    return _jittered(mesh, rgb.shape[:2], points, np.asarray(mesh.face_normals)[face], uv, face, rng)
+
+
 def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None,
                     texel_share: float = 0.0, edge_share: float = 0.0) -> dict:
     """Surface samples of ``mesh`` with their texture colours: uniform by area, or with ``texel_share`` of
     them by UV area (:func:`texel_face_weights`: as densely as the texture's texels lie; 1: texel-uniform),
-    and ``edge_share`` of them drawn again from the others by the texture's edges
-    (:attr:`TextureFitConfig.edge_share`; uniformly where the texture has no edge).
+    and ``edge_share`` of them placed along the texture's edges (:attr:`TextureFitConfig.edge_share`;
+    anywhere where the texture has no edge).
 
     Returns float32 numpy arrays, unit frame: ``points`` (n, 3), ``normals`` (n, 3) unit outward mesh
     normals, ``uv`` (n, 2), ``colors`` (n, 3) linear RGB (bilinear lookup, ``mesh.uv_policy`` for UVs outside
@@ -377,14 +435,8 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=texel_face_weights(mesh, texel_share))
     parts = [(np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64),
               np.asarray(s.face_index))]
-    if n_edge > 0:  # drawn again from those samples, by the texture's edge strength at each
-        strength = sample_texture(edge_strength(rgb)[..., None], parts[0][2], mesh.uv_policy)[:, 0].astype(np.float64)
-        total = strength.sum()
-        if total > 0 and np.isfinite(total):
-            pick = np.random.default_rng(seed + 1).choice(len(strength), size=n_edge, p=strength / total)
-        else:  # no edge anywhere: uniform
-            pick = np.random.default_rng(seed + 1).integers(0, len(strength), size=n_edge)
-        parts.append(tuple(a[pick] for a in parts[0]))
+    if n_edge > 0:
+        parts.append(_edge_samples(mesh, rgb, n_edge, np.random.default_rng(seed + 1)))
     points, normals, uvs, faces = (np.concatenate(a) for a in zip(*parts))
     colors = sample_texture(rgb, uvs, mesh.uv_policy).astype(np.float32)
     return {

@@ -19,7 +19,8 @@ from ..geometry import vertex_normals
 from ..nets.native import Kernel
 from .tangents import tangent_frames, vertex_uv
 
-__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "kernel_status", "ENV_SWITCH"]
+__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "texel_centres", "kernel_status",
+           "ENV_SWITCH"]
 
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
@@ -447,6 +448,19 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
     out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     return out
+
+
+def texel_centres(mesh: Mesh, size) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(face (N,) int64, row (N,), col (N,), bary (N, 3) float64) of the texel centres of an (H, W) grid that
+    lie inside a UV triangle of ``mesh``: the samples :func:`rasterize_texels` places at one sample per texel
+    (the lowest face where triangles overlap, UVs outside [0, 1] as ``mesh.uv_policy`` says), without their
+    frames, border samples or points."""
+    if mesh.uv is None:
+        raise MeshError(f"{mesh.name}: mesh has no UVs; unwrap it first (neural_bake.unwrap)")
+    h, w = _parse_size(size)
+    uv_faces, uv = _face_uv_copies(mesh)
+    k, rr, cc, bary, _ = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
+    return uv_faces[k].astype(np.int64, copy=False), rr, cc, bary
 
 
 def iter_texels(

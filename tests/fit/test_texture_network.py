@@ -185,6 +185,8 @@ def test_edge_share_draws_that_part_of_the_samples_at_the_texture_edges():
     near_edged = (_texel_distance_to_edge(edged["uv"]) < 3.5).mean()
     assert 0.08 < near_plain < 0.14
     assert near_edged == pytest.approx(0.3 + 0.7 * near_plain, abs=0.02)
+    # fresh places, not repeats of the pool's samples
+    assert len(np.unique(edged["points"], axis=0)) > 0.95 * n
     # every sample's colour is the texture's at its UV, and its point is the square's at that UV
     np.testing.assert_allclose(edged["points"][:, :2], edged["uv"] * 2 * HALF - HALF, atol=1e-5)
     inside = _texel_distance_to_edge(edged["uv"]) > 2.0  # past the pixelated border and its bilinear blend

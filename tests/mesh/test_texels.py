@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from neural_bake.errors import MeshError, NeuralBakeError, NeuralBakeWarning
-from neural_bake.mesh.texels import TexelSet, iter_texels, rasterize_texels, texel_grid_points
+from neural_bake.mesh.texels import TexelSet, iter_texels, rasterize_texels, texel_centres, texel_grid_points
 from neural_bake.types import Mesh
 
 
@@ -171,6 +171,29 @@ def test_uvs_outside_unit_square_wrap():
     u = (ts.pixel[:, 1] + 0.5) / 8
     x = ((u - 0.25) % 1.0) * 2 - 1
     np.testing.assert_allclose(ts.points[:, 0], x, atol=1e-12)
+
+
+@pytest.mark.parametrize("shift,policy", [((0.0, 0.0), "wrap"), ((0.25, 0.0), "wrap"), ((0.25, 0.0), "clamp")])
+def test_texel_centres_are_the_rasteriser_s_own_samples(shift, policy):
+    """The texel centres on faces: the rasteriser's non-border samples at one per texel (faces, texels and
+    barycentrics), on a plane whose UVs are inside, wrapped and clamped, and on a random-triangle layout."""
+    import warnings
+
+    rng = np.random.default_rng(3)
+    tris = rng.uniform(0, 1, size=(40, 3, 2))
+    random_layout = Mesh(vertices=rng.normal(size=(120, 3)), faces=np.arange(120).reshape(40, 3), uv=tris)
+    for mesh in (plane(uv_shift=shift, policy=policy), random_layout):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NeuralBakeWarning)
+            ts = rasterize_texels(mesh, (16, 12))
+            face, rows, cols, bary = texel_centres(mesh, (16, 12))
+        keep = ~ts.border
+        order = np.argsort(rows * 12 + cols, kind="stable")
+        np.testing.assert_array_equal(face[order], ts.face[keep])
+        np.testing.assert_array_equal(np.stack([rows, cols], 1)[order], ts.pixel[keep])
+        np.testing.assert_allclose(bary[order], ts.bary[keep], atol=1e-12)
+    with pytest.raises(MeshError, match="no UVs"):
+        texel_centres(Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]])), 8)
 
 
 def test_uvs_outside_unit_square_clamp_reports_and_skips():
