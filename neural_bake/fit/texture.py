@@ -165,16 +165,16 @@ GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_res
 #: and high).
 PRESETS: dict[str, dict] = {
     "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
-              "lr": 1e-2},
+              "lr": 1e-2, "edge_share": 0.5},
     "default": {"network": "grid", "width": 64, "depth": 1, "minutes": 4.0, "steps": 200_000, "batch": 4096,
-                "lr": 1e-2},
+                "lr": 1e-2, "edge_share": 0.5},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 
 
 #: The SIREN settings of a preset whose network is a grid, applied when ``network="siren"`` is asked for with it.
-PRESET_SIRENS: dict[str, dict] = {"quick": {"width": 64, "depth": 1, "lr": 5e-4},
-                                  "default": {"width": 192, "depth": 3, "omega_0": 60.0, "lr": 5e-4}}
+PRESET_SIRENS: dict[str, dict] = {"quick": {"width": 64, "depth": 1, "lr": 5e-4, "edge_share": 0.0},
+                                  "default": {"width": 192, "depth": 3, "omega_0": 60.0, "lr": 5e-4, "edge_share": 0.0}}
 
 
 @dataclass
