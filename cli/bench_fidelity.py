@@ -23,7 +23,7 @@ from .bench import bench_options, report
                    "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
 @click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
               help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (the preset's "
-                   "fit, the default), residual (a 64-wide coarse level for a quarter of the budget, then the "
+                   "fit, the default), residual (a coarse level 64 wide at ω0 15 for a quarter of the budget, then the "
                    "preset's network fitted as a residual inside the coarse level's band), residual-warm (the "
                    "preset's network started from the coarse level). Rows get ratios against plain.")
 @click.option("--steps", default=None, metavar="LIST",

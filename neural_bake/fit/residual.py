@@ -2,21 +2,21 @@
 
 - ``"plain"``: :func:`~neural_bake.fit.sdf.fit_sdf` as it is.
 - ``"residual"`` (nested-neighbourhoods §3, a fine level trained inside the coarse level's band): a coarse
-  SIREN h (``coarse_width`` × the fine network's depth) is fitted for ``coarse_share`` of the budget, then a
-  fine SIREN r (the config's network) for the rest so that h + r fits the mesh's SDF, supervised only on the
-  points with |h| < δ, δ = ``band_factor`` × h's sampled distance error (max |h| at mesh surface samples);
-  surface, normal, angle, eikonal and distance terms are all of the sum (``fit_sdf(base=h, band=δ)``). r starts
-  with a zero output layer, so the sum starts as h. The fit's ``model`` is the sum as one SIREN
-  (:func:`~neural_bake.nets.siren_sum.siren_sum`, width ``coarse_width`` + the fine width): it saves, loads
-  and bakes like any SDF, with GEMM normals.
+  SIREN h (``coarse_width`` × the fine network's depth, ω0 ``coarse_omega_0``) is fitted for ``coarse_share``
+  of the budget, then a fine SIREN r (the config's network) for the rest so that h + r fits the mesh's SDF,
+  supervised only on the points with |h| < δ, δ = ``band_factor`` × h's sampled distance error (max |h| at
+  mesh surface samples); surface, normal, angle, eikonal and distance terms are all of the sum
+  (``fit_sdf(base=h, band=δ)``). r starts with a zero output layer, so the sum starts as h. The fit's
+  ``model`` is the sum as one SIREN (:func:`~neural_bake.nets.siren_sum.siren_sum`, width ``coarse_width`` +
+  the fine width): it saves, loads and bakes like any SDF, with GEMM normals.
 - ``"residual-warm"``: the same coarse h, then the config's network initialised as h beside fresh units whose
   output weights are zero (the same function as h) and fitted plainly (every point, no band) for the rest.
 
-``steps``, ``history``, ``budget`` and ``sampling_seconds`` of the result are the fine level's, ``seconds`` the
-whole construction's. The sample pools are drawn once and shared by both levels (the first before either fit, inside the
-budget). A budget of ``minutes`` is shared: the coarse level gets ``coarse_share`` of what is left after the
-first pool, the fine level whatever is left after the coarse one (as the clock measures it); a budget of
-``steps`` is split in the same proportion.
+``steps``, ``history``, ``budget`` and ``sampling_seconds`` of the result are the fine level's, ``seconds``
+the whole construction's. The sample pools are drawn once and shared by both levels (the first before either
+fit, inside the budget). A budget of ``minutes`` is shared: the coarse level gets ``coarse_share`` of what is
+left after the first pool, the fine level whatever is left after the coarse one (as the clock measures it);
+a budget of ``steps`` is split in the same proportion.
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ from .sdf import SdfFit, fit_sdf, sampled_distance_error
 from .sdf_config import _DTYPES, config_from
 from .sdf_pools import _Pools
 
-__all__ = ["CONSTRUCTIONS", "COARSE_SHARE", "BAND_FACTOR", "COARSE_WIDTH", "ResidualSdfFit", "fit_sdf_construction"]
+__all__ = ["CONSTRUCTIONS", "COARSE_SHARE", "BAND_FACTOR", "COARSE_WIDTH", "COARSE_OMEGA_0", "ResidualSdfFit",
+           "fit_sdf_construction"]
 
 #: The SDF constructions :func:`fit_sdf_construction` runs.
 CONSTRUCTIONS = ("plain", "residual", "residual-warm")
@@ -49,6 +50,9 @@ BAND_FACTOR = 4.0
 
 #: Hidden width of the coarse level (its depth is the fine network's, so that the two add up to one SIREN).
 COARSE_WIDTH = 64
+
+#: ω0 of the coarse level: a smooth approximation, as the nested sequences' coarse levels (docs/findings.md).
+COARSE_OMEGA_0 = 15.0
 
 
 @dataclass
@@ -94,11 +98,13 @@ def _pool_threads(cfg, device, dtype) -> None:
 
 def fit_sdf_construction(mesh: Mesh, construction: str = "plain", *, preset: str | None = None,
                          coarse_share: float = COARSE_SHARE, band_factor: float = BAND_FACTOR,
-                         coarse_width: int = COARSE_WIDTH, clock: Callable[[], float] | None = None,
+                         coarse_width: int = COARSE_WIDTH, coarse_omega_0: float | None = COARSE_OMEGA_0,
+                         clock: Callable[[], float] | None = None,
                          **overrides) -> SdfFit:
     """Fit ``mesh``'s SDF by ``construction`` (:data:`CONSTRUCTIONS`) at the budget of ``preset`` and
     ``overrides`` (:func:`~neural_bake.fit.sdf.fit_sdf`'s); "plain" returns fit_sdf's :class:`SdfFit`, the
-    others a :class:`ResidualSdfFit`. FitError for an unknown construction or bad split settings."""
+    others a :class:`ResidualSdfFit`. ``coarse_omega_0``: the coarse level's ω0 (None: the config's). FitError
+    for an unknown construction or bad split settings."""
     if construction not in CONSTRUCTIONS:
         raise FitError(f"unknown SDF construction {construction!r}; choose one of {', '.join(CONSTRUCTIONS)}")
     if construction == "plain":
@@ -127,8 +133,9 @@ def fit_sdf_construction(mesh: Mesh, construction: str = "plain", *, preset: str
     else:
         coarse_budget = {"steps": max(1, round(coarse_share * cfg.steps))}
     # the coarse level: the config's settings at its own width (no polish, no checkpoint of its own)
+    omega = {} if coarse_omega_0 is None else {"omega_0": float(coarse_omega_0)}
     coarse = fit_sdf(mesh, replace(cfg, width=int(coarse_width), budget="time", polish_evals=0, checkpoint=None,
-                                   **coarse_budget), clock=clock, pool_cache=cache)
+                                   **coarse_budget, **omega), clock=clock, pool_cache=cache)
     h = coarse.model
     fine_cfg = replace(cfg, budget="time")
     if cfg.minutes:  # whatever is left of the budget (the coarse fit's sampling included)

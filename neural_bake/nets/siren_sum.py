@@ -9,7 +9,10 @@ gradients, by GEMM normals per network (:func:`sum_gradient`) or of the merged n
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
+from torch import nn
 
 from ..errors import NeuralBakeError
 from .gemm import gemm_gradient
@@ -30,21 +33,24 @@ def siren_sum(a: Siren, b: Siren) -> Siren:
                 hidden_omega=b.hidden_omega).to(device=p.device, dtype=p.dtype)
     wa = a.width
     last = len(out.layers) - 1
+    def linears(m: Siren) -> list[nn.Linear]:
+        return [cast(nn.Linear, layer) for layer in m.layers]
+
     with torch.no_grad():
-        for i, (la, lb, lo) in enumerate(zip(a.layers, b.layers, out.layers)):
-            A, B = la.weight.to(p), lb.weight.to(p)
+        for i, (la, lb, lo) in enumerate(zip(linears(a), linears(b), linears(out))):
+            A, B, bias_a, bias_b = la.weight.to(p), lb.weight.to(p), la.bias.to(p), lb.bias.to(p)
             if i == 0:  # ω0 differs: a's first pre-activation ω0(a)·(W x + b) = ω0(b)·(s W x + s b)
                 s = a.omega_0 / b.omega_0
                 lo.weight.copy_(torch.cat([s * A, B]))
-                lo.bias.copy_(torch.cat([s * la.bias.to(p), lb.bias.to(p)]))
+                lo.bias.copy_(torch.cat([s * bias_a, bias_b]))
             elif i == last:
                 lo.weight.copy_(torch.cat([A, B], dim=1))
-                lo.bias.copy_(la.bias.to(p) + lb.bias.to(p))
+                lo.bias.copy_(bias_a + bias_b)
             else:
                 lo.weight.zero_()
                 lo.weight[:wa, :wa] = A
                 lo.weight[wa:, wa:] = B
-                lo.bias.copy_(torch.cat([la.bias.to(p), lb.bias.to(p)]))
+                lo.bias.copy_(torch.cat([bias_a, bias_b]))
     return out
 
 

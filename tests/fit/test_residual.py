@@ -7,7 +7,7 @@ import trimesh
 
 import neural_bake.fit.sdf as sdf_module
 from neural_bake.errors import FitError, NeuralBakeError
-from neural_bake.fit.residual import CONSTRUCTIONS, ResidualSdfFit, fit_sdf_construction
+from neural_bake.fit.residual import COARSE_OMEGA_0, CONSTRUCTIONS, ResidualSdfFit, fit_sdf_construction
 from neural_bake.fit.sdf import SdfFit, fit_sdf, load_sdf
 from neural_bake.fit.sdf_pools import band_pools
 from neural_bake.io.mesh_io import mesh_from_arrays
@@ -105,9 +105,12 @@ def test_residual_construction_splits_the_steps_and_saves_the_sum(tmp_path, monk
     draws = []
     real = _Pools._sample
     monkeypatch.setattr(_Pools, "_sample", lambda self, idx: draws.append(idx) or real(self, idx))
-    fit = fit_sdf_construction(sphere(), "residual", steps=40, coarse_width=16, coarse_share=0.25, **TINY)
+    fit = fit_sdf_construction(sphere(), "residual", steps=40, coarse_width=16, coarse_share=0.25,
+                               **dict(TINY, omega_0=30.0))
     assert draws == [0]  # one pool drawn from the mesh, shared by both levels
     assert isinstance(fit, ResidualSdfFit) and fit.label == "16x1+32x1"
+    # a smooth coarse level (ω0 15) under the fine one's ω0: the sum rescales its first layer
+    assert (fit.coarse.model.omega_0, fit.fine.omega_0, fit.model.omega_0) == (COARSE_OMEGA_0, 30.0, 30.0)
     assert fit.coarse.steps == 10 and fit.steps == 30 and fit.band == pytest.approx(4.0 * fit.coarse.distance_error)
     x = torch.rand(500, 3, generator=torch.Generator().manual_seed(0)) * 2 - 1
     with torch.no_grad():
