@@ -53,11 +53,12 @@ SAMPLE_MESHES: dict[str, dict] = {"dots": {"sample": "dots", "coarse": "keep", "
 #: Colour-network constructions the texture rows compare (``texture_networks``): "siren", the preset's SIREN
 #: (its own network, or :data:`~neural_bake.fit.texture.PRESET_SIRENS` where that is a grid); "siren-wide",
 #: that SIREN twice as wide and one hidden matrix deeper; "grid", a multiresolution feature grid in front of a
-#: 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2).
-TEXTURE_NETWORKS = ("siren", "siren-wide", "grid")
+#: 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2, half the samples at the texture's edges); "grid-uniform",
+#: that grid with no edge samples.
+TEXTURE_NETWORKS = ("siren", "siren-wide", "grid", "grid-uniform")
 
 #: The fit settings of the "grid" construction beside the preset's.
-GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2}
+GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_share": 0.5}
 
 
 def texture_network_settings(name: str, preset: str) -> dict:
@@ -75,6 +76,8 @@ def texture_network_settings(name: str, preset: str) -> dict:
         over = {"network": "siren", "width": 2 * int(siren["width"]), "depth": int(siren["depth"]) + 1}
     elif name == "grid":
         over = dict(GRID_TEXTURE)
+    elif name == "grid-uniform":
+        over = {**GRID_TEXTURE, "edge_share": 0.0}
     else:
         raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
     return {} if all(own.get(k) == v for k, v in over.items()) else over

@@ -183,8 +183,12 @@ def test_texture_network_constructions():
     assert texture_network_settings("siren-wide", "quick") == {"network": "siren", "width": 128, "depth": 2}
     assert texture_network_settings("siren-wide", "default") == {"network": "siren", "width": 384, "depth": 4}
     assert texture_network_settings("grid", "high")["network"] == "grid"
+    assert texture_network_settings("grid", "quick") == {}  # the quick preset's own network
+    assert texture_network_settings("grid-uniform", "quick") == {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2,
+                                                                 "edge_share": 0.0}
+    assert texture_network_settings("grid-uniform", "high")["edge_share"] == 0.0
     with pytest.raises(NeuralBakeError, match=r"texture_networks must be distinct names among siren, siren-wide, "
-                                              r"grid, got siren, siren"):
+                                              r"grid, grid-uniform, got siren, siren"):
         run(quick=True, meshes=["x.obj"], texture_networks=["siren", "siren"])
     with pytest.raises(NeuralBakeError, match=r"texture_minutes must be a positive number, got 0"):
         run(quick=True, meshes=["x.obj"], texture_minutes=0)
