@@ -6,6 +6,7 @@ import dataclasses
 
 import click
 import pytest
+import torch
 
 from neural_bake.cli.config_options import ConfigCommand
 from neural_bake.cli.main import cli, main
@@ -127,6 +128,38 @@ def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
     assert printed == ""  # --quiet: no lines, no progress bar
     fit = load_sdf(out)
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed, fit.config.pool_surface) == (16, 1, 4, 6, 2000)
+
+
+def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, capsys):
+    """`fit sdf --construction residual`: a coarse level, then the config's network on top of it, written as one
+    SIREN as wide as both that loads as a field; an unknown construction is refused in one line."""
+    import trimesh
+
+    from neural_bake.fields import load_field
+    from neural_bake.fit.residual import COARSE_WIDTH, CONSTRUCTIONS
+
+    from neural_bake.cli.fit_sdf import CONSTRUCTIONS as SPELLED
+
+    assert SPELLED == CONSTRUCTIONS
+    src = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=2).export(src)
+    f = tmp_path / "sdf.toml"
+    f.write_text("width = 16\ndepth = 1\nsteps = 8\nminutes = \"none\"\nseed = 5\npool_surface = 2000\n"
+                 "pool_near = 2000\npool_uniform = 500\nbatch = 256\nbatch_near = 256\nbatch_uniform = 64\n"
+                 "polish_evals = 0\ncompile = \"off\"\n")
+    out = tmp_path / "ball.sdf"
+    code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f),
+                             "--construction", "residual", "--no-metrics")
+    assert code == 0, err
+    assert f"fit sdf {COARSE_WIDTH}x1+16x1:" in printed and "whose band is |h| <" in printed
+    field = load_field(out)
+    assert field.model.layers[0].weight.shape[0] == COARSE_WIDTH + 16
+    x = torch.rand(64, 3, dtype=torch.float32) * 2 - 1
+    values, normals, valid = field.value_and_normal(x)
+    assert valid.all() and torch.isfinite(values).all()
+    assert torch.allclose(normals.norm(dim=1), torch.ones(64), atol=1e-4)
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--construction", "tiles")
+    assert code == 2 and "'tiles' is not one of 'plain', 'residual', 'residual-warm'" in err
 
 
 @pytest.mark.parametrize("path", CONFIG_VERBS, ids=" ".join)
