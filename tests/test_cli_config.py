@@ -110,17 +110,23 @@ def test_a_config_file_applies_first_and_options_override_it(tmp_path, capsys):
     assert (got["levels"], got["steps"], got["certify"]) == ("64x1,256x1", 5, False)  # --preset beats the file's
 
 
-def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
+def _tiny_fit_inputs(tmp_path, *, steps: int, subdivisions: int):
+    """An icosphere mesh file and a config file of a 16x1 fit of ``steps`` steps on small pools."""
     import trimesh
 
-    from neural_bake.fit.sdf import load_sdf
-
     src = tmp_path / "ball.obj"
-    trimesh.creation.icosphere(subdivisions=1).export(src)
+    trimesh.creation.icosphere(subdivisions=subdivisions).export(src)
     f = tmp_path / "sdf.toml"
-    f.write_text("width = 16\ndepth = 1\nsteps = 4\nminutes = \"none\"\nseed = 5\npool_surface = 2000\n"
+    f.write_text(f"width = 16\ndepth = 1\nsteps = {steps}\nminutes = \"none\"\nseed = 5\npool_surface = 2000\n"
                  "pool_near = 2000\npool_uniform = 500\nbatch = 256\nbatch_near = 256\nbatch_uniform = 64\n"
                  "polish_evals = 0\ncompile = \"off\"\n")
+    return src, f
+
+
+def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
+    from neural_bake.fit.sdf import load_sdf
+
+    src, f = _tiny_fit_inputs(tmp_path, steps=4, subdivisions=1)
     out = tmp_path / "ball.sdf"
     code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--seed", "6",
                              "--no-metrics", "--quiet")
@@ -133,20 +139,12 @@ def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
 def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, capsys):
     """`fit sdf --construction residual`: a coarse level, then the config's network on top of it, written as one
     SIREN as wide as both that loads as a field; an unknown construction is refused in one line."""
-    import trimesh
-
+    from neural_bake.cli.fit_sdf import CONSTRUCTIONS as SPELLED
     from neural_bake.fields import load_field
     from neural_bake.fit.residual import COARSE_WIDTH, CONSTRUCTIONS
 
-    from neural_bake.cli.fit_sdf import CONSTRUCTIONS as SPELLED
-
     assert SPELLED == CONSTRUCTIONS
-    src = tmp_path / "ball.obj"
-    trimesh.creation.icosphere(subdivisions=2).export(src)
-    f = tmp_path / "sdf.toml"
-    f.write_text("width = 16\ndepth = 1\nsteps = 8\nminutes = \"none\"\nseed = 5\npool_surface = 2000\n"
-                 "pool_near = 2000\npool_uniform = 500\nbatch = 256\nbatch_near = 256\nbatch_uniform = 64\n"
-                 "polish_evals = 0\ncompile = \"off\"\n")
+    src, f = _tiny_fit_inputs(tmp_path, steps=8, subdivisions=2)
     out = tmp_path / "ball.sdf"
     code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f),
                              "--construction", "residual", "--no-metrics")
