@@ -399,9 +399,14 @@ def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator)
     proportional to :func:`edge_strength` among those a face covers (:func:`~neural_bake.mesh.texels.
     texel_centres`), each sample at a uniform random place in its texel on that face (:func:`_jittered`);
     texels drawn uniformly where the texture has no edge."""
+    import warnings
+
+    from ..errors import NeuralBakeWarning
     from ..mesh.texels import texel_centres
 
-    face, rows, cols, bary = texel_centres(mesh, rgb.shape[:2])
+    with warnings.catch_warnings():  # UVs outside [0, 1]: the bake says so where it matters
+        warnings.simplefilter("ignore", NeuralBakeWarning)
+        face, rows, cols, bary = texel_centres(mesh, rgb.shape[:2])
     if len(face) == 0:  # no texel centre on a face (UVs of no area): anywhere on the surface
         from .sampling import sample_surface
 
