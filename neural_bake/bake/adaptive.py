@@ -14,7 +14,8 @@ extrapolated to first order from each node). A pure cell of side 8 or more that 
 for quadratic interpolation: the fields are evaluated at its quarters' centres (nodes of the next level, so a
 failure costs nothing) and compared with the quadratic through its 3×3 nodes in the same spatial coordinates
 (:func:`_quadratic_weights`), at half the tolerances; when they pass, its samples are interpolated from all
-nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no accepted cell covers is evaluated: chart borders, seams, islands smaller than
+nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no
+accepted cell covers is evaluated: chart borders, seams, islands smaller than
 the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
 nodes and samples of an accepted cell all belong to one chart.
 
