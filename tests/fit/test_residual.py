@@ -6,14 +6,14 @@ import torch
 import trimesh
 
 import neural_bake.fit.sdf as sdf_module
-from neural_bake.errors import FitError, NeuralBakeError
+from neural_bake.errors import FitError
 from neural_bake.fit.residual import COARSE_OMEGA_0, CONSTRUCTIONS, ResidualSdfFit, fit_sdf_construction
 from neural_bake.fit.sdf import SdfFit, fit_sdf, load_sdf
 from neural_bake.fit.sdf_pools import band_pools
 from neural_bake.io.mesh_io import mesh_from_arrays
 from neural_bake.nets.gemm import gemm_gradient
 from neural_bake.nets.siren import Siren
-from neural_bake.nets.siren_sum import siren_sum, sum_gradient
+from neural_bake.nets.siren_sum import siren_sum
 
 R = 0.7
 TINY = dict(width=32, depth=1, omega_0=15.0, lr=1e-3, batch=512, batch_near=512, batch_uniform=128, pool_surface=4000,
@@ -72,31 +72,6 @@ def test_band_pools_keep_the_band_and_refuse_an_empty_one(fit_sphere_siren):
     assert kept["n_near"] == int(inside[:5000].sum()) and kept["vol_p"].shape[0] == int(inside.sum())
     with pytest.raises(FitError, match="no surface sample lies in the band"):
         band_pools(h, 0.05)(dict(data, surf_p=surf * 0.1))
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_sum_normals_agree_with_autograd_of_the_sum(dtype):
-    h, r = random_siren(16, 2, 15.0, 0, dtype), random_siren(24, 2, 45.0, 1, dtype)
-    x = (torch.rand(300, 3, generator=torch.Generator().manual_seed(2), dtype=dtype) * 2 - 1).requires_grad_(True)
-    values, grads = sum_gradient([h, r], x.detach())
-    ref = h(x) + r(x)
-    (ref_grad,) = torch.autograd.grad(ref.sum(), x)
-    tol = {"rtol": 1e-4, "atol": 1e-4} if dtype == torch.float32 else {"rtol": 1e-10, "atol": 1e-10}
-    torch.testing.assert_close(values, ref.detach(), **tol)
-    torch.testing.assert_close(grads, ref_grad, **tol)
-    # the sum as one SIREN (block-diagonal, the ω0 of r): the same values and GEMM normals
-    merged = siren_sum(h, r)
-    assert merged.width == 40 and merged.omega_0 == 45.0 and next(merged.parameters()).dtype == dtype
-    m_values, m_grads = gemm_gradient(merged, x.detach())
-    torch.testing.assert_close(m_values, ref.detach(), **tol)
-    torch.testing.assert_close(m_grads, ref_grad, **tol)
-
-
-def test_siren_sum_refuses_networks_of_different_depth():
-    with pytest.raises(NeuralBakeError, match="differ in depth"):
-        siren_sum(random_siren(16, 1, 30.0, 0), random_siren(16, 2, 30.0, 1))
-    with pytest.raises(NeuralBakeError, match="no networks"):
-        sum_gradient([], torch.zeros(1, 3))
 
 
 def test_residual_construction_splits_the_steps_and_saves_the_sum(tmp_path, monkeypatch):
