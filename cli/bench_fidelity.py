@@ -22,10 +22,11 @@ from .bench import bench_options, report
               help="Comma-separated SDF sampling variants to compare in one run: uniform, curvature, error, "
                    "curvature+error, preset (default: the preset's own). Rows get ratios against uniform.")
 @click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
-              help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (the preset's "
-                   "fit, the default), residual (a coarse level 64 wide at ω0 15 for a quarter of the budget, then the "
-                   "preset's network fitted as a residual inside the coarse level's band), residual-warm (the "
-                   "preset's network started from the coarse level). Rows get ratios against plain.")
+              help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (one network "
+                   "of the preset's width), residual (a coarse level 64 wide at ω0 15 for a quarter of the budget, then "
+                   "the rest of the width fitted as a residual inside the coarse level's band; quick's own), "
+                   "residual-warm (the whole width started from the coarse level). Default: the preset's own. Rows "
+                   "get ratios against plain.")
 @click.option("--steps", default=None, metavar="LIST",
               help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")
 @click.option("--texture-steps", type=int, default=None,

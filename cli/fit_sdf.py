@@ -11,10 +11,7 @@ from neural_bake.constants import POOL_REFRESH_MAX_SHARE
 from .config_options import ConfigCommand, ConfigSpec
 from .options import lock_outputs, output_option, refuse_nonpositive, say, verbosity, verbosity_options
 
-__all__ = ["command", "CONSTRUCTIONS"]
-
-#: The SDF constructions (neural_bake.fit.residual.CONSTRUCTIONS; spelled here so that --help imports no torch).
-CONSTRUCTIONS = ("plain", "residual", "residual-warm")
+__all__ = ["command"]
 
 
 def _resolve(preset, values):
@@ -46,20 +43,15 @@ Examples:
 @click.argument("mesh", type=click.Path(dir_okay=False), required=False)
 @output_option("Model file to write (safetensors + JSON metadata, kind 'sdf').", required=False)
 @click.option("--metrics/--no-metrics", default=True, help="Measure Chamfer/Hausdorff/normal error at the end.")
-@click.option("--construction", type=click.Choice(CONSTRUCTIONS), default="plain", show_default=True,
-              help="plain: one network; residual: a 64-wide coarse level for a quarter of the budget, then the "
-                   "preset's network fitted on top of it inside its band (more detail on scans at equal time; one "
-                   "SIREN as wide as both, so its bakes cost more); residual-warm: the preset's network started "
-                   "from the coarse level. The residual ones run a time or step budget, with no checkpoint.")
 @verbosity_options
-def command(mesh, output, config, preset, metrics, construction):
+def command(mesh, output, config, preset, metrics):
     """Fit a SIREN SDF to MESH and write it to OUTPUT (prints progress and the final metrics).
 
     Every setting below is a field of the SDF fit's config: a --config file sets them first, the options
     given override it."""
     from dataclasses import asdict, replace
 
-    from neural_bake.fit.residual import fit_sdf_construction
+    from neural_bake.fit.sdf import fit_sdf
     from neural_bake.io.mesh_io import load_mesh
 
     refuse_nonpositive(steps=config.steps, minutes=config.minutes, lr=config.lr, batch=config.batch)
@@ -71,7 +63,7 @@ def command(mesh, output, config, preset, metrics, construction):
     say(f"settings: {config}", 1)
     m = load_mesh(mesh)
     # the preset again: the budget is accounted against it
-    fit = fit_sdf_construction(m, construction, preset=preset, **asdict(config))
+    fit = fit_sdf(m, preset=preset, **asdict(config))
     label = getattr(fit, "label", f"{fit.config.width}x{fit.config.depth}")
     last = fit.history[-1] if fit.history else {}
     b = fit.budget
@@ -87,8 +79,10 @@ def command(mesh, output, config, preset, metrics, construction):
     if skipped:
         how += (f"; {skipped} pool refresh(es) skipped (building them would have taken over "
                 f"{100 * POOL_REFRESH_MAX_SHARE:.0f} % of the time)")
-    if construction != "plain":
-        how += f"; the steps of its fine level, whose band is |h| < {fit.band:.4g}" if fit.band else ""
+    if fit.config.construction != "plain":
+        how += f"; the steps of its fine level, whose band is |h| < {fit.band:.4g}" if getattr(fit, "band", None) else ""
+        how += f"; its coarse level made {fit.coarse.steps}" if getattr(fit, "coarse", None) else ""
+        how += f" (the expected steps are both levels')" if b is not None and b.get("expected_steps") else ""
     say(f"fit sdf {label}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
         f"final loss {last.get('loss', float('nan')):.4g}"
         + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))

@@ -365,12 +365,16 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         ckpt = folder / f".sdf-{key[:16]}.ckpt"
         _remove_stale(folder, ".sdf-*.ckpt", keep=ckpt)
         # the preset again, as `fit sdf` does: the time budget is accounted against its step cost
-        fit = fit_sdf(mesh, preset=presets["sdf"], **dataclasses.asdict(
-            dataclasses.replace(sdf_cfg, progress=False, checkpoint=str(ckpt), resume=True)))
+        # a plain fit resumes from its checkpoint; a construction of two levels is not checkpointed
+        resumable = sdf_cfg.construction == "plain"
+        fit = fit_sdf(mesh, preset=presets["sdf"], **dataclasses.asdict(dataclasses.replace(
+            sdf_cfg, progress=False, checkpoint=str(ckpt) if resumable else None, resume=resumable)))
         fit.save(out)
         ckpt.unlink(missing_ok=True)
         last = fit.history[-1] if fit.history else {}
-        return {"steps": fit.steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
+        # the steps the budget counts (a construction's: both levels')
+        steps = fit.budget["steps"] if fit.budget else fit.steps
+        return {"steps": steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
                 "stopped": fit.stopped_reason, **_budget_metrics([fit.budget])}
 
     stage("sdf", ["mesh"], stage_key_config(sdf_cfg), run_sdf)

@@ -137,27 +137,31 @@ def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
 
 
 def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, capsys):
-    """`fit sdf --construction residual`: a coarse level, then the config's network on top of it, written as one
-    SIREN as wide as both that loads as a field; an unknown construction is refused in one line."""
-    from neural_bake.cli.fit_sdf import CONSTRUCTIONS as SPELLED
+    """`fit sdf --construction residual`: a coarse level, then a fine one of the rest of the width on top of it,
+    written as one SIREN of the config's width that loads as a field; an unknown construction is refused in
+    one line."""
     from neural_bake.fields import load_field
-    from neural_bake.fit.residual import COARSE_WIDTH, CONSTRUCTIONS
+    from neural_bake.fit.sdf import load_sdf
 
-    assert SPELLED == CONSTRUCTIONS
     src, f = _tiny_fit_inputs(tmp_path, steps=8, subdivisions=2)
     out = tmp_path / "ball.sdf"
     code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f),
-                             "--construction", "residual", "--no-metrics")
+                             "--construction", "residual", "--coarse-width", "6", "--no-metrics")
     assert code == 0, err
-    assert f"fit sdf {COARSE_WIDTH}x1+16x1:" in printed and "whose band is |h| <" in printed
+    assert "fit sdf 6x1+10x1:" in printed and "whose band is |h| <" in printed and "coarse level made 2" in printed
     field = load_field(out)
-    assert field.model.layers[0].weight.shape[0] == COARSE_WIDTH + 16
+    assert field.model.layers[0].weight.shape[0] == 16
+    assert (load_sdf(out).config.construction, load_sdf(out).config.coarse_width) == ("residual", 6)
     x = torch.rand(64, 3, dtype=torch.float32) * 2 - 1
     values, normals, valid = field.value_and_normal(x)
     assert valid.all() and torch.isfinite(values).all()
     assert torch.allclose(normals.norm(dim=1), torch.ones(64), atol=1e-4)
-    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--construction", "tiles")
-    assert code == 2 and "'tiles' is not one of 'plain', 'residual', 'residual-warm'" in err
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction", "tiles")
+    assert code == 2 and "construction must be one of plain, residual, residual-warm, got 'tiles'" in err
+    assert err.count("\n") == 1
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
+                       "residual", "--coarse-width", "16")
+    assert code == 2 and "coarse_width must be an integer in (0, width 16)" in err
 
 
 @pytest.mark.parametrize("path", CONFIG_VERBS, ids=" ".join)

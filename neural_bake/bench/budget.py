@@ -12,7 +12,9 @@ steps each predicts for the preset's whole budget. A ratio far from 1 on a quiet
 off for that preset on this kind of CPU (the expected steps and the under-budget warning with it).
 
 The texture presets are fitted against the 64x1 preset's SDF of the same run (fitted for them when 64x1 is
-not measured).
+not measured). A preset whose own construction has two levels (``quick``: :mod:`neural_bake.fit.residual`)
+is measured plainly under its name (its network alone) and by level under "PRESET/coarse" and
+"PRESET/fine", both read from one fit of its construction (loss not compiled).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def warm_seconds_per_step(history: list[dict], skip: int = 1) -> float | None:
 
 
 #: The presets of ``--quick`` (none compiled: the run stays under two minutes).
-QUICK_PRESETS = ("quick", "64x1", "texture:quick")
+QUICK_PRESETS = ("quick", "quick/coarse", "quick/fine", "64x1", "texture:quick")
 
 
 def _presets(presets, quick: bool) -> list[str]:
@@ -88,10 +90,28 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
     rates = [probe_rate(clock=time.perf_counter)]
     rows, notes, sdf_models = [], [], {}  # the fitted SDFs by preset: the texture presets use 64x1's
 
+    levels: dict = {}  # a preset's construction of two levels, fitted once for both of its rows
+
     def measure(name: str) -> dict:
         texture = name.startswith("texture:")
-        preset = name.partition(":")[2] if texture else name
+        preset, _, level = name.partition("/")
+        preset = name.partition(":")[2] if texture else preset
         full = (TEXTURE_PRESETS if texture else SDF_PRESETS)[preset]
+        if level:  # "PRESET/coarse", "PRESET/fine": a level of the preset's own construction
+            if preset not in levels:
+                levels[preset] = fit_sdf(mesh, preset=preset, minutes=seconds / 60.0, progress=False,
+                                         log_every=log_every, compile="off", **sdf_over)
+            whole = levels[preset]
+            fit = whole.coarse if level == "coarse" else whole
+            cfg = fit.config if level == "coarse" else whole.fine_config
+            per_step = warm_seconds_per_step(fit.history)
+            if per_step is None:
+                notes.append(f"{name}: too few steps in its part of {seconds:.0f} s to read a warm step time")
+            share = full.get("coarse_share", 0.25) if level == "coarse" else 1.0 - full.get("coarse_share", 0.25)
+            return {"preset": name, "net": f"{cfg.width}x{cfg.depth}", "compiled": False, "steps": fit.steps,
+                    "ms / step": None if per_step is None else 1000.0 * per_step, "_seconds_per_step": per_step,
+                    "table cost": STEP_COST[name],
+                    "budget s": share * 60.0 * float(full["minutes"]) if full.get("minutes") else None}
         if texture:
             if "64x1" not in sdf_models:  # the SDF presets ran first (_presets); 64x1 was not among them
                 say("64x1: the SDF the texture presets are fitted against")
@@ -107,7 +127,7 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
             compiled = long_run(int(full.get("steps", 5000)), full.get("minutes"))
             for _ in range(2 if compiled else 1):
                 fit = fit_sdf(mesh, preset=preset, minutes=seconds / 60.0, progress=False, log_every=log_every,
-                              compile="on" if compiled else "off", **sdf_over)
+                              compile="on" if compiled else "off", **{"construction": "plain", **sdf_over})
             compiled = fit.config.compile == "on"
             sdf_models[preset] = fit.model
         per_step = warm_seconds_per_step(fit.history)

@@ -75,9 +75,11 @@ def _cli(args: list[str], threads: str) -> float:
 
 
 def _fit_steps(path: Path) -> int:
+    """The Adam steps a fit's file records: its budget's count (a construction's: both levels'), else its own."""
     from ..fields import load_field
 
-    return int(load_field(path).metadata["training"]["steps"])
+    training = load_field(path).metadata["training"]
+    return int((training.get("budget") or {}).get("steps") or training["steps"])
 
 
 def rows_from(measured: dict) -> list[dict]:

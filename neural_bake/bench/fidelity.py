@@ -329,8 +329,9 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
       preset's own network alone runs the preset's steps on the reference machine, and any other
       construction makes every texture fit run the preset's time budget (equal time).
     - ``texture_minutes``: the time budget of every texture fit (equal time; the steps made follow the machine).
-    - ``constructions``: SDF constructions (:data:`~neural_bake.fit.residual.CONSTRUCTIONS`: "plain", today's
-      fit, the default; "residual", a fine level fitted on a coarse one inside its band; "residual-warm") fitted
+    - ``constructions``: SDF constructions (:data:`~neural_bake.fit.residual.CONSTRUCTIONS`: "plain", one
+      network; "residual", a fine level fitted on a coarse one inside its band; "residual-warm"; default: the
+      preset's own, :attr:`~neural_bake.fit.sdf_config.SdfFitConfig.construction`) fitted
       at the same budget and baked side by side, one row each; rows get ratios against "plain" of the same
       mesh, preset, step count and sampling (``plain_median_ratio``, ``plain_p95_ratio``,
       ``plain_hausdorff_ratio``; add "plain" to have them).
@@ -398,12 +399,12 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     unknown = [v for v in sampling if v not in SAMPLINGS]
     if unknown:
         raise NeuralBakeError(f"fidelity: sampling must be among {', '.join(SAMPLINGS)}, got {', '.join(unknown)}")
-    constructions = list(constructions or ["plain"])
-    bad = [c for c in constructions if c not in CONSTRUCTIONS]
+    constructions = list(constructions or [None])  # None: the preset's own
+    bad = [c for c in constructions if c is not None and c not in CONSTRUCTIONS]
     if bad or len(set(constructions)) != len(constructions):
         raise NeuralBakeError(f"fidelity: constructions must be distinct names among {', '.join(CONSTRUCTIONS)}, "
                               f"got {', '.join(constructions)}", parameter="constructions")
-    if only_textures and constructions != ["plain"]:
+    if only_textures and constructions not in ([None], ["plain"]):
         raise NeuralBakeError("fidelity: only_textures fits the plain SDF (its reference steps); constructions "
                               f"{', '.join(constructions)} are for the normal rows", parameter="constructions")
     caps_of_steps = [None] if not steps else [int(n) for n in steps]
@@ -426,7 +427,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         cases = [(p, n, v, c) for p in presets for n in caps_of_steps for v in sampling for c in constructions]
         for preset, step_cap, variant, construction in cases:
             label = f"{name} {preset}" + ("" if step_cap is None else f" {step_cap} steps") + (
-                "" if variant == "preset" else f" {variant}") + ("" if construction == "plain" else f" {construction}")
+                "" if variant == "preset" else f" {variant}") + ("" if construction is None else f" {construction}")
             say(f"{label}: fitting the SDF")
             t0 = time.perf_counter()
             over = {} if minutes is None else {"minutes": minutes}
@@ -439,7 +440,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             if save_dir is not None:
                 stem = "-".join([Path(name).stem, preset, *([] if step_cap is None else [str(step_cap)]),
                                  *([] if variant == "preset" else [variant]),
-                                 *([] if construction == "plain" else [construction])])
+                                 *([] if construction is None else [construction])])
                 fit.save(Path(save_dir) / f"{stem}.sdf")
             n, res = (20_000, 96) if quick else (50_000, 128)
             metrics = caps = None

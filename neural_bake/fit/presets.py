@@ -25,6 +25,8 @@ TEXTURE_ALIASES = {"fast": "quick", "medium": "default", "fine": "high"}
 #: step costs were measured at (BENCHMARKS.md, "Honest budgets") / STEP_COST, rounded down.
 REFERENCE_STEPS: dict[str, int] = {
     "quick": 2190,
+    "quick/coarse": 1931,
+    "quick/fine": 3168,
     "default": 7230,
     "high": 8057,
     "64x1": 11432,

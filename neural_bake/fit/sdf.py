@@ -161,7 +161,8 @@ def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
 # ----------------------------------------------------------------------------------------------- fitting
 def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None,
             clock: Callable[[], float] | None = None, base: Siren | None = None, band: float | None = None,
-            init: Siren | None = None, pool_cache: dict | None = None, **overrides) -> SdfFit:
+            init: Siren | None = None, pool_cache: dict | None = None, budget_key: str | None = None,
+            **overrides) -> SdfFit:
     """Train a Siren SDF of ``mesh`` (unit frame) and return an :class:`SdfFit`.
 
     Args:
@@ -183,6 +184,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         init: a Siren of the config's width and depth to start from instead of a random one (warm start).
         pool_cache: a dict shared by fits of this mesh with the same sampling settings: each sample pool is
             drawn from the mesh once and taken from it by the next fit (e.g. the levels of one construction).
+        budget_key: the :data:`~neural_bake.fit.budget.STEP_COST` key the run's budget is accounted against
+            and whose reference steps a ``budget="steps"`` run makes (default: the preset's, when the run kept
+            its network and batches; a construction's levels have keys of their own).
         **overrides: any :class:`SdfFitConfig` field, e.g. ``width=64, depth=1, steps=500, seed=3``.
 
     Returns:
@@ -199,7 +203,12 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     if not np.isfinite(mesh.vertices).all():
         raise FitError(f"{mesh.name}: the mesh has non-finite vertex coordinates")
     cfg = config_from(config, preset=preset, **overrides)
-    budget_key = _preset_key(preset, cfg)
+    if budget_key is None:
+        budget_key = _preset_key(preset, cfg)
+    if cfg.construction != "plain" and base is None and init is None:  # a construction of several levels
+        from .residual import fit_levels
+
+        return fit_levels(mesh, cfg, budget_key, clock=clock, pool_cache=pool_cache)
     budget_minutes = cfg.minutes  # the time budget the run is sized by (a budget="steps" run's preset's)
     if cfg.budget == "steps":  # the preset's steps on the quiet reference machine, no time stop
         from .budget import reference_steps

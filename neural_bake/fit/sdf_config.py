@@ -144,6 +144,22 @@ class SdfFitConfig(PresetLoopSettings):
     training loss leaves to chance (0: polish the training loss alone; docs/findings.md)."""
     polish_max_p: float = 8.0
     """Exponent p of the worst-distance term (larger: closer to the maximum, less smooth)."""
+    construction: str = "plain"
+    """How the network is built (:mod:`neural_bake.fit.residual`): "plain", one SIREN of ``width`` fitted to
+    the mesh; "residual", a coarse SIREN of ``coarse_width`` (ω0 ``coarse_omega_0``) fitted for
+    ``coarse_share`` of the budget, then a fine one of ``width − coarse_width`` fitted for the rest so that
+    their sum fits the mesh, supervised only inside the coarse level's band (``band_factor`` × its sampled
+    distance error): the fine level spends its capacity on detail (nested-neighbourhoods §3). The file holds
+    the sum as one SIREN of ``width`` (its cost to bake is a plain fit's); "residual-warm", the coarse level
+    grown to ``width`` by fresh units and fitted plainly for the rest."""
+    coarse_width: int = 64
+    """Hidden width of a residual construction's coarse level (part of ``width``)."""
+    coarse_share: float = 0.25
+    """Part of the budget a residual construction's coarse level is fitted for."""
+    coarse_omega_0: float = 15.0
+    """ω0 of a residual construction's coarse level (a smooth approximation, as a nested sequence's)."""
+    band_factor: float = 4.0
+    """A residual level's band δ in multiples of the coarse level's sampled distance error."""
     device: str | None = None
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
@@ -153,6 +169,8 @@ class SdfFitConfig(PresetLoopSettings):
         """The settings that define the training trajectory (not budgets, paths or display)."""
         skip = {"steps", "minutes", "budget", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile",
                 "micro_batches", "polish_evals", "polish_share", "polish_points", "polish_max_weight", "polish_max_p"}
+        if self.construction == "plain":  # a plain fit's trajectory does not depend on the residual settings
+            skip |= {"construction", "coarse_width", "coarse_share", "coarse_omega_0", "band_factor"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -172,12 +190,14 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr"
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
 #: fewer steps of larger networks) and the architecture presets ``"WxD"`` (the shared names: :mod:`.presets`).
+#: ``quick`` is fitted as a residual construction (a 64-wide coarse level for a quarter of its time, then a
+#: 128-wide fine level inside its band, saved as one 192x3 SIREN): more detail on scans at equal time.
 #: ``default`` also spends a tenth of each near batch on the network's own zero set where it is furthest from
 #: the mesh: without hard-example mining, 5 minutes left stray pieces of surface on two of eight meshes.
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
-    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING},
+    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual"},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
@@ -267,5 +287,19 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError(f"fit_sdf: bf16_fraction must be in [0, 1], got {cfg.bf16_fraction!r}")
     if cfg.budget not in ("time", "steps"):
         raise FitError(f"fit_sdf: budget must be 'time' or 'steps', got {cfg.budget!r}")
+    from .residual import CONSTRUCTIONS
+
+    if cfg.construction not in CONSTRUCTIONS:
+        raise FitError(f"fit_sdf: construction must be one of {', '.join(CONSTRUCTIONS)}, got {cfg.construction!r}")
+    if cfg.construction != "plain":
+        if int(cfg.coarse_width) != cfg.coarse_width or not 0 < cfg.coarse_width < cfg.width:
+            raise FitError(f"fit_sdf: coarse_width must be an integer in (0, width {cfg.width}) for the "
+                           f"{cfg.construction} construction, got {cfg.coarse_width!r}")
+        if not (0.0 < cfg.coarse_share < 1.0):
+            raise FitError(f"fit_sdf: coarse_share must be in (0, 1), got {cfg.coarse_share!r}")
+        if not (math.isfinite(cfg.band_factor) and cfg.band_factor > 0):
+            raise FitError(f"fit_sdf: band_factor must be positive, got {cfg.band_factor!r}")
+        if not (math.isfinite(cfg.coarse_omega_0) and cfg.coarse_omega_0 > 0):
+            raise FitError(f"fit_sdf: coarse_omega_0 must be positive, got {cfg.coarse_omega_0!r}")
     if cfg.dtype not in _DTYPES:
         raise FitError(f"fit_sdf: dtype must be one of {', '.join(_DTYPES)}, got {cfg.dtype!r}")

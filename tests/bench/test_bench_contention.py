@@ -45,7 +45,7 @@ def test_shrunken_fit_run_measures_steps_quiet_and_busy(tmp_path):
     from neural_bake.samples.shapes import get_sample
 
     mesh = write_sample(get_sample("bumpy_sphere").mesh(resolution=200, texture_size=16), tmp_path, "bumpy_sphere")
-    small = ("--width", "32", "--depth", "1", "--batch", "256", "--batch-near", "256", "--batch-uniform", "64",
+    small = ("--width", "32", "--coarse-width", "8", "--depth", "1", "--batch", "256", "--batch-near", "256", "--batch-uniform", "64",
              "--pool-surface", "2000", "--pool-near", "2000", "--pool-uniform", "500")
     res = run(quick=True, workloads=("fit",), fit_seconds=2.0, mesh=mesh, fit_args=small)
     rows = [r for r in res["rows"] if r["command"] == "fit"]

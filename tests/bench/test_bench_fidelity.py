@@ -46,14 +46,17 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     (row,) = res["rows"]
     saved = load_sdf(tmp_path / "models" / "cup-quick.sdf")  # the fitted field, kept to re-bake or time
     assert saved.steps == row["steps"] and (saved.config.width, saved.config.depth) == (192, 3)
-    assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "192x3" and row["steps"] >= 1
+    # the preset's own construction: a 64-wide coarse level and a 128-wide residual, one 192x3 SIREN
+    assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "64x3+128x3" and row["steps"] >= 1
+    assert row["construction"] == "residual" and saved.config.construction == "residual"
     assert row["cap_max"] is not None and row["hausdorff_without_caps"] is not None
     # the classical bake of a mesh onto its own decimation is close; the coarse mesh's own normals are not
     assert row["classical_median_deg"] < 2.0 < row["coarse_median_deg"]
     # a field of a second's training is poor: the hybrid takes the classical normal where it is off
     assert row["hybrid_pct"] > 0 and row["map_median_deg"] <= row["neural_median_deg"]
     assert row["map_max_deg"] >= row["map_p95_deg"] and row["classical_max_deg"] >= row["classical_p95_deg"]
-    assert row["networks_kb"] == pytest.approx((3 * 192 + 192 + 3 * (192 * 192 + 192) + 192 + 1) * 4 / 1024)
+    params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
+    assert row["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
     assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)
     json.dumps(res)
 
@@ -72,6 +75,7 @@ def test_sampling_variants_at_equal_steps_get_ratios_against_uniform(tmp_path):
     v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.2)
     trimesh.Trimesh(v, f, process=False).export(path)
     res = run(quick=True, meshes=[str(path)], steps=[3], sampling=["uniform", "curvature", "error"], size=32,
+              constructions=["plain"],
               faces=100)
     rows = res["rows"]
     assert [(r["sampling"], r["step_cap"], r["steps"]) for r in rows] == [
@@ -148,7 +152,7 @@ def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
     path = write_sample(Sphere().mesh(2000, 64), tmp_path, "ball")
     trimesh.creation.box().export(tmp_path / "box.obj")
     res = run(quick=True, meshes=[str(path), str(tmp_path / "box.obj")], only_textures=True, steps=[5], size=48,
-              faces=300, texture_steps=20, texture_networks=["siren", "grid"])
+              faces=300, texture_steps=20, texture_networks=["siren", "grid"], constructions=["plain"])
     assert res["rows"] == [] and list(res["tables"]) == ["textures"]
     assert any(n == "box: skipped, no texture (texture rows only)" for n in res["notes"])
     row, grid = res["texture_rows"]  # one row per construction, same SDF, coarse mesh and layout
@@ -237,16 +241,16 @@ def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     assert (plain["construction"], plain["net"], plain["steps"], plain["coarse_steps"]) == ("plain", "192x3", 8, None)
     # the same 8 steps split: a quarter to the 64-wide coarse level, the rest to the residual
     assert (residual["construction"], residual["net"], residual["steps"], residual["coarse_steps"]) == (
-        "residual", "64x3+192x3", 6, 2)
+        "residual", "64x3+128x3", 6, 2)
     assert residual["band"] > 0 and plain["band"] is None
     assert plain["plain_median_ratio"] == 1.0 and plain["plain_p95_ratio"] == 1.0
     assert residual["plain_median_ratio"] == pytest.approx(residual["map_median_deg"] / plain["map_median_deg"])
     assert residual["plain_hausdorff_ratio"] == pytest.approx(residual["hausdorff"] / plain["hausdorff"])
     # the two networks' parameters, not the zero blocks of their sum as one network
     params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
-    assert residual["networks_kb"] == pytest.approx((params(64) + params(192)) * 4 / 1024)
+    assert residual["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
     saved = load_sdf(tmp_path / "models" / "block-quick-8-residual.sdf")  # the sum, an ordinary SDF file
-    assert saved.model.width == 256 and saved.steps == 6
+    assert saved.model.width == 192 and saved.steps == 6
     json.dumps(res)
 
 

@@ -35,9 +35,12 @@ def test_expected_steps_scale_with_rate_and_time():
     assert expected_steps("64x1", 90.0, rate=20.0) == int(90 * 20 / STEP_COST["64x1"])
     assert expected_steps("64x1", 90.0, rate=10.0) == int(90 * 10 / STEP_COST["64x1"])
     assert expected_steps("9x9", 90.0, rate=20.0) is None and expected_steps("64x1", None, rate=1.0) is None
-    presets = {"quick", "default", "high", "64x1", "128x2", "256x2", "256x3", "texture:quick", "texture:default",
-               "texture:high"}
+    presets = {"quick", "quick/coarse", "quick/fine", "default", "high", "64x1", "128x2", "256x2", "256x3",
+               "texture:quick", "texture:default", "texture:high"}
     assert set(STEP_COST) == presets and all(c > 0 for c in STEP_COST.values())
+    # the quick construction's levels: its 64-wide coarse level costs less a step than its 128-wide fine one,
+    # which costs less than the plain 192-wide network
+    assert STEP_COST["quick/coarse"] < STEP_COST["quick/fine"] < STEP_COST["quick"]
     # larger networks cost more a step; the compiled 5-minute preset less than the eager 2-minute one
     assert STEP_COST["64x1"] < STEP_COST["128x2"] < STEP_COST["256x3"] < STEP_COST["high"]
     # the 10-minute texture's (256, 3) SIREN of 2,048 points costs less than the 4-minute one's feature grid of
@@ -96,7 +99,9 @@ def test_reference_steps_are_each_presets_budget_at_one_reference_rate():
     def adam_seconds(key):
         if key.startswith("texture:"):
             return 60.0 * TEXTURE[key.split(":", 1)[1]]["minutes"]
-        return 60.0 * SDF[key]["minutes"] * (1.0 - SDF[key].get("polish_share", 0.0))
+        preset, _, level = key.partition("/")  # a construction's level: its share of the preset's time
+        share = {"": 1.0, "coarse": 0.25, "fine": 0.75}[level]
+        return 60.0 * SDF[preset]["minutes"] * (1.0 - SDF[preset].get("polish_share", 0.0)) * share
 
     assert set(REFERENCE_STEPS) == set(STEP_COST)
     rates = [n * STEP_COST[k] / adam_seconds(k) for k, n in REFERENCE_STEPS.items()]
@@ -320,7 +325,8 @@ def test_cli_fit_sdf_with_a_steps_budget(monkeypatch, tmp_path, capsys):
     from neural_bake.fit import presets
     from neural_bake.fit.sdf import load_sdf
 
-    monkeypatch.setitem(presets.REFERENCE_STEPS, "quick", 3)
+    monkeypatch.setitem(presets.REFERENCE_STEPS, "quick/coarse", 2)  # quick's construction: both its levels
+    monkeypatch.setitem(presets.REFERENCE_STEPS, "quick/fine", 3)
     src, out = tmp_path / "ball.obj", tmp_path / "ball.sdf"
     trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src)
     code = main(["fit", "sdf", str(src), "-o", str(out), "--preset", "quick", "--budget", "steps", "--no-progress",
@@ -330,8 +336,8 @@ def test_cli_fit_sdf_with_a_steps_budget(monkeypatch, tmp_path, capsys):
     assert "3 steps in" in printed and "the preset's steps on the quiet reference machine, ~" in printed
     fit = load_sdf(out)
     assert fit.steps == 3 and fit.config.budget == "steps" and fit.config.minutes is None
-    assert fit.budget["budget"] == "steps" and fit.budget["reference_steps"] == 3
-    assert fit.budget["estimated_seconds"] > 0
+    assert fit.budget["budget"] == "steps" and fit.budget["reference_steps"] == 5 and fit.budget["steps"] == 5
+    assert fit.budget["levels"]["coarse"]["reference_steps"] == 2 and fit.budget["estimated_seconds"] > 0
 
 
 def test_texture_steps_budget_runs_the_presets_reference_steps(monkeypatch, tmp_path, ticker):

@@ -7,7 +7,7 @@ import trimesh
 
 import neural_bake.fit.sdf as sdf_module
 from neural_bake.errors import FitError
-from neural_bake.fit.residual import COARSE_OMEGA_0, CONSTRUCTIONS, ResidualSdfFit, fit_sdf_construction
+from neural_bake.fit.residual import CONSTRUCTIONS, ResidualSdfFit, fit_sdf_construction, level_keys
 from neural_bake.fit.sdf import SdfFit, fit_sdf, load_sdf
 from neural_bake.fit.sdf_pools import band_pools
 from neural_bake.io.mesh_io import mesh_from_arrays
@@ -81,17 +81,18 @@ def test_residual_construction_splits_the_steps_and_saves_the_sum(tmp_path, monk
     real = _Pools._sample
     monkeypatch.setattr(_Pools, "_sample", lambda self, idx: draws.append(idx) or real(self, idx))
     fit = fit_sdf_construction(sphere(), "residual", steps=40, coarse_width=16, coarse_share=0.25,
-                               **dict(TINY, omega_0=30.0))
+                               **dict(TINY, width=48, omega_0=30.0))
     assert draws == [0]  # one pool drawn from the mesh, shared by both levels
     assert isinstance(fit, ResidualSdfFit) and fit.label == "16x1+32x1"
     # a smooth coarse level (ω0 15) under the fine one's ω0: the sum rescales its first layer
-    assert (fit.coarse.model.omega_0, fit.fine.omega_0, fit.model.omega_0) == (COARSE_OMEGA_0, 30.0, 30.0)
+    assert (fit.coarse.model.omega_0, fit.fine.omega_0, fit.model.omega_0) == (15.0, 30.0, 30.0)
+    assert (fit.config.width, fit.config.construction, fit.fine_config.width) == (48, "residual", 32)
     assert fit.coarse.steps == 10 and fit.steps == 30 and fit.band == pytest.approx(4.0 * fit.coarse.distance_error)
     x = torch.rand(500, 3, generator=torch.Generator().manual_seed(0)) * 2 - 1
     with torch.no_grad():
         torch.testing.assert_close(fit.model(x), fit.coarse.model(x) + fit.fine(x), rtol=1e-5, atol=1e-5)
     back = load_sdf(fit.save(tmp_path / "sum.sdf"))  # the sum is an ordinary SDF file
-    assert isinstance(back, SdfFit) and back.model.width == 48
+    assert isinstance(back, SdfFit) and back.model.width == 48 and back.config.construction == "residual"
     with torch.no_grad():
         torch.testing.assert_close(back.model(x), fit.model(x))
 
@@ -113,9 +114,15 @@ def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
     with pytest.raises(FitError, match="unknown SDF construction 'nested'"):
         fit_sdf_construction(sphere(), "nested", steps=2, **TINY)
     with pytest.raises(FitError, match="coarse_share must be in"):
-        fit_sdf_construction(sphere(), "residual", steps=2, coarse_share=1.0, **TINY)
-    with pytest.raises(FitError, match="warm start needs coarse_width below"):
+        fit_sdf_construction(sphere(), "residual", steps=2, coarse_share=1.0, coarse_width=8, **TINY)
+    with pytest.raises(FitError, match=r"coarse_width must be an integer in \(0, width 32\)"):
         fit_sdf_construction(sphere(), "residual-warm", steps=2, coarse_width=32, **TINY)
+    with pytest.raises(FitError, match="construction must be one of"):
+        fit_sdf(sphere(), steps=2, construction="tiles", **TINY)
+    with pytest.raises(FitError, match="is not checkpointed"):
+        fit_sdf(sphere(), steps=2, construction="residual", coarse_width=8, checkpoint="x.ckpt", **TINY)
+    with pytest.raises(FitError, match="budget='steps' runs the reference steps of a preset's own construction"):
+        fit_sdf(sphere(), construction="residual", coarse_width=8, budget="steps", **TINY)
     h = fit_sphere_siren(r=R, steps=300)
     with pytest.raises(FitError, match="needs a positive band"):
         fit_sdf(sphere(), steps=2, base=h, hard_fraction=0.0, **TINY)
@@ -125,3 +132,44 @@ def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
         fit_sdf(sphere(), steps=2, band=0.05, **TINY)
     with pytest.raises(FitError, match="init must be a Siren of width 32"):
         fit_sdf(sphere(), steps=2, init=random_siren(16, 1, 15.0, 0), **TINY)
+
+
+def test_a_preset_of_the_residual_construction_accounts_both_levels_against_their_step_costs(monkeypatch):
+    """The quick preset fits the residual construction; each level's time budget is accounted against its own
+    step cost ("quick/coarse", "quick/fine") on a simulated clock, and the construction's account adds them
+    up and carries a level's warning (a machine slowed in the fine level)."""
+    import neural_bake.fit.budget as budget
+    from neural_bake.fit.sdf_config import PRESETS, config_from
+
+    cfg = config_from(preset="quick")
+    assert (cfg.construction, cfg.width, cfg.coarse_width) == (PRESETS["quick"]["construction"], 192, 64)
+    assert level_keys("quick", cfg) == ("quick/coarse", "quick/fine")
+    assert level_keys("quick", config_from(preset="quick", coarse_width=32)) == (None, None)
+    assert level_keys(None, cfg) == (None, None)
+    monkeypatch.setattr(budget, "_full_rate", lambda: 100.0)  # reference steps a second, fixed
+    t = {"now": 0.0}
+
+    def clock():
+        return t["now"]
+
+    real_loss = sdf_module.sdf_step_backward
+
+    def slow_step(*a, **k):  # the simulated clock: 0.01 s a coarse step, 0.4 s a fine (base given) one
+        t["now"] += 0.4 if k.get("base") is not None else 0.01
+        return real_loss(*a, **k)
+
+    monkeypatch.setattr(sdf_module, "sdf_step_backward", slow_step)
+    small = dict(pool_surface=4000, pool_near=4000, pool_uniform=1000, batch=256, batch_near=256, batch_uniform=64,
+                 progress=False, compile="off", micro_batches=1)
+    with pytest.warns(Warning, match="quick/fine: made"):
+        fit = fit_sdf(sphere(), preset="quick", minutes=0.2, clock=clock, budget_key="quick", **small)
+    b = fit.budget
+    coarse, fine = b["levels"]["coarse"], b["levels"]["fine"]
+    # a quarter of 12 s at 0.01 s a step, then the rest at 0.4 s a step
+    assert coarse["preset"] == "quick/coarse" and fine["preset"] == "quick/fine"
+    assert fit.coarse.steps == pytest.approx(300, abs=2) and fit.steps == pytest.approx(23, abs=2)
+    assert b["steps"] == fit.coarse.steps + fit.steps
+    assert b["expected_steps"] == coarse["expected_steps"] + fine["expected_steps"]
+    assert coarse["expected_steps"] == budget.expected_steps("quick/coarse", coarse["budget_seconds"], 100.0,
+                                                             coarse["asset_seconds_per_step"])
+    assert coarse["warning"] is None and fine["warning"] and b["warning"] == fine["warning"]

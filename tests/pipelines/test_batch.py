@@ -461,3 +461,36 @@ def test_batch_output_through_a_symlink_is_followed(tmp_path):
     (tmp_path / "l2").symlink_to("l1")
     with pytest.raises(OutputError, match="l1: a symlink loop"):
         _check_out(tmp_path / "l1")
+
+
+def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_path, samples, tiny, monkeypatch):
+    """The quick SDF preset's stage fits its residual construction (no checkpoint: it is not resumed) and its
+    budget counts both levels: steps made and expected are the two levels' sums, each level warned below half
+    (the machine's speed injected as above)."""
+    from neural_bake.fields import load_field
+    from neural_bake.fit.budget import REFERENCE_STEP, _cpu_name
+
+    width, depth, n = REFERENCE_STEP
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "step_rate.json").write_text(json.dumps(
+        {f"{_cpu_name()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))
+    stages = tiny()
+    stages["sdf"] = {"preset": "quick", "minutes": 0.15, "pool_surface": 8000, "pool_near": 8000,
+                     "pool_uniform": 2000, "compile": "off", "gemm_dtype": "float32", "micro_batches": 1}
+    manifest = tmp_path / "m.csv"
+    manifest.write_text(f"mesh,name\n{samples['sphere']},ball\n")
+    out = tmp_path / "out"
+    run_batch(manifest, out, BatchConfig(stages=stages, workers=1, quiet=True), log=lambda m: None)
+    rec = json.loads((out / "batch.json").read_text())["assets"]["ball"]
+    assert rec["status"] == "ok", rec["reason"]
+    meta = load_field(out / "ball" / "sdf.safetensors").metadata
+    assert meta["config"]["construction"] == "residual" and meta["config"]["checkpoint"] is None
+    in_file, b = meta["training"]["budget"], rec["budget"]["sdf"]
+    levels = in_file["levels"]
+    assert (levels["coarse"]["preset"], levels["fine"]["preset"]) == ("quick/coarse", "quick/fine")
+    assert b["steps"] == in_file["steps"] == levels["coarse"]["steps"] + levels["fine"]["steps"]
+    assert b["expected_steps"] == in_file["expected_steps"] == (levels["coarse"]["expected_steps"]
+                                                                + levels["fine"]["expected_steps"])
+    assert "quick/coarse: made" in b["warning"] and "quick/fine: made" in b["warning"]
+    assert not list((out / "ball").glob(".sdf-*.ckpt"))
