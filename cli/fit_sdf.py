@@ -82,7 +82,7 @@ def command(mesh, output, config, preset, metrics):
     if fit.config.construction != "plain":
         how += f"; the steps of its fine level, whose band is |h| < {fit.band:.4g}" if getattr(fit, "band", None) else ""
         how += f"; its coarse level made {fit.coarse.steps}" if getattr(fit, "coarse", None) else ""
-        how += f" (the expected steps are both levels')" if b is not None and b.get("expected_steps") else ""
+        how += " (the expected steps are both levels')" if b is not None and b.get("expected_steps") else ""
     say(f"fit sdf {label}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
         f"final loss {last.get('loss', float('nan')):.4g}"
         + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))

@@ -40,7 +40,7 @@ from ..nets.siren import Siren
 from ..nets.siren_sum import siren_sum
 from ..types import Mesh
 from .sdf import SdfFit, fit_sdf, sampled_distance_error
-from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
+from .sdf_config import _DTYPES, PRESETS, SdfFitConfig
 from .sdf_pools import _Pools
 
 __all__ = ["CONSTRUCTIONS", "ResidualSdfFit", "fit_levels", "fit_sdf_construction", "level_keys"]
