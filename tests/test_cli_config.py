@@ -162,6 +162,9 @@ def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, c
     code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
                        "residual", "--coarse-width", "16")
     assert code == 2 and "coarse_width must be an integer in (0, width 16)" in err
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
+                       "residual", "--coarse-width", "6", "--resume")  # a construction is not resumed
+    assert code != 0 and "the residual construction is not checkpointed" in err and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("path", CONFIG_VERBS, ids=" ".join)
