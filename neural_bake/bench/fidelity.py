@@ -399,14 +399,14 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     unknown = [v for v in sampling if v not in SAMPLINGS]
     if unknown:
         raise NeuralBakeError(f"fidelity: sampling must be among {', '.join(SAMPLINGS)}, got {', '.join(unknown)}")
-    constructions = list(constructions or [None])  # None: the preset's own
-    bad = [c for c in constructions if c is not None and c not in CONSTRUCTIONS]
-    if bad or len(set(constructions)) != len(constructions):
+    kinds: list[str | None] = [*constructions] if constructions else [None]  # None: the preset's own
+    bad = [c for c in kinds if c is not None and c not in CONSTRUCTIONS]
+    if bad or len(set(kinds)) != len(kinds):
         raise NeuralBakeError(f"fidelity: constructions must be distinct names among {', '.join(CONSTRUCTIONS)}, "
-                              f"got {', '.join(constructions)}", parameter="constructions")
-    if only_textures and constructions not in ([None], ["plain"]):
+                              f"got {', '.join(map(str, kinds))}", parameter="constructions")
+    if only_textures and kinds not in ([None], ["plain"]):
         raise NeuralBakeError("fidelity: only_textures fits the plain SDF (its reference steps); constructions "
-                              f"{', '.join(constructions)} are for the normal rows", parameter="constructions")
+                              f"{', '.join(map(str, kinds))} are for the normal rows", parameter="constructions")
     caps_of_steps = [None] if not steps else [int(n) for n in steps]
     if any(n is not None and n < 1 for n in caps_of_steps):
         raise NeuralBakeError(f"fidelity: steps must be positive integers, got {steps!r}")
@@ -424,7 +424,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
             continue
         source_mb = _source_bytes(path) / 2**20
         coarse = spec.get("coarse", f"decimate:{faces}")
-        cases = [(p, n, v, c) for p in presets for n in caps_of_steps for v in sampling for c in constructions]
+        cases = [(p, n, v, c) for p in presets for n in caps_of_steps for v in sampling for c in kinds]
         for preset, step_cap, variant, construction in cases:
             label = f"{name} {preset}" + ("" if step_cap is None else f" {step_cap} steps") + (
                 "" if variant == "preset" else f" {variant}") + ("" if construction is None else f" {construction}")
