@@ -372,9 +372,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         fit.save(out)
         ckpt.unlink(missing_ok=True)
         last = fit.history[-1] if fit.history else {}
-        # the steps the budget counts (a construction's: both levels')
-        steps = fit.budget["steps"] if fit.budget else fit.steps
-        return {"steps": steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
+        return {"steps": fit.all_steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
                 "stopped": fit.stopped_reason, **_budget_metrics([fit.budget])}
 
     stage("sdf", ["mesh"], stage_key_config(sdf_cfg), run_sdf)

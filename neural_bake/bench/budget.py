@@ -107,7 +107,7 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
             per_step = warm_seconds_per_step(fit.history)
             if per_step is None:
                 notes.append(f"{name}: too few steps in its part of {seconds:.0f} s to read a warm step time")
-            share = full.get("coarse_share", 0.25) if level == "coarse" else 1.0 - full.get("coarse_share", 0.25)
+            share = whole.config.coarse_share if level == "coarse" else 1.0 - whole.config.coarse_share
             return {"preset": name, "net": f"{cfg.width}x{cfg.depth}", "compiled": False, "steps": fit.steps,
                     "ms / step": None if per_step is None else 1000.0 * per_step, "_seconds_per_step": per_step,
                     "table cost": STEP_COST[name],

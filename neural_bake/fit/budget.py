@@ -42,10 +42,10 @@ REFERENCE_STEP = (128, 2, 4096)
 #: "WxD"), the levels of a preset's construction by "PRESET/coarse" and "PRESET/fine" (:mod:`.residual`; the
 #: "quick" entry is its plain 192x3 network's), texture presets by "texture:NAME". Measured: quick/coarse (64x3)
 #: and quick/fine (128x3 on the coarse level) in one ``neural-bake bench budget`` run, quiet; quick (192x3,
-#: loss not compiled: nefertiti, the tea set and Spot in 2 minutes, plainly), default (192x3, compiled: the tea set and Spot in 5 minutes), high (256x4, compiled:
-#: nefertiti in 10 minutes), texture:quick and texture:default (their feature grids, in
-#: ``neural-bake bench budget``). 64x1, 128x2, 256x3 and 256x2
-#: keep ratios to quick and default measured elsewhere; texture:high its ratio to texture:default in
+#: loss not compiled: nefertiti, the tea set and Spot in 2 minutes, plainly), default (192x3, compiled: the
+#: tea set and Spot in 5 minutes), high (256x4, compiled: nefertiti in 10 minutes), texture:quick and
+#: texture:default (their feature grids, in ``neural-bake bench budget``). 64x1, 128x2, 256x3 and 256x2 keep
+#: ratios to quick and default measured elsewhere; texture:high its ratio to texture:default in
 #: ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
 STEP_COST: dict[str, float] = {
     "quick": 5.15,

@@ -68,6 +68,11 @@ class ResidualSdfFit(SdfFit):
     """The fine level's settings (``config`` is the construction's: its width is the whole network's)."""
 
     @property
+    def all_steps(self) -> int:
+        """Adam steps of both levels (what the budget account counts)."""
+        return self.steps + (self.coarse.steps if self.coarse is not None else 0)
+
+    @property
     def label(self) -> str:
         """The networks in a row: "64x3+128x3" (residual: h + r) or "64x3→192x3" (warm start)."""
         c, f = self.coarse.config if self.coarse else None, self.fine_config or self.config
@@ -167,13 +172,11 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
     coarse = fit_sdf(mesh, replace(plain, width=int(cfg.coarse_width), omega_0=float(cfg.coarse_omega_0),
                                    **coarse_budget), clock=clock, pool_cache=cache, budget_key=coarse_key)
     h = coarse.model
-    fine_cfg = plain
-    if cfg.budget == "steps":
-        pass
-    elif cfg.minutes:  # whatever is left of the budget (the coarse fit's sampling included)
+    fine_cfg = plain  # budget="steps": the fine level's own reference steps
+    if cfg.budget != "steps" and cfg.minutes:  # whatever is left of the budget (the coarse fit's sampling included)
         left = 60.0 * cfg.minutes - (now() - t0)
         fine_cfg = replace(fine_cfg, minutes=max(left, 0.05 * 60.0 * cfg.minutes) / 60.0)
-    else:
+    elif cfg.budget != "steps":
         fine_cfg = replace(fine_cfg, steps=max(1, cfg.steps - coarse_budget["steps"]))
     if cfg.construction == "residual":
         band = cfg.band_factor * float(coarse.distance_error or 0.0)

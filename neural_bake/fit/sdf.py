@@ -83,6 +83,11 @@ class SdfFit(FitRecord):
     """Sampled distance error to the mesh (unit frame): max |f| at mesh surface samples
     (:func:`sampled_distance_error`); saved as the file's δ, the band a texture fit uses. None: not measured."""
 
+    @property
+    def all_steps(self) -> int:
+        """Adam steps of every network the fit trained (a construction's: both levels')."""
+        return self.steps
+
     def save(self, path) -> Path:
         """Write the model file (safetensors + JSON metadata: kind="sdf", frame, δ (the sampled distance
         error; ``delta_source`` says so), config, history summary)."""

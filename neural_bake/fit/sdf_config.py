@@ -147,12 +147,13 @@ class SdfFitConfig(PresetLoopSettings):
     construction: str = "plain"
     """How the network is built: "plain" (one network), "residual" (a coarse level, then a fine one of the
     rest of ``width`` trained inside its band; quick's) or "residual-warm". In detail
-    (:mod:`neural_bake.fit.residual`): "plain", one SIREN of ``width`` fitted to the mesh; "residual", a coarse SIREN of ``coarse_width`` (ω0 ``coarse_omega_0``) fitted for
-    ``coarse_share`` of the budget, then a fine one of ``width − coarse_width`` fitted for the rest so that
-    their sum fits the mesh, supervised only inside the coarse level's band (``band_factor`` × its sampled
-    distance error): the fine level spends its capacity on detail (nested-neighbourhoods §3). The file holds
-    the sum as one SIREN of ``width`` (its cost to bake is a plain fit's); "residual-warm", the coarse level
-    grown to ``width`` by fresh units and fitted plainly for the rest."""
+    (:mod:`neural_bake.fit.residual`): "plain", one SIREN of ``width`` fitted to the mesh; "residual", a
+    coarse SIREN of ``coarse_width`` (ω0 ``coarse_omega_0``) fitted for ``coarse_share`` of the budget, then
+    a fine one of ``width − coarse_width`` fitted for the rest so that their sum fits the mesh, supervised
+    only inside the coarse level's band (``band_factor`` × its sampled distance error): the fine level spends
+    its capacity on detail (nested-neighbourhoods §3). The file holds the sum as one SIREN of ``width`` (its
+    cost to bake is a plain fit's); "residual-warm", the coarse level grown to ``width`` by fresh units and
+    fitted plainly for the rest."""
     coarse_width: int = 64
     """Hidden width of a residual construction's coarse level (part of ``width``)."""
     coarse_share: float = 0.25
