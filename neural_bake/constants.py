@@ -333,6 +333,11 @@ LOSS_GRAD_FLOOR = 1e-6
 #: the term is quadratic, so its gradient stays bounded (1 / ε) where ∇f meets the target normal.
 NORMAL_ANGLE_EPS = 1e-3
 
+#: A uniform pool point counts as one of the network's sign errors (``SdfFitConfig.sign_fraction``) only when
+#: its true distance is at least this far from the surface (unit frame): closer, a wrong sign is the
+#: surface's own fitting error, which the surface and near terms train.
+SIGN_MINING_TOL = 0.01
+
 #: A mined point of the network's zero set is kept when its |f| after the Newton projection is at most this.
 MINED_ZERO_SET_TOL = 1e-3
 

@@ -101,13 +101,16 @@ def network_label(model) -> str:
     return f"{arch.get('width')}x{arch.get('depth')}"
 
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
-#: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings.
+#: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings; "sign" and
+#: "no-sign" set the sign-error mining of the uniform batch (``SdfFitConfig.sign_fraction``) on and off.
 SAMPLINGS: dict[str, dict] = {
     "preset": {},
     "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0},
     "curvature": {"curvature_sampling": 0.5, "error_sampling": 0.0},
     "error": {"curvature_sampling": 0.0, "error_sampling": 0.25},
     "curvature+error": {"curvature_sampling": 0.5, "error_sampling": 0.25},
+    "sign": {"sign_fraction": 0.5},
+    "no-sign": {"sign_fraction": 0.0},
 }
 
 #: The targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the

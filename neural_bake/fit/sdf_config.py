@@ -90,6 +90,12 @@ class SdfFitConfig(PresetLoopSettings):
     steps), their true signed distance d is computed, and the ``hard_pool`` part with the largest |d| —
     where the network's surface is furthest from the mesh — is trained towards f = d. It aims at the
     network → mesh half of the Hausdorff distance, which surface samples do not see."""
+    sign_fraction: float = 0.0
+    """Part of each step's uniform batch drawn from the pool's off-surface points where the network has the
+    wrong sign (0: off): every ``hard_every`` steps f is evaluated at the uniform pool points, and those whose
+    true distance d is at least :data:`~neural_bake.constants.SIGN_MINING_TOL` from the surface while f and d
+    differ in sign — a piece of stray surface, or a hole, away from the mesh — are trained towards f = d.
+    Where there are none the batch is unchanged."""
     zero_candidates: int = 16384
     """Near-pool points projected onto f = 0 at each mining (with ``zero_fraction`` > 0)."""
     hard_pool: float = 0.02
@@ -193,13 +199,16 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr"
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
 #: fewer steps of larger networks) and the architecture presets ``"WxD"`` (the shared names: :mod:`.presets`).
 #: ``quick`` is fitted as a residual construction (a 64-wide coarse level for a quarter of its time, then a
-#: 128-wide fine level inside its band, saved as one 192x3 SIREN): more detail on scans at equal time.
+#: 128-wide fine level inside its band, saved as one 192x3 SIREN): more detail on scans at equal time; half of
+#: its uniform batch comes from the network's sign errors where it has any (the coarse level left a stray
+#: solid beyond nefertiti's crown and base that its band kept).
 #: ``default`` also spends a tenth of each near batch on the network's own zero set where it is furthest from
 #: the mesh: without hard-example mining, 5 minutes left stray pieces of surface on two of eight meshes.
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
-    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual"},
+    "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual",
+              "sign_fraction": 0.5},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
@@ -258,6 +267,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
     if not (0.0 <= cfg.zero_fraction <= 1.0 - cfg.hard_fraction):
         raise FitError(f"fit_sdf: zero_fraction must be in [0, 1 - hard_fraction], got {cfg.zero_fraction!r} "
                        f"(hard_fraction {cfg.hard_fraction!r})")
+    if not (0.0 <= cfg.sign_fraction <= 1.0):
+        raise FitError(f"fit_sdf: sign_fraction must be in [0, 1], got {cfg.sign_fraction!r}")
     if cfg.surface_normals not in ("face", "vertex"):
         raise FitError(f"fit_sdf: surface_normals must be 'face' or 'vertex', got {cfg.surface_normals!r}")
     if not (0.0 <= cfg.curvature_sampling <= 1.0):

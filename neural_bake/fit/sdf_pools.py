@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR, MINED_ZERO_SET_TOL
+from ..constants import LOSS_GRAD_FLOOR, MINED_ZERO_SET_TOL, SIGN_MINING_TOL
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..types import Mesh
@@ -148,6 +148,23 @@ def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target:
     return _top_part(err, cfg.hard_pool)
 
 
+def _sign_errors(model: Siren, pools: dict, chunk: int = 65536) -> torch.Tensor | None:
+    """Indices into the volume pool of its uniform points where f and the true distance d differ in sign with
+    |d| ≥ :data:`~neural_bake.constants.SIGN_MINING_TOL` (``SdfFitConfig.sign_fraction``), or None where
+    there are none. With a residual level's pool (``vol_base``, :func:`band_pools`) f is the sum base + model."""
+    n_near, vp, vd = pools["n_near"], pools["vol_p"], pools["vol_d"]
+    if vp.shape[0] <= n_near:
+        return None
+    with torch.no_grad():
+        f = torch.cat([model(part)[:, 0] for part in torch.split(vp[n_near:], chunk)])
+    if "vol_base" in pools:
+        f = f + pools["vol_base"][n_near:]
+    d = vd[n_near:]
+    wrong = (d.abs() >= SIGN_MINING_TOL) & (torch.sign(f) != torch.sign(d))
+    idx = torch.nonzero(wrong).flatten()
+    return idx + n_near if idx.numel() else None
+
+
 def _error_cdf(model: Siren, points: torch.Tensor, normals: torch.Tensor, chunk: int = 65536):
     """(n,) float64 cumulative sums of the network's normal error 1 − cos(∇f, n) at the surface pool's
     ``points`` (n, 3) with normals ``normals`` (n, 3), for importance draws (``SdfFitConfig.error_sampling``);
@@ -209,7 +226,8 @@ def _with_hard(idx: torch.Tensor, hard: torch.Tensor | None, fraction: float, ge
 
 def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None, extra: tuple = ()):
     """A step's batch; with ``hard`` ({"surf", "near"} index tensors) the tail of the surface and near
-    batches (``hard_fraction`` of each) comes from the hard sets; with ``hard["error"]`` (a normal-error
+    batches (``hard_fraction`` of each) comes from the hard sets, with ``hard["sign"]`` (:func:`_sign_errors`)
+    the tail of the uniform batch (``sign_fraction`` of it) from the network's sign errors; with ``hard["error"]`` (a normal-error
     cdf, :func:`_error_cdf`) the head of the surface batch (``error_sampling`` of it) is drawn by it.
     ``extra``: keys of further per-point pool arrays ("surf_*" beside the surface points, "vol_*" beside the
     off-surface ones, e.g. :data:`BASE_KEYS`) drawn with the same indices, returned after the four (not with
@@ -226,8 +244,9 @@ def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | Non
     if cfg.batch_near and n_near:  # hard near indices point into the near part of the volume pool
         ni = torch.randint(0, n_near, (cfg.batch_near,), generator=gen)
         parts.append(_with_hard(ni, hard.get("near"), cfg.hard_fraction, gen))
-    if cfg.batch_uniform and n_vol > n_near:
-        parts.append(torch.randint(n_near, n_vol, (cfg.batch_uniform,), generator=gen))
+    if cfg.batch_uniform and n_vol > n_near:  # its tail from the network's sign errors, where there are any
+        ui = torch.randint(n_near, n_vol, (cfg.batch_uniform,), generator=gen)
+        parts.append(_with_hard(ui, hard.get("sign"), cfg.sign_fraction, gen))
     vi = torch.cat(parts).to(dev) if parts else torch.zeros(0, dtype=torch.long, device=dev)
     # index_select, not x[idx]: advanced indexing of these small rows is several times slower on a CPU
     take = torch.index_select

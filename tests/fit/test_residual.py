@@ -59,6 +59,26 @@ def test_residual_level_trains_only_inside_the_coarse_band(fit_sphere_siren, mon
     assert float(total.abs().mean()) < 0.01
 
 
+def test_residual_level_mines_the_sign_errors_of_the_sum(fit_sphere_siren, monkeypatch):
+    # the sign-error mining of a residual level ranks h + r, not r alone: its pools carry h's values
+    h = fit_sphere_siren(r=R, steps=300)
+    calls = []
+    real = sdf_module._sign_errors
+
+    def spy(model, pools, *args):
+        out = real(model, pools, *args)
+        calls.append((pools, out))
+        return out
+
+    monkeypatch.setattr(sdf_module, "_sign_errors", spy)
+    fit = fit_sdf(sphere(), steps=30, seed=0, base=h, band=0.05, hard_fraction=0.0, sign_fraction=0.5, hard_every=10,
+                  **TINY)
+    assert len(calls) == 3 and fit.config.sign_fraction == 0.5
+    for pools, _ in calls:
+        assert "vol_base" in pools
+        torch.testing.assert_close(pools["vol_base"], h(pools["vol_p"])[:, 0].detach())
+
+
 def test_band_pools_keep_the_band_and_refuse_an_empty_one(fit_sphere_siren):
     h = fit_sphere_siren(r=R, steps=300)
     gen = torch.Generator().manual_seed(0)

@@ -204,6 +204,8 @@ def test_slow_sdf_fit_warns_and_records(tmp_path, monkeypatch):
     ({"hard_every": 0}, "hard_every must be a positive integer"),
     ({"zero_fraction": -0.1}, "zero_fraction must be in"),
     ({"zero_fraction": 0.8, "hard_fraction": 0.25}, r"zero_fraction must be in \[0, 1 - hard_fraction\]"),
+    ({"sign_fraction": 1.5}, r"sign_fraction must be in \[0, 1\], got 1.5"),
+    ({"sign_fraction": -0.2}, "sign_fraction must be in"),
     ({"zero_candidates": 0}, "zero_candidates must be a positive integer"),
     ({"micro_batches": -1}, "micro_batches must be a non-negative integer"),
     ({"micro_batches": 1.5}, "micro_batches must be a non-negative integer"),
@@ -600,6 +602,91 @@ def test_fit_with_zero_set_mining_reproduces_and_stays_finite(hard_fraction):
     assert torch.isfinite(weights(a.model)).all() and torch.equal(weights(a.model), weights(b.model))
     assert not torch.equal(weights(a.model), weights(off.model))
     assert a.config.zero_fraction == 0.25
+
+
+class _StraySphere(torch.nn.Module):
+    """f = |x| − R − 0.005 (the sphere's SDF, its surface 0.005 too far out) but −0.05 inside a ball of radius
+    0.15 about (0.8, 0.8, 0.8): a piece of stray solid far from the sphere (``offset`` is added to f)."""
+
+    def __init__(self, offset=None):
+        super().__init__()
+        self.offset = offset
+
+    def forward(self, x):
+        f = x.norm(dim=1) - R - 0.005
+        f = torch.where((x - 0.8).norm(dim=1) < 0.15, torch.full_like(f, -0.05), f)
+        return (f if self.offset is None else f - self.offset(x))[:, None]
+
+
+def _sign_pools(n_near=300, n_uniform=20_000):
+    g = torch.Generator().manual_seed(4)
+    near = torch.nn.functional.normalize(torch.randn(n_near, 3, generator=g), dim=1) * (R + 0.004)
+    near[:20] = 0.8 + 0.05 * torch.randn(20, 3, generator=g)  # near points inside the stray ball: not candidates
+    vp = torch.cat([near, torch.rand(n_uniform, 3, generator=g) * 2 - 1])
+    return {"surf_p": torch.zeros(10, 3), "surf_n": torch.zeros(10, 3), "vol_p": vp, "vol_d": vp.norm(dim=1) - R,
+            "n_near": n_near}
+
+
+def test_sign_mining_finds_the_uniform_points_inside_a_stray_piece_of_solid():
+    from neural_bake.constants import SIGN_MINING_TOL
+    from neural_bake.fit.sdf_pools import _sign_errors
+
+    pools = _sign_pools()
+    vp, d = pools["vol_p"], pools["vol_d"]
+    idx = _sign_errors(_StraySphere(), pools)
+    in_ball = (vp - 0.8).norm(dim=1) < 0.15
+    want = torch.nonzero(in_ball & (torch.arange(vp.shape[0]) >= 300)).flatten()
+    assert want.numel() > 10 and torch.equal(idx, want)  # the uniform points in the ball, no near point
+    # the surface 0.005 too far out gives every point with 0 < d < 0.005 the wrong sign: within the
+    # tolerance, so none of them counts
+    assert ((d > 0) & (d < 0.005) & ~in_ball).any() and SIGN_MINING_TOL > 0.005
+    # a residual level's pool: f is the frozen base's values plus the model's
+    base = _StraySphere()
+    with torch.no_grad():
+        pools_b = dict(pools, vol_base=base(vp)[:, 0] + 1.0)
+    assert torch.equal(_sign_errors(_StraySphere(offset=lambda x: base(x)[:, 0] + 1.0), pools_b), want)
+    right = {**pools, "vol_d": _StraySphere()(vp)[:, 0].detach()}  # f agrees with d everywhere
+    assert _sign_errors(_StraySphere(), right) is None
+    assert _sign_errors(_StraySphere(), dict(pools, n_near=vp.shape[0])) is None  # no uniform points
+
+
+def test_sign_errors_take_the_tail_of_the_uniform_batch():
+    from neural_bake.fit.sdf import _draw
+
+    cfg = SdfFitConfig(batch=40, batch_near=200, batch_uniform=40, sign_fraction=0.25)
+    pools = {"surf_p": torch.zeros(100, 3), "surf_n": torch.zeros(100, 3),
+             "vol_p": torch.arange(1500.0).reshape(500, 3), "vol_d": torch.zeros(500), "n_near": 400}
+    _, _, vp, _ = _draw(pools, cfg, torch.Generator().manual_seed(0), {"sign": torch.tensor([450, 460])})
+    rows = (vp[:, 0] / 3).long()
+    assert set(rows[230:].tolist()) <= {450, 460}  # the uniform batch's last quarter
+    assert (rows[:200] < 400).all() and (rows[200:230] >= 400).all() and len(set(rows[200:230].tolist())) > 20
+    _, _, vp0, _ = _draw(pools, replace(cfg, sign_fraction=0.0), torch.Generator().manual_seed(0),
+                         {"sign": torch.tensor([450, 460])})
+    assert len(set((vp0[230:, 0] / 3).long().tolist())) > 5
+
+
+def test_sign_mining_removes_a_networks_stray_solid_sooner():
+    # a network of the sphere's SDF with a stray piece of solid (trained in against a mesh with a second,
+    # small sphere) refitted to the sphere: at equal steps, the fit that draws half of its uniform batch from
+    # its sign errors has fewer of them left, on points it never trained on
+    from neural_bake.fit.sdf_pools import _sign_errors
+    from neural_bake.nets.siren import Siren
+
+    start = fit_sdf(sphere(), steps=150, seed=0, **TINY).model
+    blob = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=R),
+                                     trimesh.creation.icosphere(subdivisions=2, radius=0.15).apply_translation(
+                                         [0.75, 0.75, 0.75])])
+    two = mesh_from_arrays(np.asarray(blob.vertices), np.asarray(blob.faces), normalise=False)
+    stray = fit_sdf(two, steps=150, seed=0, init=start, **TINY).model
+    test = _sign_pools(n_uniform=40_000)
+    assert _sign_errors(stray, test) is not None
+    kw = dict(TINY, steps=40, seed=1, init=stray, hard_every=5)
+    on = fit_sdf(sphere(), sign_fraction=0.5, **kw)
+    off = fit_sdf(sphere(), **kw)
+    assert isinstance(on.model, Siren) and torch.isfinite(weights(on.model)).all()
+    left_on, left_off = (_sign_errors(f.model, test) for f in (on, off))
+    n_on = 0 if left_on is None else left_on.numel()
+    assert left_off is not None and n_on < 0.5 * left_off.numel()
 
 
 def _step_data(dtype, s=37, v=29, seed=5):
