@@ -227,8 +227,9 @@ def _with_hard(idx: torch.Tensor, hard: torch.Tensor | None, fraction: float, ge
 def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | None = None, extra: tuple = ()):
     """A step's batch; with ``hard`` ({"surf", "near"} index tensors) the tail of the surface and near
     batches (``hard_fraction`` of each) comes from the hard sets, with ``hard["sign"]`` (:func:`_sign_errors`)
-    the tail of the uniform batch (``sign_fraction`` of it) from the network's sign errors; with ``hard["error"]`` (a normal-error
-    cdf, :func:`_error_cdf`) the head of the surface batch (``error_sampling`` of it) is drawn by it.
+    the tail of the uniform batch (``sign_fraction`` of it) from the network's sign errors; with
+    ``hard["error"]`` (a normal-error cdf, :func:`_error_cdf`) the head of the surface batch
+    (``error_sampling`` of it) is drawn by it.
     ``extra``: keys of further per-point pool arrays ("surf_*" beside the surface points, "vol_*" beside the
     off-surface ones, e.g. :data:`BASE_KEYS`) drawn with the same indices, returned after the four (not with
     mined zero-set points, which no pool array covers)."""
