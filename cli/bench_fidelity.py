@@ -20,7 +20,8 @@ from .bench import bench_options, report
               "yes, not with --quick).")
 @click.option("--sampling", default=None, metavar="LIST",
               help="Comma-separated SDF sampling variants to compare in one run: uniform, curvature, error, "
-                   "curvature+error, sign / no-sign (the sign-error mining of the uniform batch on or off), preset "
+                   "curvature+error, sign / no-sign (the sign-error mining of the uniform batch on or off), audit / "
+                   "no-audit (the residual construction's band audit with sign mining, or without the audit), preset "
                    "(default: the preset's own). Rows get ratios against uniform.")
 @click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
               help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (one network "

@@ -338,6 +338,14 @@ NORMAL_ANGLE_EPS = 1e-3
 #: surface's own fitting error, which the surface and near terms train.
 SIGN_MINING_TOL = 0.01
 
+#: The band audit of a residual construction (``SdfFitConfig.audit_candidates``): Gauss–Newton steps on h² that
+#: move each uniform candidate towards the coarse level's small values, the damping added to |∇h|² (so a
+#: candidate in a valley of h that stops short of zero settles on its floor instead of being thrown out), and
+#: the longest step (unit frame).
+AUDIT_STEPS = 8
+AUDIT_DAMPING = 1e-2
+AUDIT_MAX_STEP = 0.25
+
 #: A mined point of the network's zero set is kept when its |f| after the Newton projection is at most this.
 MINED_ZERO_SET_TOL = 1e-3
 

@@ -102,7 +102,8 @@ def network_label(model) -> str:
 
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
 #: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings; "sign" and
-#: "no-sign" set the sign-error mining of the uniform batch (``SdfFitConfig.sign_fraction``) on and off.
+#: "no-sign" set the sign-error mining of the uniform batch (``SdfFitConfig.sign_fraction``) on and off; "audit"
+#: adds the residual construction's band audit to it (``SdfFitConfig.audit_candidates``), "no-audit" removes it.
 SAMPLINGS: dict[str, dict] = {
     "preset": {},
     "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0},
@@ -111,6 +112,8 @@ SAMPLINGS: dict[str, dict] = {
     "curvature+error": {"curvature_sampling": 0.5, "error_sampling": 0.25},
     "sign": {"sign_fraction": 0.5},
     "no-sign": {"sign_fraction": 0.0},
+    "audit": {"sign_fraction": 0.5, "audit_candidates": 100_000},
+    "no-audit": {"audit_candidates": 0},
 }
 
 #: The targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the

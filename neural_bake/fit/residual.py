@@ -41,7 +41,7 @@ from ..nets.siren_sum import siren_sum
 from ..types import Mesh
 from .sdf import SdfFit, fit_sdf, sampled_distance_error
 from .sdf_config import _DTYPES, PRESETS, SdfFitConfig
-from .sdf_pools import _Pools
+from .sdf_pools import _Pools, band_audit
 
 __all__ = ["CONSTRUCTIONS", "ResidualSdfFit", "fit_levels", "fit_sdf_construction", "level_keys"]
 
@@ -66,6 +66,8 @@ class ResidualSdfFit(SdfFit):
     """Seconds of the fine level's fit (``seconds`` is the whole construction's, the coarse level's included)."""
     fine_config: SdfFitConfig | None = None
     """The fine level's settings (``config`` is the construction's: its width is the whole network's)."""
+    audit: dict | None = None
+    """The band audit's account ("residual" with ``audit_candidates``): candidates, points kept, seconds."""
 
     @property
     def all_steps(self) -> int:
@@ -172,6 +174,14 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
     coarse = fit_sdf(mesh, replace(plain, width=int(cfg.coarse_width), omega_0=float(cfg.coarse_omega_0),
                                    **coarse_budget), clock=clock, pool_cache=cache, budget_key=coarse_key)
     h = coarse.model
+    band = cfg.band_factor * float(coarse.distance_error or 0.0)
+    audit, audit_record = None, None
+    if cfg.construction == "residual" and cfg.audit_candidates and band > 0:  # before the fine level's share
+        t_audit = now()
+        audit = band_audit(h, mesh, band, float(coarse.distance_error or 0.0), cfg.audit_candidates,
+                           seed=int(cfg.seed) * 7_919 + 5)
+        kept = 0 if audit is None else int(audit[1].shape[0])
+        audit_record = {"candidates": int(cfg.audit_candidates), "kept": kept, "seconds": round(now() - t_audit, 3)}
     fine_cfg = plain  # budget="steps": the fine level's own reference steps
     if cfg.budget != "steps" and cfg.minutes:  # whatever is left of the budget (the coarse fit's sampling included)
         left = 60.0 * cfg.minutes - (now() - t0)
@@ -179,16 +189,14 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
     elif cfg.budget != "steps":
         fine_cfg = replace(fine_cfg, steps=max(1, cfg.steps - coarse_budget["steps"]))
     if cfg.construction == "residual":
-        band = cfg.band_factor * float(coarse.distance_error or 0.0)
         if not band > 0:
             raise FitError(f"{mesh.name}: the coarse level's distance error is {coarse.distance_error!r}: no band")
         fine_fit = fit_sdf(mesh, replace(fine_cfg, width=cfg.width - int(cfg.coarse_width), hard_fraction=0.0,
                                          zero_fraction=0.0, error_sampling=0.0),
-                           clock=clock, base=h, band=band, pool_cache=cache, budget_key=fine_key)
+                           clock=clock, base=h, band=band, pool_cache=cache, budget_key=fine_key, audit=audit)
         model: Siren = siren_sum(h, fine_fit.model).eval()
         fine: Siren | None = fine_fit.model
     else:
-        band = None
         p = next(h.parameters())
         fresh = Siren(cfg.width - int(cfg.coarse_width), cfg.depth, omega_0=cfg.omega_0,
                       generator=torch.Generator().manual_seed(int(cfg.seed) + 1)).to(device=p.device, dtype=p.dtype)
@@ -204,7 +212,8 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
         micro_batch_tuning=fine_fit.micro_batch_tuning, budget=_levels_budget(cfg, key, coarse, fine_fit),
         threads=fine_fit.threads, sampling_seconds=fine_fit.sampling_seconds, fine_seconds=fine_fit.seconds,
         distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)), construction=cfg.construction,
-        coarse=coarse, fine=fine, band=band, fine_config=fine_fit.config)
+        coarse=coarse, fine=fine, band=band if cfg.construction == "residual" else None, fine_config=fine_fit.config,
+        audit=audit_record)
 
 
 def fit_sdf_construction(mesh: Mesh, construction: str | None = None, *, preset: str | None = None,

@@ -168,7 +168,7 @@ def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
 def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | None = None,
             clock: Callable[[], float] | None = None, base: Siren | None = None, band: float | None = None,
             init: Siren | None = None, pool_cache: dict | None = None, budget_key: str | None = None,
-            **overrides) -> SdfFit:
+            audit: tuple | None = None, **overrides) -> SdfFit:
     """Train a Siren SDF of ``mesh`` (unit frame) and return an :class:`SdfFit`.
 
     Args:
@@ -187,6 +187,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             Without hard examples, mined points, error sampling, polish or checkpoints (they rank or keep r
             alone); the result's ``model`` is r and its ``distance_error`` None (the sum's is the caller's).
         band: the band's half-width δ (unit frame; with ``base``).
+        audit: (points, true distances) of the coarse level's band audit
+            (:func:`~neural_bake.fit.sdf_pools.band_audit`; with ``base``), added to every pool's uniform points.
         init: a Siren of the config's width and depth to start from instead of a random one (warm start).
         pool_cache: a dict shared by fits of this mesh with the same sampling settings: each sample pool is
             drawn from the mesh once and taken from it by the next fit (e.g. the levels of one construction).
@@ -225,6 +227,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
                            f"{', '.join(PRESETS)}) with the preset's width, depth and batches, got preset {preset!r}")
         cfg = replace(cfg, steps=n_steps, minutes=None)
     _check_residual(cfg, base, band, init)
+    if audit is not None and base is None:
+        raise FitError("fit_sdf: audit points belong to a residual level's band: they need base")
     device = torch.device(cfg.device or "cpu")
     dtype = _DTYPES[cfg.dtype]
     gen = torch.Generator().manual_seed(int(cfg.seed))
@@ -238,7 +242,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             model.layers[-1].weight.zero_()
             model.layers[-1].bias.zero_()
         base = copy.deepcopy(base).to(device=device, dtype=dtype).eval()  # the caller's network untouched
-        prepare, extra = band_pools(base, float(band or 0.0)), BASE_KEYS
+        if audit is not None:
+            audit = (audit[0].to(device=device, dtype=dtype), audit[1].to(device=device, dtype=dtype))
+        prepare, extra = band_pools(base, float(band or 0.0), audit=audit), BASE_KEYS
     model.train()
     # a budgeted run keeps its pools longer where rebuilding them would eat its steps (POOL_REFRESH_MAX_SHARE)
     pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None,

@@ -96,6 +96,12 @@ class SdfFitConfig(PresetLoopSettings):
     true distance d is at least :data:`~neural_bake.constants.SIGN_MINING_TOL` from the surface while f and d
     differ in sign — a piece of stray surface, or a hole, away from the mesh — are trained towards f = d.
     Where there are none the batch is unchanged."""
+    audit_candidates: int = 0
+    """The residual construction's band audit (0: off): after the coarse level h, this many uniform candidates
+    are moved onto h's small values, and those inside the fine level's band whose true distance exceeds |h|
+    by more than h's own distance error — where h comes close to zero away from the mesh, and the fine level
+    could grow a stray piece of surface — join every pool's uniform points with their true distances (so
+    ``sign_fraction``'s mining sees them)."""
     zero_candidates: int = 16384
     """Near-pool points projected onto f = 0 at each mining (with ``zero_fraction`` > 0)."""
     hard_pool: float = 0.02
@@ -178,7 +184,8 @@ class SdfFitConfig(PresetLoopSettings):
         skip = {"steps", "minutes", "budget", "checkpoint", "checkpoint_every", "resume", "progress", "log_every", "compile",
                 "micro_batches", "polish_evals", "polish_share", "polish_points", "polish_max_weight", "polish_max_p"}
         if self.construction == "plain":  # a plain fit's trajectory does not depend on the residual settings
-            skip |= {"construction", "coarse_width", "coarse_share", "coarse_omega_0", "band_factor"}
+            skip |= {"construction", "coarse_width", "coarse_share", "coarse_omega_0", "band_factor",
+                     "audit_candidates"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -253,8 +260,8 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
 
 def _check_config(cfg: SdfFitConfig) -> None:
     check_counts(cfg, "fit_sdf", ("width", "batch", "pool_surface"), least=1)
-    check_counts(cfg, "fit_sdf", ("depth", "batch_near", "batch_uniform", "pool_near", "pool_uniform", "refresh_every"),
-                 least=0)
+    check_counts(cfg, "fit_sdf", ("depth", "batch_near", "batch_uniform", "pool_near", "pool_uniform", "refresh_every",
+                                  "audit_candidates"), least=0)
     if (cfg.batch_near and not cfg.pool_near) or (cfg.batch_uniform and not cfg.pool_uniform):
         raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
     if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):

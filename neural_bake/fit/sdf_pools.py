@@ -13,7 +13,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR, MINED_ZERO_SET_TOL, SIGN_MINING_TOL
+from ..constants import (AUDIT_DAMPING, AUDIT_MAX_STEP, AUDIT_STEPS, LOSS_GRAD_FLOOR, MINED_ZERO_SET_TOL,
+                         SIGN_MINING_TOL)
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..types import Mesh
@@ -113,10 +114,12 @@ class _Pools:
 BASE_KEYS = ("surf_base", "surf_base_grad", "vol_base", "vol_base_grad")
 
 
-def band_pools(base: Siren, band: float, chunk: int = 65536) -> Callable[[dict], dict]:
+def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None = None) -> Callable[[dict], dict]:
     """A pool ``prepare`` (:class:`_Pools`) for a level trained as a residual on the frozen network ``base``:
     it keeps only the points with |base| < ``band`` (surface, near and uniform alike) and adds base's values
-    and GEMM gradients at them (:data:`BASE_KEYS`). FitError when no surface point is left in the band."""
+    and GEMM gradients at them (:data:`BASE_KEYS`). ``audit``: (points (k, 3), true distances (k,)) of
+    :func:`band_audit`, appended to every pool's uniform points (so they are drawn, and sign-mined, with
+    them). FitError when no surface point is left in the band."""
     from ..nets.gemm import gemm_gradient
 
     def values(points: torch.Tensor):
@@ -126,17 +129,58 @@ def band_pools(base: Siren, band: float, chunk: int = 65536) -> Callable[[dict],
         return v[:, 0].to(points.dtype), g.to(points.dtype)
 
     def prepare(data: dict) -> dict:
+        vol_p, vol_d = data["vol_p"], data["vol_d"]
+        if audit is not None:
+            vol_p = torch.cat([vol_p, audit[0].to(vol_p)])
+            vol_d = torch.cat([vol_d, audit[1].to(vol_d)])
         sv, sg = values(data["surf_p"])
-        vv, vg = values(data["vol_p"])
+        vv, vg = values(vol_p)
         ks, kv = sv.abs() < band, vv.abs() < band
         if not bool(ks.any()):
             raise FitError(f"band_pools: no surface sample lies in the band |base| < {band:.3g}")
         n_near = int(kv[: data["n_near"]].sum())
-        return {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": data["vol_p"][kv],
-                "vol_d": data["vol_d"][kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
+        return {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": vol_p[kv],
+                "vol_d": vol_d[kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
                 "vol_base": vv[kv], "vol_base_grad": vg[kv]}
 
     return prepare
+
+
+def band_audit(base: Siren, mesh: Mesh, band: float, tol: float, n: int, seed: int, chunk: int = 65536):
+    """Points where the coarse level ``base`` is small but the mesh is not near (``SdfFitConfig.audit_candidates``):
+    ``(points (k, 3), d (k,))`` with their true signed distances, or None where there are none.
+
+    A level trained inside h's band |h| < ``band`` sees only the uniform points that happen to fall where h
+    comes close to zero away from the mesh (a valley of h that stops short of crossing it); a few stray
+    pieces of its surface there are a thousandth of the volume, below what the uniform pool samples. The
+    audit looks there on purpose: ``n`` candidates uniform in [-1, 1]³ take :data:`AUDIT_STEPS
+    <neural_bake.constants.AUDIT_STEPS>` damped Gauss–Newton steps on h² (towards h's zero set, or a
+    valley's floor), and of those that end inside the band the ones whose true |d| exceeds |h| by more than
+    ``tol`` (the coarse level's own distance error) — and is at least :data:`~neural_bake.constants.SIGN_MINING_TOL`
+    — are kept, in base's dtype and device."""
+    from ..nets.gemm import gemm_gradient
+    from .sampling import signed_distance
+
+    p = next(base.parameters())
+    gen = torch.Generator().manual_seed(int(seed))
+    x = (torch.rand(int(n), 3, generator=gen, dtype=torch.float64) * 2.0 - 1.0).to(device=p.device, dtype=p.dtype)
+    if x.shape[0] == 0:
+        return None
+    with torch.no_grad():
+        for _ in range(AUDIT_STEPS):
+            v, g = gemm_gradient(base, x, "reverse", chunk_size=chunk)
+            step = v * g / ((g * g).sum(dim=1, keepdim=True) + AUDIT_DAMPING)
+            length = torch.linalg.vector_norm(step, dim=1, keepdim=True)
+            step = step * (AUDIT_MAX_STEP / length.clamp_min(AUDIT_MAX_STEP))
+            x = torch.where(torch.isfinite(step), x - step, x).clamp(-1.0, 1.0)
+        h = torch.cat([base(part)[:, 0] for part in torch.split(x, chunk)])
+    keep = torch.isfinite(h) & (h.abs() < band)
+    x, h = x[keep], h[keep]
+    if x.shape[0] == 0:
+        return None
+    d = torch.as_tensor(signed_distance(mesh, x.double().cpu().numpy()), dtype=x.dtype, device=x.device)
+    far = (d.abs() >= h.abs() + tol) & (d.abs() >= SIGN_MINING_TOL)
+    return (x[far].contiguous(), d[far].contiguous()) if bool(far.any()) else None
 
 
 def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target: torch.Tensor | None = None):

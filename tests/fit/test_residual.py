@@ -93,6 +93,51 @@ def test_band_pools_keep_the_band_and_refuse_an_empty_one(fit_sphere_siren):
         band_pools(h, 0.05)(dict(data, surf_p=surf * 0.1))
 
 
+_VALLEY = torch.tensor([0.0, 0.0, 0.35])  # 0.35 inside the sphere of radius R
+
+
+def _valley_siren(steps=800, seed=0):
+    """A small Siren fitted to the sphere's SDF |x| − R plus a bump of 0.32 about :data:`_VALLEY`: h comes
+    within 0.03 of zero there, 0.35 from the sphere, without crossing it (a coarse level whose small values
+    mislead the band away from the mesh)."""
+    net = Siren(64, 1, omega_0=10.0, generator=torch.Generator().manual_seed(seed))
+    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    gen = torch.Generator().manual_seed(seed + 1)
+    for _ in range(steps):
+        x = torch.cat([torch.rand(1024, 3, generator=gen) * 2 - 1, _VALLEY + 0.15 * torch.randn(256, 3, generator=gen)])
+        want = x.norm(dim=1) - R + 0.32 * torch.exp(-((x - _VALLEY) ** 2).sum(dim=1) / 0.02)
+        loss = ((net(x)[:, 0] - want) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return net.eval()
+
+
+def test_band_audit_finds_where_the_coarse_level_is_small_away_from_the_mesh():
+    from neural_bake.fit.sampling import signed_distance
+    from neural_bake.fit.sdf_pools import band_audit
+
+    h, mesh, band, tol = _valley_siren(), sphere(), 0.1, 0.03
+    with torch.no_grad():
+        assert -0.06 < float(h(_VALLEY[None])[0, 0]) < 0  # the valley's floor: small, not crossing zero
+    found = band_audit(h, mesh, band, tol, 40_000, seed=3)
+    assert found is not None
+    x, d = found
+    with torch.no_grad():
+        hv = h(x)[:, 0]
+    assert float(hv.abs().max()) < band  # inside the fine level's band
+    torch.testing.assert_close(d.double(), torch.as_tensor(signed_distance(mesh, x.double().numpy())), atol=1e-6,
+                               rtol=0)
+    assert bool((d.abs() >= hv.abs() + tol).all())  # where h understates the distance by more than its error
+    near = (x - _VALLEY).norm(dim=1) < 0.25
+    assert int(near.sum()) >= 50 and float(near.float().mean()) > 0.95  # the valley, not the sphere
+    again = band_audit(h, mesh, band, tol, 40_000, seed=3)
+    assert torch.equal(again[0], x)  # seeded
+    # a coarse level that is small only at the mesh: nothing to audit
+    assert band_audit(h, mesh, band, 0.5, 40_000, seed=3) is None
+    assert band_audit(h, mesh, band, tol, 0, seed=3) is None
+
+
 def test_residual_construction_splits_the_steps_and_saves_the_sum(tmp_path, monkeypatch):
     from neural_bake.fit.sdf_pools import _Pools
 
@@ -114,6 +159,37 @@ def test_residual_construction_splits_the_steps_and_saves_the_sum(tmp_path, monk
     assert isinstance(back, SdfFit) and back.model.width == 48 and back.config.construction == "residual"
     with torch.no_grad():
         torch.testing.assert_close(back.model(x), fit.model(x))
+
+
+def test_the_band_audit_joins_the_fine_levels_uniform_pool_and_its_sign_mining(monkeypatch):
+    import neural_bake.fit.residual as residual_module
+
+    # the audit's points (here three, with their distances) reach every pool of the fine level after its
+    # uniform points, inside the band, where the sign mining of the sum sees them
+    audit_p = torch.tensor([[0.0, 0.0, 0.05], [0.0, 0.05, 0.0], [0.05, 0.0, 0.0]])
+    asked, seen = [], []
+    def audit(h, mesh, band, tol, n, seed):
+        asked.append((band, tol, n))
+        return audit_p, audit_p.norm(dim=1) - R
+
+    monkeypatch.setattr(residual_module, "band_audit", audit)
+    real = sdf_module._sign_errors
+    monkeypatch.setattr(sdf_module, "_sign_errors",
+                        lambda model, pools, *a: seen.append(pools) or real(model, pools, *a))
+    # a wide band (band_factor) keeps the centre of the sphere, where the audit's points are, in the pools
+    fit = fit_sdf_construction(sphere(), "residual", steps=40, coarse_width=16, audit_candidates=5000,
+                               sign_fraction=0.5, hard_every=10, band_factor=200.0, **dict(TINY, width=48))
+    assert fit.audit["candidates"] == 5000 and fit.audit["kept"] == 3 and fit.audit["seconds"] >= 0
+    (band, tol, n), = asked
+    assert n == 5000 and band == pytest.approx(fit.band) and tol == pytest.approx(fit.coarse.distance_error)
+    fine = [pools for pools in seen if "vol_base" in pools]  # the coarse level mines its own signs too
+    assert len(fine) >= 3  # every 10 steps and at each pool refresh
+    for pools in fine:
+        torch.testing.assert_close(pools["vol_p"][-3:], audit_p)
+        torch.testing.assert_close(pools["vol_d"][-3:], audit_p.norm(dim=1) - R)
+        assert pools["vol_p"].shape[0] - pools["n_near"] > 3
+    off = fit_sdf_construction(sphere(), "residual", steps=4, coarse_width=16, **dict(TINY, width=48))
+    assert off.audit is None and len(asked) == 1  # audit_candidates 0: no audit
 
 
 def test_warm_start_begins_as_the_coarse_level():
@@ -151,6 +227,10 @@ def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
         fit_sdf(sphere(), steps=2, band=0.05, **TINY)
     with pytest.raises(FitError, match="init must be a Siren of width 32"):
         fit_sdf(sphere(), steps=2, init=random_siren(16, 1, 15.0, 0), **TINY)
+    with pytest.raises(FitError, match="audit points belong to a residual level's band: they need base"):
+        fit_sdf(sphere(), steps=2, audit=(torch.zeros(1, 3), torch.ones(1)), **TINY)
+    with pytest.raises(FitError, match="audit_candidates must be"):
+        fit_sdf_construction(sphere(), "residual", steps=2, coarse_width=8, audit_candidates=-1, **TINY)
 
 
 def test_a_preset_of_the_residual_construction_accounts_both_levels_against_their_step_costs(monkeypatch):
