@@ -362,15 +362,17 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
     def run_sdf(out: Path, key: str) -> dict:
         from neural_bake.fit.sdf import fit_sdf
 
+        from neural_bake.fit.residual import coarse_checkpoint
+
         ckpt = folder / f".sdf-{key[:16]}.ckpt"
-        _remove_stale(folder, ".sdf-*.ckpt", keep=ckpt)
+        levels = (ckpt, Path(str(coarse_checkpoint(str(ckpt)))))  # a construction's coarse level beside it
+        _remove_stale(folder, ".sdf-*.ckpt", keep=levels)
         # the preset again, as `fit sdf` does: the time budget is accounted against its step cost
-        # a plain fit resumes from its checkpoint; a construction of two levels is not checkpointed
-        resumable = sdf_cfg.construction == "plain"
         fit = fit_sdf(mesh, preset=presets["sdf"], **dataclasses.asdict(dataclasses.replace(
-            sdf_cfg, progress=False, checkpoint=str(ckpt) if resumable else None, resume=resumable)))
+            sdf_cfg, progress=False, checkpoint=str(ckpt), resume=True)))
         fit.save(out)
-        ckpt.unlink(missing_ok=True)
+        for p in levels:
+            p.unlink(missing_ok=True)
         last = fit.history[-1] if fit.history else {}
         return {"steps": fit.all_steps, "fit_seconds": round(fit.seconds, 3), "loss": last.get("loss"),
                 "stopped": fit.stopped_reason, **_budget_metrics([fit.budget])}
@@ -398,7 +400,7 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
         from neural_bake.fit.texture import fit_texture
 
         ckpt = folder / f".texture-{key[:16]}.ckpt"
-        _remove_stale(folder, ".texture-*.ckpt", keep=ckpt)
+        _remove_stale(folder, ".texture-*.ckpt", keep=(ckpt,))
         fit = fit_texture(mesh, str(field_path), None, preset=presets["texture"], **dataclasses.asdict(
             dataclasses.replace(tex_cfg, progress=False, checkpoint=str(ckpt), resume=True)))
         fit.save(out)
@@ -463,11 +465,11 @@ def _budget_metrics(budgets: list[dict | None]) -> dict:
             "budget_warning": "; ".join(warned) or None}
 
 
-def _remove_stale(folder: Path, pattern: str = ".*.tmp*", keep: Path | None = None) -> None:
+def _remove_stale(folder: Path, pattern: str = ".*.tmp*", keep: tuple[Path, ...] = ()) -> None:
     """Leftovers in the asset's folder: atomic temporaries of a killed worker (default), or the checkpoints
-    of a fit whose settings changed (``pattern`` ".sdf-*.ckpt", ``keep`` the current one)."""
+    of a fit whose settings changed (``pattern`` ".sdf-*.ckpt", ``keep`` the current run's)."""
     for p in folder.glob(pattern):
-        if p != keep:
+        if p not in keep:
             p.unlink(missing_ok=True)
 
 

@@ -162,9 +162,14 @@ def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, c
     code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
                        "residual", "--coarse-width", "16")
     assert code == 2 and "coarse_width must be an integer in (0, width 16)" in err
+    # a construction is checkpointed level by level (the coarse level beside the file) and resumed
     code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
-                       "residual", "--coarse-width", "6", "--resume")  # a construction is not resumed
-    assert code != 0 and "the residual construction is not checkpointed" in err and err.count("\n") == 1
+                       "residual", "--coarse-width", "6", "--resume", "--no-metrics")
+    assert code == 0, err
+    assert (tmp_path / "ball.sdf.ckpt").is_file() and (tmp_path / "ball.sdf.coarse.ckpt").is_file()
+    code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
+                             "residual", "--coarse-width", "6", "--resume", "--no-metrics")
+    assert code == 0 and "resumed finished run" in printed + err
 
 
 @pytest.mark.parametrize("path", CONFIG_VERBS, ids=" ".join)

@@ -13,6 +13,13 @@ preset's own or the caller's); :func:`~neural_bake.fit.sdf.fit_sdf` hands a cons
   (``fit_sdf(base=h, band=δ)``). r starts with a zero output layer, so the sum starts as h. The fit's
   ``model`` is the sum as one SIREN of the config's width (:func:`~neural_bake.nets.siren_sum.siren_sum`):
   it saves, loads, nests, bakes and renders like any SDF, with GEMM normals, at a plain fit's cost.
+  With a checkpoint, each level writes its own (the coarse level's beside the file, :func:`coarse_checkpoint`),
+  and a resumed construction continues whichever level was running; the fine level's fingerprint holds h,
+  the band and the audit, so it resumes only on the coarse level it was trained on.
+  With ``audit_candidates``, the band audit (:func:`~neural_bake.fit.sdf_pools.band_audit`) runs between the
+  levels: where h comes close to zero away from the mesh, r could grow a stray piece of surface the uniform
+  pool is too sparse to see; points there, with their true distances, join r's uniform pool (and its sign
+  mining), the audit's time taken from the fine level's share.
 - ``"residual-warm"``: the same coarse h, then a network of the config's width initialised as h beside fresh
   units whose output weights are zero (the same function as h) and fitted plainly (every point, no band).
 
@@ -43,7 +50,7 @@ from .sdf import SdfFit, fit_sdf, sampled_distance_error
 from .sdf_config import _DTYPES, PRESETS, SdfFitConfig
 from .sdf_pools import _Pools, band_audit
 
-__all__ = ["CONSTRUCTIONS", "ResidualSdfFit", "fit_levels", "fit_sdf_construction", "level_keys"]
+__all__ = ["CONSTRUCTIONS", "ResidualSdfFit", "coarse_checkpoint", "fit_levels", "fit_sdf_construction", "level_keys"]
 
 #: The SDF constructions (:attr:`~neural_bake.fit.sdf_config.SdfFitConfig.construction`).
 CONSTRUCTIONS = ("plain", "residual", "residual-warm")
@@ -99,6 +106,17 @@ def _pool_threads(cfg, device, dtype) -> None:
     choose_threads(work, device=device)
 
 
+def coarse_checkpoint(path: str | None) -> str | None:
+    """The coarse level's checkpoint file of a construction checkpointed at ``path`` (the fine level's):
+    ``run.ckpt`` → ``run.coarse.ckpt``; None without a checkpoint."""
+    if not path:
+        return None
+    from pathlib import Path
+
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}.coarse{p.suffix}"))
+
+
 def level_keys(key: str | None, cfg: SdfFitConfig) -> tuple[str | None, str | None]:
     """The :data:`~neural_bake.fit.budget.STEP_COST` keys of a construction's coarse and fine levels: "KEY/coarse"
     and "KEY/fine" when ``cfg`` is preset ``key``'s own construction (its construction and coarse width) and
@@ -142,13 +160,11 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
                clock: Callable[[], float] | None = None, pool_cache: dict | None = None) -> "ResidualSdfFit":
     """Fit ``mesh``'s SDF by ``cfg``'s construction of two levels ("residual" or "residual-warm"; the module
     docstring) and return a :class:`ResidualSdfFit`. ``key``: the preset whose budget the run has (its levels'
-    step costs: :func:`level_keys`). FitError for a checkpoint (a construction is not resumed) or a
-    ``budget="steps"`` run without the levels' reference steps."""
+    step costs: :func:`level_keys`). With ``cfg.checkpoint`` each level is checkpointed (the coarse level
+    in :func:`coarse_checkpoint`'s file) and ``cfg.resume`` continues both. FitError for a ``budget="steps"``
+    run without the levels' reference steps."""
     if cfg.construction not in CONSTRUCTIONS[1:]:
         raise FitError(f"fit_levels: {cfg.construction!r} is not a construction of several levels")
-    if cfg.checkpoint or cfg.resume:
-        raise FitError(f"{mesh.name}: the {cfg.construction} construction is not checkpointed; fit it without "
-                       "--checkpoint/--resume (or with construction 'plain')")
     coarse_key, fine_key = level_keys(key, cfg)
     if cfg.budget == "steps" and fine_key is None:
         raise FitError(f"fit_sdf: budget='steps' runs the reference steps of a preset's own construction; the "
@@ -170,9 +186,14 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
         coarse_budget = {"minutes": cfg.coarse_share * max(cfg.minutes - (now() - t0) / 60.0, 0.05 * cfg.minutes)}
     else:
         coarse_budget = {"steps": max(1, round(cfg.coarse_share * cfg.steps))}
-    # the coarse level: the config's settings at its own width and ω0 (no polish)
+    # the coarse level: the config's settings at its own width and ω0 (no polish), checkpointed beside the
+    # fine level's file (:func:`coarse_checkpoint`)
+    t_coarse = now()
     coarse = fit_sdf(mesh, replace(plain, width=int(cfg.coarse_width), omega_0=float(cfg.coarse_omega_0),
-                                   **coarse_budget), clock=clock, pool_cache=cache, budget_key=coarse_key)
+                                   checkpoint=coarse_checkpoint(cfg.checkpoint), **coarse_budget),
+                     clock=clock, pool_cache=cache, budget_key=coarse_key)
+    # a resumed coarse level's time was spent by an earlier run: the fine level gets what that run left it
+    earlier = max(0.0, coarse.seconds - (now() - t_coarse))
     h = coarse.model
     band = cfg.band_factor * float(coarse.distance_error or 0.0)
     audit, audit_record = None, None
@@ -184,7 +205,7 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
         audit_record = {"candidates": int(cfg.audit_candidates), "kept": kept, "seconds": round(now() - t_audit, 3)}
     fine_cfg = plain  # budget="steps": the fine level's own reference steps
     if cfg.budget != "steps" and cfg.minutes:  # whatever is left of the budget (the coarse fit's sampling included)
-        left = 60.0 * cfg.minutes - (now() - t0)
+        left = 60.0 * cfg.minutes - (now() - t0) - earlier
         fine_cfg = replace(fine_cfg, minutes=max(left, 0.05 * 60.0 * cfg.minutes) / 60.0)
     elif cfg.budget != "steps":
         fine_cfg = replace(fine_cfg, steps=max(1, cfg.steps - coarse_budget["steps"]))

@@ -155,11 +155,20 @@ def _jsonable(d):
     return json.loads(json.dumps(d, default=str))
 
 
-def _fingerprint(mesh: Mesh, cfg: SdfFitConfig) -> str:
+def _fingerprint(mesh: Mesh, cfg: SdfFitConfig, *, networks: tuple = (), arrays: tuple = (),
+                 values: tuple = ()) -> str:
+    """The run's fingerprint (a checkpoint resumes only the run it belongs to): the mesh, the settings that
+    define the trajectory, and what a level of a construction starts from or trains on (``networks``: the
+    frozen coarse level or the warm start's weights; ``arrays``: tensors such as the band audit's points;
+    ``values``: numbers such as the band)."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
     h.update(json.dumps(_jsonable(cfg.fingerprint_dict()), sort_keys=True).encode())
+    tensors = [t for net in networks for _, t in sorted(net.state_dict().items())] + list(arrays)
+    for t in tensors:
+        h.update(t.detach().to("cpu", torch.float64).contiguous().numpy().tobytes())
+    h.update(json.dumps([float(v) for v in values]).encode())
     return h.hexdigest()[:32]
 
 
@@ -184,8 +193,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         base: a frozen network h (unit frame): the model r is then trained as a residual level on it, every
             loss term on the sum h + r, on the pool points inside h's band |h| < ``band`` only
             (:func:`~neural_bake.fit.sdf_pools.band_pools`); r starts with a zero output layer (h + r = h).
-            Without hard examples, mined points, error sampling, polish or checkpoints (they rank or keep r
-            alone); the result's ``model`` is r and its ``distance_error`` None (the sum's is the caller's).
+            Without hard examples, mined zero-set points, error sampling or polish (they would rank r alone); a
+            checkpoint keeps r and resumes only on the same h, band and audit (the run's fingerprint holds
+            them); the result's ``model`` is r and its ``distance_error`` None (the sum's is the caller's).
         band: the band's half-width δ (unit frame; with ``base``).
         audit: (points, true distances) of the coarse level's band audit
             (:func:`~neural_bake.fit.sdf_pools.band_audit`; with ``base``), added to every pool's uniform points.
@@ -250,7 +260,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None,
                    prepare=prepare, cache=pool_cache)
 
-    fingerprint = _fingerprint(mesh, cfg)  # of the settings as asked ("auto" included)
+    # of the settings as asked ("auto" included) and, for a construction's level, of what it is built on
+    fingerprint = _fingerprint(mesh, cfg, networks=tuple(n for n in (base, init) if n is not None),
+                               arrays=() if audit is None else audit, values=() if band is None else (band,))
     if cfg.gemm_dtype == "auto":
         cfg = replace(cfg, gemm_dtype="bfloat16" if _bf16_pays(cfg, device, dtype) else "float32")
     use_bf16 = cfg.gemm_dtype == "bfloat16" and cfg.bf16_fraction > 0
@@ -370,8 +382,6 @@ def _check_residual(cfg: SdfFitConfig, base, band, init) -> None:
     if band is None or not (math.isfinite(band) and band > 0):
         raise FitError(f"fit_sdf: a residual level needs a positive band, got {band!r}")
     used = [k for k in ("hard_fraction", "zero_fraction", "error_sampling", "polish_evals") if getattr(cfg, k)]
-    if cfg.checkpoint:
-        used.append("checkpoint")
     if used:
         raise FitError(f"fit_sdf: a residual level (base) does not support {', '.join(used)}; set them to 0/None")
 

@@ -192,6 +192,51 @@ def test_the_band_audit_joins_the_fine_levels_uniform_pool_and_its_sign_mining(m
     assert off.audit is None and len(asked) == 1  # audit_candidates 0: no audit
 
 
+class _Killed(BaseException):
+    """A run stopped from outside (the process killed) in the middle of the fine level."""
+
+
+@pytest.mark.parametrize("construction", ["residual", "residual-warm"])
+def test_a_construction_resumes_where_it_was_stopped(tmp_path, monkeypatch, construction):
+    from neural_bake.fit.residual import coarse_checkpoint
+
+    kw = dict(TINY, width=48, lr_schedule="constant", refresh_every=10, checkpoint_every=5, coarse_width=16,
+              audit_candidates=2000, sign_fraction=0.5, hard_every=10)
+    # checkpointed, uninterrupted (a checkpoint step re-ranks the mined sets: runs with checkpoints agree)
+    full = fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(tmp_path / "full.ckpt"), **kw)
+    ck = tmp_path / "run.ckpt"
+    assert coarse_checkpoint(str(ck)) == str(tmp_path / "run.coarse.ckpt") and coarse_checkpoint(None) is None
+    real, calls = sdf_module.sdf_step_backward, []
+
+    def dies_in_the_fine_level(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 10 + 17:  # the coarse level's 10 steps, then 17 of the fine level's 30
+            raise _Killed()
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sdf_module, "sdf_step_backward", dies_in_the_fine_level)
+    with pytest.raises(_Killed):
+        fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(ck), **kw)
+    assert ck.is_file() and (tmp_path / "run.coarse.ckpt").is_file()
+    steps_run = []
+    monkeypatch.setattr(sdf_module, "sdf_step_backward", lambda *a, **k: steps_run.append(1) or real(*a, **k))
+    resumed = fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(ck), resume=True, **kw)
+    assert resumed.coarse.stopped_reason == "resumed finished run" and resumed.steps == 30
+    assert len(steps_run) == 15  # from the fine level's checkpoint at step 15, the coarse level not refitted
+    x = torch.rand(500, 3, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    with torch.no_grad():
+        torch.testing.assert_close(resumed.model(x), full.model(x), atol=1e-5, rtol=1e-5)  # as if never stopped
+    again = fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(ck), resume=True, **kw)
+    assert again.stopped_reason == "resumed finished run" and len(steps_run) == 15
+    # the fine level resumes only on the coarse level it was trained on
+    other = tmp_path / "other.ckpt"
+    fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(other), **kw)
+    (tmp_path / "other.coarse.ckpt").unlink()
+    with pytest.raises(FitError, match="belongs to another run"):
+        fit_sdf_construction(sphere(), construction, steps=40, checkpoint=str(other), resume=True,
+                             **dict(kw, coarse_omega_0=20.0))
+
+
 def test_warm_start_begins_as_the_coarse_level():
     fit = fit_sdf_construction(sphere(), "residual-warm", steps=20, coarse_width=16, **TINY)
     assert fit.label == "16x1→32x1" and fit.band is None and fit.fine is None and fit.model.width == 32
@@ -214,8 +259,6 @@ def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
         fit_sdf_construction(sphere(), "residual-warm", steps=2, coarse_width=32, **TINY)
     with pytest.raises(FitError, match="construction must be one of"):
         fit_sdf(sphere(), steps=2, construction="tiles", **TINY)
-    with pytest.raises(FitError, match="is not checkpointed"):
-        fit_sdf(sphere(), steps=2, construction="residual", coarse_width=8, checkpoint="x.ckpt", **TINY)
     with pytest.raises(FitError, match="budget='steps' runs the reference steps of a preset's own construction"):
         fit_sdf(sphere(), construction="residual", coarse_width=8, budget="steps", **TINY)
     h = fit_sphere_siren(r=R, steps=300)

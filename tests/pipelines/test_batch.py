@@ -464,8 +464,8 @@ def test_batch_output_through_a_symlink_is_followed(tmp_path):
 
 
 def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_path, samples, tiny, monkeypatch):
-    """The quick SDF preset's stage fits its residual construction (no checkpoint: it is not resumed) and its
-    budget counts both levels: steps made and expected are the two levels' sums, each level warned below half
+    """The quick SDF preset's stage fits its residual construction (checkpointed level by level, the checkpoints
+    removed once the model is written) and its budget counts both levels: steps made and expected are the two levels' sums, each level warned below half
     (the machine's speed injected as above)."""
     from neural_bake.fields import load_field
     from neural_bake.fit.budget import REFERENCE_STEP, _cpu_name
@@ -485,7 +485,7 @@ def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_
     rec = json.loads((out / "batch.json").read_text())["assets"]["ball"]
     assert rec["status"] == "ok", rec["reason"]
     meta = load_field(out / "ball" / "sdf.safetensors").metadata
-    assert meta["config"]["construction"] == "residual" and meta["config"]["checkpoint"] is None
+    assert meta["config"]["construction"] == "residual" and meta["config"]["checkpoint"].endswith(".ckpt")
     in_file, b = meta["training"]["budget"], rec["budget"]["sdf"]
     levels = in_file["levels"]
     assert (levels["coarse"]["preset"], levels["fine"]["preset"]) == ("quick/coarse", "quick/fine")
