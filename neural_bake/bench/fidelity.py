@@ -283,6 +283,8 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex) -
         "mesh": name, "preset": preset, "net": net, "construction": getattr(fit, "construction", "plain"),
         "sampling": None, "step_cap": None, "steps": fit.steps, "s_per_step": _adam_seconds_per_step(fit),
         "coarse_steps": None if coarse is None else coarse.steps, "band": getattr(fit, "band", None),
+        "audit_kept": (getattr(fit, "audit", None) or {}).get("kept"),
+        "audit_s": (getattr(fit, "audit", None) or {}).get("seconds"),
         "sampling_share": (None if not fit.sampling_seconds or not fit.seconds
                            else fit.sampling_seconds / (_adam_seconds_per_step(fit) * fit.steps)),
         "expected_steps": (fit.budget or {}).get("expected_steps"), "fit_s": fit_s,

@@ -28,6 +28,8 @@ REFERENCE_STEPS: dict[str, int] = {
     "quick/coarse": 1931,
     "quick/fine": 3168,
     "default": 7230,
+    "default/coarse": 4828,
+    "default/fine": 7921,
     "high": 8057,
     "64x1": 11432,
     "128x2": 19315,

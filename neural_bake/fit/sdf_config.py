@@ -158,7 +158,7 @@ class SdfFitConfig(PresetLoopSettings):
     """Exponent p of the worst-distance term (larger: closer to the maximum, less smooth)."""
     construction: str = "plain"
     """How the network is built: "plain" (one network), "residual" (a coarse level, then a fine one of the
-    rest of ``width`` trained inside its band; quick's) or "residual-warm". In detail
+    rest of ``width`` trained inside its band; quick's and default's) or "residual-warm". In detail
     (:mod:`neural_bake.fit.residual`): "plain", one SIREN of ``width`` fitted to the mesh; "residual", a
     coarse SIREN of ``coarse_width`` (ω0 ``coarse_omega_0``) fitted for ``coarse_share`` of the budget, then
     a fine one of ``width − coarse_width`` fitted for the rest so that their sum fits the mesh, supervised
@@ -209,14 +209,17 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr"
 #: 128-wide fine level inside its band, saved as one 192x3 SIREN): more detail on scans at equal time; half of
 #: its uniform batch comes from the network's sign errors where it has any (the coarse level left a stray
 #: solid beyond nefertiti's crown and base that its band kept).
-#: ``default`` also spends a tenth of each near batch on the network's own zero set where it is furthest from
-#: the mesh: without hard-example mining, 5 minutes left stray pieces of surface on two of eight meshes.
+#: ``default`` is fitted by the same construction, with the band audit between its levels (where the coarse
+#: level is small away from the mesh, the fine level grew a stray bubble on the rocker arm without it); its
+#: coarse level also spends a tenth of each near batch on its own zero set where it is furthest from the
+#: mesh (plainly fitted, 5 minutes left stray pieces of surface on two of eight meshes without it).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual",
               "sign_fraction": 0.5},
-    "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1},
+    "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1,
+                "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,

@@ -6,7 +6,8 @@ import pytest
 TINY = {
     "sdf": {"width": 16, "depth": 1, "steps": 10, "minutes": None, "pool_surface": 4000, "pool_near": 4000,
             "pool_uniform": 1000, "batch": 512, "batch_near": 512, "batch_uniform": 128, "polish_evals": 0,
-            "compile": "off", "gemm_dtype": "float32", "micro_batches": 1},
+            "compile": "off", "gemm_dtype": "float32", "micro_batches": 1,
+            "construction": "plain"},  # ten steps of a construction's two levels make no surface to nest
     "nested": {"levels": "8x0", "steps": 20, "certify": False},
     "texture": {"width": 16, "depth": 1, "steps": 20, "minutes": None, "pool": 4000, "batch": 512},
     "coarse": {"spec": "decimate:200"},
