@@ -82,6 +82,9 @@ def command(mesh, output, config, preset, metrics):
     if fit.config.construction != "plain":
         how += f"; the steps of its fine level, whose band is |h| < {fit.band:.4g}" if getattr(fit, "band", None) else ""
         how += f"; its coarse level made {fit.coarse.steps}" if getattr(fit, "coarse", None) else ""
+        audit = getattr(fit, "audit", None)
+        how += (f"; its band audit kept {audit['kept']} of {audit['candidates']} candidates in {audit['seconds']:.1f} s"
+                if audit else "")
         how += " (the expected steps are both levels')" if b is not None and b.get("expected_steps") else ""
     say(f"fit sdf {label}: {fit.steps} steps in {fit.seconds:.1f} s ({how}); "
         f"final loss {last.get('loss', float('nan')):.4g}"

@@ -146,9 +146,11 @@ def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, c
     src, f = _tiny_fit_inputs(tmp_path, steps=8, subdivisions=2)
     out = tmp_path / "ball.sdf"
     code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f),
-                             "--construction", "residual", "--coarse-width", "6", "--no-metrics")
+                             "--construction", "residual", "--coarse-width", "6", "--audit-candidates", "3000",
+                             "--no-metrics")
     assert code == 0, err
     assert "fit sdf 6x1+10x1:" in printed and "whose band is |h| <" in printed and "coarse level made 2" in printed
+    assert "its band audit kept " in printed and " of 3000 candidates in " in printed
     field = load_field(out)
     assert field.model.layers[0].weight.shape[0] == 16
     assert (load_sdf(out).config.construction, load_sdf(out).config.coarse_width) == ("residual", 6)

@@ -238,6 +238,8 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
 
     An override of None is ignored (the preset's or config's value stays), except for ``minutes``,
     ``checkpoint`` and ``device`` where None is a value: ``preset="64x1", minutes=None`` removes the budget.
+    A network set no wider than the construction's coarse level (e.g. ``preset="default", width=32``), with
+    neither the construction nor the coarse width set, is fitted plainly: one network of that width.
     """
     cfg = config or SdfFitConfig()
     if preset is not None:
@@ -254,6 +256,9 @@ def config_from(config: SdfFitConfig | None = None, *, preset: str | None = None
         raise FitError(f"fit_sdf: unknown setting(s) {', '.join(unknown)}")
     # None leaves a setting as it is, except where None is a value of its own (no budget, no checkpoint)
     cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None or k in _NONE_IS_A_VALUE})
+    given = {k for k, v in overrides.items() if v is not None}
+    if cfg.construction != "plain" and not given & {"construction", "coarse_width"} and cfg.coarse_width >= cfg.width:
+        cfg = replace(cfg, construction="plain")
     if isinstance(cfg.sigmas, (int, float)):
         cfg = replace(cfg, sigmas=(float(cfg.sigmas),))
     cfg = replace(cfg, sigmas=tuple(float(s) for s in cfg.sigmas))
@@ -317,7 +322,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
     if cfg.construction != "plain":
         if int(cfg.coarse_width) != cfg.coarse_width or not 0 < cfg.coarse_width < cfg.width:
             raise FitError(f"fit_sdf: coarse_width must be an integer in (0, width {cfg.width}) for the "
-                           f"{cfg.construction} construction, got {cfg.coarse_width!r}")
+                           f"{cfg.construction} construction, got {cfg.coarse_width!r} (set coarse_width below the "
+                           "width, or construction 'plain' for one network)")
         if not (0.0 < cfg.coarse_share < 1.0):
             raise FitError(f"fit_sdf: coarse_share must be in (0, 1), got {cfg.coarse_share!r}")
         if not (math.isfinite(cfg.band_factor) and cfg.band_factor > 0):

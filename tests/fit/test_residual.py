@@ -315,3 +315,14 @@ def test_a_preset_of_the_residual_construction_accounts_both_levels_against_thei
     assert coarse["expected_steps"] == budget.expected_steps("quick/coarse", coarse["budget_seconds"], 100.0,
                                                              coarse["asset_seconds_per_step"])
     assert coarse["warning"] is None and fine["warning"] and b["warning"] == fine["warning"]
+
+
+def test_a_network_no_wider_than_the_presets_coarse_level_is_fitted_plainly():
+    from neural_bake.fit.sdf_config import config_from
+
+    assert config_from(preset="default").construction == "residual"
+    assert config_from(preset="default", width=256).construction == "residual"
+    assert config_from(preset="default", width=64).construction == "plain"  # one network of the width asked
+    assert config_from(preset="default", width=32, coarse_width=16).construction == "residual"
+    with pytest.raises(FitError, match=r"coarse_width must be an integer in \(0, width 32\).*construction 'plain'"):
+        config_from(preset="default", width=32, construction="residual")
