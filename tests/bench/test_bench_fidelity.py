@@ -236,8 +236,11 @@ def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.2)
     trimesh.Trimesh(v, f, process=False).export(path)
     res = run(quick=True, meshes=[str(path)], steps=[8], constructions=["plain", "residual"], size=32, faces=100,
-              save_dir=tmp_path / "models")
+              save_dir=tmp_path / "models", sampling=["audit"])
     plain, residual = res["rows"]
+    # the band audit between the residual construction's levels (a plain fit has none)
+    assert plain["audit_kept"] is None and plain["audit_s"] is None
+    assert residual["audit_kept"] >= 0 and residual["audit_s"] >= 0
     assert (plain["construction"], plain["net"], plain["steps"], plain["coarse_steps"]) == ("plain", "192x3", 8, None)
     # the same 8 steps split: a quarter to the 64-wide coarse level, the rest to the residual
     assert (residual["construction"], residual["net"], residual["steps"], residual["coarse_steps"]) == (
@@ -249,7 +252,7 @@ def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     # the two networks' parameters, not the zero blocks of their sum as one network
     params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
     assert residual["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
-    saved = load_sdf(tmp_path / "models" / "block-quick-8-residual.sdf")  # the sum, an ordinary SDF file
+    saved = load_sdf(tmp_path / "models" / "block-quick-8-audit-residual.sdf")  # the sum, an ordinary SDF file
     assert saved.model.width == 192 and saved.steps == 6
     json.dumps(res)
 
