@@ -41,9 +41,10 @@ REFERENCE_STEP = (128, 2, 4096)
 #: rate, both on one quiet machine: BENCHMARKS.md, "Honest budgets"). SDF presets by name ("quick", "high",
 #: "WxD"), the levels of a preset's construction by "PRESET/coarse" and "PRESET/fine" (:mod:`.residual`; the
 #: "quick" entry is its plain 192x3 network's), texture presets by "texture:NAME". Measured: quick/coarse (64x3)
-#: and quick/fine (128x3 on the coarse level) in one ``neural-bake bench budget`` run, quiet (default/coarse and
-#: default/fine are the same networks, batches and loss, uncompiled like quick's at their shares of the
-#: budget: the same costs); quick (192x3,
+#: and quick/fine (128x3 on the coarse level) in one ``neural-bake bench budget`` run, quiet; default's and
+#: high's levels (64x3 with zero-set mining and 128x3; 64x4 and 192x4) against quick's in another, scaled by
+#: quick's levels' table ÷ measured (uncompiled; high's fine level compiles at its 7.5 minutes, so it makes
+#: more steps than its cost predicts); quick (192x3,
 #: loss not compiled: nefertiti, the tea set and Spot in 2 minutes, plainly), default (192x3, compiled: the
 #: tea set and Spot in 5 minutes), high (256x4, compiled: nefertiti in 10 minutes), texture:quick and
 #: texture:default (their feature grids, in ``neural-bake bench budget``). 64x1, 128x2, 256x3 and 256x2 keep
@@ -54,9 +55,11 @@ STEP_COST: dict[str, float] = {
     "quick/coarse": 1.46,
     "quick/fine": 2.67,
     "default": 3.90,
-    "default/coarse": 1.46,
-    "default/fine": 2.67,
+    "default/coarse": 1.63,
+    "default/fine": 2.99,
     "high": 7.0,
+    "high/coarse": 2.07,
+    "high/fine": 5.78,
     "64x1": 0.74,
     "128x2": 1.46,
     "256x2": 3.93,

@@ -209,10 +209,11 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr"
 #: 128-wide fine level inside its band, saved as one 192x3 SIREN): more detail on scans at equal time; half of
 #: its uniform batch comes from the network's sign errors where it has any (the coarse level left a stray
 #: solid beyond nefertiti's crown and base that its band kept).
-#: ``default`` is fitted by the same construction, with the band audit between its levels (where the coarse
-#: level is small away from the mesh, the fine level grew a stray bubble on the rocker arm without it); its
-#: coarse level also spends a tenth of each near batch on its own zero set where it is furthest from the
-#: mesh (plainly fitted, 5 minutes left stray pieces of surface on two of eight meshes without it).
+#: ``default`` and ``high`` are fitted by the same construction (``high``: 64x4 + 192x4), with the band audit
+#: between their levels (where the coarse level is small away from the mesh, the fine level grew a stray
+#: bubble on the rocker arm without it); ``default``'s coarse level also spends a tenth of each near batch on
+#: its own zero set where it is furthest from the mesh (plainly fitted, 5 minutes left stray pieces of
+#: surface on two of eight meshes without it).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
@@ -220,7 +221,8 @@ PRESETS: dict[str, dict] = {
               "sign_fraction": 0.5},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1,
                 "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
-    "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH},
+    "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH, "construction": "residual",
+             "sign_fraction": 0.5, "audit_candidates": 100_000},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},

@@ -35,8 +35,9 @@ def test_expected_steps_scale_with_rate_and_time():
     assert expected_steps("64x1", 90.0, rate=20.0) == int(90 * 20 / STEP_COST["64x1"])
     assert expected_steps("64x1", 90.0, rate=10.0) == int(90 * 10 / STEP_COST["64x1"])
     assert expected_steps("9x9", 90.0, rate=20.0) is None and expected_steps("64x1", None, rate=1.0) is None
-    presets = {"quick", "quick/coarse", "quick/fine", "default", "default/coarse", "default/fine", "high", "64x1",
-               "128x2", "256x2", "256x3", "texture:quick", "texture:default", "texture:high"}
+    presets = {"quick", "quick/coarse", "quick/fine", "default", "default/coarse", "default/fine", "high",
+               "high/coarse", "high/fine", "64x1", "128x2", "256x2", "256x3", "texture:quick", "texture:default",
+               "texture:high"}
     assert set(STEP_COST) == presets and all(c > 0 for c in STEP_COST.values())
     # the quick construction's levels: its 64-wide coarse level costs less a step than its 128-wide fine one,
     # which costs less than the plain 192-wide network
