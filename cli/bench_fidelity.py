@@ -26,7 +26,7 @@ from .bench import bench_options, report
 @click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
               help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (one network "
                    "of the preset's width), residual (a coarse level 64 wide at ω0 15 for a quarter of the budget, then "
-                   "the rest of the width fitted as a residual inside the coarse level's band; quick's and default's), "
+                   "the rest of the width fitted as a residual inside the coarse level's band; the quick, default and high presets' own), "
                    "residual-warm (the whole width started from the coarse level). Default: the preset's own. Rows "
                    "get ratios against plain.")
 @click.option("--steps", default=None, metavar="LIST",

@@ -360,12 +360,11 @@ def _run_stages(task: dict, result: dict, log: Callable[[str], None], dry: bool 
     presets = {s: (task.get("options") or {}).get(s, {}).get("preset") for s in ("sdf", "texture")}
 
     def run_sdf(out: Path, key: str) -> dict:
+        from neural_bake.fit.residual import coarse_checkpoint
         from neural_bake.fit.sdf import fit_sdf
 
-        from neural_bake.fit.residual import coarse_checkpoint
-
         ckpt = folder / f".sdf-{key[:16]}.ckpt"
-        levels = (ckpt, Path(str(coarse_checkpoint(str(ckpt)))))  # a construction's coarse level beside it
+        levels = (ckpt, Path(coarse_checkpoint(str(ckpt)) or ckpt))  # a construction's coarse level beside it
         _remove_stale(folder, ".sdf-*.ckpt", keep=levels)
         # the preset again, as `fit sdf` does: the time budget is accounted against its step cost
         fit = fit_sdf(mesh, preset=presets["sdf"], **dataclasses.asdict(dataclasses.replace(

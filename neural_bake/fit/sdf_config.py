@@ -158,7 +158,7 @@ class SdfFitConfig(PresetLoopSettings):
     """Exponent p of the worst-distance term (larger: closer to the maximum, less smooth)."""
     construction: str = "plain"
     """How the network is built: "plain" (one network), "residual" (a coarse level, then a fine one of the
-    rest of ``width`` trained inside its band; quick's and default's) or "residual-warm". In detail
+    rest of ``width`` trained inside its band; the quick, default and high presets') or "residual-warm". In detail
     (:mod:`neural_bake.fit.residual`): "plain", one SIREN of ``width`` fitted to the mesh; "residual", a
     coarse SIREN of ``coarse_width`` (ω0 ``coarse_omega_0``) fitted for ``coarse_share`` of the budget, then
     a fine one of ``width − coarse_width`` fitted for the rest so that their sum fits the mesh, supervised
