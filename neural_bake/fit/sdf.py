@@ -252,8 +252,6 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             model.layers[-1].weight.zero_()
             model.layers[-1].bias.zero_()
         base = copy.deepcopy(base).to(device=device, dtype=dtype).eval()  # the caller's network untouched
-        if audit is not None:
-            audit = (audit[0].to(device=device, dtype=dtype), audit[1].to(device=device, dtype=dtype))
         prepare, extra = band_pools(base, float(band or 0.0), audit=audit), BASE_KEYS
     model.train()
     # a budgeted run keeps its pools longer where rebuilding them would eat its steps (POOL_REFRESH_MAX_SHARE)
