@@ -160,6 +160,13 @@ REPORT_LATTICE_SIDE = 1024
 #: source's colour.
 HYBRID_COLOR_DELTA_E = 2.0
 
+#: Hybrid bake with a texture: the dB of PSNR the colours may lose against a classical transfer into the same map
+#: (:func:`neural_bake.bake.hybrid.colour_budget`). 0: a neural colour stays only where the map stores the same
+#: value as the transfer's. A budget above 0 is a share of the map's quantisation noise, which a transfer's error
+#: reaches on most textures but not on one whose values land on the map's (a bake onto the source's own layout):
+#: there any kept difference costs more than the budget's dB.
+HYBRID_COLOR_WITHIN_DB = 0.0
+
 #: Hybrid bake decided on the adaptive lattice: this share of the interpolated samples it leaves undecided
 #: (a seeded uniform choice, per band at least HYBRID_CHECK_MIN) is decided in full, to count what it missed.
 HYBRID_CHECK_FRACTION = 1.0 / 1024

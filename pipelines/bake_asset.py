@@ -71,9 +71,11 @@ class BakeAssetConfig:
     hybrid_angle: float | None = None
     """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: 20, constants.HYBRID_ANGLE_DEG)."""
     hybrid_color_tol: float | None = None
-    """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: 2, constants.HYBRID_COLOR_DELTA_E; inf: colours stay neural)."""
+    """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: 2, constants.HYBRID_COLOR_DELTA_E; inf: no ΔE rule; colours stay neural when hybrid_color_within is inf too)."""
     hybrid_color_psnr: float | None = None
     """Hybrid bake with --texture-model: a neural colour whose PSNR against the source texture's at the same point (sRGB, dB) is below this takes the source's, so the colours' PSNR against the source is at least this (None: no such rule)."""
+    hybrid_color_within: float | None = None
+    """Hybrid bake with --texture-model: the dB of PSNR the colours may lose against a classical transfer into the same map: the neural colours closest to the source texture's are kept while their summed squared difference stays within that share of the map's quantisation noise, the rest take the source's (None: 0, constants.HYBRID_COLOR_WITHIN_DB: a neural colour stays only where the map stores the transfer's value; inf: no such rule)."""
     hybrid_decide: str = "lattice"
     """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
@@ -124,14 +126,17 @@ def check_config(cfg: BakeAssetConfig) -> None:
     r = cfg.report_samples
     if isinstance(r, bool) or int(r) != r or r < 1:
         raise NeuralBakeError(f"report_samples {r!r}: must be a positive integer", parameter="report_samples")
-    tol, angle, colour = _hybrid_tolerances(cfg)
+    tol, angle, colour, within = _hybrid_tolerances(cfg)
     if not tol > 0:
         raise NeuralBakeError(f"hybrid_tol {tol}: must be a positive distance", parameter="hybrid_tol")
     if not 0 < angle <= 180:
         raise NeuralBakeError(f"hybrid_angle {angle}: must be in (0, 180] degrees", parameter="hybrid_angle")
     if not colour > 0:
-        raise NeuralBakeError(f"hybrid_color_tol {colour}: must be a positive ΔE (inf: colours stay neural)",
+        raise NeuralBakeError(f"hybrid_color_tol {colour}: must be a positive ΔE (inf: no ΔE rule)",
                               parameter="hybrid_color_tol")
+    if not within >= 0:
+        raise NeuralBakeError(f"hybrid_color_within {within}: must be a number of dB ≥ 0 (inf: no such rule)",
+                              parameter="hybrid_color_within")
     p = cfg.hybrid_color_psnr
     if p is not None and not (isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < float("inf")):
         raise NeuralBakeError(f"hybrid_color_psnr {p!r}: must be a positive number of dB", parameter="hybrid_color_psnr")
@@ -265,13 +270,13 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     from neural_bake.bake import job
     from neural_bake.bake.adaptive import AdaptiveOptions
 
-    hybrid_tol, hybrid_angle, hybrid_color_tol = _hybrid_tolerances(cfg)
+    hybrid_tol, hybrid_angle, hybrid_color_tol, hybrid_color_within = _hybrid_tolerances(cfg)
     baked = job.bake_maps(
         inputs, coarse_m, maps=maps, size=cfg.size, supersample=cfg.supersample, normal_space=cfg.normal_space,
         directx=cfg.directx, padding=cfg.padding, cache_texels=cfg.cache_texels, report_samples=cfg.report_samples,
         keep=keep, hybrid=cfg.hybrid, hybrid_tol=hybrid_tol, hybrid_angle=hybrid_angle,
         hybrid_color_tol=hybrid_color_tol, hybrid_color_psnr=cfg.hybrid_color_psnr,
-        hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
+        hybrid_color_within=hybrid_color_within, bits=cfg.bits, hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
         adaptive=AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None,
         precision=cfg.precision)
     res, hybrid, size = baked.result, baked.hybrid, cfg.size
@@ -279,9 +284,11 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
         log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
             f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
         hs = hybrid.summary()
-        if baked.colour_tol is not None or baked.colour_psnr is not None:
+        if baked.colour_tol is not None or baked.colour_psnr is not None or baked.colour_within is not None:
             rules = ([f"ΔE > {baked.colour_tol:g}"] if baked.colour_tol is not None else []) + (
-                [f"PSNR < {baked.colour_psnr:g} dB"] if baked.colour_psnr is not None else [])
+                [f"PSNR < {baked.colour_psnr:g} dB"] if baked.colour_psnr is not None else []) + (
+                [f"beyond {baked.colour_within:g} dB of a classical transfer: {hs['color_within_replaced']} texels"]
+                if baked.colour_within is not None else [])
             log(f"hybrid colours: {res.stats['hybrid_color_texels']} texels "
                 f"({100 * res.stats['hybrid_color_fraction']:.1f} %) took the source texture's colour "
                 f"({' or '.join(rules)})")
@@ -306,13 +313,15 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     return baked
 
 
-def _hybrid_tolerances(cfg: BakeAssetConfig) -> tuple[float, float, float]:
-    """The hybrid's (|f| tolerance, angle, colour ΔE): the config's, or the library's defaults where None."""
-    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
+def _hybrid_tolerances(cfg: BakeAssetConfig) -> tuple[float, float, float, float]:
+    """The hybrid's (|f| tolerance, angle, colour ΔE, colour dB within the classical transfer): the config's, or
+    the library's defaults where None."""
+    from neural_bake.constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_COLOR_WITHIN_DB, HYBRID_SDF_TOL
 
     return (HYBRID_SDF_TOL if cfg.hybrid_tol is None else cfg.hybrid_tol,
             HYBRID_ANGLE_DEG if cfg.hybrid_angle is None else cfg.hybrid_angle,
-            HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol)
+            HYBRID_COLOR_DELTA_E if cfg.hybrid_color_tol is None else cfg.hybrid_color_tol,
+            HYBRID_COLOR_WITHIN_DB if cfg.hybrid_color_within is None else cfg.hybrid_color_within)
 
 
 def _log_summary(report: dict, mesh, out_dir, written: list[str], log) -> None:

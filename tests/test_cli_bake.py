@@ -117,7 +117,9 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--report-samples", "0"], "--report-samples 0: must be a positive integer"),
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
-        (["--hybrid-color-tol", "0"], "--hybrid-color-tol 0.0: must be a positive ΔE (inf: colours stay neural)"),
+        (["--hybrid-color-tol", "0"], "--hybrid-color-tol 0.0: must be a positive ΔE (inf: no ΔE rule)"),
+        (["--hybrid-color-within", "-1"], "--hybrid-color-within -1.0: must be a number of dB ≥ 0 (inf: no such rule)"),
+        (["--hybrid-color-within", "nan"], "--hybrid-color-within nan: must be a number of dB ≥ 0 (inf: no such rule)"),
         (["--hybrid-color-psnr", "0"], "--hybrid-color-psnr 0.0: must be a positive number of dB"),
         (["--hybrid-color-psnr", "inf"], "--hybrid-color-psnr inf: must be a positive number of dB"),
         (["--tolerance", "0"], "--tolerance must be a number of degrees in (0, 90), got 0.0"),
@@ -374,12 +376,13 @@ def test_bench_bake_anchor_table_shrunken():
     assert c["vs source med°"] is not None and "the user's command:" in notes
 
 
-def test_infinite_colour_tolerance_keeps_the_networks_colours(files, tmp_path, capsys):
+def test_infinite_colour_rules_keep_the_networks_colours(files, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = run([files["obj"], "--sdf", files["sdf"], "--texture-model", files["tex"], "--coarse", "decimate:200",
                         "--size", "32", "--maps", "normal,albedo", "--no-baseline", "--hybrid-color-tol", "inf",
-                        "-o", str(out)], capsys)
+                        "--hybrid-color-within", "inf", "-o", str(out)], capsys)
     assert code == 0, err
     rep = json.loads((out / "report.json").read_text())
     assert not (out / "hybrid_color.png").exists() and "hybrid_color_texels" not in rep["hybrid"]
-    assert rep["hybrid"]["color_tol"] is None and "neural_color_psnr_db" not in rep
+    assert rep["hybrid"]["color_tol"] is None and rep["hybrid"]["color_within"] is None
+    assert "neural_color_psnr_db" not in rep

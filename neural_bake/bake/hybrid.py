@@ -10,7 +10,14 @@ Colours follow the same rule when a texture is baked and ``color_tol`` or ``colo
 neural colour differs from the source's texture at the same source point by more than ``color_tol``
 (CIEDE2000 ΔE, on the sRGB-encoded colours), or whose PSNR against it (the sRGB-encoded RGB, peak 1) is
 below ``color_psnr`` dB, takes the source's colour. The PSNR rule holds per sample, so the hybrid colours'
-PSNR against the source's at the same points is at least ``color_psnr`` over any set of samples. The decision uses the same rays and the same samples as the
+PSNR against the source's at the same points is at least ``color_psnr`` over any set of samples. With
+``color_within`` (dB) the colours also stay that close to the classical transfer's PSNR: of the neural colours the
+other rules keep, the closest to the source's (compared as the map stores them, quantised to ``color_bits``) are
+kept, closest first, while their summed squared difference stays within the share of the map's quantisation
+noise (a step² / 12 a channel, a transfer's error into such a map unless the texture's own values land on the
+map's) that ``color_within`` allows, 10^(dB/10) − 1; the rest take the source's colour. At 0 (the bake's
+default) a neural colour stays only where the map stores the same value as the transfer's, so the decided
+samples' colours are the classical transfer's to the map's precision. The decision uses the same rays and the same samples as the
 normals' (a sample near an unfaithful colour is decided too).
 
 Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
@@ -43,7 +50,8 @@ from ..constants import ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTIO
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
-__all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "colour_psnr", "HYBRID_DECISIONS"]
+__all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "colour_psnr", "colour_budget",
+           "HYBRID_DECISIONS"]
 
 #: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
 HYBRID_DECISIONS = ("lattice", "all")
@@ -95,6 +103,30 @@ def colour_psnr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return -10.0 * np.log10(mse)
 
 
+def colour_budget(a: np.ndarray, b: np.ndarray, within_db: float, bits: int = 8,
+                  replaced: np.ndarray | None = None) -> np.ndarray:
+    """Which of the linear RGB(A) colours ``a`` (M, ≥3) to replace by ``b`` so the rest stay within ``within_db``
+    of a classical transfer into a ``bits``-bit map: (M,) bool. Both are compared as the map stores them (sRGB,
+    quantised to ``bits``); the colours with the smallest squared difference are kept, smallest first, while
+    the sum stays within M × (10^(within_db/10) − 1) × step² / 12 (the quantisation noise a channel, the
+    least error of a transfer into the map). ``replaced`` (M,) bool: colours another rule replaces already
+    (they take ``b``, a zero difference, and are returned as replaced)."""
+    from ..io.colour import linear_to_srgb
+
+    m = len(a)
+    out = np.zeros(m, dtype=bool) if replaced is None else np.asarray(replaced, dtype=bool).copy()
+    if m == 0:
+        return out
+    top = float(2 ** int(bits) - 1)
+    q = [np.rint(linear_to_srgb(np.clip(np.asarray(c, dtype=np.float64)[:, :3], 0.0, 1.0)) * top) for c in (a, b)]
+    d2 = np.einsum("ij,ij->i", q[0] - q[1], q[0] - q[1]) / (3.0 * top * top)
+    d2[out] = 0.0
+    budget = m * (10.0 ** (float(within_db) / 10.0) - 1.0) / (12.0 * top * top)
+    order = np.argsort(d2, kind="stable")
+    out[order[np.cumsum(d2[order]) > budget]] = True
+    return out
+
+
 class HybridBand(NamedTuple):
     """What :class:`HybridFallback` gives for one band: the normals (M, 3) with the unfaithful samples
     replaced and their mask (M,), and the colours (M, C) with the replaced ones and their mask (None when no
@@ -121,8 +153,9 @@ class HybridFallback:
       the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side).
     - ``seed``: of the lattice rule's check subsample.
     - ``color_tol``: ΔE (CIEDE2000) above which a neural colour takes the source texture's; ``color_psnr``: the
-      least PSNR (dB) a neural colour keeps against the source's (None, None: colours are not decided).
-      Need ``fine`` with UVs and a texture.
+      least PSNR (dB) a neural colour keeps against the source's; ``color_within``: the dB the colours may lose
+      against a classical transfer into a ``color_bits``-bit map (:func:`colour_budget`) (all None: colours are
+      not decided). Need ``fine`` with UVs and a texture.
 
     Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
     texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
@@ -134,7 +167,8 @@ class HybridFallback:
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
                  decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0,
-                 color_tol: float | None = None, color_psnr: float | None = None):
+                 color_tol: float | None = None, color_psnr: float | None = None,
+                 color_within: float | None = None, color_bits: int = 8):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
             raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
@@ -150,9 +184,16 @@ class HybridFallback:
         if color_psnr is not None and not (np.isfinite(color_psnr) and color_psnr > 0):
             raise NeuralBakeError(f"hybrid color_psnr must be a positive number of dB, got {color_psnr!r}",
                                   parameter="color_psnr")
-        if (color_tol is not None or color_psnr is not None) and (fine.uv is None or fine.texture is None):
+        if color_within is not None and not (np.isfinite(color_within) and color_within >= 0):
+            raise NeuralBakeError(f"hybrid color_within must be a number of dB ≥ 0, got {color_within!r}",
+                                  parameter="color_within")
+        if color_bits not in (8, 16):
+            raise NeuralBakeError(f"hybrid color_bits must be 8 or 16, got {color_bits!r}", parameter="color_bits")
+        rules = {"color_tol": color_tol, "color_psnr": color_psnr, "color_within": color_within}
+        given = [k for k, v in rules.items() if v is not None]
+        if given and (fine.uv is None or fine.texture is None):
             raise NeuralBakeError(f"{fine.name}: hybrid colours need a source mesh with UVs and a texture",
-                                  parameter="color_tol" if color_tol is not None else "color_psnr")
+                                  parameter=given[0])
         from .baseline import raycasting_scene
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
@@ -160,11 +201,13 @@ class HybridFallback:
         self.decide, self.reach, self.seed = decide, int(reach), int(seed)
         self.color_tol = None if color_tol is None else float(color_tol)
         self.color_psnr = None if color_psnr is None else float(color_psnr)
-        self.decides_colours = self.color_tol is not None or self.color_psnr is not None
+        self.color_within = None if color_within is None else float(color_within)
+        self.color_bits = int(color_bits)
+        self.decides_colours = bool(given)
         self.scene = raycasting_scene(fine)
         self.baselines: list[dict] = []
         self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0,
-                       "color_replaced": 0}
+                       "color_replaced": 0, "color_within_replaced": 0}
         self.check = {"samples": 0, "missed": 0}
         self.estimate = {"estimated": 0, "samples": 0, "missed": 0}
         self.f_abs: list[np.ndarray] = []
@@ -235,6 +278,10 @@ class HybridFallback:
                 bad |= colour_difference(colors[idx], b["colors"]) > self.color_tol
             if self.color_psnr is not None:
                 bad |= ~(colour_psnr(colors[idx], b["colors"]) >= self.color_psnr)
+            if self.color_within is not None:
+                within = colour_budget(colors[idx], b["colors"], self.color_within, self.color_bits, replaced=bad)
+                self.counts["color_within_replaced"] += int((within & ~bad).sum())
+                bad = within
             why["color"] = bad
         return why, b
 
@@ -349,7 +396,7 @@ class HybridFallback:
         n = max(1, self.counts["samples"])
         c = self.check
         return {"sdf_tol": self.sdf_tol, "angle_deg": self.angle_deg, "color_tol": self.color_tol,
-                "color_psnr": self.color_psnr,
+                "color_psnr": self.color_psnr, "color_within": self.color_within, "color_bits": self.color_bits,
                 "decide": self.decide, **self.counts,
                 "sample_fraction": self.counts["replaced"] / n,
                 "color_sample_fraction": self.counts["color_replaced"] / n if self.decides_colours else None,

@@ -69,7 +69,8 @@ class BakeInputs:
 @dataclass
 class TexelBake:
     """The texel maps of a bake: the Baker (layout, tangents, texels), its result, the hybrid fallback that
-    ran (or None) and the colour rules it used (ΔE tolerance, least PSNR in dB: None where not used)."""
+    ran (or None) and the colour rules it used (ΔE tolerance, least PSNR in dB, dB within the classical
+    transfer: None where not used)."""
 
     baker: Baker
     result: BakeResult
@@ -77,6 +78,7 @@ class TexelBake:
     colour_tol: float | None
     seconds: float = 0.0
     colour_psnr: float | None = None
+    colour_within: float | None = None
 
 
 def load_field(path, parameter: str, want: str, device=None) -> Any:
@@ -178,13 +180,14 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
               normal_space: str = "tangent", directx: bool = False, padding: str = "pull-push",
               cache_texels: bool | None = None, report_samples: int, keep: bool, hybrid: bool = True,
               hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_color_psnr: float | None = None,
-              hybrid_decide: str = "lattice",
+              hybrid_color_within: float | None = None, bits: int = 8, hybrid_decide: str = "lattice",
               cage: float | None = None, keep_baseline: bool = False, adaptive=None,
               precision: str = "auto") -> TexelBake:
     """Bake the texel maps (``maps`` "normal", "albedo") of ``inputs`` onto ``coarse_m`` (:class:`TexelBake`).
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
-    texture is baked and the source has one (``hybrid_color_tol`` finite or ``hybrid_color_psnr`` set). ``keep_baseline``: the hybrid keeps
+    texture is baked and the source has one (``hybrid_color_tol`` finite, ``hybrid_color_psnr`` or
+    ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in). ``keep_baseline``: the hybrid keeps
     its classical bake of every sample for the report (when the report measures every texel: a map up to the
     report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point)."""
     from .baker import Baker
@@ -201,21 +204,25 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
                and reference.texture is not None)
     colour_tol = hybrid_color_tol if colours and np.isfinite(hybrid_color_tol) else None
     colour_psnr = hybrid_color_psnr if colours else None
+    colour_within = hybrid_color_within if colours and hybrid_color_within is not None \
+        and np.isfinite(hybrid_color_within) else None
     fallback = None
-    if hybrid and ("normal" in maps or colour_tol is not None or colour_psnr is not None) and reference is not None:
+    if hybrid and ("normal" in maps or colour_tol is not None or colour_psnr is not None
+                   or colour_within is not None) and reference is not None:
         from .hybrid import HybridFallback
 
         fallback = HybridFallback(reference, inputs.sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
                                   keep_baseline=keep_baseline and baker.cache and lattice_step((size, size)) == 1,
                                   decide=hybrid_decide,
-                                  color_tol=colour_tol, color_psnr=colour_psnr)
+                                  color_tol=colour_tol, color_psnr=colour_psnr, color_within=colour_within,
+                                  color_bits=int(bits))
     res = baker.bake(inputs.sdf, tex if "albedo" in maps else None, delta=inputs.delta,
                      report_samples=int(report_samples), hybrid=fallback, adaptive=adaptive, precision=precision,
                      texture_at="point" if keep else "surface")
     if res.stats["texels_covered"] == 0:
         raise MeshError(f"{inputs.mesh_path}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
     return TexelBake(baker=baker, result=res, hybrid=fallback, colour_tol=colour_tol, seconds=prepare,
-                     colour_psnr=colour_psnr)
+                     colour_psnr=colour_psnr, colour_within=colour_within)
 
 
 def write_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, maps: list[str], formats: list[str],

@@ -347,7 +347,9 @@ def bake_report(
             b["vs_truth_deg"] = stats(base_err)
         if baseline.get("colors") is not None and truth_c is not None:
             k = min(3, truth_c.shape[1])
-            b["color_psnr_db"] = psnr(linear_to_srgb(baseline["colors"][:, :k]), linear_to_srgb(truth_c[:, :k]))
+            # quantised as its map would store it, like the bake's own colours above
+            b["color_psnr_db"] = psnr(_quantise(linear_to_srgb(baseline["colors"][:, :k].astype(np.float64)), bits),
+                                      linear_to_srgb(truth_c[:, :k]))
         rep["baseline"] = b
     rep["seconds"] = {**result.stats.get("seconds", {}), **(timings or {})}
     measured = [k for k in SAMPLED_FIGURES if _has(rep, k)]

@@ -1,8 +1,10 @@
 """The texture rows of `neural-bake bench fidelity`: what a baked albedo keeps of an asset's texture.
 
 For a textured asset with its fitted SDF and colour network, three albedo bakes onto one coarse mesh and UV
-layout: the network alone, the hybrid colour rule at the default tolerance (where the network's colour is
-more than ΔE :data:`~neural_bake.constants.HYBRID_COLOR_DELTA_E` from the source texture's, the source's), and
+layout: the network alone, the hybrid colour rule at the default tolerances (where the network's colour is
+more than ΔE :data:`~neural_bake.constants.HYBRID_COLOR_DELTA_E` from the source texture's, or beyond the
+loss against a classical transfer that :data:`~neural_bake.constants.HYBRID_COLOR_WITHIN_DB` allows, the
+source's), and
 the classical transfer (rays to the source mesh, its texture there). Each is scored on its 8-bit sRGB map over
 the covered texels against the source texture at each texel's closest source point, and the network's two
 against the classical one: PSNR and SSIM (scikit-image, 7×7 windows, colour channels; the SSIM map averaged
@@ -112,7 +114,7 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None,
     from ..bake.adaptive import AdaptiveOptions
     from ..bake.classical import classical_bake
     from ..bake.job import bake_maps
-    from ..constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_SDF_TOL
+    from ..constants import HYBRID_ANGLE_DEG, HYBRID_COLOR_DELTA_E, HYBRID_COLOR_WITHIN_DB, HYBRID_SDF_TOL
     from ..io.colour import linear_to_srgb
     from ..mesh.unwrap import unwrap
 
@@ -120,12 +122,12 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None,
     if coarse.uv is None:
         coarse = unwrap(coarse, resolution=int(size))
     maps, baked, seconds = {}, {}, {}
-    for label, tol in (("network", math.inf), ("hybrid", HYBRID_COLOR_DELTA_E)):
+    for label, tol, within in (("network", math.inf, None), ("hybrid", HYBRID_COLOR_DELTA_E, HYBRID_COLOR_WITHIN_DB)):
         say(f"albedo bake, {label}: {size}²")
         t0 = time.perf_counter()
         baked[label] = bake_maps(inputs, coarse, maps=["albedo"], size=int(size), cache_texels=True,
                                  report_samples=1, keep=keep, hybrid_tol=HYBRID_SDF_TOL, hybrid_angle=HYBRID_ANGLE_DEG,
-                                 hybrid_color_tol=tol, adaptive=AdaptiveOptions())
+                                 hybrid_color_tol=tol, hybrid_color_within=within, adaptive=AdaptiveOptions())
         seconds[label] = time.perf_counter() - t0
         maps[label] = srgb8(baked[label].result.albedo)
     say(f"albedo bake, classical transfer: {size}²")

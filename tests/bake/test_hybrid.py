@@ -331,6 +331,85 @@ def test_bad_colour_psnr_raises(psnr):
         HybridFallback(ico(1), sphere_field(), color_psnr=40.0)
 
 
+def _srgb_steps(steps, bits=8):
+    """Linear colours (len(steps), 3): red's 8-bit sRGB value moved by ``steps`` (n, 3) quantisation steps."""
+    from neural_bake.io.colour import linear_to_srgb, srgb_to_linear
+
+    top = 2 ** bits - 1
+    red = np.rint(linear_to_srgb(np.array([RED]))[0] * top)
+    return srgb_to_linear((red + np.asarray(steps, dtype=np.float64)) / top)
+
+
+def test_colour_budget_keeps_the_closest_colours_within_the_allowed_share_of_quantisation_noise():
+    """1,000 colours against red: 800 equal after quantisation (free), 100 one step off in one channel, 100 two
+    steps off. 0.5 dB allows 1000 × (10^0.05 − 1) / 12 steps² of summed mean-channel squared difference, i.e.
+    30 one-step colours (each 1/3 step²): the equal ones stay, 30 one-step ones stay, the rest are replaced,
+    larger differences first; the kept colours' MSE is within the budget; pre-replaced colours stay replaced."""
+    from neural_bake.bake.hybrid import colour_budget
+    from neural_bake.io.colour import linear_to_srgb
+
+    steps = np.zeros((1000, 3))
+    steps[:800] = 0.2 * np.random.default_rng(0).uniform(-1, 1, (800, 3))  # rounds to red's own value
+    steps[800:900, 1] = 1.0
+    steps[900:, 0] = -2.0
+    a, b = _srgb_steps(steps), np.tile(RED, (1000, 1))
+    out = colour_budget(a, b, 0.5)
+    allowed = int(1000 * (10 ** 0.05 - 1) / 12 * 3)
+    assert allowed == 30
+    assert not out[:800].any() and out[900:].all() and (~out[800:900]).sum() == allowed
+    d = np.rint(linear_to_srgb(np.where(out[:, None], b, a)) * 255) - np.rint(linear_to_srgb(b) * 255)
+    assert np.mean(d ** 2) / 255 ** 2 <= (10 ** 0.05 - 1) / (12 * 255 ** 2)
+    pre = np.zeros(1000, dtype=bool)
+    pre[:10] = True
+    again = colour_budget(a, b, 0.5, replaced=pre)
+    assert again[:10].all() and (~again[800:900]).sum() == allowed
+    # 0 dB (the bake's default): only the colours the map stores as the source's stay
+    zero = colour_budget(a, b, 0.0)
+    assert not zero[:800].any() and zero[800:].all()
+    # at 16 bits the same colours are hundreds of steps apart: every colour off is replaced
+    assert colour_budget(a, b, 0.5, bits=16)[800:].all()
+    assert not colour_budget(a[:0], b[:0], 0.5).size
+
+
+def test_colour_within_keeps_the_map_at_the_classical_transfers_psnr():
+    """The field's colours equal the red source's 8-bit value above the equator and are 30 steps off below:
+    with 0.5 dB the lower half takes the source's colour (its squared difference is far beyond the
+    budget) and the upper keeps the field's; the map's PSNR against the source is then the transfer's."""
+    import torch
+
+    from neural_bake.fields import TextureField
+
+    up, down = (torch.tensor(_srgb_steps([s])[0]) for s in ((0.1, 0.0, 0.0), (-30.0, 30.0, 30.0)))
+    tex = TextureField(lambda p: torch.where(p[:, 2:3] > 0, up.to(p.dtype), down.to(p.dtype)))
+    coarse = unwrap(ico(2), resolution=128)
+    field, fine = sphere_field(), red_textured_sphere()
+    z = np.asarray(Baker(coarse, 64).texels.points)[:, 2]
+    below, clear = z < 0, np.abs(z) > 0.02
+    hybrid = HybridFallback(fine, field, color_within=0.5, decide="all")
+    res = Baker(coarse, 64).bake(field, tex, hybrid=hybrid)
+    np.testing.assert_array_equal(res.colors_replaced[clear], below[clear])
+    s = hybrid.summary()
+    assert s["color_within"] == 0.5 and s["color_bits"] == 8 and s["color_within_replaced"] == res.colors_replaced.sum()
+    q = lambda c: np.rint(np.clip(c, 0, 1) * 255) / 255  # noqa: E731
+    from neural_bake.io.colour import linear_to_srgb
+
+    np.testing.assert_array_equal(q(linear_to_srgb(res.colors)), q(linear_to_srgb(np.tile(RED, (len(z), 1)))))
+    np.testing.assert_allclose(res.colors[below], np.tile(RED, (below.sum(), 1)), atol=1e-6)
+
+
+@pytest.mark.parametrize("kwargs, message", [({"color_within": -0.5}, "color_within"),
+                                             ({"color_within": float("inf")}, "color_within"),
+                                             ({"color_within": float("nan")}, "color_within"),
+                                             ({"color_within": 0.5, "color_bits": 12}, "color_bits")])
+def test_bad_colour_within_raises(kwargs, message):
+    with pytest.raises(NeuralBakeError, match=message):
+        HybridFallback(red_textured_sphere(), sphere_field(), **kwargs)
+    if "color_bits" not in kwargs:
+        return
+    with pytest.raises(NeuralBakeError, match="UVs and a texture"):
+        HybridFallback(ico(1), sphere_field(), color_within=0.5)
+
+
 def _analytic_band(field, baker):
     """f, unit ∇f and a valid mask at every texel sample of ``baker`` (its cached layout)."""
     import torch

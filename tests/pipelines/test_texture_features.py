@@ -1,6 +1,7 @@
 """Small sharp texture features survive a bake: the `dots` sample (flat colour with discs down to 8 texels across
-at the map's size) baked onto itself with a briefly trained colour network, with the default hybrid colour rule
-and with the network alone (``hybrid_color_tol`` inf)."""
+at the map's size) baked onto itself with a briefly trained colour network, with the default hybrid colour rules
+(ΔE, and the map's values the classical transfer's wherever the network's differ), with the ΔE rule alone and with the network alone
+(both off)."""
 
 import dataclasses
 
@@ -44,9 +45,10 @@ def dots_bakes(tmp_path_factory):
     fit_texture(mesh, str(tmp / "f.sdf"), width=64, depth=1, steps=600, minutes=None, pool=20000, batch=1024,
                 lr=1e-3).save(tmp / "g.tex")
     bakes = {}
-    for label, tol in (("hybrid", None), ("network", float("inf"))):
-        cfg = BakeAssetConfig(coarse="keep", size=SIZE, maps="albedo", baseline=False, force=True,
-                              hybrid_color_tol=tol)
+    inf = float("inf")
+    for label, tol, within in (("hybrid", None, None), ("delta-e", None, inf), ("network", inf, inf)):
+        cfg = BakeAssetConfig(coarse="keep", size=SIZE, maps="albedo", baseline=label == "hybrid", force=True,
+                              hybrid_color_tol=tol, hybrid_color_within=within)
         rep = bake_asset(str(obj), str(tmp / "f.sdf"), tmp / label, cfg, texture_model=str(tmp / "g.tex"),
                          log=lambda s: None)
         assert rep["kept"]["uv"] == "the asset's"  # the map is in the source texture's layout
@@ -69,19 +71,34 @@ def window_ssim(a, b, dot):
     return structural_similarity(a[rows, cols], b[rows, cols], channel_axis=2, data_range=1.0)
 
 
-def test_eight_texel_dots_survive_the_hybrid_bake_and_not_the_network_alone(dots_bakes):
+@pytest.mark.parametrize("label", ["hybrid", "delta-e"])
+def test_eight_texel_dots_survive_the_hybrid_bake_and_not_the_network_alone(dots_bakes, label):
     sample, source, bakes = dots_bakes
     small = [d for d in sample.dots() if d["diameter"] == 8]
     assert len(small) == 4
-    hybrid = [window_ssim(bakes["hybrid"][0], source, d) for d in small]
+    hybrid = [window_ssim(bakes[label][0], source, d) for d in small]
     network = [window_ssim(bakes["network"][0], source, d) for d in small]
     assert min(hybrid) > SSIM_FLOOR, hybrid
     assert max(network) < SSIM_FLOOR and max(network) < min(hybrid) - 0.05, network
-    # the hybrid replaced the dots and their edges, not the whole map: the network holds the background
-    rep = bakes["hybrid"][1]
-    assert 0.05 < rep["hybrid"]["hybrid_color_fraction"] < 0.95 and rep["hybrid"]["color_tol"] == 2.0
-    assert rep["color_psnr_db"] > rep["neural_color_psnr_db"] + 10
+    rep = bakes[label][1]
+    assert rep["hybrid"]["color_tol"] == 2.0 and rep["color_psnr_db"] > rep["neural_color_psnr_db"] + 10
     assert bakes["network"][1].get("hybrid", {}).get("hybrid_color_fraction") is None
+
+
+def test_the_delta_e_rule_alone_replaces_the_dots_not_the_background(dots_bakes):
+    rep = dots_bakes[2]["delta-e"][1]
+    assert 0.05 < rep["hybrid"]["hybrid_color_fraction"] < 0.95 and rep["hybrid"]["color_within"] is None
+
+
+def test_the_default_hybrid_colours_stay_within_half_a_db_of_the_classical_transfer(dots_bakes):
+    """The report's colour PSNR against the source texture, the hybrid map's and the classical transfer's of the
+    same texels (the bake's baseline, quantised as its map would be): the default hybrid stays within 0.5 dB,
+    while the ΔE rule alone falls further behind."""
+    rep = dots_bakes[2]["hybrid"][1]
+    classical = rep["baseline"]["color_psnr_db"]
+    assert rep["hybrid"]["color_within"] == 0.0
+    assert rep["color_psnr_db"] >= classical - 0.5, (rep["color_psnr_db"], classical)
+    assert dots_bakes[2]["delta-e"][1]["color_psnr_db"] < classical - 0.5
 
 
 def test_disc_edges_stay_within_a_texel_of_the_analytic_discs(dots_bakes):
