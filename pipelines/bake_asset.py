@@ -69,7 +69,7 @@ class BakeAssetConfig:
     hybrid_tol: float | None = None
     """Hybrid bake: |f| at the source surface above this (unit frame) is not faithful (None: 0.01, constants.HYBRID_SDF_TOL)."""
     hybrid_angle: float | None = None
-    """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: 20, constants.HYBRID_ANGLE_DEG)."""
+    """Hybrid bake: ∇f this many degrees off the source normal is not faithful (None: 5, constants.HYBRID_ANGLE_DEG)."""
     hybrid_color_tol: float | None = None
     """Hybrid bake with --texture-model: a neural colour this far (CIEDE2000 ΔE) from the source texture's at the same point takes the source's (None: 2, constants.HYBRID_COLOR_DELTA_E; inf: no ΔE rule; colours stay neural when hybrid_color_within is inf too)."""
     hybrid_color_psnr: float | None = None

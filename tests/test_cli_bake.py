@@ -300,7 +300,7 @@ def test_hybrid_bake_report_map_and_warnings(files, tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     h = rep["hybrid"]
     assert h["hybrid_texels"] > 0.9 * rep["texels_covered"] and h["replaced"] == h["hybrid_samples"]
-    assert h["sdf_tol"] == 0.01 and h["angle_deg"] == 20.0 and h["samples"] == rep["bake"]["samples"]
+    assert h["sdf_tol"] == 0.01 and h["angle_deg"] == 5.0 and h["samples"] == rep["bake"]["samples"]
     # the untrained field alone is far off; the hybrid map is as good as the classical bake
     assert rep["neural_vs_truth_deg"]["median"] > 20.0
     assert rep["vs_truth_deg"]["median"] < rep["baseline"]["vs_truth_deg"]["median"] + 0.5
