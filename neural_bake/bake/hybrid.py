@@ -108,8 +108,9 @@ def colour_budget(a: np.ndarray, b: np.ndarray, within_db: float, bits: int = 8,
     """Which of the linear RGB(A) colours ``a`` (M, ≥3) to replace by ``b`` so the rest stay within ``within_db``
     of a classical transfer into a ``bits``-bit map: (M,) bool. Both are compared as the map stores them (sRGB,
     quantised to ``bits``); the colours with the smallest squared difference are kept, smallest first, while
-    the sum stays within M × (10^(within_db/10) − 1) × step² / 12 (the quantisation noise a channel, the
-    least error of a transfer into the map). ``replaced`` (M,) bool: colours another rule replaces already
+    the sum stays within M × (10^(within_db/10) − 1) × step² / 12 (the quantisation noise a channel, which a
+    transfer into the map errs by unless the texture's values land on the map's: then any kept difference
+    costs more than ``within_db``; 0 keeps only the colours the map stores as ``b``'s). ``replaced`` (M,) bool: colours another rule replaces already
     (they take ``b``, a zero difference, and are returned as replaced)."""
     from ..io.colour import linear_to_srgb
 
