@@ -18,8 +18,11 @@ from .bench import bench_options, report
 @click.option("--blender-python", type=click.Path(dir_okay=False), default=None,
               help="The Python interpreter with bpy for the Blender rows (default $NEURAL_BAKE_BLENDER_PYTHON, else "
                    ".cache/blender-venv/bin/python, which `make setup-blender` makes).")
+@click.option("--repeats", type=click.IntRange(min=1), default=None,
+              help="Rounds of the user's command table, our command and Blender's script in turn; each figure the "
+                   "best of its rounds (default 3; --quick 1).")
 def command(quick: bool, json_path: str | None, sdf_model: str | None, anchor_model: str | None,
-            no_anchor: bool, blender_python: str | None) -> None:
+            no_anchor: bool, blender_python: str | None, repeats: int | None) -> None:
     """Texels per second of tangent-space normal maps from a (256, 3) SIREN (GEMM vs autograd normals), and
     the error of baked normals against time as map size and coarse face count vary on the bumpy sphere,
     beside the classical mesh-to-mesh bake; and our bake (full or adaptive, float32 or auto precision) of 2048²
@@ -28,4 +31,4 @@ def command(quick: bool, json_path: str | None, sdf_model: str | None, anchor_mo
     from neural_bake.bench.bake import run
 
     report(run(quick=quick, sdf_model=sdf_model, anchor=not no_anchor, anchor_model=anchor_model,
-               blender_python=blender_python), json_path)
+               blender_python=blender_python, repeats=repeats), json_path)

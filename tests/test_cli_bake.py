@@ -354,7 +354,7 @@ def test_bench_bake_anchor_table_shrunken():
 
     field = SdfField.from_model(Siren(32, 1, generator=torch.Generator().manual_seed(0)), name="tiny")
     res = run(quick=True, sizes=[16], faces=[300], map_sizes=[16], autograd=False, anchor_sizes=[96],
-              anchor_model=field)
+              anchor_model=field, repeats=2)
     rows = res["tables"]["against the anchor"]
     methods = [r["method"] for r in rows]
     assert methods[:4] == ["ours full fp32", "ours adaptive fp32", "ours adaptive auto", "open3d mesh-to-mesh"]
@@ -374,6 +374,11 @@ def test_bench_bake_anchor_table_shrunken():
     c = cmd[0]
     assert c["wall s"] > c["bake s"] > 0 and c["prepare s"] > 0 and c["load s"] > 0 and 0 < c["evaluated"] <= 1.0
     assert c["vs source med°"] is not None and "the user's command:" in notes
+    # two rounds: the wall and the bake stage are each the best of them, their ranges beside
+    assert c["rounds"] == 2 and "best of the rounds" in notes
+    for key in ("wall", "bake"):
+        low, high = (float(v) for v in c[f"{key} range s"].split("–"))
+        assert low <= high and abs(c[f"{key} s"] - low) <= 0.05
 
 
 def test_infinite_colour_rules_keep_the_networks_colours(files, tmp_path, capsys):
