@@ -90,7 +90,12 @@ def _cost(config) -> str:
     """``"WxD, M min"`` of a fit's config (the parts it has)."""
     parts = []
     if hasattr(config, "width") and hasattr(config, "depth"):
-        parts.append(f"{config.width}x{config.depth}")
+        w, d = config.width, config.depth
+        if getattr(config, "construction", "plain") != "plain" and getattr(config, "coarse_width", 0):
+            c = config.coarse_width  # a coarse level and a fine one fitted on it, saved as their sum
+            parts.append(f"{c}x{d} + {w - c}x{d} as one {w}x{d}")
+        else:
+            parts.append(f"{w}x{d}")
     if getattr(config, "minutes", None):
         parts.append(f"{config.minutes:g} min")
     return ", ".join(parts) or "see BENCHMARKS.md"

@@ -29,7 +29,8 @@ def _config_class():
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, default_preset="default",
                   presets=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
                   described=("quick", "default", "high", "64x1", "128x2", "256x2", "256x3"),
-                  preset_help="Network (W, D) and time budget (default: (192, 3) for 5 minutes)",
+                  preset_help="Network (W, D) and time budget (default: a 64x3 coarse level and a 128x3 residual level, "
+                              "one 192x3, for 5 minutes)",
                   required=("mesh", "output"), pass_preset=True)
 
 
