@@ -230,3 +230,6 @@ def test_every_verb_shows_an_example_and_the_common_flags(capsys):
         text = " ".join(run(capsys, *path, "--help")[1].split())
         for preset in ("quick (", "default (", "high ("):
             assert preset in text, (path, preset)  # each preset with its cost
+    # a construction preset names its two levels and the one network they are saved as; a plain one its own
+    text = " ".join(run(capsys, "fit", "sdf", "--help")[1].split())
+    assert "high (64x4 + 192x4 as one 256x4, 10 min)" in text and "256x3 (256x3, 10 min)" in text
