@@ -347,6 +347,12 @@ NORMAL_ANGLE_EPS = 1e-3
 #: surface's own fitting error, which the surface and near terms train.
 SIGN_MINING_TOL = 0.01
 
+#: A point's inside test is *sure* when the mesh is watertight (ray parity) or its generalised winding number
+#: lies at least this far from 1/2 (0 outside, 1 inside a closed part): near an open sheet (a tray, a leaf, a
+#: cup's rim) both sides read about 1/2, and a sign the mesh does not define must not be mined or audited,
+#: or the fit pushes both sides of the sheet out and loses its surface.
+SIGN_SURE_MARGIN = 0.25
+
 #: The band audit of a residual construction (``SdfFitConfig.audit_candidates``): Gauss–Newton steps on h² that
 #: move each uniform candidate towards the coarse level's small values, the damping added to |∇h|² (so a
 #: candidate in a valley of h that stops short of zero settles on its floor instead of being thrown out), and

@@ -38,13 +38,14 @@ from typing import Sequence
 
 import numpy as np
 
-from ..constants import DIRECTION_EPS
+from ..constants import DIRECTION_EPS, SIGN_SURE_MARGIN
 from ..geometry import check_points, raycasting_scene, sampleable_faces, vertex_normals
 from ..io.colour import sample_texture
 from ..mesh.winding import winding_number
 from ..types import Mesh
 
 __all__ = [
+    "signed_distance_sure",
     "SurfaceSamples",
     "VolumeSamples",
     "sample_surface",
@@ -96,6 +97,8 @@ class VolumeSamples:
     """(N, 3) float32 positions, unit frame."""
     sdf: np.ndarray
     """(N,) float32 signed distance to the mesh in unit-frame units, negative inside."""
+    sure: np.ndarray | None = None
+    """(N,) bool: the sign is sure (:func:`signed_distance_sure`); None: not known."""
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -266,8 +269,8 @@ def sample_near(
     counts = [n // len(sigmas) + (1 if i < n % len(sigmas) else 0) for i in range(len(sigmas))]
     scale = np.repeat(np.asarray(sigmas), counts)
     points = surf.points.astype(np.float64) + rng.standard_normal((n, 3)) * scale[:, None]
-    sdf = signed_distance(mesh, points, sign=sign) if n else np.zeros(0)
-    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32))
+    sdf, sure = signed_distance_sure(mesh, points, sign=sign) if n else (np.zeros(0), np.zeros(0, dtype=bool))
+    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure)
 
 
 def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sign: str = "auto") -> VolumeSamples:
@@ -277,8 +280,8 @@ def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sig
         raise ValueError(f"sample_uniform: bound must be positive and finite, got {bound!r}")
     rng = np.random.default_rng([seed, 2])
     points = (rng.random((n, 3)) * 2.0 - 1.0) * float(bound)
-    sdf = signed_distance(mesh, points, sign=sign) if n else np.zeros(0)
-    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32))
+    sdf, sure = signed_distance_sure(mesh, points, sign=sign) if n else (np.zeros(0), np.zeros(0, dtype=bool))
+    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure)
 
 
 # ----------------------------------------------------------------------------------------------- distance
@@ -317,8 +320,21 @@ def signed_distance(mesh: Mesh, points, *, sign: str = "auto") -> np.ndarray:
     return np.where(inside, -dist, dist)
 
 
-def inside_mask(mesh: Mesh, points, *, method: str = "auto") -> np.ndarray:
-    """(N,) bool: which ``points`` (N, 3) are inside ``mesh``, by ``method`` (module docstring)."""
+def signed_distance_sure(mesh: Mesh, points, *, sign: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`signed_distance` (N,), sure (N,) bool): whether each point's sign is sure, i.e. the ray parity of
+    a watertight mesh, every ray of the "hybrid" test agreeing, or a winding number at least
+    :data:`~neural_bake.constants.SIGN_SURE_MARGIN` from 1/2 (an open sheet reads about 1/2 on both sides)."""
+    p = check_points(points, "signed_distance")
+    dist = unsigned_distance(mesh, p)
+    if p.shape[0] == 0:
+        return dist, np.zeros(0, dtype=bool)
+    inside, sure = inside_mask(mesh, p, method=sign, sure=True)
+    return np.where(inside, -dist, dist), sure
+
+
+def inside_mask(mesh: Mesh, points, *, method: str = "auto", sure: bool = False):
+    """(N,) bool: which ``points`` (N, 3) are inside ``mesh``, by ``method`` (module docstring); with ``sure``,
+    (inside, sure) (:func:`signed_distance_sure`)."""
     if method not in SIGN_METHODS:
         raise ValueError(f"inside_mask: method must be one of {SIGN_METHODS}, got {method!r}")
     p = check_points(points, "signed_distance")
@@ -330,15 +346,20 @@ def inside_mask(mesh: Mesh, points, *, method: str = "auto") -> np.ndarray:
         idx, _ = sampleable_faces(mesh)
         scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
         occ = scene.compute_occupancy(o3d.core.Tensor(p.astype(np.float32)), nsamples=RAY_SAMPLES)
-        return occ.numpy().astype(bool)
+        inside = occ.numpy().astype(bool)
+        return (inside, np.ones(len(inside), dtype=bool)) if sure else inside
     if method == "hybrid":
         votes = _ray_parities(mesh, p, HYBRID_RAYS)
         inside = votes.all(0)
+        certain = np.ones(len(inside), dtype=bool)
         unsure = np.flatnonzero(votes.any(0) & ~inside)
         if unsure.size:
-            inside[unsure] = winding_number(mesh, p[unsure]) > 0.5
-        return inside
-    return winding_number(mesh, p, exact=(method == "winding_exact")) > 0.5
+            w = winding_number(mesh, p[unsure])
+            inside[unsure] = w > 0.5
+            certain[unsure] = np.abs(w - 0.5) >= SIGN_SURE_MARGIN
+        return (inside, certain) if sure else inside
+    w = winding_number(mesh, p, exact=(method == "winding_exact"))
+    return (w > 0.5, np.abs(w - 0.5) >= SIGN_SURE_MARGIN) if sure else w > 0.5
 
 
 def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:

@@ -99,14 +99,18 @@ class _Pools:
 
         vol_p = [v.points for v in (near, uni) if v is not None]
         vol_d = [v.sdf for v in (near, uni) if v is not None]
+        # whether each point's sign is sure (near points are not mined: taken as sure)
+        vol_s = [np.ones(len(v), dtype=bool) if v.sure is None or v is near else v.sure
+                 for v in (near, uni) if v is not None]
         if surf.points.shape[0] == 0:
             raise FitError(f"{mesh.name}: no surface samples (every face is degenerate)")
         vp = np.concatenate(vol_p) if vol_p else np.zeros((0, 3), np.float32)
         vd = np.concatenate(vol_d) if vol_d else np.zeros(0, np.float32)
+        vs = np.concatenate(vol_s) if vol_s else np.zeros(0, bool)
         finite = np.isfinite(vd) & np.isfinite(vp).all(axis=1)
         n_near = int(finite[: near.points.shape[0]].sum()) if near is not None else 0
         return {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]), "vol_d": t(vd[finite]),
-                "n_near": n_near}
+                "vol_sure": torch.as_tensor(vs[finite], device=self.device), "n_near": n_near}
 
 
 #: The keys :func:`band_pools` adds to a pool: the base field's values and gradients at its points, in the
@@ -130,9 +134,13 @@ def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None
 
     def prepare(data: dict) -> dict:
         vol_p, vol_d = data["vol_p"], data["vol_d"]
-        if audit is not None:
+        vol_s = data.get("vol_sure")
+        if vol_s is None:
+            vol_s = torch.ones(vol_p.shape[0], dtype=torch.bool, device=vol_p.device)
+        if audit is not None:  # its points' signs are sure (band_audit keeps no other)
             vol_p = torch.cat([vol_p, audit[0].to(vol_p)])
             vol_d = torch.cat([vol_d, audit[1].to(vol_d)])
+            vol_s = torch.cat([vol_s, torch.ones(audit[0].shape[0], dtype=torch.bool, device=vol_s.device)])
         sv, sg = values(data["surf_p"])
         vv, vg = values(vol_p)
         ks, kv = sv.abs() < band, vv.abs() < band
@@ -140,7 +148,7 @@ def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None
             raise FitError(f"band_pools: no surface sample lies in the band |base| < {band:.3g}")
         n_near = int(kv[: data["n_near"]].sum())
         return {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": vol_p[kv],
-                "vol_d": vol_d[kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
+                "vol_d": vol_d[kv], "vol_sure": vol_s[kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
                 "vol_base": vv[kv], "vol_base_grad": vg[kv]}
 
     return prepare
@@ -157,9 +165,10 @@ def band_audit(base: Siren, mesh: Mesh, band: float, tol: float, n: int, seed: i
     <neural_bake.constants.AUDIT_STEPS>` damped Gauss–Newton steps on h² (towards h's zero set, or a
     valley's floor), and of those that end inside the band the ones whose true |d| exceeds |h| by more than
     ``tol`` (the coarse level's own distance error) — and is at least :data:`~neural_bake.constants.SIGN_MINING_TOL`
-    — are kept, in base's dtype and device."""
+    — are kept, in base's dtype and device, where their sign is sure
+    (:func:`~neural_bake.fit.sampling.signed_distance_sure`: not beside an open sheet)."""
     from ..nets.gemm import gemm_gradient
-    from .sampling import signed_distance
+    from .sampling import signed_distance_sure
 
     p = next(base.parameters())
     gen = torch.Generator().manual_seed(int(seed))
@@ -178,8 +187,9 @@ def band_audit(base: Siren, mesh: Mesh, band: float, tol: float, n: int, seed: i
     x, h = x[keep], h[keep]
     if x.shape[0] == 0:
         return None
-    d = torch.as_tensor(signed_distance(mesh, x.double().cpu().numpy()), dtype=x.dtype, device=x.device)
-    far = (d.abs() >= h.abs() + tol) & (d.abs() >= SIGN_MINING_TOL)
+    d, sure = signed_distance_sure(mesh, x.double().cpu().numpy())
+    d = torch.as_tensor(d, dtype=x.dtype, device=x.device)
+    far = (d.abs() >= h.abs() + tol) & (d.abs() >= SIGN_MINING_TOL) & torch.as_tensor(sure, device=x.device)
     return (x[far].contiguous(), d[far].contiguous()) if bool(far.any()) else None
 
 
@@ -194,8 +204,8 @@ def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target:
 
 def _sign_errors(model: Siren, pools: dict, chunk: int = 65536) -> torch.Tensor | None:
     """Indices into the volume pool of its uniform points where f and the true distance d differ in sign with
-    |d| ≥ :data:`~neural_bake.constants.SIGN_MINING_TOL` (``SdfFitConfig.sign_fraction``), or None where
-    there are none. With a residual level's pool (``vol_base``, :func:`band_pools`) f is the sum base + model."""
+    |d| ≥ :data:`~neural_bake.constants.SIGN_MINING_TOL` and d's sign is sure (``vol_sure``: not beside an
+    open sheet) (``SdfFitConfig.sign_fraction``), or None where there are none. With a residual level's pool (``vol_base``, :func:`band_pools`) f is the sum base + model."""
     n_near, vp, vd = pools["n_near"], pools["vol_p"], pools["vol_d"]
     if vp.shape[0] <= n_near:
         return None
@@ -205,6 +215,8 @@ def _sign_errors(model: Siren, pools: dict, chunk: int = 65536) -> torch.Tensor 
         f = f + pools["vol_base"][n_near:]
     d = vd[n_near:]
     wrong = (d.abs() >= SIGN_MINING_TOL) & (torch.sign(f) != torch.sign(d))
+    if "vol_sure" in pools:  # a sign the mesh does not define (beside an open sheet) is not an error to mine
+        wrong &= pools["vol_sure"][n_near:]
     idx = torch.nonzero(wrong).flatten()
     return idx + n_near if idx.numel() else None
 

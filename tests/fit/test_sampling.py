@@ -301,6 +301,57 @@ def test_hybrid_sign_on_an_open_mesh_matches_the_winding_number(open_sphere, rng
     assert (hybrid[r < 0.6]).all() and not hybrid[r > 1.0].any()
 
 
+def _open_sheet():
+    """A flat square sheet 1.2 across in the plane z = 0, its normals +z, subdivided (an open mesh)."""
+    sheet = trimesh.creation.box(extents=(1.2, 1.2, 0.1))
+    top = sheet.triangles_center[:, 2] > 0.04
+    sheet = trimesh.Trimesh(sheet.vertices, sheet.faces[top], process=True).subdivide().subdivide()
+    v = np.asarray(sheet.vertices, dtype=np.float64)
+    v[:, 2] = 0.0
+    return Mesh(v, np.asarray(sheet.faces, dtype=np.int64), watertight=False)
+
+
+def test_a_sign_is_sure_off_closed_parts_and_not_behind_an_open_sheet(sphere, open_sphere, rng):
+    """Behind an open sheet (against its normals) the winding number reads about 1/2: the sign is not sure; in
+    front (about −1/2) and far away (about 0) it is; every sign of a watertight mesh (ray parity) is sure, and
+    the open sphere's points away from its hole (winding 0 or 1) are sure too."""
+    from neural_bake.fit.sampling import signed_distance_sure
+
+    sheet = _open_sheet()
+    xy = rng.uniform(-0.3, 0.3, (200, 2))
+    behind, front = np.c_[xy, np.full(200, -0.03)], np.c_[xy, np.full(200, 0.03)]
+    far = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.1] + [0, 0, 0.9]
+    d, sure = signed_distance_sure(sheet, np.concatenate([behind, front, far]))
+    np.testing.assert_allclose(np.abs(d), np.abs(signed_distance(sheet, np.concatenate([behind, front, far]))))
+    assert not sure[:200].any() and sure[200:].all()
+    d, sure = signed_distance_sure(sphere, rng.uniform(-1, 1, (500, 3)))
+    assert sure.all()
+    p = rng.uniform(-1.3, 1.3, (2000, 3))
+    r = np.linalg.norm(p, axis=1)
+    _, sure = signed_distance_sure(open_sphere, p)
+    away = (p[:, 2] < 0.3) & ((r < 0.6) | (r > 1.0))
+    assert sure[away].all() and away.sum() > 500
+    _, sure = signed_distance_sure(sheet, np.zeros((0, 3)))
+    assert sure.shape == (0,)
+    assert sample_uniform(sheet, 300, seed=0).sure.shape == (300,)
+
+
+def test_sign_mining_leaves_out_the_points_whose_sign_is_not_sure():
+    """A network positive everywhere is wrong at every inside point of the pool; the points whose sign is not
+    sure are not among its mined sign errors (the near points never are)."""
+    import torch
+
+    from neural_bake.fit.sdf_pools import _sign_errors
+
+    vol_d = torch.tensor([-0.5, -0.5, -0.5, -0.5, 0.5, -0.5])
+    pools = {"n_near": 1, "vol_p": torch.zeros(6, 3), "vol_d": vol_d,
+             "vol_sure": torch.tensor([True, True, False, True, True, False])}
+    positive = lambda p: torch.ones(p.shape[0], 1)  # noqa: E731
+    assert _sign_errors(positive, pools).tolist() == [1, 3]
+    del pools["vol_sure"]
+    assert _sign_errors(positive, pools).tolist() == [1, 2, 3, 5]
+
+
 def test_ray_parities_are_exact_on_a_closed_mesh(sphere, rng):
     p = rng.uniform(-1, 1, (500, 3))
     p = p[np.abs(np.linalg.norm(p, axis=1) - R) > 0.02]
