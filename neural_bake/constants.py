@@ -148,8 +148,8 @@ HYBRID_SDF_TOL = 0.01
 
 #: Hybrid bake: a texel whose ∇f differs from the source mesh's normal there by more than this many degrees
 #: takes the classical mesh-to-mesh normal; it bounds how much worse than the source a baked texel can be. At 5°
-#: (against 20°) the scans' and CAD parts' maps keep their medians and lose a third to a half of their p95
-#: (ogre 9.6° → 4.6°) for 1–9 % more classical texels and no measurable bake time (BENCHMARKS.md, Fidelity).
+#: (against 20°) the scans' and CAD parts' maps keep their medians and lose up to half of their p95 (ogre 9.6° →
+#: 4.6°, nefertiti 4.4° → 3.1°) for 0.4–9 % more classical texels and no measurable bake time (docs/findings.md).
 HYBRID_ANGLE_DEG = 5.0
 
 #: A bake report compares a map larger than this (side, texels) with the truth and the classical baseline on a
