@@ -351,7 +351,7 @@ def inside_mask(mesh: Mesh, points, *, method: str = "auto", sure: bool = False)
     if method == "hybrid":
         votes = _ray_parities(mesh, p, HYBRID_RAYS)
         inside = votes.all(0)
-        certain = np.ones(len(inside), dtype=bool)
+        certain = np.ones(len(inside), dtype=np.bool_)
         unsure = np.flatnonzero(votes.any(0) & ~inside)
         if unsure.size:
             w = winding_number(mesh, p[unsure])
