@@ -275,7 +275,9 @@ class HybridFallback:
         why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
         if colors is not None:
             bad = np.zeros(len(idx), dtype=bool)
-            if self.color_tol is not None:
+            # a budget of 0 replaces every colour the map would store differently, which takes in every colour
+            # more than ΔE color_tol off: the CIEDE2000 pass would decide nothing more
+            if self.color_tol is not None and self.color_within != 0:
                 bad |= colour_difference(colors[idx], b["colors"]) > self.color_tol
             if self.color_psnr is not None:
                 bad |= ~(colour_psnr(colors[idx], b["colors"]) >= self.color_psnr)

@@ -310,20 +310,15 @@ def signed_distance(mesh: Mesh, points, *, sign: str = "auto") -> np.ndarray:
     in float64); the sign is the inside test ``sign`` (module docstring): ``"auto"`` ray parity for
     watertight meshes, accelerated generalised winding number (inside where w > 1/2) otherwise.
     """
-    if sign not in SIGN_METHODS:
-        raise ValueError(f"signed_distance: sign must be one of {SIGN_METHODS}, got {sign!r}")
-    p = check_points(points, "signed_distance")
-    dist = unsigned_distance(mesh, p)
-    if p.shape[0] == 0:
-        return dist
-    inside = inside_mask(mesh, p, method=sign)
-    return np.where(inside, -dist, dist)
+    return signed_distance_sure(mesh, points, sign=sign)[0]
 
 
 def signed_distance_sure(mesh: Mesh, points, *, sign: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """(:func:`signed_distance` (N,), sure (N,) bool): whether each point's sign is sure, i.e. the ray parity of
     a watertight mesh, every ray of the "hybrid" test agreeing, or a winding number at least
     :data:`~neural_bake.constants.SIGN_SURE_MARGIN` from 1/2 (an open sheet reads about 1/2 on both sides)."""
+    if sign not in SIGN_METHODS:
+        raise ValueError(f"signed_distance: sign must be one of {SIGN_METHODS}, got {sign!r}")
     p = check_points(points, "signed_distance")
     dist = unsigned_distance(mesh, p)
     if p.shape[0] == 0:
