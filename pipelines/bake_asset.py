@@ -307,7 +307,11 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     log(f"precision: {prec['sdf']} ({prec['sdf_reason']})")
     control = res.stats.get("error_control")
     if control is not None and res.stats["adaptive"] is not None:
-        log(f"adaptive evaluation: {100 * res.stats['evaluated_fraction']:.1f} % of the texel samples evaluated; "
+        ad = res.stats["adaptive"]
+        faces = 100 * ad["face_nodes"] / max(1, ad["samples"])
+        log(f"adaptive evaluation: {100 * res.stats['evaluated_fraction']:.1f} % of the texel samples evaluated "
+            f"(of which {faces:.1f} % at points inside faces, from which "
+            f"{100 * ad['face_interpolated'] / max(1, ad['samples']):.1f} % were interpolated); "
             f"against a full evaluation at {control['samples']} sampled: median "
             f"{control['angle_deg']['median'] or 0:.4f}°, max {control['angle_deg']['max'] or 0:.4f}°")
     return baked

@@ -37,6 +37,7 @@ from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTIC
                          ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
 from ..errors import NeuralBakeError
 from ..types import Mesh
+from .adaptive_faces import FaceGeometry, face_pass
 
 __all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate"]
 
@@ -212,6 +213,8 @@ def adaptive_evaluate(
     options: AdaptiveOptions | None = None,
     vertices: np.ndarray | None = None,
     dtype: torch.dtype = torch.float64,
+    faces: FaceGeometry | None = None,
+    evaluate_points: Callable[[np.ndarray], dict] | None = None,
 ) -> dict:
     """Evaluate the fields at a band's samples adaptively (module docstring).
 
@@ -224,11 +227,15 @@ def adaptive_evaluate(
       the fields of a float32 network (its own precision), float64 (the default) to interpolate exactly.
     - ``evaluate``: sample indices (n,) int64 → ``{"values": (n,), "normals": (n, 3) unit ∇f (0 where
       invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
+    - ``faces`` and ``evaluate_points`` (points (n, 3) → the same dict): with both, the samples no cell
+      covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
-    valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample) and
+    valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
+    ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides) and
     ``"stats"`` (samples evaluated / interpolated, cells accepted per level (``cells_quadratic``: of them, those
-    interpolated quadratically), evaluation calls).
+    interpolated quadratically), the face pass's evaluations at points of faces, samples and sub-triangles,
+    evaluation calls).
     """
     opt = options or AdaptiveOptions()
     m = int(texels.n_samples)
@@ -261,6 +268,7 @@ def adaptive_evaluate(
         store.evaluated[idx] = True
         store.calls += 1
 
+    hard = np.zeros(m, bool)
     gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
     on = np.flatnonzero(gr >= 0)
     k0 = int(opt.lattice)
@@ -315,6 +323,11 @@ def adaptive_evaluate(
             if acc.any() or quad.any():
                 levels[k] = int(acc.sum() + quad.sum())
             split = ~(acc | quad)
+            if k == 4 and p.size:  # pure cells that failed at the last level: the fields vary too fast there
+                f = p[split[p]]
+                d = np.arange(k + 1)
+                cells = index[r0[f, None, None] + d[:, None], c0[f, None, None] + d[None, :]]
+                hard[cells[cells >= 0]] = True
             r0 = (r0[split, None] + h * np.array([0, 0, 1, 1])).reshape(-1)
             c0 = (c0[split, None] + h * np.array([0, 1, 0, 1])).reshape(-1)
             if h >= 2:
@@ -325,6 +338,28 @@ def adaptive_evaluate(
         for ar, ac, k, quad in accepted:
             (_interpolate_quadratic if quad else _interpolate)(store, packed, index, ar, ac, k)
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
+    decide = np.zeros(m, bool)
+    face_stats = {"nodes": 0, "interpolated": 0, "accepted": 0}
+    # the lattice is the face pass's free probe: where it interpolated less than it evaluated, the fields vary
+    # too fast for the faces' sub-triangles too
+    if faces is not None and evaluate_points is not None and rest.size \
+            and store.interpolated.sum() >= store.evaluated.sum():
+        # the samples no cell could hold (borders, seams, around vertices), not those of cells that failed
+        rest = rest[~hard[rest]]
+        fp = face_pass(rest, np.asarray(texels.face, dtype=np.int64)[rest], np.asarray(texels.bary)[rest],
+                       points[rest], faces, evaluate_points, tolerance_deg=opt.tolerance_deg,
+                       value_tol=opt.value_tol, color_tol=opt.color_tol)
+        ok = fp["done"]
+        d = rest[ok]
+        store.normals[d], store.values[d], store.valid[d] = fp["normals"][ok], fp["values"][ok], True
+        if fp["colors"] is not None:
+            if store.colors is None:
+                store.colors = np.zeros((m, fp["colors"].shape[1]))
+            store.colors[d] = fp["colors"][ok]
+        store.interpolated[d] = True
+        decide[rest[fp["decide"]]] = True
+        face_stats = {"nodes": int(fp["nodes"]), "interpolated": int(d.size), "accepted": int(fp["accepted"])}
+    rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     run(rest)
     n_eval = int(store.evaluated.sum())
     return {
@@ -334,10 +369,13 @@ def adaptive_evaluate(
         "colors": store.colors,
         "evaluated": store.evaluated,
         "interpolated": store.interpolated,
+        "decide": store.evaluated | decide,
         "stats": {"samples": m, "evaluated": n_eval, "interpolated": int(store.interpolated.sum()),
+                  "face_nodes": face_stats["nodes"], "face_interpolated": face_stats["interpolated"],
+                  "face_cells": face_stats["accepted"],
                   "cells_accepted": {str(k): v for k, v in sorted(levels.items(), reverse=True)},
                   "cells_quadratic": {str(k): v for k, v in sorted(quadratic.items(), reverse=True)},
-                  "evaluation_calls": store.calls},
+                  "evaluated_outside_cells": int(rest.size), "evaluation_calls": store.calls},
     }
 
 

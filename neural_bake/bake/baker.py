@@ -23,6 +23,7 @@ from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.texels import TexelSet, kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
+from .adaptive_faces import face_geometry
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
@@ -276,13 +277,15 @@ class _ErrorControl:
             expected = baker.texels.n_samples
         self.checked = adaptive is not None or self.reduced
         self.fraction = min(1.0, samples / max(1, expected)) if self.checked else 0.0
-        self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0}
+        self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0, "outside": 0, "face_nodes": 0,
+                       "face_interpolated": 0, "face_cells": 0}
         self.cells: dict[str, int] = {}
         self.angles: list[np.ndarray] = []
         self.colors: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
         self.interp: list[np.ndarray] = []
         self._charts = None
+        self._faces = None
         # float32 fields are interpolated in float32 (their own precision), anything else in float64
         dtypes = {_tensor_kwargs(f)["dtype"] for f in (sdf, texture) if f is not None}
         self.dtype = torch.float32 if dtypes == {torch.float32} else torch.float64
@@ -299,24 +302,27 @@ class _ErrorControl:
         if self._charts is None:
             self._charts = chart_labels(b.mesh)
             self._vertices = vertex_positions(b.mesh, b.shape, b.supersample)
+            self._faces = face_geometry(b.mesh, b.shape, b.supersample)
         times = {"time_sdf": 0.0, "time_texture": 0.0}
 
-        def fields(idx):
-            e = _evaluate(points[idx], b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
+        def at_points(p):
+            e = _evaluate(p, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
             times["time_sdf"] += e["time_sdf"]
             times["time_texture"] += e["time_texture"]
             return e
 
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
-                                fields, self.adaptive, vertices=self._vertices, dtype=self.dtype)
+                                lambda idx: at_points(points[idx]), self.adaptive, vertices=self._vertices,
+                                dtype=self.dtype, faces=self._faces, evaluate_points=at_points)
         st = res["stats"]
-        for k in ("samples", "evaluated", "interpolated"):
+        for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells"):
             self.counts[k] += st[k]
         self.counts["calls"] += st["evaluation_calls"]
+        self.counts["outside"] += st["evaluated_outside_cells"]
         for k, v in st["cells_accepted"].items():
             self.cells[k] = self.cells.get(k, 0) + v
         ev = {"values": res["values"], "normals": res["normals"], "valid": res["valid"], "evaluated": res["evaluated"],
-              **times}
+              "decide": res["decide"], **times}
         if self.texture is not None:
             ev["colors"] = res["colors"]
         ev["time_adaptive"] = time.perf_counter() - t0 - times["time_sdf"] - times["time_texture"]
@@ -360,8 +366,10 @@ class _ErrorControl:
             "color_tol": float(self.adaptive.color_tol), "value_tol": float(self.adaptive.value_tol),
             "samples": c["samples"], "evaluated": c["evaluated"], "interpolated": c["interpolated"],
             "evaluated_fraction": c["evaluated"] / max(1, c["samples"]),
-            "cells_accepted": self.cells, "evaluation_calls": c["calls"]},
-            "evaluated_fraction": c["evaluated"] / max(1, c["samples"])}
+            "evaluated_outside_cells": c["outside"], "cells_accepted": self.cells, "face_nodes": c["face_nodes"],
+            "face_interpolated": c["face_interpolated"], "face_cells": c["face_cells"],
+            "evaluation_calls": c["calls"]},
+            "evaluated_fraction": (c["evaluated"] + c["face_nodes"]) / max(1, c["samples"])}
         out["precision"] = self.precision
         if self.checked:
             ang = np.concatenate(self.angles) if self.angles else np.zeros(0)
@@ -612,7 +620,8 @@ class Baker:
             if hybrid is not None:
                 t1 = time.perf_counter()
                 band.neural, band.neural_colors = normals, band.colors
-                out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors, values=values)
+                out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors, values=values,
+                             decide=ev.get("decide"))
                 band.normals, band.replaced = out[0], np.asarray(out[1], dtype=bool)
                 if len(out) > 2 and out[2] is not None:
                     band.colors, band.colors_replaced = out[2], np.asarray(out[3], dtype=bool)

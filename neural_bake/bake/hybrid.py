@@ -320,7 +320,8 @@ class HybridFallback:
         return candidates[self._check_mask(candidates, 1)]
 
     def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None,
-                 colors: np.ndarray | None = None, values: np.ndarray | None = None) -> HybridBand:
+                 colors: np.ndarray | None = None, values: np.ndarray | None = None,
+                 decide: np.ndarray | None = None) -> HybridBand:
         import time
 
         from .baseline import baseline_bake
@@ -337,7 +338,8 @@ class HybridFallback:
         if self.decide == "all" or evaluated is None:
             first = np.arange(m)
         else:
-            first = np.flatnonzero(np.asarray(evaluated, dtype=bool) | ~valid)
+            # the evaluated samples, and the decision points of what was interpolated without them (``decide``)
+            first = np.flatnonzero(np.asarray(evaluated if decide is None else decide, dtype=bool) | ~valid)
         # f and ∇f are known at the evaluated samples (all without ``evaluated``): f at their source points
         # can be estimated; the interpolated samples' (NaN here) are not used
         estimable = None if values is None else np.asarray(values, dtype=np.float64) if evaluated is None \

@@ -416,7 +416,7 @@ def test_one_evaluation_serves_every_output(sphere_baker, tmp_path):
     sdf_calls, tex_calls = counting(sdf, "value_and_normal"), counting(tex, "color")
     res = baker.bake(sdf, tex, adaptive=AdaptiveOptions(tolerance_deg=0.2))
     control = res.stats["error_control"]
-    evaluated = res.stats["adaptive"]["evaluated"]
+    evaluated = res.stats["adaptive"]["evaluated"] + res.stats["adaptive"]["face_nodes"]  # samples and faces
     assert sum(sdf_calls) == sum(tex_calls) == evaluated + control["interpolated"]
     assert res.normal_map is not None and res.albedo is not None and res.colors.shape[0] == res.normals.shape[0]
     before = (len(sdf_calls), len(tex_calls))
@@ -443,3 +443,26 @@ def test_field_value_is_the_forward_pass_of_value_and_normal(dtype):
     torch.testing.assert_close(analytic.value(x), x.norm(dim=1) - 0.5)
     nan = SdfField(lambda p: torch.full((len(p),), float("nan"), dtype=p.dtype))
     assert torch.isinf(nan.value(x)).all()
+
+
+def test_bake_interpolates_inside_faces_and_stays_within_the_tolerance(monkeypatch):
+    from neural_bake.bake import baker as baker_mod
+
+    mesh = load_mesh(sample_path("sphere"))
+    baker = Baker(decimate(mesh, faces=400), 512)
+    _, sdf, _ = analytic_fields("sphere", mesh.frame)
+    full = baker.bake(sdf)
+    opt = AdaptiveOptions(tolerance_deg=0.5)
+    res = baker.bake(sdf, adaptive=opt)
+    st = res.stats["adaptive"]
+    assert st["face_interpolated"] > st["face_nodes"] > 0
+    assert angle_deg(res.normals, full.normals).max() <= opt.tolerance_deg
+    # points of faces are in the frame of the samples: the face pass's geometry gives back their points
+    geom = baker_mod.face_geometry(baker.mesh, baker.shape, baker.supersample)
+    tx = next(iter(baker.bands()))
+    again = np.einsum("nk,nkd->nd", np.asarray(tx.bary), geom.corners[np.asarray(tx.face)])
+    assert np.abs(again - np.asarray(tx.points)).max() < 1e-9
+    monkeypatch.setattr(baker_mod, "face_geometry", lambda *a: None)
+    without = Baker(decimate(mesh, faces=400), 512).bake(sdf, adaptive=opt)
+    assert without.stats["adaptive"]["face_nodes"] == 0
+    assert res.stats["evaluated_fraction"] < without.stats["evaluated_fraction"]

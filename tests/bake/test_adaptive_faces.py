@@ -1,0 +1,101 @@
+"""The face pass of adaptive evaluation: within the tolerance of a direct evaluation on analytic fields, exact
+on linear ones, stopped by its probe where the fields vary too fast, decision points within the hybrid's reach,
+(the pass inside a real bake: tests/bake/test_adaptive.py)."""
+
+import numpy as np
+import pytest
+
+from neural_bake.bake import adaptive_faces as af
+from neural_bake.bake.adaptive import AdaptiveOptions
+from neural_bake.bake.adaptive_faces import FaceGeometry, face_pass
+
+from neural_bake.geometry import angular_error as angle_deg
+
+#: One face in space and on the sample grid: 3-D corners and UV corners (sample-grid positions).
+CORNERS = np.array([[[0.1, -0.2, 0.3], [0.6, -0.1, 0.35], [0.2, 0.4, 0.1]]])
+GRID_UV = np.array([[0.0, 0.0], [96.0, 8.0], [20.0, 90.0]])
+
+
+def one_face(rng, n=4000):
+    """Random barycentrics in the face, with samples on its edges and corners (hard cases)."""
+    b = rng.dirichlet(np.ones(3), size=n)
+    b[:30] = np.eye(3)[rng.integers(0, 3, 30)]  # corners
+    t = rng.random(60)
+    b[30:90] = np.stack([t, 1 - t, np.zeros(60)], axis=1)[:, rng.permutation(3)]  # edges
+    pts = np.einsum("nk,kd->nd", b, CORNERS[0])
+    side = np.sqrt(((GRID_UV - np.roll(GRID_UV, 1, axis=0)) ** 2).sum(axis=1)).max()
+    return b, pts, FaceGeometry(corners=CORNERS, side=np.array([side]))
+
+
+def sphere_field(center, radius, dtype=np.float64):
+    def evaluate(p):
+        p = np.asarray(p, dtype=np.float64)
+        d = p - center
+        r = np.linalg.norm(d, axis=1)
+        return {"values": (r - radius).astype(dtype).astype(np.float64),
+                "normals": (d / r[:, None]).astype(dtype).astype(np.float64),
+                "valid": np.ones(len(p), dtype=bool), "colors": None}
+    return evaluate
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_smooth_field_is_interpolated_within_the_tolerance(rng, dtype):
+    b, pts, geom = one_face(rng)
+    field = sphere_field(np.array([0.3, 0.1, -1.2]), 1.0, dtype)
+    calls = []
+    opt = AdaptiveOptions()
+    res = face_pass(np.arange(len(b)), np.zeros(len(b), dtype=np.int64), b, pts, geom,
+                    lambda p: calls.append(len(p)) or field(p), tolerance_deg=opt.tolerance_deg,
+                    value_tol=opt.value_tol, color_tol=opt.color_tol)
+    done = res["done"]
+    exact = field(pts)
+    assert done.mean() > 0.9 and res["nodes"] == sum(calls) < 0.1 * len(b)  # it saves evaluations
+    assert angle_deg(res["normals"][done], exact["normals"][done]).max() <= opt.tolerance_deg
+    assert np.abs(res["values"][done] - exact["values"][done]).max() <= opt.value_tol
+    assert res["decide"].sum() >= res["accepted"] and not res["decide"][~done].any()
+
+
+def test_linear_field_is_interpolated_exactly(rng):
+    b, pts, geom = one_face(rng)
+    n = np.array([0.2, -0.3, 0.9])
+    n /= np.linalg.norm(n)
+
+    def plane(p):
+        return {"values": p @ n - 0.05, "normals": np.repeat(n[None], len(p), axis=0),
+                "valid": np.ones(len(p), dtype=bool), "colors": np.stack([p[:, 0], 2 * p[:, 1] + 0.5], axis=1)}
+
+    res = face_pass(np.arange(len(b)), np.zeros(len(b), dtype=np.int64), b, pts, geom, plane, tolerance_deg=0.5,
+                    value_tol=5e-3, color_tol=1e-3)
+    exact = plane(pts)
+    first_level = int(np.ceil(np.log2(geom.side[0] / af.FACE_START_SIDE)))
+    assert res["done"].all() and res["accepted"] == (1 << first_level) ** 2  # every sub-triangle of the first level
+    assert np.abs(res["normals"] - exact["normals"]).max() < 1e-12
+    assert np.abs(res["values"] - exact["values"]).max() < 1e-12
+    assert np.abs(res["colors"] - exact["colors"]).max() < 1e-12
+
+
+def test_a_rough_field_stops_the_pass_after_its_probe(rng):
+    b, pts, geom = one_face(rng, n=20000)
+
+    def rough(p):
+        g = np.stack([40 * np.cos(400 * p[:, 0]), 40 * np.sin(300 * p[:, 1]), np.ones(len(p))], axis=1)
+        return {"values": 0.1 * np.sin(400 * p[:, 0]), "normals": g / np.linalg.norm(g, axis=1, keepdims=True),
+                "valid": np.ones(len(p), dtype=bool), "colors": None}
+
+    res = face_pass(np.arange(len(b)), np.zeros(len(b), dtype=np.int64), b, pts, geom, rough, tolerance_deg=0.5,
+                    value_tol=5e-3, color_tol=1e-3)
+    # the probe tests every FACE_PROBE_STRIDE-th sub-triangle of the first level (at most six nodes each)
+    first_level = int(np.ceil(np.log2(geom.side[0] / af.FACE_START_SIDE)))
+    sub_triangles = (1 << first_level) ** 2
+    assert res["done"].sum() < res["nodes"] <= 6 * -(-sub_triangles // af.FACE_PROBE_STRIDE)
+
+
+def test_decision_points_lie_within_the_hybrids_reach(rng):
+    b, pts, geom = one_face(rng, n=6000)
+    res = face_pass(np.arange(len(b)), np.zeros(len(b), dtype=np.int64), b, pts, geom,
+                    sphere_field(np.array([0.0, 0.0, -0.5]), 0.4), tolerance_deg=0.5, value_tol=5e-3, color_tol=1e-3)
+    grid = b @ GRID_UV
+    done, decide = res["done"], res["decide"]
+    assert done.any() and decide.any()
+    d = np.linalg.norm(grid[done][:, None] - grid[decide][None], axis=2).min(axis=1)
+    assert d.max() <= af.FACE_START_SIDE
