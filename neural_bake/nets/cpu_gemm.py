@@ -13,6 +13,11 @@ measured decision, per width, made once per process and only for the CPU:
   (float32 accuracy: a bfloat16 rounding of the operands reads ~1e-3);
 - :func:`gemm_route` is the context manager the inference paths and the training loop run in.
 
+A measured decision is kept in ``gemm-route.json`` of the kernel cache folder
+(:func:`neural_bake.nets.native.cache_dir`), keyed by CPU model, torch version, setting, width and threads, so
+that a later process on the same machine reads it instead of measuring again (about 0.3 s of each command's
+start: oneDNN builds its kernels at its first product). Delete the file to measure again.
+
 The environment variable ``NEURAL_BAKE_CPU_GEMM`` = ``blas`` | ``onednn`` | ``auto`` (default) overrides the
 decision; ``onednn`` still refuses a route that fails the accuracy check. The switch is a torch setting of
 the process, set and restored around the work (not thread-safe, as any torch backend setting).
@@ -114,6 +119,11 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     key = (value, width, torch.get_num_threads())  # the route is measured with the threads that will run it
     if measure is None and key in _decided:  # gemm_route asks at every call: measure once
         return _decided[key]
+    if measure is None:
+        kept = _kept_decisions().get(_disk_key(key))
+        if kept is not None:
+            _decided[key] = (kept[0], f"{kept[1]} (measured on this machine before: {_DISK_FILE})")
+            return _decided[key]
     m = (measure or measure_route)(width)
     if m["onednn_error"] > FP32_GEMM_REL_TOL:
         out = ("blas", f"oneDNN's float32 GEMM was not float32-accurate here (relative error "
@@ -127,7 +137,70 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
                        f"BLAS's here (width {width})")
     if measure is None:
         _decided[key] = out
+        _keep_decision(_disk_key(key), out)
     return out
+
+
+#: The file (in the kernel cache folder) the measured decisions are kept in.
+_DISK_FILE = "gemm-route.json"
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or platform.machine()
+
+
+def _disk_key(key: tuple[str, int, int]) -> str:
+    return f"{_cpu_model()} | torch {torch.__version__} | {key[0]} | width {key[1]} | {key[2]} threads"
+
+
+def _disk_path():
+    from .native import cache_dir
+
+    return cache_dir() / _DISK_FILE
+
+
+def _kept_decisions() -> dict:
+    """The decisions kept on disk ({} when there are none or the file is unreadable)."""
+    import json
+
+    try:
+        data = json.loads(_disk_path().read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    ok = isinstance(data, dict)
+    return {k: v for k, v in data.items() if isinstance(v, list) and len(v) == 2 and v[0] in ("blas", "onednn")} \
+        if ok else {}
+
+
+def _keep_decision(key: str, decision: tuple[str, str]) -> None:
+    """Add a decision to the file, replacing it whole (written beside it, then renamed); failures are ignored:
+    the decision is then measured again by the next process."""
+    import json
+    import tempfile
+
+    try:
+        path = _disk_path()
+        data = _kept_decisions()
+        data[key] = list(decision)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".gemm-route-", suffix=".json")
+    except OSError:
+        return
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(data, f, indent=1, sort_keys=True)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
 
 
 def model_width(model) -> int | None:

@@ -108,3 +108,32 @@ def test_training_runs_on_the_decided_route_and_restores_it(monkeypatch):
     expected = decide_route(32, env="onednn")[0]
     assert seen == [expected] * 3
     assert torch.backends.mkldnn.matmul.fp32_precision == before
+
+
+def test_a_measured_decision_is_kept_for_the_next_process(monkeypatch, tmp_path):
+    import json
+
+    from neural_bake.nets import cpu_gemm
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(cpu_gemm, "_decided", {})
+    route, why = decide_route(48, env="auto")  # measured (the real products), then written down
+    kept = json.loads((tmp_path / "neural_bake" / "gemm-route.json").read_text())
+    (key, value), = kept.items()
+    assert value == [route, why] and "width 48" in key and torch.__version__ in key
+    monkeypatch.setattr(cpu_gemm, "_decided", {})  # a new process: read, not measured
+    monkeypatch.setattr(cpu_gemm, "measure_route", lambda w: pytest.fail("measured again"))
+    again, why_again = decide_route(48, env="auto")
+    assert again == route and why_again.startswith(why) and "measured on this machine before" in why_again
+    # an injected measurement is neither read from nor written to the file
+    assert decide_route(48, measure=lambda w: {"speedup": 1.0, "blas_error": 0.0, "onednn_error": 0.0},
+                        env="auto")[0] == "blas"
+    assert json.loads((tmp_path / "neural_bake" / "gemm-route.json").read_text()) == kept
+    # an unreadable file is measured past (and mended)
+    (tmp_path / "neural_bake" / "gemm-route.json").write_text("{not json")
+    monkeypatch.setattr(cpu_gemm, "_decided", {})
+    monkeypatch.undo()  # the real measurement again, in the same cache folder
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(cpu_gemm, "_decided", {})
+    route, why = decide_route(48, env="auto")
+    assert json.loads((tmp_path / "neural_bake" / "gemm-route.json").read_text()) == {key: [route, why]}
