@@ -187,6 +187,26 @@ def test_lattice_check_counts_what_the_rule_missed():
     assert hybrid.summary()["decided"] == evaluated.sum() + c["samples"]
 
 
+def test_decision_points_of_interpolated_samples_are_decided():
+    """The adaptive bake's face pass interpolates samples without evaluating any of them; its decision points
+    (``decide``) are decided like evaluated samples, and the ring around an unfaithful one follows."""
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256)
+    tx = baker.texels
+    normals, valid = np.asarray(tx.normal, dtype=np.float64), np.ones(tx.n_samples, dtype=bool)
+    evaluated = np.asarray(tx.points)[:, 2] < 0  # the cap is around +Z: no evaluated sample lies on it
+    on_cap = np.flatnonzero(np.linalg.norm(np.asarray(tx.points) - (0.0, 0.0, R), axis=1) < 0.1)
+    decide = evaluated.copy()
+    decide[on_cap[::50]] = True
+    without = HybridFallback(ico(5), field)
+    missed = without(baker.mesh, tx, normals, valid, evaluated).replaced
+    hybrid = HybridFallback(ico(5), field)
+    found = hybrid(baker.mesh, tx, normals, valid, evaluated, decide=decide).replaced
+    assert found[on_cap].sum() > 10 * max(1, missed[on_cap].sum())  # the cap, found through its decision points
+    assert hybrid.summary()["decided"] > decide.sum()  # and the ring around them
+
+
 @pytest.mark.parametrize("kwargs, message", [({"decide": "some"}, "decide"), ({"reach": 0}, "reach"),
                                              ({"reach": 2.5}, "reach")])
 def test_bad_decision_settings_raise(kwargs, message):
