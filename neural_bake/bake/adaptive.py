@@ -17,7 +17,10 @@ failure costs nothing) and compared with the quadratic through its 3×3 nodes in
 nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no
 accepted cell covers is evaluated: chart borders, seams, islands smaller than
 the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
-nodes and samples of an accepted cell all belong to one chart.
+nodes and samples of an accepted cell all belong to one chart. With the coarse mesh's faces
+(``faces``), the samples no cell could hold (chart borders, seams, off-grid samples, around vertices; not those
+of side-4 cells that failed, where the fields vary too fast) are interpolated inside their own faces where that
+pays (:mod:`.adaptive_faces`), when the lattice itself interpolated more samples than it evaluated.
 
 The same refinement serves every field: f, the unit normals ∇f/|∇f| and (when a texture is baked) the colours
 are evaluated at the same samples, and a cell is accepted only when all of them pass their tolerance. The

@@ -17,6 +17,11 @@ renormalised, f from each node's first-order extrapolation. A sub-triangle that 
 quarters, down to an edge of :data:`FACE_MIN_SIDE` positions; samples left in smaller or emptier
 sub-triangles are evaluated.
 
+Points of faces are not samples, so evaluating them for a sub-triangle that then fails is pure cost. A
+sub-triangle is tried only when it holds at least twice as many samples as it has nodes not yet evaluated,
+and each level first tests every :data:`FACE_PROBE_STRIDE`-th sub-triangle: when the samples interpolated so
+far are fewer than the points evaluated, the pass stops.
+
 The hybrid decides at evaluated samples; an accepted sub-triangle has none of its own, so the samples closest
 to its corners and to its centre are returned as its decision points (``decide``), at most
 :data:`FACE_START_SIDE` positions from any of its samples, within the hybrid's reach.
