@@ -30,6 +30,7 @@ from typing import Callable
 import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
+from ..nets.threads import cpu_model, machine_cache_dir
 
 __all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps", "step_cost",
            "budget_record", "fit_budget", "steps_budget", "reference_steps", "stop_note", "cache_file"]
@@ -99,31 +100,13 @@ class ReferenceStep:
 def _probe_cached(repeat: int, threads: int) -> float:
     rate = _probe(repeat, time.perf_counter)
     width, depth, n = REFERENCE_STEP
-    return _best_seen(f"{_cpu_name()}|{threads}|siren {width}x{depth} {n}", rate)
-
-
-def _cpu_name() -> str:
-    import platform
-
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+    return _best_seen(f"{cpu_model()}|{threads}|siren {width}x{depth} {n}", rate)
 
 
 def cache_file():
     """The file keeping the best reference-step rate seen per machine: ``$NEURAL_BAKE_CACHE_DIR/step_rate.json``
     (default ``$XDG_CACHE_HOME/neural_bake`` or ``~/.cache/neural_bake``)."""
-    import os
-    from pathlib import Path
-
-    base = os.environ.get("NEURAL_BAKE_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "neural_bake")
-    return Path(base) / "step_rate.json"
+    return machine_cache_dir() / "step_rate.json"
 
 
 def _best_seen(key: str, rate: float) -> float:

@@ -13,8 +13,8 @@ measured decision, per width, made once per process and only for the CPU:
   (float32 accuracy: a bfloat16 rounding of the operands reads ~1e-3);
 - :func:`gemm_route` is the context manager the inference paths and the training loop run in.
 
-A measured decision is kept in ``gemm-route.json`` of the kernel cache folder
-(:func:`neural_bake.nets.native.cache_dir`), keyed by CPU model, torch version, setting, width and threads, so
+A measured decision is kept in ``gemm-route.json`` of the machine's cache folder
+(:func:`neural_bake.nets.threads.machine_cache_dir`, beside the step rates), keyed by CPU model, torch version, setting, width and threads, so
 that a later process on the same machine reads it instead of measuring again (about 0.3 s of each command's
 start: oneDNN builds its kernels at its first product). Delete the file to measure again.
 
@@ -145,27 +145,16 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
 _DISK_FILE = "gemm-route.json"
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    import platform
-
-    return platform.processor() or platform.machine()
-
-
 def _disk_key(key: tuple[str, int, int]) -> str:
-    return f"{_cpu_model()} | torch {torch.__version__} | {key[0]} | width {key[1]} | {key[2]} threads"
+    from .threads import cpu_model
+
+    return f"{cpu_model()} | torch {torch.__version__} | {key[0]} | width {key[1]} | {key[2]} threads"
 
 
 def _disk_path():
-    from .native import cache_dir
+    from .threads import machine_cache_dir
 
-    return cache_dir() / _DISK_FILE
+    return machine_cache_dir() / _DISK_FILE
 
 
 def _kept_decisions() -> dict:
@@ -191,6 +180,7 @@ def _keep_decision(key: str, decision: tuple[str, str]) -> None:
         path = _disk_path()
         data = _kept_decisions()
         data[key] = list(decision)
+        path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".gemm-route-", suffix=".json")
     except OSError:
         return

@@ -115,7 +115,7 @@ def test_a_measured_decision_is_kept_for_the_next_process(monkeypatch, tmp_path)
 
     from neural_bake.nets import cpu_gemm
 
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "neural_bake"))
     monkeypatch.setattr(cpu_gemm, "_decided", {})
     route, why = decide_route(48, env="auto")  # measured (the real products), then written down
     kept = json.loads((tmp_path / "neural_bake" / "gemm-route.json").read_text())
@@ -133,7 +133,7 @@ def test_a_measured_decision_is_kept_for_the_next_process(monkeypatch, tmp_path)
     (tmp_path / "neural_bake" / "gemm-route.json").write_text("{not json")
     monkeypatch.setattr(cpu_gemm, "_decided", {})
     monkeypatch.undo()  # the real measurement again, in the same cache folder
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "neural_bake"))
     monkeypatch.setattr(cpu_gemm, "_decided", {})
     route, why = decide_route(48, env="auto")
     assert json.loads((tmp_path / "neural_bake" / "gemm-route.json").read_text()) == {key: [route, why]}

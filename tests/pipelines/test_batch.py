@@ -228,12 +228,13 @@ def test_budgeted_stages_record_expected_and_made_steps_and_warn(tmp_path, sampl
     (model file, batch.json, index page) and warns below half. The machine's speed is injected: the step-rate
     cache holds a reference rate far above what any run here reaches, so every fit falls short."""
     from neural_bake.fields import load_field
-    from neural_bake.fit.budget import REFERENCE_STEP, _cpu_name
+    from neural_bake.fit.budget import REFERENCE_STEP
+    from neural_bake.nets.threads import cpu_model
 
     width, depth, n = REFERENCE_STEP
     (tmp_path / "cache").mkdir()
     (tmp_path / "cache" / "step_rate.json").write_text(json.dumps(
-        {f"{_cpu_name()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
+        {f"{cpu_model()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
     monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))  # the workers inherit it
     stages = tiny(nested={"steps": 10_000_000, "minutes": 0.01})
     # the presets' own networks and batches (their step costs are known), short budgets, small pools; the SDF
@@ -468,12 +469,13 @@ def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_
     removed once the model is written) and its budget counts both levels: steps made and expected are the two levels' sums, each level warned below half
     (the machine's speed injected as above)."""
     from neural_bake.fields import load_field
-    from neural_bake.fit.budget import REFERENCE_STEP, _cpu_name
+    from neural_bake.fit.budget import REFERENCE_STEP
+    from neural_bake.nets.threads import cpu_model
 
     width, depth, n = REFERENCE_STEP
     (tmp_path / "cache").mkdir()
     (tmp_path / "cache" / "step_rate.json").write_text(json.dumps(
-        {f"{_cpu_name()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
+        {f"{cpu_model()}|{t}|siren {width}x{depth} {n}": 1e9 for t in range(1, 257)}))
     monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))
     stages = tiny()
     stages["sdf"] = {"preset": "quick", "minutes": 0.15, "pool_surface": 8000, "pool_near": 8000,
