@@ -49,6 +49,10 @@ FACE_MIN_SAMPLES = 8
 #: samples interpolated are fewer than the evaluations made at points of faces.
 FACE_PROBE_STRIDE = 8
 
+#: Faces a pass handles: the packed keys of nodes and sub-triangles hold a face index below 2^21 (a larger
+#: mesh's leftover samples are evaluated).
+_MAX_FACES = (1 << 21) - 1
+
 #: Resolution of the barycentric lattice the nodes are keyed on (2^20 steps per face edge).
 _RES_BITS = 20
 
@@ -172,7 +176,7 @@ def face_pass(
     decide = np.zeros(n, dtype=bool)
     nodes = _Nodes(geometry, evaluate_points)
     accepted = saved = 0
-    if n == 0:
+    if n == 0 or len(geometry.side) > _MAX_FACES:  # more faces than the packed keys hold: evaluated instead
         return {"done": done, "normals": out_nrm, "values": out_val, "colors": None, "decide": decide, "nodes": 0,
                 "accepted": 0}
     chord = 2.0 * np.sin(np.radians(ADAPTIVE_SAFETY * tolerance_deg) / 2.0)

@@ -99,3 +99,13 @@ def test_decision_points_lie_within_the_hybrids_reach(rng):
     assert done.any() and decide.any()
     d = np.linalg.norm(grid[done][:, None] - grid[decide][None], axis=2).min(axis=1)
     assert d.max() <= af.FACE_START_SIDE
+
+
+def test_a_mesh_beyond_the_packed_face_index_is_left_to_evaluation(rng):
+    b, pts, geom = one_face(rng, n=500)
+    many = FaceGeometry(corners=np.broadcast_to(CORNERS[0], (af._MAX_FACES + 1, 3, 3)),
+                        side=np.broadcast_to(geom.side, (af._MAX_FACES + 1,)))
+    face = np.full(len(b), af._MAX_FACES, dtype=np.int64)
+    res = face_pass(np.arange(len(b)), face, b, pts, many, lambda p: pytest.fail("evaluated"), tolerance_deg=0.5,
+                    value_tol=5e-3, color_tol=1e-3)
+    assert not res["done"].any() and res["nodes"] == 0
