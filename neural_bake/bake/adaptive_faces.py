@@ -79,37 +79,48 @@ def face_geometry(mesh, size: tuple[int, int], supersample: int) -> FaceGeometry
 
 
 class _Nodes:
-    """Field values at points of the faces keyed by (face, i, j) on the barycentric lattice, each evaluated once."""
+    """Field values at points of the faces keyed by (face, i, j) on the barycentric lattice, each evaluated once.
+    The values are appended in evaluation order (a node's position never moves); ``_sorted`` and ``_where``
+    (the keys in order and their positions) answer lookups."""
 
     def __init__(self, geometry: FaceGeometry, evaluate_points: Callable[[np.ndarray], dict]):
         self.geometry = geometry
         self.evaluate_points = evaluate_points
-        self.keys = np.zeros(0, dtype=np.int64)  # sorted
+        self._sorted = np.zeros(0, dtype=np.int64)
+        self._where = np.zeros(0, dtype=np.int64)
         self.points = np.zeros((0, 3))
         self.values = np.zeros(0)
         self.normals = np.zeros((0, 3))
         self.valid = np.zeros(0, dtype=bool)
         self.colors: np.ndarray | None = None
-        self.count = 0
+
+    @property
+    def count(self) -> int:
+        """Points evaluated."""
+        return len(self.values)
 
     @staticmethod
     def key(face: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (face << (2 * (_RES_BITS + 1))) | (i << (_RES_BITS + 1)) | j
 
+    def _find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(known, position) of ``keys`` (any shape); the position is meaningless where not known."""
+        if not len(self._sorted):
+            return np.zeros(keys.shape, dtype=bool), np.zeros(keys.shape, dtype=np.int64)
+        at = np.minimum(np.searchsorted(self._sorted, keys), len(self._sorted) - 1)
+        return self._sorted[at] == keys, self._where[at]
+
     def known(self, keys: np.ndarray) -> np.ndarray:
         """Which of ``keys`` (any shape) are evaluated already."""
-        if not len(self.keys):
-            return np.zeros(keys.shape, dtype=bool)
-        at = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
-        return self.keys[at] == keys
+        return self._find(keys)[0]
 
     def get(self, keys: np.ndarray) -> np.ndarray:
         """Positions in the store of the nodes ``keys`` (any shape), evaluating the new ones."""
-        flat = keys.reshape(-1)
-        new = np.unique(flat[~self.known(flat)])
+        known, _ = self._find(keys)
+        new = np.unique(keys[~known])
         if new.size:
             self._add(new)
-        return np.searchsorted(self.keys, flat).reshape(keys.shape)
+        return self._find(keys)[1]
 
     def _add(self, new: np.ndarray) -> None:
         mask = (1 << (_RES_BITS + 1)) - 1
@@ -122,19 +133,20 @@ class _Nodes:
         nrm = np.asarray(ev["normals"], dtype=np.float64)
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > DIRECTION_EPS)
-        keys = np.concatenate([self.keys, new])
+        start = self.count
+        keys = np.concatenate([self._sorted, new])
+        where = np.concatenate([self._where, start + np.arange(len(new))])
         order = np.argsort(keys, kind="stable")
-        self.keys = keys[order]
-        self.points = np.concatenate([self.points, pts])[order]
-        self.values = np.concatenate([self.values, np.asarray(ev["values"], dtype=np.float64)])[order]
-        self.normals = np.concatenate([self.normals, nrm])[order]
-        self.valid = np.concatenate([self.valid, np.asarray(ev["valid"], dtype=bool)])[order]
+        self._sorted, self._where = keys[order], where[order]
+        self.points = np.concatenate([self.points, pts])
+        self.values = np.concatenate([self.values, np.asarray(ev["values"], dtype=np.float64)])
+        self.normals = np.concatenate([self.normals, nrm])
+        self.valid = np.concatenate([self.valid, np.asarray(ev["valid"], dtype=bool)])
         col = ev.get("colors")
         if col is not None:
             col = np.asarray(col, dtype=np.float64)
-            old = self.colors if self.colors is not None else np.zeros((len(self.keys) - len(new), col.shape[1]))
-            self.colors = np.concatenate([old, col])[order]
-        self.count += len(new)
+            old = self.colors if self.colors is not None else np.zeros((start, col.shape[1]))
+            self.colors = np.concatenate([old, col])
 
 
 def _blend(nodes: _Nodes, at: np.ndarray, weights: np.ndarray, points: np.ndarray):
@@ -248,7 +260,6 @@ def face_pass(
                     test(rest_t)
                     saved += int(counts[rest_t][ok[rest_t]].sum())
         accepted += int(ok.sum())
-        at[ok] = nodes.get(keys[ok])  # positions in the store as it is now (later evaluations moved them)
         take = ok[inverse]
         if take.any():
             s = active[take]

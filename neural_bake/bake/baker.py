@@ -361,15 +361,16 @@ class _ErrorControl:
 
     def summary(self) -> dict:
         c = self.counts
+        evaluated = (c["evaluated"] + c["face_nodes"]) / max(1, c["samples"])  # evaluations per sample
         out: dict = {"adaptive": None if self.adaptive is None else {
             "tolerance_deg": float(self.adaptive.tolerance_deg), "lattice": int(self.adaptive.lattice),
             "color_tol": float(self.adaptive.color_tol), "value_tol": float(self.adaptive.value_tol),
             "samples": c["samples"], "evaluated": c["evaluated"], "interpolated": c["interpolated"],
-            "evaluated_fraction": (c["evaluated"] + c["face_nodes"]) / max(1, c["samples"]),
+            "evaluated_fraction": evaluated,
             "evaluated_outside_cells": c["outside"], "cells_accepted": self.cells, "face_nodes": c["face_nodes"],
             "face_interpolated": c["face_interpolated"], "face_cells": c["face_cells"],
             "evaluation_calls": c["calls"]},
-            "evaluated_fraction": (c["evaluated"] + c["face_nodes"]) / max(1, c["samples"])}
+            "evaluated_fraction": evaluated}
         out["precision"] = self.precision
         if self.checked:
             ang = np.concatenate(self.angles) if self.angles else np.zeros(0)
@@ -694,7 +695,7 @@ class Baker:
         # the threads the bake's evaluations run fastest with on the machine as it is (nets.threads)
         points = self._probe(sdf)
         slice_ = points.repeat(4, 1)  # a slice the size of a few evaluation chunks: threads show what they pay
-        threads = choose_threads(lambda: sdf.value_and_normal(slice_), device=points.device, repeats=2)
+        threads = choose_threads(lambda: sdf.value_and_normal(slice_), device=points.device)
         probe = points if precision == "auto" else None
         fast_sdf, sdf_prec, sdf_why = sdf.with_precision(precision, measure=precision_measure, probe=probe) \
             if hasattr(sdf, "with_precision") else (sdf, "fp32", "no precision choice")

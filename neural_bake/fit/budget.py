@@ -30,7 +30,7 @@ from typing import Callable
 import torch
 
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
-from ..nets.threads import cpu_model, machine_cache_dir
+from ..nets.machine import cpu_model, machine_cache_dir, read_facts, write_fact
 
 __all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps", "step_cost",
            "budget_record", "fit_budget", "steps_budget", "reference_steps", "stop_note", "cache_file"]
@@ -106,30 +106,20 @@ def _probe_cached(repeat: int, threads: int) -> float:
 def cache_file():
     """The file keeping the best reference-step rate seen per machine: ``$NEURAL_BAKE_CACHE_DIR/step_rate.json``
     (default ``$XDG_CACHE_HOME/neural_bake`` or ``~/.cache/neural_bake``)."""
-    return machine_cache_dir() / "step_rate.json"
+    return machine_cache_dir() / _STEP_RATE_FILE
+
+
+#: The file of :func:`cache_file` (in :func:`~neural_bake.nets.machine.machine_cache_dir`).
+_STEP_RATE_FILE = "step_rate.json"
 
 
 def _best_seen(key: str, rate: float) -> float:
     """max(rate, the best rate recorded under ``key``); records it when higher. An unreadable or unwritable
     cache only loses the record (the probe's own rate is used)."""
-    import json
-
-    from ..io.atomic import atomic_write_text
-
-    path = cache_file()
-    try:
-        seen = json.loads(path.read_text(encoding="utf-8"))
-        seen = seen if isinstance(seen, dict) else {}
-    except (OSError, ValueError):
-        seen = {}
-    best = seen.get(key)
+    best = read_facts(_STEP_RATE_FILE).get(key)
     best = float(best) if isinstance(best, (int, float)) and best > 0 else 0.0
     if rate > best:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, json.dumps({**seen, key: rate}, indent=1))
-        except OSError:
-            pass
+        write_fact(_STEP_RATE_FILE, key, rate)
     return max(rate, best)
 
 

@@ -323,13 +323,18 @@ def signed_distance_sure(mesh: Mesh, points, *, sign: str = "auto") -> tuple[np.
     dist = unsigned_distance(mesh, p)
     if p.shape[0] == 0:
         return dist, np.zeros(0, dtype=bool)
-    inside, sure = inside_mask(mesh, p, method=sign, sure=True)
+    inside, sure = _inside_and_sure(mesh, p, sign)
     return np.where(inside, -dist, dist), sure
 
 
-def inside_mask(mesh: Mesh, points, *, method: str = "auto", sure: bool = False):
-    """(N,) bool: which ``points`` (N, 3) are inside ``mesh``, by ``method`` (module docstring); with ``sure``,
-    (inside, sure) (:func:`signed_distance_sure`)."""
+def inside_mask(mesh: Mesh, points, *, method: str = "auto") -> np.ndarray:
+    """(N,) bool: which ``points`` (N, 3) are inside ``mesh``, by ``method`` (module docstring)."""
+    return _inside_and_sure(mesh, points, method)[0]
+
+
+def _inside_and_sure(mesh: Mesh, points, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(inside, sure), each (N,) bool: :func:`inside_mask` and whether the mesh defines that sign
+    (:func:`signed_distance_sure`)."""
     if method not in SIGN_METHODS:
         raise ValueError(f"inside_mask: method must be one of {SIGN_METHODS}, got {method!r}")
     p = check_points(points, "signed_distance")
@@ -342,7 +347,7 @@ def inside_mask(mesh: Mesh, points, *, method: str = "auto", sure: bool = False)
         scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
         occ = scene.compute_occupancy(o3d.core.Tensor(p.astype(np.float32)), nsamples=RAY_SAMPLES)
         inside = occ.numpy().astype(bool)
-        return (inside, np.ones(len(inside), dtype=bool)) if sure else inside
+        return inside, np.ones(len(inside), dtype=bool)
     if method == "hybrid":
         votes = _ray_parities(mesh, p, HYBRID_RAYS)
         inside = votes.all(0)
@@ -352,9 +357,9 @@ def inside_mask(mesh: Mesh, points, *, method: str = "auto", sure: bool = False)
             w = winding_number(mesh, p[unsure])
             inside[unsure] = w > 0.5
             certain[unsure] = np.abs(w - 0.5) >= SIGN_SURE_MARGIN
-        return (inside, certain) if sure else inside
+        return inside, certain
     w = winding_number(mesh, p, exact=(method == "winding_exact"))
-    return (w > 0.5, np.abs(w - 0.5) >= SIGN_SURE_MARGIN) if sure else w > 0.5
+    return w > 0.5, np.abs(w - 0.5) >= SIGN_SURE_MARGIN
 
 
 def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:

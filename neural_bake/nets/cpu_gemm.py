@@ -13,9 +13,8 @@ measured decision, per width, made once per process and only for the CPU:
   (float32 accuracy: a bfloat16 rounding of the operands reads ~1e-3);
 - :func:`gemm_route` is the context manager the inference paths and the training loop run in.
 
-A measured decision is kept in ``gemm-route.json`` of the machine's cache folder
-(:func:`neural_bake.nets.threads.machine_cache_dir`, beside the step rates), keyed by CPU model, torch version, setting, width and threads, so
-that a later process on the same machine reads it instead of measuring again (about 0.3 s of each command's
+A measured decision is kept in ``gemm-route.json`` of the machine's cache folder (:mod:`neural_bake.nets.machine`,
+beside the step rates), keyed by CPU model, torch version, setting, width and threads, so that a later process on the same machine reads it instead of measuring again (about 0.3 s of each command's
 start: oneDNN builds its kernels at its first product). Delete the file to measure again.
 
 The environment variable ``NEURAL_BAKE_CPU_GEMM`` = ``blas`` | ``onednn`` | ``auto`` (default) overrides the
@@ -34,6 +33,7 @@ import torch
 
 from ..constants import FP32_GEMM_REL_TOL, ONEDNN_MIN_SPEEDUP
 from ..errors import NeuralBakeError
+from .machine import cpu_model, read_facts, write_fact
 
 __all__ = ["ROUTES", "ENV_ROUTE", "measure_route", "decide_route", "gemm_route", "model_width", "route_in_use",
            "reroute"]
@@ -120,8 +120,8 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
     if measure is None and key in _decided:  # gemm_route asks at every call: measure once
         return _decided[key]
     if measure is None:
-        kept = _kept_decisions().get(_disk_key(key))
-        if kept is not None:
+        kept = read_facts(_DISK_FILE).get(_disk_key(key))
+        if isinstance(kept, list) and len(kept) == 2 and kept[0] in ("blas", "onednn"):
             _decided[key] = (kept[0], f"{kept[1]} (measured on this machine before: {_DISK_FILE})")
             return _decided[key]
     m = (measure or measure_route)(width)
@@ -137,60 +137,16 @@ def decide_route(width: int, *, measure: Callable[[int], dict] | None = None,
                        f"BLAS's here (width {width})")
     if measure is None:
         _decided[key] = out
-        _keep_decision(_disk_key(key), out)
+        write_fact(_DISK_FILE, _disk_key(key), list(out))
     return out
 
 
-#: The file (in the kernel cache folder) the measured decisions are kept in.
+#: The file (in :func:`~neural_bake.nets.machine.machine_cache_dir`) the measured decisions are kept in.
 _DISK_FILE = "gemm-route.json"
 
 
 def _disk_key(key: tuple[str, int, int]) -> str:
-    from .threads import cpu_model
-
     return f"{cpu_model()} | torch {torch.__version__} | {key[0]} | width {key[1]} | {key[2]} threads"
-
-
-def _disk_path():
-    from .threads import machine_cache_dir
-
-    return machine_cache_dir() / _DISK_FILE
-
-
-def _kept_decisions() -> dict:
-    """The decisions kept on disk ({} when there are none or the file is unreadable)."""
-    import json
-
-    try:
-        data = json.loads(_disk_path().read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    ok = isinstance(data, dict)
-    return {k: v for k, v in data.items() if isinstance(v, list) and len(v) == 2 and v[0] in ("blas", "onednn")} \
-        if ok else {}
-
-
-def _keep_decision(key: str, decision: tuple[str, str]) -> None:
-    """Add a decision to the file, replacing it whole (written beside it, then renamed); failures are ignored:
-    the decision is then measured again by the next process."""
-    import json
-    import tempfile
-
-    try:
-        path = _disk_path()
-        data = _kept_decisions()
-        data[key] = list(decision)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".gemm-route-", suffix=".json")
-    except OSError:
-        return
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1, sort_keys=True)
-        os.replace(tmp, path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
 
 
 def model_width(model) -> int | None:

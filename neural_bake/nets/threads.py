@@ -31,7 +31,7 @@ from ..constants import (THREAD_ABORT_FACTOR, THREAD_DRIFT, THREAD_MARGIN, THREA
                          THREAD_PROBE_SHARE, THREAD_REPROBE_S, THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
 from ..errors import NeuralBakeError
 
-__all__ = ["ENV_THREADS", "ENV_MAX_THREADS", "ThreadChoice", "ThreadTuner", "choose_threads", "cpu_model", "fixed_threads", "machine_cache_dir", "usable_cores",
+__all__ = ["ENV_THREADS", "ENV_MAX_THREADS", "ThreadChoice", "ThreadTuner", "choose_threads", "fixed_threads", "usable_cores",
            "thread_candidates"]
 
 #: Environment variable fixing the thread count ("auto" or unset: measured).
@@ -39,31 +39,6 @@ ENV_THREADS = "NEURAL_BAKE_THREADS"
 
 #: Environment variable capping the counts a probe tries (a batch worker's share of the cores).
 ENV_MAX_THREADS = "NEURAL_BAKE_MAX_THREADS"
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``, else the platform's processor or machine): what measured
-    machine facts (step rates, GEMM routes) are kept under."""
-    import platform
-
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def machine_cache_dir():
-    """The folder measured facts of this machine are kept in (step rates, GEMM routes):
-    ``$NEURAL_BAKE_CACHE_DIR``, else ``$XDG_CACHE_HOME/neural_bake``, else ``~/.cache/neural_bake`` (not created)."""
-    from pathlib import Path
-
-    base = os.environ.get("NEURAL_BAKE_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "neural_bake")
-    return Path(base)
 
 
 def usable_cores() -> int:

@@ -229,7 +229,7 @@ def test_budgeted_stages_record_expected_and_made_steps_and_warn(tmp_path, sampl
     cache holds a reference rate far above what any run here reaches, so every fit falls short."""
     from neural_bake.fields import load_field
     from neural_bake.fit.budget import REFERENCE_STEP
-    from neural_bake.nets.threads import cpu_model
+    from neural_bake.nets.machine import cpu_model
 
     width, depth, n = REFERENCE_STEP
     (tmp_path / "cache").mkdir()
@@ -470,7 +470,7 @@ def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_
     (the machine's speed injected as above)."""
     from neural_bake.fields import load_field
     from neural_bake.fit.budget import REFERENCE_STEP
-    from neural_bake.nets.threads import cpu_model
+    from neural_bake.nets.machine import cpu_model
 
     width, depth, n = REFERENCE_STEP
     (tmp_path / "cache").mkdir()
