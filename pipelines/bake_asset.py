@@ -86,6 +86,8 @@ class BakeAssetConfig:
     """Hidden GEMMs of the networks: fp32, or auto (bfloat16 where measured faster and within 0.05° of float32)."""
     device: str | None = None
     """Torch device of the networks ("cpu", "cuda", …; None: the CPU); the texels follow them there."""
+    layout_cache: bool = True
+    """Reuse the coarse mesh and UV layout an earlier run made from the same mesh (or model), coarse spec and size, kept in layouts/ of the cache folder ($NEURAL_BAKE_CACHE_DIR, else $XDG_CACHE_HOME/neural_bake or ~/.cache/neural_bake); no: make them anew and keep nothing."""
 
 
 #: Bake presets (fields over the defaults), the names of :mod:`neural_bake.fit.presets`; what they cost:
@@ -228,9 +230,15 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         inputs = job.load_inputs(mesh, sdf_path, texture_model, coarse=coarse, texture_image=cfg.texture,
                                  truth=truth, delta=cfg.delta, device=cfg.device, force=cfg.force, log=log)
         timings: dict[str, float] = {"load": inputs.seconds}
-        coarse_m, coarse_info = job.make_coarse(inputs, coarse, coarse_mesh)
+        layouts = None
+        if cfg.layout_cache:
+            from neural_bake.mesh.layout_cache import LayoutCache
+
+            layouts = LayoutCache()
+        coarse_m, coarse_info = job.make_coarse(inputs, coarse, coarse_mesh, cache=layouts)
         timings["coarse"] = coarse_info["seconds"]
-        log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices")
+        log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices"
+            + (" (from the layout cache)" if coarse_info.get("cached") else ""))
         if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:
             job.check_uv_area(mesh, coarse_m.uv, cfg.size)
         written: list[str] = []
@@ -238,7 +246,7 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
                         "texture_model": texture_model and folder.shown(texture_model), "coarse": coarse_info,
                         "maps": maps, "sdf_check": inputs.sdf_check}
         if any(m in maps for m in ("normal", "albedo")):
-            baked = _bake_texels(inputs, coarse_m, cfg, maps=maps, keep=keep, log=log)
+            baked = _bake_texels(inputs, coarse_m, cfg, maps=maps, keep=keep, log=log, layouts=layouts)
             timings["prepare"] = baked.seconds
             t0 = time.perf_counter()
             files, kept = job.write_maps(stage, baked, inputs, maps=maps, formats=formats, bits=cfg.bits,
@@ -264,7 +272,7 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
     return report
 
 
-def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], keep: bool, log):
+def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], keep: bool, log, layouts=None):
     """The texel maps (:func:`neural_bake.bake.job.bake_maps`) with the config's settings, and what they did
     said in ``log``."""
     from neural_bake.bake import job
@@ -278,7 +286,7 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
         hybrid_color_tol=hybrid_color_tol, hybrid_color_psnr=cfg.hybrid_color_psnr,
         hybrid_color_within=hybrid_color_within, bits=cfg.bits, hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
         adaptive=AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None,
-        precision=cfg.precision)
+        precision=cfg.precision, layout_cache=layouts)
     res, hybrid, size = baked.result, baked.hybrid, cfg.size
     if hybrid is not None:
         log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "

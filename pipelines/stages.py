@@ -505,34 +505,16 @@ def _short_metrics(m: dict) -> str:
 
 def save_coarse(mesh, info: dict, path: Path) -> None:
     """Write a coarse :class:`~neural_bake.types.Mesh` (every field, unit frame) and its info to ``path``."""
-    import io
     import json
 
-    import numpy as np
-
-    from neural_bake.io.atomic import atomic_write_bytes
     from neural_bake.io.jsonio import dumps
+    from neural_bake.io.mesh_npz import save_mesh_npz
 
-    arrays = {k: getattr(mesh, k) for k in ("vertices", "faces", "uv", "texture", "vertex_normals", "degenerate")
-              if getattr(mesh, k) is not None}
-    meta = {"frame": mesh.frame.to_dict(), "uv_policy": mesh.uv_policy, "watertight": bool(mesh.watertight),
-            "source": mesh.source, "warnings": list(mesh.warnings), "info": json.loads(dumps(info))}
-    buf = io.BytesIO()
-    np.savez(buf, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    save_mesh_npz(mesh, path, json.loads(dumps(info)))
 
 
 def load_coarse(path: Path):
     """(Mesh, info) written by :func:`save_coarse`."""
-    import json
+    from neural_bake.io.mesh_npz import load_mesh_npz
 
-    import numpy as np
-
-    from neural_bake.types import Frame, Mesh
-
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(bytes(z["meta"]).decode())
-        arrays = {k: z[k] for k in z.files if k != "meta"}
-    mesh = Mesh(frame=Frame.from_dict(meta["frame"]), uv_policy=meta["uv_policy"], watertight=meta["watertight"],
-                source=meta["source"], warnings=meta["warnings"], **arrays)
-    return mesh, meta["info"]
+    return load_mesh_npz(path)

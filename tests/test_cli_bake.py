@@ -379,6 +379,10 @@ def test_bench_bake_anchor_table_shrunken():
     for key in ("wall", "bake"):
         low, high = (float(v) for v in c[f"{key} range s"].split("–"))
         assert low <= high and abs(c[f"{key} s"] - low) <= 0.05
+    # each round also bakes again with the coarse mesh and layout from the cache (only runs that read it count)
+    (again,) = [r for r in res["tables"]["the user's command"] if r["method"].startswith("the same bake again")]
+    assert again["rounds"] == 2 and again["map"] == "96²" and again["vs source med°"] == c["vs source med°"]
+    assert "a first bake" in c["method"] and "--no-layout-cache" in notes
 
 
 def test_infinite_colour_rules_keep_the_networks_colours(files, tmp_path, capsys):
@@ -391,3 +395,44 @@ def test_infinite_colour_rules_keep_the_networks_colours(files, tmp_path, capsys
     assert not (out / "hybrid_color.png").exists() and "hybrid_color_texels" not in rep["hybrid"]
     assert rep["hybrid"]["color_tol"] is None and rep["hybrid"]["color_within"] is None
     assert "neural_color_psnr_db" not in rep
+
+
+def test_a_repeated_bake_reads_its_coarse_mesh_and_layout_from_the_cache(files, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))
+    args = [files["obj"], "--sdf", files["sdf"], "--coarse", "decimate:200", "--size", "64", "--no-baseline"]
+    maps = {}
+    for name, extra in (("off", ["--no-layout-cache"]), ("first", []), ("again", [])):
+        code, stdout, err = run([*args, *extra, "-o", str(tmp_path / name)], capsys)
+        assert code == 0, err
+        rep = json.loads((tmp_path / name / "report.json").read_text())
+        assert rep["coarse"].get("cached", False) == (name == "again")
+        assert ("from the layout cache" in stdout) == (name == "again")
+        maps[name] = read_image(tmp_path / name / "normal.png", colour="data")
+        if name == "off":  # nothing kept
+            assert not (tmp_path / "cache" / "layouts").exists()
+    entries = sorted(p.name.split("-")[0] for p in (tmp_path / "cache" / "layouts").glob("*.npz"))
+    assert entries == ["coarse", "unwrap"]
+    assert np.array_equal(maps["off"], maps["first"]) and np.array_equal(maps["first"], maps["again"])
+    # another size unwraps again (the layout depends on it) but keeps the decimated mesh
+    code, stdout, err = run([*args[:-3], "--size", "32", "--no-baseline", "-o", str(tmp_path / "small")], capsys)
+    assert code == 0, err
+    assert "from the layout cache" in stdout
+    assert len(list((tmp_path / "cache" / "layouts").glob("unwrap-*.npz"))) == 2
+
+
+def test_a_marched_coarse_mesh_is_cached_by_its_model_file(files, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "cache"))
+    sdf = tmp_path / "s.sdf"
+    sdf.write_bytes(Path(files["sdf"]).read_bytes())
+    args = [files["obj"], "--sdf", str(sdf), "--coarse", "march:24", "--size", "32", "--no-baseline", "--no-hybrid"]
+    for i in range(2):
+        code, _, err = run([*args, "-o", str(tmp_path / f"o{i}")], capsys)
+        assert code == 0, err
+    reps = [json.loads((tmp_path / f"o{i}" / "report.json").read_text()) for i in range(2)]
+    assert [r["coarse"]["cached"] for r in reps] == [False, True]
+    assert reps[0]["coarse"]["faces"] == reps[1]["coarse"]["faces"]
+    save_model(Siren(16, 1, generator=torch.Generator().manual_seed(5)), sdf, kind="sdf",
+               frame=load_mesh(files["obj"]).frame.to_dict())  # another model in the same file
+    code, _, err = run([*args, "-o", str(tmp_path / "o2")], capsys)
+    assert code == 0, err
+    assert json.loads((tmp_path / "o2" / "report.json").read_text())["coarse"]["cached"] is False

@@ -2,7 +2,8 @@
 
 - :func:`load_inputs`: the source mesh (and its asset: shading normals, kept maps), the SDF and texture
   model files, and the checks that they describe the same object (:class:`BakeInputs`).
-- :func:`make_coarse`: the coarse mesh the maps are baked onto (:func:`neural_bake.mesh.coarse.coarse_mesh`).
+- :func:`make_coarse`: the coarse mesh the maps are baked onto (:func:`neural_bake.mesh.coarse.coarse_mesh`);
+  :func:`unwrapped_layout`: its UV layout. Both can be kept between runs (:mod:`neural_bake.mesh.layout_cache`).
 - :func:`bake_maps`: the texel maps (:class:`~neural_bake.bake.baker.Baker`) with the hybrid's replacements
   (:class:`TexelBake`); :func:`bake_vertex_colours`: the per-vertex bake.
 - :func:`write_maps`: the loose maps and the asset files (GLB, USD, USDZ) into a folder.
@@ -28,11 +29,12 @@ from ..types import Mesh
 if TYPE_CHECKING:
     from ..fields import NestedSequence, SdfField, TextureField
     from ..io.asset import Asset
+    from ..mesh.layout_cache import LayoutCache
     from .baker import Baker, BakeResult
     from .hybrid import HybridFallback
 
-__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "bake_maps", "bake_vertex_colours",
-           "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
+__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "unwrapped_layout", "bake_maps",
+           "bake_vertex_colours", "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
 
 #: The maps a bake makes: the texel maps (normal, albedo) and the per-vertex bake.
 MAPS = ("normal", "albedo", "vertex")
@@ -149,21 +151,64 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
     return inputs
 
 
-def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None = None) -> tuple[Mesh, dict]:
+def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None = None,
+                cache: LayoutCache | None = None) -> tuple[Mesh, dict]:
     """The coarse mesh of the bake and its info: ``made`` (a pair made earlier, e.g. by a batch's coarse
     stage) or :func:`~neural_bake.mesh.coarse.coarse_mesh` of the source (``keep``: its shading reference) or
-    of the model (no source mesh)."""
+    of the model (no source mesh). ``cache``: a decimated or marched mesh is read from it when an earlier run
+    made it from the same source mesh (decimate) or model file (march, level) and spec, else made and stored
+    (``info["cached"]`` says which; ``info["seconds"]`` is this run's)."""
     from ..mesh.coarse import coarse_mesh, parse_coarse
+    from ..mesh.layout_cache import mesh_digest
 
     if made is not None:
         return made
-    keep = parse_coarse(coarse)[0] == "keep"
-    try:
-        return coarse_mesh(inputs.reference if keep else inputs.fine, coarse, inputs.sdf_file)
-    except NeuralBakeError as exc:
-        if inputs.mesh_path is not None:
-            raise
-        raise NeuralBakeError(f"{inputs.sdf_path}: no surface to bake from the model alone ({exc})") from None
+    kind = parse_coarse(coarse)[0]
+    source = inputs.reference if kind == "keep" else inputs.fine
+
+    def make() -> tuple[Mesh, dict]:
+        try:
+            return coarse_mesh(source, coarse, inputs.sdf_file)
+        except NeuralBakeError as exc:
+            if inputs.mesh_path is not None:
+                raise
+            raise NeuralBakeError(f"{inputs.sdf_path}: no surface to bake from the model alone ({exc})") from None
+
+    if cache is None or kind == "keep" or (kind == "decimate" and source is None):
+        return make()
+    t0 = time.perf_counter()
+    made_from = mesh_digest(source) if kind == "decimate" else _file_digest(inputs.sdf_path)
+    mesh, info, hit = cache.get_or_make(cache.key("coarse", coarse, made_from), make)
+    info = dict(info, cached=hit)
+    if hit:
+        info["seconds"] = time.perf_counter() - t0
+    return mesh, info
+
+
+def _file_digest(path) -> str:
+    """Hex digest of a file's bytes."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=20)
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def unwrapped_layout(coarse_m: Mesh, size: int, cache: LayoutCache | None = None) -> tuple[Mesh, bool]:
+    """``coarse_m`` with the UV layout a :class:`~neural_bake.bake.baker.Baker` of ``size`` would unwrap (xatlas
+    at that resolution) when it has no UVs: read from ``cache`` when an earlier run unwrapped the same mesh at
+    the same size, else made (and stored). Returns (mesh, whether it came from the cache); a mesh with UVs, or
+    no cache, comes back as it is."""
+    if coarse_m.uv is not None or cache is None:
+        return coarse_m, False
+    from ..mesh.layout_cache import mesh_digest
+    from ..mesh.unwrap import unwrap
+
+    mesh, _, hit = cache.get_or_make(cache.key("unwrap", mesh_digest(coarse_m), f"resolution={int(size)}"),
+                                     lambda: (unwrap(coarse_m, resolution=int(size)), {}))
+    return mesh, hit
 
 
 def check_uv_area(path, uv, size: int) -> None:
@@ -182,21 +227,25 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
               hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_color_psnr: float | None = None,
               hybrid_color_within: float | None = None, bits: int = 8, hybrid_decide: str = "lattice",
               cage: float | None = None, keep_baseline: bool = False, adaptive=None,
-              precision: str = "auto") -> TexelBake:
+              precision: str = "auto", layout_cache: LayoutCache | None = None) -> TexelBake:
     """Bake the texel maps (``maps`` "normal", "albedo") of ``inputs`` onto ``coarse_m`` (:class:`TexelBake`).
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
     texture is baked and the source has one (``hybrid_color_tol`` finite, ``hybrid_color_psnr`` or
     ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in). ``keep_baseline``: the hybrid keeps
     its classical bake of every sample for the report (when the report measures every texel: a map up to the
-    report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point)."""
+    report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point).
+    ``layout_cache``: a coarse mesh without UVs takes its layout from it (:func:`unwrapped_layout`)."""
     from .baker import Baker
     from .report import lattice_step
 
     t0 = time.perf_counter()
+    coarse_m, _ = unwrapped_layout(coarse_m, size, layout_cache)
+    t_unwrap = time.perf_counter() - t0
     baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
                   y_convention="directx" if directx else "opengl",
                   padding=None if padding == "none" else padding, cache_texels=cache_texels)
+    baker.timings["unwrap"] = baker.timings.get("unwrap", 0.0) + t_unwrap
     prepare = time.perf_counter() - t0
     tex, reference = inputs.texture, inputs.reference
     # colours follow the hybrid rule where a texture is baked and the source has one to take colours from

@@ -443,13 +443,26 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
             args = ["bake", str(mesh_file), "--sdf", str(model), "--coarse", "decimate:2000", "--maps", "normal",
                     "--size", str(size), "--no-baseline", *force, "-o", str(out)]
             ours: list[tuple[float, dict]] = []
+            repeat: list[tuple[float, dict]] = []
             cycles: list[dict] = []
-            for _ in range(max(1, int(repeats))):
-                wall, proc = run_command(args)
+
+            def attempt(extra, args=args, size=size, out=out):
+                wall, proc = run_command([*args, *extra])
                 if proc.returncode != 0:
                     notes.append(f"the user's command at {size}² failed: {last_error_line(proc)}")
+                    return None
+                return wall, json.loads((out / "report.json").read_text())
+
+            for _ in range(max(1, int(repeats))):
+                first = attempt(["--no-layout-cache"])  # a first bake of the asset: decimated and unwrapped
+                if first is None:
                     break
-                ours.append((wall, json.loads((out / "report.json").read_text())))
+                ours.append(first)
+                for _ in range(2):  # the same bake again, from the layout cache (an empty cache: filled by the first)
+                    again = attempt([])
+                    if again is not None and (again[1].get("coarse") or {}).get("cached"):
+                        repeat.append(again)
+                        break
                 if blender_meshes and size in blender_meshes:
                     coarse_mesh, source = blender_meshes[size]
                     try:
@@ -460,21 +473,29 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
                         blender_meshes = None
             if not ours:
                 continue
-            wall, rep = min(ours, key=lambda t: t[0])
-            sec = rep.get("seconds") or {}
-            bake = rep.get("bake") or {}
-            bakes = [(r.get("seconds") or {}).get("bake") for _, r in ours]
-            bakes = [b for b in bakes if b is not None]
-            row = {"map": f"{size}²", "method": "neural-bake bake (defaults, hybrid on)", "wall s": wall,
-                   **{f"{k} s": sec.get(k) for k in _COMMAND_STAGES},
-                   "hybrid s": (bake.get("seconds") or {}).get("hybrid"),
-                   "evaluated": bake.get("evaluated_fraction"),
-                   "vs source med°": (rep.get("vs_truth_deg") or {}).get("median"),
-                   "vs source p95°": (rep.get("vs_truth_deg") or {}).get("p95"),
-                   "rounds": len(ours), "wall range s": spread([w for w, _ in ours]), "bake range s": spread(bakes)}
-            if bakes:
-                row["bake s"] = min(bakes)
+
+            def command_row(runs, method, size=size):
+                wall, rep = min(runs, key=lambda t: t[0])
+                sec = rep.get("seconds") or {}
+                bake = rep.get("bake") or {}
+                bakes = [(r.get("seconds") or {}).get("bake") for _, r in runs]
+                bakes = [b for b in bakes if b is not None]
+                row = {"map": f"{size}²", "method": method, "wall s": wall,
+                       **{f"{k} s": sec.get(k) for k in _COMMAND_STAGES},
+                       "hybrid s": (bake.get("seconds") or {}).get("hybrid"),
+                       "evaluated": bake.get("evaluated_fraction"),
+                       "vs source med°": (rep.get("vs_truth_deg") or {}).get("median"),
+                       "vs source p95°": (rep.get("vs_truth_deg") or {}).get("p95"),
+                       "rounds": len(runs), "wall range s": spread([w for w, _ in runs]),
+                       "bake range s": spread(bakes)}
+                row["bake s"] = min(bakes) if bakes else None
+                return row
+
+            row = command_row(ours, "neural-bake bake (defaults, hybrid on): a first bake")
             rows.append(row)
+            wall = row["wall s"]
+            if repeat:
+                rows.append(command_row(repeat, "the same bake again (coarse mesh and layout from the cache)"))
             if cycles:
                 blender = {"method": f"Blender {cycles[0]['version']} Cycles tangent",
                            "whole script s": min(t["whole"] for t in cycles), "bake s": min(t["bake"] for t in cycles),
@@ -489,14 +510,16 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
                              **{k: blender.get(k) for k in ("rounds", "wall range s", "bake range s")}})
                 ok_bake = row["bake s"] is not None and row["bake s"] <= blender["bake s"]
                 ok_wall = wall <= 2 * blender["whole script s"]
-                notes.append(f"target: the user's command at {size}²: bake stage {row['bake s'] or 0:.1f} s against "
-                             f"Blender's bake {blender['bake s']:.1f} s ({'met' if ok_bake else 'NOT met'}); wall "
-                             f"{wall:.1f} s against 2 × Blender's whole script {2 * blender['whole script s']:.1f} s "
-                             f"({'met' if ok_wall else 'NOT met'}); best of {len(ours)} rounds taken in turn")
+                notes.append(f"target: the user's command at {size}² (a first bake): bake stage {row['bake s'] or 0:.1f} s "
+                             f"against Blender's bake {blender['bake s']:.1f} s ({'met' if ok_bake else 'NOT met'}); "
+                             f"wall {wall:.1f} s against 2 × Blender's whole script "
+                             f"{2 * blender['whole script s']:.1f} s ({'met' if ok_wall else 'NOT met'}); best of "
+                             f"{len(ours)} rounds taken in turn")
     notes.append(f"the user's command: {name}, `neural-bake bake --coarse decimate:2000 --maps normal --no-baseline` "
-                 "as its own process (start-up and imports in its wall), stages from its report.json; rounds: our "
-                 "command and Blender's script in turn, wall and bake the best of the rounds (range beside), the "
-                 "other stages the fastest round's")
+                 "as its own process (start-up and imports in its wall), stages from its report.json; a first bake "
+                 "(--no-layout-cache: the coarse mesh decimated and unwrapped) and the same bake again (both from "
+                 "the layout cache); rounds: our two commands and Blender's script in turn, wall and bake the best "
+                 "of the rounds (range beside), the other stages the fastest round's")
     for r in rows:
         for k in ("wall s", *(f"{k} s" for k in _COMMAND_STAGES), "hybrid s", "evaluated", "vs source med°",
                   "vs source p95°", "rounds", "wall range s", "bake range s"):

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (AdaptiveOptions, _grid_positions_from_uv, _interp, _pack, _Store, _weights,
-                                       adaptive_evaluate, chart_labels, grid_positions, vertex_positions)
+from neural_bake.bake.adaptive import (AdaptiveOptions, _box, _grid_positions_from_uv, _integral, _interp, _pack,
+                                       _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
+                                       vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fields import SdfField, TextureField
@@ -160,6 +161,20 @@ def test_linear_field_is_interpolated_exactly_float64_and_float32():
         atol = 1e-12 if dtype == np.float64 else 1e-7
         np.testing.assert_allclose(res["values"], ref, atol=atol)
         assert res["stats"]["evaluated"] < 0.1 * len(rows)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (9, 1), (37, 23)])
+def test_integral_image_sums_match_brute_force(shape, rng):
+    image = rng.random(shape) < 0.4
+    s = _integral(image)
+    assert s.shape == (shape[0] + 1, shape[1] + 1) and s[0].sum() == 0 and s[:, 0].sum() == 0
+    for r in range(shape[0]):
+        for c in range(shape[1]):
+            assert s[r + 1, c + 1] == image[: r + 1, : c + 1].sum()
+    k = min(shape) - 1
+    if k >= 0:  # the closed squares the cells test
+        r0, c0 = np.array([0, shape[0] - 1 - k]), np.array([shape[1] - 1 - k, 0])
+        assert list(_box(s, r0, c0, k)) == [image[r: r + k + 1, c: c + k + 1].sum() for r, c in zip(r0, c0)]
 
 
 @pytest.mark.parametrize("dtype,atol", [(torch.float64, 1e-10), (torch.float32, 2e-4)])
