@@ -156,7 +156,7 @@ def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None 
     """The coarse mesh of the bake and its info: ``made`` (a pair made earlier, e.g. by a batch's coarse
     stage) or :func:`~neural_bake.mesh.coarse.coarse_mesh` of the source (``keep``: its shading reference) or
     of the model (no source mesh). ``cache``: a decimated or marched mesh is read from it when an earlier run
-    made it from the same source mesh (decimate) or model file (march, level) and spec, else made and stored
+    made it from the same source mesh (and, to march, model file) and spec, else made and stored
     (``info["cached"]`` says which; ``info["seconds"]`` is this run's)."""
     from ..mesh.coarse import coarse_mesh, parse_coarse
     from ..mesh.layout_cache import mesh_digest
@@ -177,8 +177,11 @@ def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None 
     if cache is None or kind == "keep" or (kind == "decimate" and source is None):
         return make()
     t0 = time.perf_counter()
-    made_from = mesh_digest(source) if kind == "decimate" else _file_digest(inputs.sdf_path)
-    mesh, info, hit = cache.get_or_make(cache.key("coarse", coarse, made_from), make)
+    # march and level: the model file, and the source mesh whose frame a model without one is marched in
+    made_from = [mesh_digest(source) if source is not None else "no source"]
+    if kind != "decimate":
+        made_from.append(_file_digest(inputs.sdf_path))
+    mesh, info, hit = cache.get_or_make(cache.key("coarse", coarse, *made_from), make)
     info = dict(info, cached=hit)
     if hit:
         info["seconds"] = time.perf_counter() - t0
