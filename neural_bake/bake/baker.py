@@ -21,6 +21,7 @@ from ..errors import NeuralBakeError
 from ..fields import SdfField, TextureField, closest_surface_points
 from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
+from ..mesh.layout_cache import LayoutCache
 from ..mesh.texels import TexelSet, kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
 from .adaptive_faces import face_geometry
@@ -438,6 +439,8 @@ class Baker:
     - ``y_convention``: "opengl" (glTF, +Y green up) or "directx" (green flipped); tangent space only.
     - ``padding``: "pull-push", "dilate" or None (no padding); ``padding_pixels``: see :func:`pad_charts`.
     - ``unwrap_options``: keyword arguments for ``unwrap`` when the mesh has no UVs.
+    - ``layout_cache``: a :class:`~neural_bake.mesh.layout_cache.LayoutCache` the unwrap is read from (and kept
+      in) when an earlier run unwrapped the same mesh with the same options.
     - ``cache_texels``: keep the rasterised texels between bakes (``self.texels``); None = only when there
       are at most ``2**23`` samples (2048² with supersample 2). Without the cache every bake streams the
       layout band by band (:func:`neural_bake.mesh.texels.iter_texels`), so 4k maps fit in memory.
@@ -458,6 +461,7 @@ class Baker:
         unwrap_options: dict | None = None,
         cache_texels: bool | None = None,
         band_samples: int = BAND_SAMPLES,
+        layout_cache: LayoutCache | None = None,
     ):
         if isinstance(size, bool) or int(size) != size or size < 1:
             raise NeuralBakeError(f"map size must be a positive integer, got {size!r}")
@@ -490,7 +494,8 @@ class Baker:
         if self.unwrapped:
             from ..mesh.unwrap import unwrap
 
-            mesh = unwrap(mesh, **{"resolution": self.size, **(unwrap_options or {})})
+            options = {"resolution": self.size, **(unwrap_options or {})}
+            mesh = layout_cache.unwrap(mesh, **options)[0] if layout_cache is not None else unwrap(mesh, **options)
         from ..mesh.unwrap import split_uv_seams
 
         had_normals = mesh.vertex_normals is not None

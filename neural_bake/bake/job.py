@@ -3,7 +3,7 @@
 - :func:`load_inputs`: the source mesh (and its asset: shading normals, kept maps), the SDF and texture
   model files, and the checks that they describe the same object (:class:`BakeInputs`).
 - :func:`make_coarse`: the coarse mesh the maps are baked onto (:func:`neural_bake.mesh.coarse.coarse_mesh`);
-  :func:`unwrapped_layout`: its UV layout. Both can be kept between runs (:mod:`neural_bake.mesh.layout_cache`).
+  it and its UV layout can be kept between runs (:mod:`neural_bake.mesh.layout_cache`).
 - :func:`bake_maps`: the texel maps (:class:`~neural_bake.bake.baker.Baker`) with the hybrid's replacements
   (:class:`TexelBake`); :func:`bake_vertex_colours`: the per-vertex bake.
 - :func:`write_maps`: the loose maps and the asset files (GLB, USD, USDZ) into a folder.
@@ -33,8 +33,8 @@ if TYPE_CHECKING:
     from .baker import Baker, BakeResult
     from .hybrid import HybridFallback
 
-__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "unwrapped_layout", "bake_maps",
-           "bake_vertex_colours", "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
+__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "bake_maps", "bake_vertex_colours",
+           "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
 
 #: The maps a bake makes: the texel maps (normal, albedo) and the per-vertex bake.
 MAPS = ("normal", "albedo", "vertex")
@@ -199,21 +199,6 @@ def _file_digest(path) -> str:
     return h.hexdigest()
 
 
-def unwrapped_layout(coarse_m: Mesh, size: int, cache: LayoutCache | None = None) -> tuple[Mesh, bool]:
-    """``coarse_m`` with the UV layout a :class:`~neural_bake.bake.baker.Baker` of ``size`` would unwrap (xatlas
-    at that resolution) when it has no UVs: read from ``cache`` when an earlier run unwrapped the same mesh at
-    the same size, else made (and stored). Returns (mesh, whether it came from the cache); a mesh with UVs, or
-    no cache, comes back as it is."""
-    if coarse_m.uv is not None or cache is None:
-        return coarse_m, False
-    from ..mesh.layout_cache import mesh_digest
-    from ..mesh.unwrap import unwrap
-
-    mesh, _, hit = cache.get_or_make(cache.key("unwrap", mesh_digest(coarse_m), f"resolution={int(size)}"),
-                                     lambda: (unwrap(coarse_m, resolution=int(size)), {}))
-    return mesh, hit
-
-
 def check_uv_area(path, uv, size: int) -> None:
     """MeshError if a mesh's own UV layout ((F, 3, 2) per-corner UVs) covers less than one texel of the map."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
@@ -238,17 +223,15 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
     ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in). ``keep_baseline``: the hybrid keeps
     its classical bake of every sample for the report (when the report measures every texel: a map up to the
     report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point).
-    ``layout_cache``: a coarse mesh without UVs takes its layout from it (:func:`unwrapped_layout`)."""
+    ``layout_cache``: a coarse mesh without UVs takes its layout from it (:meth:`LayoutCache.unwrap`)."""
     from .baker import Baker
     from .report import lattice_step
 
     t0 = time.perf_counter()
-    coarse_m, _ = unwrapped_layout(coarse_m, size, layout_cache)
-    t_unwrap = time.perf_counter() - t0
     baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
                   y_convention="directx" if directx else "opengl",
-                  padding=None if padding == "none" else padding, cache_texels=cache_texels)
-    baker.timings["unwrap"] = baker.timings.get("unwrap", 0.0) + t_unwrap
+                  padding=None if padding == "none" else padding, cache_texels=cache_texels,
+                  layout_cache=layout_cache)
     prepare = time.perf_counter() - t0
     tex, reference = inputs.texture, inputs.reference
     # colours follow the hybrid rule where a texture is baked and the source has one to take colours from

@@ -2,7 +2,7 @@
 
 A bake that repeats with the same source mesh and coarse spec (another map size, other maps, another model of
 the same mesh) need not decimate again, and one onto the same coarse mesh at the same map size need not unwrap
-again. Entries are ``.npz`` files (:mod:`neural_bake.io.mesh_npz`) in ``machine_cache_dir()/layouts``, named
+again (:meth:`LayoutCache.unwrap`, which a :class:`~neural_bake.bake.baker.Baker` given the cache uses). Entries are ``.npz`` files (:mod:`neural_bake.io.mesh_npz`) in ``machine_cache_dir()/layouts``, named
 by a BLAKE2 digest of every input array's bytes and shape, the settings, the versions of the library that
 made them (pymeshlab, xatlas) and :data:`LAYOUT_CACHE_VERSION`, so a changed input, setting or library makes
 a new entry instead of reading an old one. Written atomically; an unreadable entry is made again and
@@ -125,6 +125,15 @@ class LayoutCache:
         mesh, extra = make()
         self.put(key, mesh, extra)
         return mesh, extra, False
+
+    def unwrap(self, mesh: Mesh, **options) -> tuple[Mesh, bool]:
+        """(:func:`neural_bake.mesh.unwrap.unwrap` of ``mesh`` with ``options``, whether it came from the
+        cache): read when an earlier run unwrapped the same mesh with the same options, else made and stored."""
+        from .unwrap import unwrap
+
+        key = self.key("unwrap", mesh_digest(mesh), repr(sorted(options.items())))
+        out, _, hit = self.get_or_make(key, lambda: (unwrap(mesh, **options), {}))
+        return out, hit
 
     def _prune(self) -> None:
         entries = []

@@ -13,9 +13,10 @@ measured decision, per width, made once per process and only for the CPU:
   (float32 accuracy: a bfloat16 rounding of the operands reads ~1e-3);
 - :func:`gemm_route` is the context manager the inference paths and the training loop run in.
 
-A measured decision is kept in ``gemm-route.json`` of the machine's cache folder (:mod:`neural_bake.nets.machine`,
-beside the step rates), keyed by CPU model, torch version, setting, width and threads, so that a later process on the same machine reads it instead of measuring again (about 0.3 s of each command's
-start: oneDNN builds its kernels at its first product). Delete the file to measure again.
+A measured decision is kept in ``gemm-route.json`` of the machine's cache folder
+(:mod:`neural_bake.nets.machine`, beside the step rates), keyed by CPU model, torch version, setting, width and
+threads, so that a later process on the same machine reads it instead of measuring again (about 0.3 s of each
+command's start: oneDNN builds its kernels at its first product). Delete the file to measure again.
 
 The environment variable ``NEURAL_BAKE_CPU_GEMM`` = ``blas`` | ``onednn`` | ``auto`` (default) overrides the
 decision; ``onednn`` still refuses a route that fails the accuracy check. The switch is a torch setting of

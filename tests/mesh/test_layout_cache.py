@@ -110,3 +110,15 @@ def test_a_cache_that_cannot_be_written_only_loses_the_entry(coarse, tmp_path):
     cache = LayoutCache(blocked / "layouts")
     mesh, _, hit = cache.get_or_make(cache.key("unwrap", "m"), lambda: (coarse, {}))
     assert mesh is coarse and not hit and cache.get(cache.key("unwrap", "m")) is None
+
+
+def test_unwrap_through_the_cache_equals_unwrap_and_follows_its_options(coarse, tmp_path):
+    cache = LayoutCache(tmp_path)
+    first, hit1 = cache.unwrap(coarse, resolution=64)
+    again, hit2 = cache.unwrap(coarse, resolution=64)
+    other, hit3 = cache.unwrap(coarse, resolution=128)
+    assert (hit1, hit2, hit3) == (False, True, False)
+    assert_same_mesh(first, unwrap(coarse, resolution=64))
+    assert_same_mesh(first, again)
+    assert np.array_equal(again.source_vertex, first.source_vertex)
+    assert len(list(tmp_path.glob("unwrap-*.npz"))) == 2
