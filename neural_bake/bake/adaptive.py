@@ -30,7 +30,9 @@ nodes; the bake measures its error against a full evaluation on a seeded subsamp
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -39,10 +41,32 @@ import torch
 from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTICE, ADAPTIVE_SAFETY, ADAPTIVE_TOLERANCE_DEG,
                          ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
 from ..errors import NeuralBakeError
+from ..nets.native import Kernel
 from ..types import Mesh
 from .adaptive_faces import FaceGeometry, face_pass
 
-__all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate"]
+__all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate",
+           "kernel_status", "ENV_SWITCH"]
+
+#: 0/off/false: the torch interpolation even where the C kernel (adaptive.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_ADAPTIVE"
+
+
+def _declare(lib) -> None:
+    p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+    lib.nb_interp_cells.argtypes = [p, i64, p, p, i64, i64, p, p, p, p, i64, p, p, p, f64, f64]
+    lib.nb_interp_cells.restype = None
+    lib.nb_interp_cells_quadratic.argtypes = lib.nb_interp_cells.argtypes
+    lib.nb_interp_cells_quadratic.restype = None
+
+
+#: The C kernel (adaptive.c, :class:`neural_bake.nets.native.Kernel`); torch where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("adaptive.c"), switch=ENV_SWITCH, declare=_declare)
+
+
+def kernel_status() -> str:
+    """Which bilinear cell interpolation runs here: the C kernel (and its file), or why the torch one does."""
+    return KERNEL.status().replace("numpy (", "torch (", 1)
 
 #: Interpolated samples handled at once (bounds the (7 + C, 4, n) gathered corner arrays; small enough for the cache).
 _INTERP_CHUNK = 1 << 16
@@ -238,7 +262,9 @@ def adaptive_evaluate(
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
-    ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides) and
+    ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides), ``"side"``
+    ((M,) int16: the side of the cell each interpolated sample lies in, every sample of which is that close to
+    the cell's nodes; the lattice's side for samples interpolated inside faces, 0 for evaluated ones) and
     ``"stats"`` (samples evaluated / interpolated, cells accepted per level (``cells_quadratic``: of them, those
     interpolated quadratically), the face pass's evaluations at points of faces, samples and sub-triangles,
     evaluation calls).
@@ -275,6 +301,7 @@ def adaptive_evaluate(
         store.calls += 1
 
     hard = np.zeros(m, bool)
+    side = np.zeros(m, np.int16)  # the side of the cell each sample was interpolated in
     gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
     on = np.flatnonzero(gr >= 0)
     k0 = int(opt.lattice)
@@ -340,9 +367,15 @@ def adaptive_evaluate(
                 keep = _box(s0, r0, c0, h) > 0
                 r0, c0 = r0[keep], c0[keep]
             k = h
-        packed = _pack(store, points, None, dtype) if accepted else None  # the nodes: all evaluated by now
+        # the nodes are all evaluated by now; the C kernel reads them from the store itself
+        lib = KERNEL.lib() if accepted else None
+        packed = _pack(store, points, None, dtype) if accepted and lib is None else None
         for ar, ac, k, quad in accepted:
-            (_interpolate_quadratic if quad else _interpolate)(store, packed, index, ar, ac, k)
+            if lib is not None:
+                _interpolate_native(lib, store, points, index, ar, ac, k, quadratic=quad)
+            else:
+                (_interpolate_quadratic if quad else _interpolate)(store, packed, index, ar, ac, k)
+            side[store.interpolated & (side == 0)] = k
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     decide = np.zeros(m, bool)
     face_stats = {"nodes": 0, "interpolated": 0, "accepted": 0}
@@ -363,6 +396,7 @@ def adaptive_evaluate(
                 store.colors = np.zeros((m, fp["colors"].shape[1]))
             store.colors[d] = fp["colors"][ok]
         store.interpolated[d] = True
+        side[d] = k0  # inside a face: the lattice's reach
         decide[rest[fp["decide"]]] = True
         face_stats = {"nodes": int(fp["nodes"]), "interpolated": int(d.size), "accepted": int(fp["accepted"])}
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
@@ -376,6 +410,7 @@ def adaptive_evaluate(
         "evaluated": store.evaluated,
         "interpolated": store.interpolated,
         "decide": store.evaluated | decide,
+        "side": side,
         "stats": {"samples": m, "evaluated": n_eval, "interpolated": int(store.interpolated.sum()),
                   "face_nodes": face_stats["nodes"], "face_interpolated": face_stats["interpolated"],
                   "face_cells": face_stats["accepted"],
@@ -499,6 +534,8 @@ def _interpolate(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.
         fresh = np.flatnonzero(~np.take(done, idx))
         if fresh.size == 0:
             continue
+        # a sample on the edge two cells share takes the first cell's interpolation, as the C kernel does
+        fresh = fresh[np.sort(np.unique(idx[fresh], return_index=True)[1])]
         cell, off = np.divmod(fresh, len(dr))
         corners = np.take(flat_index, base[cell, None] + corner_offset[off])  # (n, 4)
         idx = idx[fresh]
@@ -510,6 +547,24 @@ def _interpolate(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.
             store.colors[idx] = col.double().numpy()
         store.interpolated[idx] = True
         done[idx] = True
+
+
+def _interpolate_native(lib, store: _Store, points: np.ndarray, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
+                        k: int, *, quadratic: bool = False) -> None:
+    """:func:`_interpolate` (``quadratic``: :func:`_interpolate_quadratic`) by the C kernel (adaptive.c), in float64,
+    on the store's arrays in place (all float64 and contiguous, as :func:`adaptive_evaluate` makes them)."""
+    if store.colors is not None and not store.colors.flags.c_contiguous:
+        store.colors = np.ascontiguousarray(store.colors)
+    flat = np.ascontiguousarray(index, dtype=np.int64).reshape(-1)
+    r0, c0 = np.ascontiguousarray(r0, dtype=np.int64), np.ascontiguousarray(c0, dtype=np.int64)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    done = (store.evaluated | store.interpolated).view(np.uint8)
+    interp, valid = store.interpolated.view(np.uint8), store.valid.view(np.uint8)
+    n_colors = 0 if store.colors is None else store.colors.shape[1]
+    fn = lib.nb_interp_cells_quadratic if quadratic else lib.nb_interp_cells
+    fn(flat.ctypes.data, index.shape[1], r0.ctypes.data, c0.ctypes.data, len(r0), int(k), pts.ctypes.data,
+       store.normals.ctypes.data, store.values.ctypes.data, None if store.colors is None else store.colors.ctypes.data,
+       n_colors, done.ctypes.data, interp.ctypes.data, valid.ctypes.data, float(_EXTRAPOLATE), float(DIRECTION_EPS))
 
 
 #: Smallest side of a cell that may be accepted with quadratic interpolation (:func:`_quadratic_ok`): its test
@@ -613,6 +668,8 @@ def _interpolate_quadratic(store: _Store, packed: torch.Tensor, index: np.ndarra
         nrm, val, col = _quadratic_values(g, w, pa)
         fresh = ~np.take(done, idx) & good.numpy()[:, None]
         rows, cols = np.nonzero(fresh)
+        first = np.sort(np.unique(idx[rows, cols], return_index=True)[1])  # a shared edge: the first cell's, as in C
+        rows, cols = rows[first], cols[first]
         at = idx[rows, cols]
         sel_r, sel_c = torch.from_numpy(rows), torch.from_numpy(cols)
         store.normals[at] = nrm[:, sel_r, sel_c].t().double().numpy()

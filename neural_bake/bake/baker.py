@@ -323,7 +323,7 @@ class _ErrorControl:
         for k, v in st["cells_accepted"].items():
             self.cells[k] = self.cells.get(k, 0) + v
         ev = {"values": res["values"], "normals": res["normals"], "valid": res["valid"], "evaluated": res["evaluated"],
-              "decide": res["decide"], **times}
+              "decide": res["decide"], "side": res["side"], **times}
         if self.texture is not None:
             ev["colors"] = res["colors"]
         ev["time_adaptive"] = time.perf_counter() - t0 - times["time_sdf"] - times["time_texture"]
@@ -563,7 +563,9 @@ class Baker:
         are counted. ``hybrid``: a :class:`~neural_bake.bake.hybrid.HybridFallback` (or any callable
         ``(mesh, texels, normals, valid, evaluated, colors=…) -> (normals, replaced mask[, colors, colours'
         replaced mask])``, ``evaluated`` the band's (M,) mask of the samples the fields were evaluated at,
-        ``colors`` their (M, C) neural colours or None) run on each band before encoding: the samples it
+        ``colors`` their (M, C) neural colours or None; ``values``, ``decide`` and ``side`` as keywords: f at the
+        samples, and an adaptive bake's decision points and interpolation cell sides, else None) run on each band
+        before encoding: the samples it
         replaces are flagged in ``result.hybrid`` (colours: ``result.hybrid_color``) and counted.
 
         ``adaptive``: an :class:`~neural_bake.bake.adaptive.AdaptiveOptions` evaluates f, ∇f and g on a coarse
@@ -627,7 +629,7 @@ class Baker:
                 t1 = time.perf_counter()
                 band.neural, band.neural_colors = normals, band.colors
                 out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors, values=values,
-                             decide=ev.get("decide"))
+                             decide=ev.get("decide"), side=ev.get("side"))
                 band.normals, band.replaced = out[0], np.asarray(out[1], dtype=bool)
                 if len(out) > 2 and out[2] is not None:
                     band.colors, band.colors_replaced = out[2], np.asarray(out[3], dtype=bool)

@@ -24,7 +24,8 @@ Where the decision is made (``decide``): at every sample ("all": a ray cast and 
 sample, a second bake's cost), or on the adaptive lattice ("lattice", the default): at the samples the bake
 evaluated its fields at (the lattice nodes, borders, seams), and at the interpolated samples within
 ``reach`` sample-grid positions of a node found unfaithful (every sample of an interpolation cell lies that
-close to its nodes). The other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded
+close to its nodes); when the bake says in which cell side each sample was interpolated (``side``), within that
+side instead, so a sample of a side-4 cell is decided only when an unfaithful node lies within 4 positions. The other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded
 uniform subsample of them is decided in full as a check (``summary()["lattice_check"]``: how many of those
 the lattice rule would have missed; they are replaced too).
 
@@ -161,7 +162,9 @@ class HybridFallback:
     Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
     texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
     (M,) mask of the samples the fields were evaluated at (None: all of them) and its (M, C) linear neural
-    colours (None: no texture baked); returns a :class:`HybridBand`. ``self.counts`` sums the samples per
+    colours (None: no texture baked); ``values`` (f at the samples), ``decide`` (the adaptive bake's decision
+    points) and ``side`` (its interpolation cell sides, :func:`~neural_bake.bake.adaptive.adaptive_evaluate`)
+    are optional keywords; returns a :class:`HybridBand`. ``self.counts`` sums the samples per
     reason over the calls; ``self.f_abs`` keeps |f| at the source points of the decided samples.
     """
 
@@ -288,21 +291,32 @@ class HybridFallback:
             why["color"] = bad
         return why, b
 
-    def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-        """Which ``candidates`` (indices) lie within ``reach`` sample-grid positions of a ``seeds`` sample."""
+    def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray, side: np.ndarray | None = None) -> np.ndarray:
+        """Which ``candidates`` (indices) lie within ``reach`` sample-grid positions of a ``seeds`` sample; with
+        ``side`` ((M,) the band's interpolation cell sides), within their own cell's side (at most ``reach``).
+        Counted in texels (a reach of k positions is ⌈k / s⌉ + 1 texels at supersample s) from the seeds'
+        integral image, four lookups a candidate."""
         if not len(seeds) or not len(candidates):
             return np.zeros(len(candidates), dtype=bool)
-        from scipy.ndimage import maximum_filter
+        from .adaptive import _integral
 
         pix = np.asarray(texels.pixel)
         r0 = int(pix[:, 0].min())
         h = int(pix[:, 0].max()) - r0 + 1
         w = int(texels.size[1])
-        image = np.zeros((h, w), dtype=bool)
-        image[pix[seeds, 0] - r0, pix[seeds, 1]] = True
-        reach_texels = -(-self.reach // max(1, int(getattr(texels, "supersample", 1)))) + 1
-        image = maximum_filter(image, size=2 * reach_texels + 1, mode="constant", cval=False)
-        return image[pix[candidates, 0] - r0, pix[candidates, 1]]
+        seed_image = np.zeros((h, w), dtype=bool)
+        seed_image[pix[seeds, 0] - r0, pix[seeds, 1]] = True
+        counts = _integral(seed_image)
+        reach = np.full(len(candidates), self.reach, dtype=np.int64)
+        if side is not None:
+            own = np.asarray(side, dtype=np.int64)[candidates]
+            reach = np.where(own > 0, np.minimum(own, self.reach), self.reach)
+        s = max(1, int(getattr(texels, "supersample", 1)))
+        reach = -(-reach // s) + 1
+        row, col = pix[candidates, 0] - r0, pix[candidates, 1]
+        top, bottom = np.maximum(row - reach, 0), np.minimum(row + reach, h - 1) + 1
+        left, right = np.maximum(col - reach, 0), np.minimum(col + reach, w - 1) + 1
+        return (counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left]) > 0
 
     def _check_mask(self, candidates: np.ndarray, stream: int) -> np.ndarray:
         """(len(candidates),) bool: a seeded uniform choice among ``candidates`` (indices into the band) of
@@ -321,7 +335,7 @@ class HybridFallback:
 
     def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None,
                  colors: np.ndarray | None = None, values: np.ndarray | None = None,
-                 decide: np.ndarray | None = None) -> HybridBand:
+                 decide: np.ndarray | None = None, side: np.ndarray | None = None) -> HybridBand:
         import time
 
         from .baseline import baseline_bake
@@ -366,7 +380,7 @@ class HybridFallback:
         take(first, why, b)
         rest = np.flatnonzero(~decided)
         if len(rest):
-            near = self._near(texels, first[either(why)], rest)
+            near = self._near(texels, first[either(why)], rest, side)
             ring = rest[near]
             if len(ring):
                 take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors))

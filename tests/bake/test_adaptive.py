@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (AdaptiveOptions, _box, _grid_positions_from_uv, _integral, _interp, _pack,
-                                       _Store, _weights, adaptive_evaluate, chart_labels, grid_positions,
+from neural_bake.bake.adaptive import (KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv, _integral, _interp,
+                                       _interpolate, _interpolate_native, _interpolate_quadratic, _pack, _Store,
+                                       _weights, adaptive_evaluate, chart_labels, grid_positions, kernel_status,
                                        vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -294,6 +295,68 @@ def test_interpolation_kernel_matches_a_per_sample_reference(dtype, atol, rng):
         np.testing.assert_allclose(nrm[i].double().numpy(), ref_n, atol=atol)
         np.testing.assert_allclose(float(val[i]), ref_v, atol=atol)
         np.testing.assert_allclose(col[i].double().numpy(), w @ store.colors[cidx[i]], atol=atol)
+
+
+def cell_store(rng, colours: bool):
+    """A 33×33 sample grid on a bent sheet with smooth fields, its 3×3-node samples of the side-16 and side-8 cells
+    evaluated, some other samples already done, and a hole (-1) outside the cells."""
+    r, c = np.meshgrid(np.arange(33), np.arange(33), indexing="ij")
+    index = (r * 33 + c).astype(np.int64)
+    x, y = 0.01 * c.reshape(-1), 0.01 * r.reshape(-1)
+    points = np.stack([x, y, 0.3 * np.sin(3 * x) * np.cos(2 * y) + 0.05 * rng.normal(size=x.size) * 0.01], axis=1)
+    normals = np.stack([np.sin(2 * x + y), np.cos(3 * y), 1.0 + x * y], axis=1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    m = len(points)
+    store = _Store(values=rng.normal(scale=0.01, size=m), normals=normals, valid=np.zeros(m, bool),
+                   colors=rng.uniform(size=(m, 4)) if colours else None, evaluated=np.zeros(m, bool),
+                   interpolated=np.zeros(m, bool))
+    cells = [(np.array([0, 16]), np.array([0, 0]), 16), (np.array([0, 8, 24]), np.array([16, 24, 16]), 8)]
+    for r0, c0, k in cells:
+        for a in range(3):
+            for b in range(3):
+                store.evaluated[index[r0 + a * k // 2, c0 + b * k // 2]] = True
+    store.valid[store.evaluated] = True
+    store.evaluated[index[5, 3]] = store.valid[index[5, 3]] = True  # evaluated already: left alone
+    index[32, 32] = -1  # outside every cell
+    return store, points, index, cells
+
+
+@pytest.mark.skipif(KERNEL.lib() is None, reason="no C compiler: the torch path is the only one")
+@pytest.mark.parametrize("quadratic", [False, True])
+@pytest.mark.parametrize("colours", [False, True])
+def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(colours, quadratic, rng):
+    # the C kernel computes in float64: equal to the float64 torch path to rounding, within float32's precision of
+    # the float32 path; the same samples, the same flags, the nodes untouched
+    assert "C kernel" in kernel_status()
+    runs = {}
+    for how in ("native", torch.float64, torch.float32):
+        store, points, index, cells = cell_store(np.random.default_rng(7), colours)
+        before = store.normals.copy(), store.values.copy()
+        packed = None if how == "native" else _pack(store, points, None, how)
+        for r0, c0, k in cells:
+            if how == "native":
+                _interpolate_native(KERNEL.lib(), store, points, index, r0, c0, k, quadratic=quadratic)
+            else:
+                (_interpolate_quadratic if quadratic else _interpolate)(store, packed, index, r0, c0, k)
+        ev = store.evaluated
+        np.testing.assert_array_equal(store.normals[ev], before[0][ev])
+        np.testing.assert_array_equal(store.values[ev], before[1][ev])
+        runs[how] = store
+    native, ref64, ref32 = runs["native"], runs[torch.float64], runs[torch.float32]
+    for ref in (ref64, ref32):
+        np.testing.assert_array_equal(native.interpolated, ref.interpolated)
+        np.testing.assert_array_equal(native.valid, ref.valid)
+    inside = np.zeros((33, 33), bool)
+    for r0, c0, k in cell_store(np.random.default_rng(7), colours)[3]:
+        for r, c in zip(r0, c0):
+            inside[r: r + k + 1, c: c + k + 1] = True
+    np.testing.assert_array_equal(native.interpolated, inside.reshape(-1) & ~native.evaluated)
+    for ref, atol in ((ref64, 1e-12), (ref32, 2e-6)):
+        np.testing.assert_allclose(native.normals, ref.normals, atol=atol)
+        np.testing.assert_allclose(native.values, ref.values, atol=atol)
+        if colours:
+            np.testing.assert_allclose(native.colors, ref.colors, atol=atol)
+    assert np.allclose(np.linalg.norm(native.normals[native.interpolated], axis=1), 1.0, atol=1e-12)
 
 
 def test_grid_positions_of_one_sample_per_texel_are_the_texels():

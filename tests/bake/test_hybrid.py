@@ -1,6 +1,7 @@
 """Hybrid bake: unfaithful texels take the classical mesh-to-mesh normal; faithful fields keep ∇f everywhere."""
 
 import functools
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -205,6 +206,28 @@ def test_decision_points_of_interpolated_samples_are_decided():
     found = hybrid(baker.mesh, tx, normals, valid, evaluated, decide=decide).replaced
     assert found[on_cap].sum() > 10 * max(1, missed[on_cap].sum())  # the cap, found through its decision points
     assert hybrid.summary()["decided"] > decide.sum()  # and the ring around them
+
+
+@pytest.mark.parametrize("supersample", [1, 2])
+def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, rng):
+    """The ring around unfaithful nodes against brute force: Chebyshev distance in texels at most ⌈reach / s⌉ + 1,
+    reach the candidate's own cell side (at most the hybrid's reach; the reach where the side is 0 or unknown)."""
+    h, w = 40, 56
+    pix = np.stack(np.meshgrid(np.arange(3, 3 + h), np.arange(w), indexing="ij"), axis=-1).reshape(-1, 2)
+    texels = SimpleNamespace(pixel=pix, size=(64, w), supersample=supersample)
+    seeds = rng.choice(len(pix), 6, replace=False)
+    candidates = np.setdiff1d(np.arange(len(pix)), seeds)
+    side = rng.choice([0, 4, 8, 16, 32], len(pix)).astype(np.int16)
+    hybrid = HybridFallback(ico(1), sphere_field(), reach=16)
+    cheb = np.abs(pix[candidates, None, :] - pix[None, seeds, :]).max(axis=2).min(axis=1)
+    for sides in (None, side):
+        reach = np.full(len(candidates), 16) if sides is None else np.where(sides[candidates] > 0,
+                                                                           np.minimum(sides[candidates], 16), 16)
+        expected = cheb <= -(-reach // supersample) + 1
+        found = hybrid._near(texels, seeds, candidates, sides)
+        np.testing.assert_array_equal(found, expected)
+        assert 0 < found.sum() < len(candidates)
+    assert not hybrid._near(texels, seeds[:0], candidates, side).any()
 
 
 @pytest.mark.parametrize("kwargs, message", [({"decide": "some"}, "decide"), ({"reach": 0}, "reach"),

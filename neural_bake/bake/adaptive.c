@@ -1,0 +1,223 @@
+/* Interpolation inside accepted cells: the C kernels of neural_bake.bake.adaptive._interpolate (bilinear) and
+   _interpolate_quadratic (their torch paths are the references; the tests hold each pair together in float64 and
+   within float32's precision of a float32 reference).
+
+   nb_interp_cells(flat_index, wg, r0, c0, n_cells, k, points, normals, values, colors, n_colors, done, interpolated,
+   valid, extrapolate, direction_eps): for every accepted cell of side k with top-left position (r0, c0) on the
+   sample grid (flat_index: the (hg, wg) grid of sample indices, -1 where none), every sample of its closed square
+   that is not one of its 3x3 nodes and not yet done takes the fields interpolated from the four nodes of its
+   quarter: its coordinates (t, u) in the least-squares parallelogram of those four points in space, clamped to
+   [-extrapolate, 1 + extrapolate] (t = u = 0.5 where the quad is no parallelogram), bilinear weights; the unit
+   normal is the weighted sum renormalised (its length clamped below at direction_eps), f the weighted sum of each
+   node's first-order extrapolation f_i + n_i . (p - p_i), colours the weighted sum. Samples are marked done,
+   interpolated and valid. Arrays: points, normals (M, 3), values (M,), colors (M, n_colors) float64 row-major
+   (colors NULL when n_colors is 0); done, interpolated, valid (M,) uint8. */
+#include <float.h>
+#include <math.h>
+#include <stdint.h>
+
+static inline double nb_clamp(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
+
+void nb_interp_cells(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0, int64_t n_cells,
+                     int64_t k, const double *points, double *normals, double *values, double *colors,
+                     int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
+                     double direction_eps) {
+    const int64_t h = k / 2;
+    for (int64_t cell = 0; cell < n_cells; cell++) {
+        const int64_t base = r0[cell] * wg + c0[cell];
+        for (int64_t dr = 0; dr <= k; dr++) {
+            const int64_t a = dr / h < 1 ? dr / h : 1;
+            for (int64_t dc = 0; dc <= k; dc++) {
+                if (dr % h == 0 && dc % h == 0) continue; /* a node: evaluated */
+                const int64_t idx = flat_index[base + dr * wg + dc];
+                if (done[idx]) continue;
+                const int64_t b = dc / h < 1 ? dc / h : 1;
+                int64_t corner[4];
+                corner[0] = flat_index[base + (a * wg + b) * h];
+                corner[1] = flat_index[base + (a * wg + b + 1) * h];
+                corner[2] = flat_index[base + ((a + 1) * wg + b) * h];
+                corner[3] = flat_index[base + ((a + 1) * wg + b + 1) * h];
+                const double *p0 = points + 3 * corner[0], *p1 = points + 3 * corner[1];
+                const double *p2 = points + 3 * corner[2], *p3 = points + 3 * corner[3];
+                const double *pa = points + 3 * idx;
+                double et[3], eu[3], d[3];
+                for (int i = 0; i < 3; i++) {
+                    et[i] = 0.5 * (p2[i] - p0[i] + p3[i] - p1[i]);
+                    eu[i] = 0.5 * (p1[i] - p0[i] + p3[i] - p2[i]);
+                    d[i] = pa[i] - 0.25 * (p0[i] + p1[i] + p2[i] + p3[i]) + 0.5 * (et[i] + eu[i]);
+                }
+                const double aa = et[0] * et[0] + et[1] * et[1] + et[2] * et[2];
+                const double bb = et[0] * eu[0] + et[1] * eu[1] + et[2] * eu[2];
+                const double cc = eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2];
+                const double rt = et[0] * d[0] + et[1] * d[1] + et[2] * d[2];
+                const double ru = eu[0] * d[0] + eu[1] * d[1] + eu[2] * d[2];
+                const double det = aa * cc - bb * bb;
+                const double ac = aa * cc > direction_eps ? aa * cc : direction_eps;
+                double t = 0.5, u = 0.5;
+                if (det > 64.0 * DBL_EPSILON * ac) {
+                    t = (cc * rt - bb * ru) / det;
+                    u = (aa * ru - bb * rt) / det;
+                }
+                t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
+                u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+                const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};
+                double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
+                for (int j = 0; j < 4; j++) {
+                    const double *nj = normals + 3 * corner[j], *pj = points + 3 * corner[j];
+                    for (int i = 0; i < 3; i++) n[i] += w[j] * nj[i];
+                    f += w[j] * (values[corner[j]] + ((pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
+                                                      + (pa[2] - pj[2]) * nj[2]));
+                }
+                double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+                if (length < direction_eps) length = direction_eps;
+                for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
+                values[idx] = f;
+                for (int64_t c = 0; c < n_colors; c++) {
+                    double s = 0.0;
+                    for (int j = 0; j < 4; j++) s += w[j] * colors[n_colors * corner[j] + c];
+                    colors[n_colors * idx + c] = s;
+                }
+                done[idx] = 1;
+                interpolated[idx] = 1;
+                valid[idx] = 1;
+            }
+        }
+    }
+}
+
+/* The least-squares parallelogram coordinates (t, u) of point p in the quad c0..c3 (corner order (0,0), (0,1),
+   (1,0), (1,1)), as nb_interp_cells computes them, unclamped; returns 0 where the quad is no parallelogram
+   (t = u = 0.5 then). */
+static int nb_coordinates(const double *c0, const double *c1, const double *c2, const double *c3, const double *p,
+                          double direction_eps, double *t, double *u) {
+    double et[3], eu[3], d[3];
+    for (int i = 0; i < 3; i++) {
+        et[i] = 0.5 * (c2[i] - c0[i] + c3[i] - c1[i]);
+        eu[i] = 0.5 * (c1[i] - c0[i] + c3[i] - c2[i]);
+        d[i] = p[i] - 0.25 * (c0[i] + c1[i] + c2[i] + c3[i]) + 0.5 * (et[i] + eu[i]);
+    }
+    const double aa = et[0] * et[0] + et[1] * et[1] + et[2] * et[2];
+    const double bb = et[0] * eu[0] + et[1] * eu[1] + et[2] * eu[2];
+    const double cc = eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2];
+    const double rt = et[0] * d[0] + et[1] * d[1] + et[2] * d[2];
+    const double ru = eu[0] * d[0] + eu[1] * d[1] + eu[2] * d[2];
+    const double det = aa * cc - bb * bb;
+    const double ac = aa * cc > direction_eps ? aa * cc : direction_eps;
+    if (!(det > 64.0 * DBL_EPSILON * ac)) {
+        *t = *u = 0.5;
+        return 0;
+    }
+    *t = (cc * rt - bb * ru) / det;
+    *u = (aa * ru - bb * rt) / det;
+    return 1;
+}
+
+/* The tensor-product quadratic Lagrange basis on the nodes {0, 1/2, 1}^2 at (t, u), in node order (row index with
+   t, column index with u). */
+static void nb_lagrange(double t, double u, double *out) {
+    const double bt[3] = {2 * (t - 0.5) * (t - 1), -4 * t * (t - 1), 2 * t * (t - 0.5)};
+    const double bu[3] = {2 * (u - 0.5) * (u - 1), -4 * u * (u - 1), 2 * u * (u - 0.5)};
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) out[3 * a + b] = bt[a] * bu[b];
+}
+
+/* The inverse of the 9x9 matrix m (row-major) into inv by Gauss-Jordan elimination with partial pivoting;
+   returns 0 when m is singular or the inverse is not finite. */
+static int nb_invert9(const double *m, double *inv) {
+    double a[9][18];
+    for (int i = 0; i < 9; i++)
+        for (int j = 0; j < 18; j++) a[i][j] = j < 9 ? m[9 * i + j] : (j - 9 == i ? 1.0 : 0.0);
+    for (int c = 0; c < 9; c++) {
+        int piv = c;
+        for (int r = c + 1; r < 9; r++)
+            if (fabs(a[r][c]) > fabs(a[piv][c])) piv = r;
+        if (!(fabs(a[piv][c]) > 0.0)) return 0;
+        if (piv != c)
+            for (int j = 0; j < 18; j++) {
+                double x = a[c][j];
+                a[c][j] = a[piv][j];
+                a[piv][j] = x;
+            }
+        const double d = a[c][c];
+        for (int j = 0; j < 18; j++) a[c][j] /= d;
+        for (int r = 0; r < 9; r++) {
+            if (r == c || a[r][c] == 0.0) continue;
+            const double f = a[r][c];
+            for (int j = 0; j < 18; j++) a[r][j] -= f * a[c][j];
+        }
+    }
+    for (int i = 0; i < 9; i++)
+        for (int j = 0; j < 9; j++) {
+            inv[9 * i + j] = a[i][9 + j];
+            if (!isfinite(inv[9 * i + j])) return 0;
+        }
+    return 1;
+}
+
+/* Quadratic interpolation inside accepted cells: the C kernel of neural_bake.bake.adaptive._interpolate_quadratic.
+   For every cell of side k at (r0, c0), its 9 nodes (3x3, spacing k/2) fix a quadratic in the cell's spatial
+   coordinates (those of nb_coordinates from its four corners): the Lagrange basis on the ideal nodes {0, 1/2, 1}^2
+   corrected by the inverse of its values at the actual nodes. A cell whose nodes are not all in a parallelogram or
+   whose correction is singular interpolates nothing. Every sample of the cell's closed square not yet done takes
+   the quadratic's weights at its clamped coordinates: the normal renormalised, f from each node's first-order
+   extrapolation, colours; and is marked done, interpolated and valid. Arguments as nb_interp_cells's. */
+void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0,
+                               int64_t n_cells, int64_t k, const double *points, double *normals, double *values,
+                               double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
+                               double extrapolate, double direction_eps) {
+    const int64_t h = k / 2;
+    for (int64_t cell = 0; cell < n_cells; cell++) {
+        const int64_t base = r0[cell] * wg + c0[cell];
+        int64_t node[9];
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) node[3 * a + b] = flat_index[base + (a * wg + b) * h];
+        const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
+        const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
+        double vander[81], inv[81];
+        int good = 1;
+        for (int j = 0; j < 9 && good; j++) {
+            double t, u;
+            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], direction_eps, &t, &u);
+            t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
+            u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+            nb_lagrange(t, u, vander + 9 * j);
+        }
+        if (!good || !nb_invert9(vander, inv)) continue;
+        for (int64_t dr = 0; dr <= k; dr++) {
+            for (int64_t dc = 0; dc <= k; dc++) {
+                const int64_t idx = flat_index[base + dr * wg + dc];
+                if (done[idx]) continue;
+                const double *pa = points + 3 * idx;
+                double t, u, basis[9], w[9];
+                nb_coordinates(q0, q1, q2, q3, pa, direction_eps, &t, &u);
+                t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
+                u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+                nb_lagrange(t, u, basis);
+                for (int j = 0; j < 9; j++) {
+                    double s = 0.0;
+                    for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];
+                    w[j] = s;
+                }
+                double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
+                for (int j = 0; j < 9; j++) {
+                    const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
+                    for (int i = 0; i < 3; i++) n[i] += w[j] * nj[i];
+                    f += w[j] * (values[node[j]] + ((pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
+                                                    + (pa[2] - pj[2]) * nj[2]));
+                }
+                double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+                if (length < direction_eps) length = direction_eps;
+                for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
+                values[idx] = f;
+                for (int64_t c = 0; c < n_colors; c++) {
+                    double s = 0.0;
+                    for (int j = 0; j < 9; j++) s += w[j] * colors[n_colors * node[j] + c];
+                    colors[n_colors * idx + c] = s;
+                }
+                done[idx] = 1;
+                interpolated[idx] = 1;
+                valid[idx] = 1;
+            }
+        }
+    }
+}
