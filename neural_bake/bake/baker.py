@@ -24,6 +24,7 @@ from ..types import Frame, Mesh
 from ..mesh.layout_cache import LayoutCache
 from ..mesh.texels import TexelSet, kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
+from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
 from .maps import kernel_status as encoding_kernel_status
@@ -154,7 +155,8 @@ class BakeResult:
       :meth:`~neural_bake.nets.threads.ThreadChoice.as_dict`) and what was done to malloc (``heap``:
       :func:`~neural_bake.nets.heap.keep_freed_memory`) and which rasteriser, tangent-space encoding and
       padding ran (``kernels``: C or numpy, :func:`neural_bake.mesh.texels.kernel_status`,
-      :func:`neural_bake.bake.maps.kernel_status`, :func:`neural_bake.bake.padding.kernel_status`) (JSON-ready).
+      :func:`neural_bake.bake.maps.kernel_status`, :func:`neural_bake.bake.padding.kernel_status`; an adaptive bake's
+      cell interpolation: C or torch, :func:`neural_bake.bake.adaptive.kernel_status`) (JSON-ready).
     - ``sample``: when the per-sample arrays are not kept, a :class:`TexelSample` (a seeded uniform
       subsample of the samples with their values) for the quality report; else None.
     - ``hybrid``: (H, W) bool, texels with a sample that took the classical normal (a hybrid bake), else None.
@@ -674,7 +676,8 @@ class Baker:
             "threads": threads.as_dict(),
             "heap": self.heap,
             "kernels": {"rasteriser": kernel_status(), "tangent_encoding": encoding_kernel_status(),
-                        "padding": padding_kernel_status()},
+                        "padding": padding_kernel_status(),
+                        **({"interpolation": adaptive_kernel_status()} if adaptive is not None else {})},
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

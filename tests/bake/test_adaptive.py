@@ -73,6 +73,7 @@ def test_adaptive_bake_keeps_every_sample_within_the_tolerance(sphere_baker, tol
     assert res.stats["evaluated_fraction"] < 0.45  # it does interpolate
     assert full.stats["evaluated_fraction"] == 1.0 and full.stats["adaptive"] is None
     assert "error_control" not in full.stats
+    assert res.stats["kernels"]["interpolation"] == kernel_status() and "interpolation" not in full.stats["kernels"]
     # the report's sampled check is the same comparison on a seeded subsample
     control = res.stats["error_control"]
     assert 0 < control["samples"] <= full.stats["samples"] and control["interpolated"] > 0
