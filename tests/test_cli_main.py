@@ -99,6 +99,26 @@ def test_console_script(tmp_path):
     assert r.stderr == f"neural-bake: error: {tmp_path / 'none.obj'}: no such file\n"
 
 
+@pytest.mark.parametrize("other_thread", [False, True])
+def test_finish_flushes_runs_exit_handlers_and_keeps_the_code(other_thread):
+    # the console script's end: buffered output and exit handlers survive the fast exit; a thread still running
+    # is waited for (the usual exit)
+    code = "\n".join([
+        "import atexit, sys, threading, time",
+        "from neural_bake.cli.main import finish",
+        "atexit.register(lambda: print('handler ran'))",
+        "sys.stdout.write('x' * 200000 + '\\n')",
+        "t = threading.Thread(target=lambda: (time.sleep(0.3), print('thread done', flush=True)))",
+        "t.start()" if other_thread else "",
+        "finish(3)",
+    ])
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 3, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "x" * 200000 and "handler ran" in lines
+    assert ("thread done" in lines) == other_thread
+
+
 def test_library_errors_name_parameters_and_the_cli_names_its_options(monkeypatch, tmp_path, capsys):
     from neural_bake.mesh.coarse import parse_coarse
     from neural_bake.cli.main import OPTIONS, cli_message

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..constants import ADAPTIVE_CHECK_SAMPLES, DIRECTION_EPS
+from ..constants import ADAPTIVE_CHECK_SAMPLES
 from ..errors import NeuralBakeError
 from ..fields import SdfField, TextureField, closest_surface_points
 from ..geometry import angular_error, area_weighted_normals
@@ -26,7 +26,7 @@ from ..mesh.texels import TexelSet, kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
 from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
-from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, splat, splat_into
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normal_map_from_sums, splat, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
 from .padding import kernel_status as padding_kernel_status
@@ -799,14 +799,7 @@ class _MapAccumulator:
     def finish(self) -> tuple[np.ndarray, np.ndarray | None]:
         """(normal map (H, W, 3) encoded (x + 1)/2, albedo (H, W, C) or None), unpadded; sets the masks."""
         # the average of a texel's unit vectors, renormalised (the weight sum cancels out)
-        vec = self.vec
-        norm = np.sqrt(np.einsum("ijk,ijk->ij", vec, vec))[:, :, None]
-        np.divide(vec, norm, out=vec, where=norm > DIRECTION_EPS)
-        vec[norm[:, :, 0] <= DIRECTION_EPS] = (0.0, 0.0, 1.0)  # texels whose samples cancel out, and the background
-        normal_map = vec
-        normal_map += 1.0
-        normal_map *= 0.5
-        np.clip(normal_map, 0.0, 1.0, out=normal_map)
+        normal_map = normal_map_from_sums(self.vec)
         albedo = None
         if self.col is not None:
             albedo = self.col

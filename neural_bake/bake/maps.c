@@ -49,3 +49,37 @@ void nb_encode_tangent(const double *n, const double *t, const double *b, const 
         ok[s] = (uint8_t)good;
     }
 }
+
+/* nb_splat(values, flat, weight, m, c, acc, wsum): the weighted per-sample values added into the image sums in
+   place, sample by sample: acc[flat[s] * c + k] += values[s * c + k] * weight[s] and wsum[flat[s]] += weight[s]
+   (weight NULL: 1; wsum NULL: not summed). Each sum is formed in double and stored as float, as numpy's
+   in-place add of a float64 right-hand side into a float32 image does. values (m, c) float64 row-major, flat (m,)
+   int64 texel indices, acc (texels, c) and wsum (texels,) float32. */
+void nb_splat(const double *values, const int64_t *flat, const double *weight, int64_t m, int64_t c, float *acc,
+              float *wsum) {
+    for (int64_t s = 0; s < m; s++) {
+        const double w = weight ? weight[s] : 1.0;
+        float *a = acc + flat[s] * c;
+        const double *v = values + s * c;
+        for (int64_t k = 0; k < c; k++) a[k] = (float)((double)a[k] + v[k] * w);
+        if (wsum) wsum[flat[s]] = (float)((double)wsum[flat[s]] + w);
+    }
+}
+
+/* nb_normal_map(vec, n, direction_eps): the summed vectors of n texels (n, 3) float32 turned into the encoded
+   normal map in place: each divided by its length, (0, 0, 1) where the length is not above direction_eps (texels
+   whose samples cancel out, and the background), then (x + 1) / 2 clipped to [0, 1]. The length in float, as
+   numpy's float32 arithmetic forms it. */
+void nb_normal_map(float *vec, int64_t n, double direction_eps) {
+    for (int64_t i = 0; i < n; i++) {
+        float *v = vec + 3 * i;
+        const float norm = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        float x[3] = {0.0f, 0.0f, 1.0f};
+        if ((double)norm > direction_eps)
+            for (int k = 0; k < 3; k++) x[k] = v[k] / norm;
+        for (int k = 0; k < 3; k++) {
+            float e = (x[k] + 1.0f) * 0.5f;
+            v[k] = e < 0.0f ? 0.0f : (e > 1.0f ? 1.0f : e);
+        }
+    }
+}

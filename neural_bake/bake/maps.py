@@ -32,6 +32,7 @@ __all__ = [
     "colors_to_normals",
     "splat",
     "splat_into",
+    "normal_map_from_sums",
     "kernel_status",
     "ENV_SWITCH",
 ]
@@ -44,6 +45,10 @@ def _declare(lib) -> None:
     p = ctypes.c_void_p
     lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int, p, p]
     lib.nb_encode_tangent.restype = None
+    lib.nb_splat.argtypes = [p, p, p, ctypes.c_int64, ctypes.c_int64, p, p]
+    lib.nb_splat.restype = None
+    lib.nb_normal_map.argtypes = [p, ctypes.c_int64, ctypes.c_double]
+    lib.nb_normal_map.restype = None
 
 
 #: The C kernel (maps.c, :class:`neural_bake.nets.native.Kernel`); numpy where it does not build.
@@ -146,6 +151,29 @@ def _one_per_texel(flat: np.ndarray) -> bool:
     return len(flat) > 0 and bool((flat[1:] > flat[:-1]).all())
 
 
+def normal_map_from_sums(vec: np.ndarray) -> np.ndarray:
+    """The encoded normal map (H, W, 3) in [0, 1] from the per-texel weighted sums of unit vectors ``vec`` (H, W, 3),
+    in place: each texel's average direction (the weight sum cancels out), (0, 0, 1) where the sum is not longer
+    than :data:`~neural_bake.constants.DIRECTION_EPS` (texels whose samples cancel out, and the background), then
+    ``(x + 1) / 2`` clipped. Float32 maps take the C kernel (maps.c) where it builds."""
+    lib = _kernel()
+    if lib is not None and vec.dtype == np.float32 and vec.flags.c_contiguous:
+        lib.nb_normal_map(vec.ctypes.data, vec.size // 3, float(DIRECTION_EPS))
+        return vec
+    return _normal_map_numpy(vec)
+
+
+def _normal_map_numpy(vec: np.ndarray) -> np.ndarray:
+    """:func:`normal_map_from_sums` in numpy."""
+    norm = np.sqrt(np.einsum("ijk,ijk->ij", vec, vec))[:, :, None]
+    np.divide(vec, norm, out=vec, where=norm > DIRECTION_EPS)
+    vec[norm[:, :, 0] <= DIRECTION_EPS] = (0.0, 0.0, 1.0)
+    vec += 1.0
+    vec *= 0.5
+    np.clip(vec, 0.0, 1.0, out=vec)
+    return vec
+
+
 def splat_into(
     acc: np.ndarray,
     wsum: np.ndarray | None,
@@ -155,11 +183,30 @@ def splat_into(
 ) -> None:
     """Add the weighted sums of per-sample ``values`` (M, C) into the image ``acc`` (H, W, C) in place (and
     the weight sums into ``wsum`` (H, W), unless None): :func:`splat` without a full-size temporary when the
-    samples' texels are strictly increasing (one sample per texel, as rasterised), the sums otherwise."""
+    samples' texels are strictly increasing (one sample per texel, as rasterised), the sums otherwise. Float32
+    images take the C kernel (maps.c, sample by sample, the same arithmetic as the scatter) where it builds."""
     h, w = acc.shape[:2]
     flat = np.asarray(pixel[:, 0], dtype=np.int64) * w + np.asarray(pixel[:, 1], dtype=np.int64)
     if len(flat) == 0:
         return
+    lib = _kernel()
+    if lib is not None and acc.dtype == np.float32 and acc.flags.c_contiguous and (
+            wsum is None or (wsum.dtype == np.float32 and wsum.flags.c_contiguous)):
+        if flat.min() < 0 or flat.max() >= h * w:
+            raise NeuralBakeError(f"splat: texel indices outside the {h}x{w} image")
+        vals = np.ascontiguousarray(values, dtype=np.float64).reshape(len(flat), -1)
+        wt_c = None if weight is None else np.ascontiguousarray(weight, dtype=np.float64)
+        flat = np.ascontiguousarray(flat)
+        lib.nb_splat(vals.ctypes.data, flat.ctypes.data, None if wt_c is None else wt_c.ctypes.data, len(flat),
+                     vals.shape[1], acc.ctypes.data, None if wsum is None else wsum.ctypes.data)
+        return
+    _splat_into_numpy(acc, wsum, values, pixel, weight, flat)
+
+
+def _splat_into_numpy(acc: np.ndarray, wsum: np.ndarray | None, values: np.ndarray, pixel: np.ndarray,
+                      weight: np.ndarray | None, flat: np.ndarray) -> None:
+    """:func:`splat_into` in numpy (``flat``: the samples' flat texel indices)."""
+    h, w = acc.shape[:2]
     wt = np.ones(len(flat)) if weight is None else np.asarray(weight, dtype=np.float64)
     if _one_per_texel(flat):
         a = acc.reshape(h * w, -1)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from neural_bake.bake.maps import splat
+from neural_bake.errors import NeuralBakeError
 
 
 def _reference(values, pixel, weight, size, rows):
@@ -55,6 +56,55 @@ def test_splat_into_adds_the_same_sums_in_place(rng, unique):
     acc2 = start.copy()
     splat_into(acc2, None, values, pixel, weight)  # without weight sums
     np.testing.assert_array_equal(acc2, acc)
+
+
+@pytest.mark.parametrize("unique", [True, False])
+def test_splat_into_kernel_matches_the_numpy_path(rng, unique):
+    # the C kernel adds sample by sample in double and stores float, as numpy's scatter does: the same bits
+    # where each texel has one sample, within float32 rounding where several add up
+    from neural_bake.bake.maps import KERNEL, _splat_into_numpy, splat_into
+
+    if KERNEL.lib() is None:
+        pytest.skip("no C compiler: the numpy path is the only one")
+    size = (64, 48)
+    texels = rng.choice(size[0] * size[1], 2000, replace=not unique)
+    texels = np.sort(texels) if unique else texels
+    pixel = np.stack([texels // size[1], texels % size[1]], axis=1)
+    values = rng.normal(size=(len(texels), 3))
+    for weight in (rng.uniform(0.1, 1.0, len(texels)), None):
+        start = rng.normal(size=(*size, 3)).astype(np.float32)
+        acc, wsum = start.copy(), np.ones(size, np.float32)
+        ref, ref_w = start.copy(), np.ones(size, np.float32)
+        splat_into(acc, wsum, values, pixel, weight)
+        _splat_into_numpy(ref, ref_w, values, pixel, weight, texels.astype(np.int64))
+        if unique:
+            np.testing.assert_array_equal(acc, ref)
+            np.testing.assert_array_equal(wsum, ref_w)
+        else:
+            np.testing.assert_allclose(acc, ref, atol=2e-6)
+            np.testing.assert_allclose(wsum, ref_w, atol=2e-6)
+    with pytest.raises(NeuralBakeError, match="outside"):
+        splat_into(acc, wsum, values[:1], np.array([[size[0], 0]]), None)
+
+
+def test_normal_map_kernel_matches_the_numpy_path(rng):
+    # sums of unit vectors, some cancelling out, some tiny, the background zero: the same map within float32 rounding
+    from neural_bake.bake.maps import KERNEL, _normal_map_numpy, normal_map_from_sums
+
+    if KERNEL.lib() is None:
+        pytest.skip("no C compiler: the numpy path is the only one")
+    vec = rng.normal(size=(32, 40, 3)).astype(np.float32)
+    vec[:4] = 0.0
+    vec[4, :5] = (1e-12, 0.0, 0.0)
+    vec[5, :5] = (-3.0, 0.0, 0.0)
+    ref = _normal_map_numpy(vec.copy())
+    out = normal_map_from_sums(vec)
+    assert out is vec
+    np.testing.assert_allclose(out, ref, atol=1e-7)
+    assert (out[:4] == (0.5, 0.5, 1.0)).all() and (out[4, :5] == (0.5, 0.5, 1.0)).all()
+    assert (out[5, :5] == (0.0, 0.5, 0.5)).all() and out.min() >= 0 and out.max() <= 1
+    n = 2 * out[6:] - 1
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-6)
 
 
 # ---- tangent-space encoding: the C kernel (maps.c) against the numpy path, and analytic oracles
