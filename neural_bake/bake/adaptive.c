@@ -221,3 +221,43 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
         }
     }
 }
+
+static int64_t nb_find(int64_t *parent, int64_t x) {
+    while (parent[x] != x) {
+        parent[x] = parent[parent[x]]; /* path halving */
+        x = parent[x];
+    }
+    return x;
+}
+
+/* nb_face_components(faces, n_faces, n_vertices, parent, labels): the connected components of faces sharing a
+   vertex (union-find over the vertices), numbered in the order of their first face: labels (n_faces,) int64.
+   faces (n_faces, 3) int64 in [0, n_vertices); parent (n_vertices,) int64 scratch. Returns the number of
+   components. */
+int64_t nb_face_components(const int64_t *faces, int64_t n_faces, int64_t n_vertices, int64_t *parent,
+                           int64_t *labels) {
+    for (int64_t v = 0; v < n_vertices; v++) parent[v] = v;
+    for (int64_t f = 0; f < n_faces; f++) {
+        int64_t r0 = nb_find(parent, faces[3 * f]);
+        for (int k = 1; k < 3; k++) {
+            int64_t r = nb_find(parent, faces[3 * f + k]);
+            if (r != r0) {
+                if (r < r0) {
+                    parent[r0] = r;
+                    r0 = r;
+                } else {
+                    parent[r] = r0;
+                }
+            }
+        }
+    }
+    /* the roots' numbers, in the order their first face comes: -(1 + number) marks a numbered root */
+    int64_t count = 0;
+    for (int64_t f = 0; f < n_faces; f++) labels[f] = nb_find(parent, faces[3 * f]);
+    for (int64_t f = 0; f < n_faces; f++) {
+        int64_t root = labels[f];
+        if (parent[root] >= 0) parent[root] = -(1 + count++);
+        labels[f] = -parent[root] - 1;
+    }
+    return count;
+}

@@ -58,6 +58,8 @@ def _declare(lib) -> None:
     lib.nb_interp_cells.restype = None
     lib.nb_interp_cells_quadratic.argtypes = lib.nb_interp_cells.argtypes
     lib.nb_interp_cells_quadratic.restype = None
+    lib.nb_face_components.argtypes = [p, i64, i64, p, p]
+    lib.nb_face_components.restype = i64
 
 
 #: The C kernel (adaptive.c, :class:`neural_bake.nets.native.Kernel`); torch where it does not build.
@@ -105,15 +107,27 @@ def chart_labels(mesh: Mesh) -> np.ndarray:
     """(F,) int64 chart of each face: the connected components of faces sharing a vertex.
 
     ``mesh`` must be split at its UV seams (:func:`neural_bake.mesh.unwrap.split_uv_seams`, as
-    ``Baker.mesh`` is), so that faces sharing a vertex share its UV: a component is then a UV chart.
+    ``Baker.mesh`` is), so that faces sharing a vertex share its UV: a component is then a UV chart. Charts are
+    numbered in the order of their first face (union-find in C where it builds, else scipy: the same numbers).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    faces = np.asarray(mesh.faces, dtype=np.int64)
+    faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
     nf, nv = len(faces), int(mesh.n_vertices)
     if nf == 0:
         return np.zeros(0, dtype=np.int64)
+    lib = KERNEL.lib()
+    if lib is not None and faces.min() >= 0 and faces.max() < nv:  # union-find in C: the same numbering
+        labels, parent = np.empty(nf, dtype=np.int64), np.empty(nv, dtype=np.int64)
+        lib.nb_face_components(faces.ctypes.data, nf, nv, parent.ctypes.data, labels.ctypes.data)
+        return labels
+    return _chart_labels_scipy(faces, nv)
+
+
+def _chart_labels_scipy(faces: np.ndarray, nv: int) -> np.ndarray:
+    """:func:`chart_labels` by scipy's connected components of the face-vertex graph (faces (F, 3) int64)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    nf = len(faces)
     rows = np.repeat(np.arange(nf), 3)
     graph = coo_matrix((np.ones(3 * nf, dtype=np.int8), (rows, nf + faces.reshape(-1))), shape=(nf + nv, nf + nv))
     _, labels = connected_components(graph, directed=False)

@@ -6,7 +6,6 @@ import ctypes
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from ..errors import NeuralBakeError
 from ..nets.native import Kernel
@@ -91,6 +90,8 @@ def pad_charts(
         rings = PULL_PUSH_DILATE if pixels is None else min(int(pixels), PULL_PUSH_DILATE)
         _dilate(out, covered, rings)
         if pixels is not None:
+            from scipy import ndimage
+
             dist = ndimage.distance_transform_cdt(~covered, metric="chessboard")
             far = dist > pixels
             np.copyto(out, img, where=far[:, :, None], casting="same_kind")

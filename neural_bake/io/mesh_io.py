@@ -297,12 +297,29 @@ def _first_of_equal_rows(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def _may_have_close_pairs(points: np.ndarray, tol: float) -> bool:
+    """False only when no two of the distinct ``points`` (N, 3) lie within ``tol`` of each other (then a weld has
+    nothing to merge and the KD-tree, and scipy's import, are not needed); True when two of them share a cell of
+    one of four grids of side 4.5·tol shifted by a quarter side along every axis. Two points within tol of each
+    other straddle a cell border of at most one of the four grids per axis, so of at least one grid on none: they
+    share a cell there."""
+    side = 4.5 * tol
+    lo = points.min(axis=0)
+    if not float((points.max(axis=0) - lo).max()) / side < 2.0**52:  # cells beyond exact integers: the KD-tree
+        return True
+    for shift in range(4):
+        cells = np.floor((points - lo) / side + shift / 4.0).astype(np.int64)
+        if len(np.unique(cells, axis=0)) < len(points):
+            return True
+    return False
+
+
 def _weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices closer than ``tol``; returns (kept indices in original order, old -> new index map)."""
     n = len(vertices)
     rep = _first_of_equal_rows(vertices)  # exact duplicates -> first occurrence
     uniq = np.unique(rep)
-    if tol > 0 and len(uniq) > 1:
+    if tol > 0 and len(uniq) > 1 and _may_have_close_pairs(vertices[uniq], tol):
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
         from scipy.spatial import cKDTree

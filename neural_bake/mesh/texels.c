@@ -176,3 +176,16 @@ void nb_interpolate_corners(const double *table, int64_t n_faces, const int64_t 
         sign[s] = acc[9] < 0.0 ? -1.0 : 1.0;
     }
 }
+
+/* nb_signed_cross: per sample, out = sign * cross(n, t) (the bitangent from the unit normal, the unit tangent and
+   the handedness's sign), the same operations in the same order as the numpy path. n, t, out (m, 3), sign (m,)
+   float64. */
+void nb_signed_cross(const double *n, const double *t, const double *sign, int64_t m, double *out) {
+    for (int64_t s = 0; s < m; s++) {
+        const double *a = n + 3 * s, *b = t + 3 * s;
+        double *o = out + 3 * s;
+        o[0] = sign[s] * (a[1] * b[2] - a[2] * b[1]);
+        o[1] = sign[s] * (a[2] * b[0] - a[0] * b[2]);
+        o[2] = sign[s] * (a[0] * b[1] - a[1] * b[0]);
+    }
+}

@@ -39,6 +39,8 @@ def _declare(lib) -> None:
     lib.nb_border_hits.restype = None
     lib.nb_interpolate_corners.argtypes = [p, i64, p, p, i64, f64, p, p, p, p]
     lib.nb_interpolate_corners.restype = None
+    lib.nb_signed_cross.argtypes = [p, p, p, i64, p]
+    lib.nb_signed_cross.restype = None
 
 
 #: The C kernel (texels.c, :class:`neural_bake.nets.native.Kernel`); numpy where it does not build.
@@ -450,6 +452,19 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _signed_cross(sign: np.ndarray, n: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``sign[:, None] * cross(n, t)`` for (M, 3) float64 rows (the bitangents), by the C kernel where it builds
+    (the same operations in the same order: equal bit for bit)."""
+    lib = _kernel()
+    if lib is not None:
+        n, t = np.ascontiguousarray(n, dtype=np.float64), np.ascontiguousarray(t, dtype=np.float64)
+        sign = np.ascontiguousarray(sign, dtype=np.float64)
+        out = np.empty_like(n)
+        lib.nb_signed_cross(_ptr(n), _ptr(t), _ptr(sign), len(n), _ptr(out))
+        return out
+    return sign[:, None] * _cross(n, t)
+
+
 def texel_centres(mesh: Mesh, size) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(face (N,) int64, row (N,), col (N,), bary (N, 3) float64) of the texel centres of an (H, W) grid that
     lie inside a UV triangle of ``mesh``: the samples :func:`rasterize_texels` places at one sample per texel
@@ -503,7 +518,7 @@ def iter_texels(
         sel = np.flatnonzero((ymax_t >= a - 1) & (ymin_t <= b))  # copies that may touch rows [a, b)
         k, rr, cc, bary, overlaps = _sample_hits(xs[sel], ys[sel], h * s, w * s, (a * s, b * s))
         k = sel[k]
-        tr, tc = rr // s, cc // s
+        tr, tc = (rr, cc) if s == 1 else (rr // s, cc // s)
         border = np.zeros(len(k), bool)
         if conservative:
             covered = np.zeros((b - a, w), bool)
@@ -542,7 +557,7 @@ def iter_texels(
             points=points,
             normal=n,
             tangent=t,
-            bitangent=wsign[:, None] * _cross(n, t),
+            bitangent=_signed_cross(wsign, n, t),
             face=face.astype(np.int64, copy=False),
             bary=bary,
             weight=weight,

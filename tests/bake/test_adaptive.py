@@ -360,6 +360,21 @@ def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(co
     assert np.allclose(np.linalg.norm(native.normals[native.interpolated], axis=1), 1.0, atol=1e-12)
 
 
+@pytest.mark.skipif(KERNEL.lib() is None, reason="no C compiler: scipy is the only path")
+@pytest.mark.parametrize("seed", range(6))
+def test_chart_labels_union_find_numbers_the_components_as_scipy_does(seed):
+    # random faces over few and many vertices (one big component, many small ones, unused vertices)
+    from neural_bake.bake.adaptive import _chart_labels_scipy
+
+    rng = np.random.default_rng(seed)
+    nv = int(rng.integers(3, 400))
+    faces = rng.integers(0, nv, (int(rng.integers(1, 300)), 3))
+    mesh = SimpleNamespace(faces=faces, n_vertices=nv + 5)
+    labels = chart_labels(mesh)
+    np.testing.assert_array_equal(labels, _chart_labels_scipy(faces.astype(np.int64), nv + 5))
+    assert labels[0] == 0 and (np.diff(np.maximum.accumulate(labels)) <= 1).all()  # numbered by first face
+
+
 def test_grid_positions_of_one_sample_per_texel_are_the_texels():
     # the shortcut at supersample 1 against the positions recovered from the samples' UVs, on a mesh whose
     # UVs leave [0, 1] (wrapped copies) and with border samples

@@ -614,6 +614,29 @@ def test_first_of_equal_rows_matches_reference(seed, n):
     np.testing.assert_array_equal(_first_of_equal_rows(a), want)
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 60), scale=st.sampled_from([1e-9, 1e-3, 1.0, 1e4]))
+def test_close_pair_check_never_misses_a_pair_within_the_tolerance(seed, n, scale):
+    # the grid check against brute force: whenever two distinct points lie within tol it says so; points on a
+    # lattice of a few tol, and a pair placed just within tol across a cell border of the first grid
+    from neural_bake.io.mesh_io import _may_have_close_pairs
+
+    rng = np.random.default_rng(seed)
+    tol = 1e-9 * scale
+    pts = rng.integers(0, 6, (n, 3)) * (tol * rng.uniform(0.5, 3.0)) + rng.uniform(-1, 1) * scale
+    pts = np.unique(pts, axis=0)
+    if len(pts) > 1:
+        close = pts.copy()
+        close[-1] = close[0] + rng.uniform(-1, 1, 3) * tol / np.sqrt(3) * 0.999
+        for p in (pts, np.unique(close, axis=0)):
+            d = np.sqrt(((p[:, None] - p[None]) ** 2).sum(-1))
+            d[np.arange(len(p)), np.arange(len(p))] = np.inf
+            if d.min() <= tol:
+                assert _may_have_close_pairs(p, tol)
+    far = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3) * 5.0 * tol
+    assert not _may_have_close_pairs(far + scale, tol)  # 5 tol apart: no cell of any grid holds two
+
+
 def test_truncated_glb(tmp_path):
     v, f, uv, _ = painted_sphere()
     save_mesh(mesh_from_arrays(v, f, uv=uv, texture=quadrant_texture()), tmp_path / "a.glb")

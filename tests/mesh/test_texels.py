@@ -356,3 +356,14 @@ def test_property_kernel_equals_numpy_on_random_triangles(seed, h, w, n, s, tiny
         fast, slow = _both(mp, m, (h, w), supersample=s)
     _assert_same(fast, slow)
     assert not tiny or fast.border.any() or not fast.coverage.any()
+
+
+def test_bitangent_kernel_matches_numpy_bit_for_bit(rng):
+    # sign · cross(n, t): the C kernel's operations are numpy's, in the same order
+    if texels_module.KERNEL.lib() is None:
+        pytest.skip("no C compiler: the numpy path is the only one")
+    n, t = rng.normal(size=(2, 500, 3))
+    sign = np.where(rng.random(500) < 0.5, -1.0, 1.0)
+    out = texels_module._signed_cross(sign, n, t)
+    np.testing.assert_array_equal(out, sign[:, None] * np.cross(n, t))
+    assert texels_module._signed_cross(sign[:0], n[:0], t[:0]).shape == (0, 3)
