@@ -18,6 +18,60 @@
 
 static inline double nb_clamp(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
 
+/* The least-squares parallelogram coordinates (t, u) of point p in the quad c0..c3 (corner order (0,0), (0,1),
+   (1,0), (1,1)), unclamped; returns 0 where the quad is no parallelogram
+   (t = u = 0.5 then). */
+static int nb_coordinates(const double *c0, const double *c1, const double *c2, const double *c3, const double *p,
+                          double extrapolate, double direction_eps, double *t, double *u) {
+    double et[3], eu[3], d[3];
+    for (int i = 0; i < 3; i++) {
+        et[i] = 0.5 * (c2[i] - c0[i] + c3[i] - c1[i]);
+        eu[i] = 0.5 * (c1[i] - c0[i] + c3[i] - c2[i]);
+        d[i] = p[i] - 0.25 * (c0[i] + c1[i] + c2[i] + c3[i]) + 0.5 * (et[i] + eu[i]);
+    }
+    const double aa = et[0] * et[0] + et[1] * et[1] + et[2] * et[2];
+    const double bb = et[0] * eu[0] + et[1] * eu[1] + et[2] * eu[2];
+    const double cc = eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2];
+    const double rt = et[0] * d[0] + et[1] * d[1] + et[2] * d[2];
+    const double ru = eu[0] * d[0] + eu[1] * d[1] + eu[2] * d[2];
+    const double det = aa * cc - bb * bb;
+    const double ac = aa * cc > direction_eps ? aa * cc : direction_eps;
+    if (!(det > 64.0 * DBL_EPSILON * ac)) {
+        *t = *u = 0.5;
+        return 0;
+    }
+    *t = nb_clamp((cc * rt - bb * ru) / det, -extrapolate, 1.0 + extrapolate);
+    *u = nb_clamp((aa * ru - bb * rt) / det, -extrapolate, 1.0 + extrapolate);
+    return 1;
+}
+
+/* Sample idx takes the blend of the nodes node[0..nw) with weights w: the unit normal (the weighted sum
+   renormalised, its length clamped below at direction_eps), f from each node's first-order extrapolation
+   f_j + n_j . (p - p_j), the colours; and is marked done, interpolated and valid. */
+static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, const double *points, double *normals,
+                     double *values, double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated,
+                     uint8_t *valid, double direction_eps) {
+    const double *pa = points + 3 * idx;
+    double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
+    for (int j = 0; j < nw; j++) {
+        const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
+        for (int i = 0; i < 3; i++) n[i] += w[j] * nj[i];
+        f += w[j] * (values[node[j]] + ((pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1] + (pa[2] - pj[2]) * nj[2]));
+    }
+    double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (length < direction_eps) length = direction_eps;
+    for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
+    values[idx] = f;
+    for (int64_t c = 0; c < n_colors; c++) {
+        double sum = 0.0;
+        for (int j = 0; j < nw; j++) sum += w[j] * colors[n_colors * node[j] + c];
+        colors[n_colors * idx + c] = sum;
+    }
+    done[idx] = 1;
+    interpolated[idx] = 1;
+    valid[idx] = 1;
+}
+
 void nb_interp_cells(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0, int64_t n_cells,
                      int64_t k, const double *points, double *normals, double *values, double *colors,
                      int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
@@ -37,79 +91,16 @@ void nb_interp_cells(const int64_t *flat_index, int64_t wg, const int64_t *r0, c
                 corner[1] = flat_index[base + (a * wg + b + 1) * h];
                 corner[2] = flat_index[base + ((a + 1) * wg + b) * h];
                 corner[3] = flat_index[base + ((a + 1) * wg + b + 1) * h];
-                const double *p0 = points + 3 * corner[0], *p1 = points + 3 * corner[1];
-                const double *p2 = points + 3 * corner[2], *p3 = points + 3 * corner[3];
                 const double *pa = points + 3 * idx;
-                double et[3], eu[3], d[3];
-                for (int i = 0; i < 3; i++) {
-                    et[i] = 0.5 * (p2[i] - p0[i] + p3[i] - p1[i]);
-                    eu[i] = 0.5 * (p1[i] - p0[i] + p3[i] - p2[i]);
-                    d[i] = pa[i] - 0.25 * (p0[i] + p1[i] + p2[i] + p3[i]) + 0.5 * (et[i] + eu[i]);
-                }
-                const double aa = et[0] * et[0] + et[1] * et[1] + et[2] * et[2];
-                const double bb = et[0] * eu[0] + et[1] * eu[1] + et[2] * eu[2];
-                const double cc = eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2];
-                const double rt = et[0] * d[0] + et[1] * d[1] + et[2] * d[2];
-                const double ru = eu[0] * d[0] + eu[1] * d[1] + eu[2] * d[2];
-                const double det = aa * cc - bb * bb;
-                const double ac = aa * cc > direction_eps ? aa * cc : direction_eps;
-                double t = 0.5, u = 0.5;
-                if (det > 64.0 * DBL_EPSILON * ac) {
-                    t = (cc * rt - bb * ru) / det;
-                    u = (aa * ru - bb * rt) / det;
-                }
-                t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
-                u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+                double t, u;
+                nb_coordinates(points + 3 * corner[0], points + 3 * corner[1], points + 3 * corner[2],
+                               points + 3 * corner[3], pa, extrapolate, direction_eps, &t, &u);
                 const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};
-                double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
-                for (int j = 0; j < 4; j++) {
-                    const double *nj = normals + 3 * corner[j], *pj = points + 3 * corner[j];
-                    for (int i = 0; i < 3; i++) n[i] += w[j] * nj[i];
-                    f += w[j] * (values[corner[j]] + ((pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
-                                                      + (pa[2] - pj[2]) * nj[2]));
-                }
-                double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-                if (length < direction_eps) length = direction_eps;
-                for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
-                values[idx] = f;
-                for (int64_t c = 0; c < n_colors; c++) {
-                    double s = 0.0;
-                    for (int j = 0; j < 4; j++) s += w[j] * colors[n_colors * corner[j] + c];
-                    colors[n_colors * idx + c] = s;
-                }
-                done[idx] = 1;
-                interpolated[idx] = 1;
-                valid[idx] = 1;
+                nb_blend(corner, w, 4, idx, points, normals, values, colors, n_colors, done, interpolated, valid,
+                         direction_eps);
             }
         }
     }
-}
-
-/* The least-squares parallelogram coordinates (t, u) of point p in the quad c0..c3 (corner order (0,0), (0,1),
-   (1,0), (1,1)), as nb_interp_cells computes them, unclamped; returns 0 where the quad is no parallelogram
-   (t = u = 0.5 then). */
-static int nb_coordinates(const double *c0, const double *c1, const double *c2, const double *c3, const double *p,
-                          double direction_eps, double *t, double *u) {
-    double et[3], eu[3], d[3];
-    for (int i = 0; i < 3; i++) {
-        et[i] = 0.5 * (c2[i] - c0[i] + c3[i] - c1[i]);
-        eu[i] = 0.5 * (c1[i] - c0[i] + c3[i] - c2[i]);
-        d[i] = p[i] - 0.25 * (c0[i] + c1[i] + c2[i] + c3[i]) + 0.5 * (et[i] + eu[i]);
-    }
-    const double aa = et[0] * et[0] + et[1] * et[1] + et[2] * et[2];
-    const double bb = et[0] * eu[0] + et[1] * eu[1] + et[2] * eu[2];
-    const double cc = eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2];
-    const double rt = et[0] * d[0] + et[1] * d[1] + et[2] * d[2];
-    const double ru = eu[0] * d[0] + eu[1] * d[1] + eu[2] * d[2];
-    const double det = aa * cc - bb * bb;
-    const double ac = aa * cc > direction_eps ? aa * cc : direction_eps;
-    if (!(det > 64.0 * DBL_EPSILON * ac)) {
-        *t = *u = 0.5;
-        return 0;
-    }
-    *t = (cc * rt - bb * ru) / det;
-    *u = (aa * ru - bb * rt) / det;
-    return 1;
 }
 
 /* The tensor-product quadratic Lagrange basis on the nodes {0, 1/2, 1}^2 at (t, u), in node order (row index with
@@ -177,9 +168,7 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
         int good = 1;
         for (int j = 0; j < 9 && good; j++) {
             double t, u;
-            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], direction_eps, &t, &u);
-            t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
-            u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u);
             nb_lagrange(t, u, vander + 9 * j);
         }
         if (!good || !nb_invert9(vander, inv)) continue;
@@ -189,34 +178,15 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
                 if (done[idx]) continue;
                 const double *pa = points + 3 * idx;
                 double t, u, basis[9], w[9];
-                nb_coordinates(q0, q1, q2, q3, pa, direction_eps, &t, &u);
-                t = nb_clamp(t, -extrapolate, 1.0 + extrapolate);
-                u = nb_clamp(u, -extrapolate, 1.0 + extrapolate);
+                nb_coordinates(q0, q1, q2, q3, pa, extrapolate, direction_eps, &t, &u);
                 nb_lagrange(t, u, basis);
                 for (int j = 0; j < 9; j++) {
                     double s = 0.0;
                     for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];
                     w[j] = s;
                 }
-                double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
-                for (int j = 0; j < 9; j++) {
-                    const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
-                    for (int i = 0; i < 3; i++) n[i] += w[j] * nj[i];
-                    f += w[j] * (values[node[j]] + ((pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
-                                                    + (pa[2] - pj[2]) * nj[2]));
-                }
-                double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-                if (length < direction_eps) length = direction_eps;
-                for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
-                values[idx] = f;
-                for (int64_t c = 0; c < n_colors; c++) {
-                    double s = 0.0;
-                    for (int j = 0; j < 9; j++) s += w[j] * colors[n_colors * node[j] + c];
-                    colors[n_colors * idx + c] = s;
-                }
-                done[idx] = 1;
-                interpolated[idx] = 1;
-                valid[idx] = 1;
+                nb_blend(node, w, 9, idx, points, normals, values, colors, n_colors, done, interpolated, valid,
+                         direction_eps);
             }
         }
     }

@@ -15,6 +15,7 @@ from neural_bake.bake.adaptive import (KERNEL, AdaptiveOptions, _box, _grid_posi
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fields import SdfField, TextureField
+from neural_bake.nets.native import compiler
 from neural_bake.io.mesh_io import load_mesh
 from neural_bake.mesh.decimate import decimate
 from neural_bake.samples.generate import sample_path
@@ -322,7 +323,7 @@ def cell_store(rng, colours: bool):
     return store, points, index, cells
 
 
-@pytest.mark.skipif(KERNEL.lib() is None, reason="no C compiler: the torch path is the only one")
+@pytest.mark.skipif(compiler() is None, reason="no C compiler: the torch path is the only one")
 @pytest.mark.parametrize("quadratic", [False, True])
 @pytest.mark.parametrize("colours", [False, True])
 def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(colours, quadratic, rng):
@@ -360,7 +361,7 @@ def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(co
     assert np.allclose(np.linalg.norm(native.normals[native.interpolated], axis=1), 1.0, atol=1e-12)
 
 
-@pytest.mark.skipif(KERNEL.lib() is None, reason="no C compiler: scipy is the only path")
+@pytest.mark.skipif(compiler() is None, reason="no C compiler: scipy is the only path")
 @pytest.mark.parametrize("seed", range(6))
 def test_chart_labels_union_find_numbers_the_components_as_scipy_does(seed):
     # random faces over few and many vertices (one big component, many small ones, unused vertices)
