@@ -25,9 +25,10 @@ sample, a second bake's cost), or on the adaptive lattice ("lattice", the defaul
 evaluated its fields at (the lattice nodes, borders, seams), and at the interpolated samples within
 ``reach`` sample-grid positions of a node found unfaithful (every sample of an interpolation cell lies that
 close to its nodes); when the bake says in which cell side each sample was interpolated (``side``), within that
-side instead, so a sample of a side-4 cell is decided only when an unfaithful node lies within 4 positions. The other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded
-uniform subsample of them is decided in full as a check (``summary()["lattice_check"]``: how many of those
-the lattice rule would have missed; they are replaced too).
+side instead, so a sample of a side-4 cell is decided only when an unfaithful node lies within 4 positions. The
+other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded uniform subsample of them is
+decided in full as a check (``summary()["lattice_check"]``: how many of those the lattice rule would have
+missed; they are replaced too).
 
 f at the source point p of a sample the bake evaluated (where f(x) and ∇f(x) at its texel point x are known)
 is first estimated to first order, ``f(x) + n(x)·(p − x)`` with n the unit gradient: where the ray is shorter
