@@ -653,7 +653,7 @@ class Baker:
         t0 = time.perf_counter()
         normal_map, albedo = maps.finish()
         # the maps are float32 from here (what the result holds): padding runs on half the bytes
-        normal_map = normal_map.astype(np.float32)
+        normal_map = normal_map.astype(np.float32, copy=False)
         albedo = None if albedo is None else albedo.astype(np.float32, copy=False)
         secs["maps"] += time.perf_counter() - t0
         t0 = time.perf_counter()
