@@ -300,16 +300,19 @@ def _first_of_equal_rows(a: np.ndarray) -> np.ndarray:
 def _may_have_close_pairs(points: np.ndarray, tol: float) -> bool:
     """False only when no two of the distinct ``points`` (N, 3) lie within ``tol`` of each other (then a weld has
     nothing to merge and the KD-tree, and scipy's import, are not needed); True when two of them share a cell of
-    one of four grids of side 4.5·tol shifted by a quarter side along every axis. Two points within tol of each
-    other straddle a cell border of at most one of the four grids per axis, so of at least one grid on none: they
-    share a cell there."""
+    one of four grids of side 4.5·tol shifted by a quarter side along every axis (or their cells' hashes collide:
+    then the KD-tree decides). Two points within tol of each other straddle a cell border of at most one of the
+    four grids per axis, so of at least one grid on none: they share a cell there. One sort of N hashes per grid
+    (a 1M-vertex mesh: about 0.3 s, against 0.8 s for the KD-tree's pairs)."""
     side = 4.5 * tol
     lo = points.min(axis=0)
     if not float((points.max(axis=0) - lo).max()) / side < 2.0**52:  # cells beyond exact integers: the KD-tree
         return True
+    primes = np.array([73856093, 19349663, 83492791], dtype=np.int64)
     for shift in range(4):
         cells = np.floor((points - lo) / side + shift / 4.0).astype(np.int64)
-        if len(np.unique(cells, axis=0)) < len(points):
+        keys = np.sort((cells[:, 0] * primes[0]) ^ (cells[:, 1] * primes[1]) ^ (cells[:, 2] * primes[2]))
+        if (keys[1:] == keys[:-1]).any():
             return True
     return False
 
