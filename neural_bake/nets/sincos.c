@@ -4,7 +4,8 @@
    Cephes' minimax polynomials for sin r and cos r on [-π/4, π/4] and the quadrant k mod 4 picks and signs
    them. Max error ~1e-7 absolute (≤ 2 ulp of 1), against 4e-8 for torch.sin. Blocks holding a value with
    |x| > 65536, an infinity or a NaN take libm's sinf/cosf instead (same results as torch: NaN for inf/NaN).
-   The polynomial loop has no branches, so compilers vectorise it (AVX2: 8 lanes).
+   The polynomial loop has no branches, so compilers vectorise it (AVX-512: 16 lanes, AVX2: 8; each clone gives
+   the same bits, as FMA contraction is off).
 
    nb_sincos_f32(a, s, c, n): s[i] = sin a[i], c[i] = cos a[i]; c may be a (cos written in place).
    nb_sin_f32(a, s, n): s[i] = sin a[i]; s may be a (in place). The same reduction and polynomials. */
@@ -12,7 +13,9 @@
 #include <stdint.h>
 #include <string.h>
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 11
+#define NB_TARGETS __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#elif defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define NB_TARGETS __attribute__((target_clones("arch=x86-64-v3", "default")))
 #else
 #define NB_TARGETS
