@@ -397,6 +397,10 @@ CERTIFY_MIN_TARGET = 1e-9
 #: A thread probe keeps a larger count unless a smaller one is faster by more than this factor.
 THREAD_MARGIN = 1.10
 
+#: A one-off thread choice stops timing after a round in which the fastest count beat every other by this factor
+#: (far beyond a quiet machine's jitter of about ±15 %), instead of timing its remaining rounds.
+THREAD_DECISIVE = 1.4
+
 #: Steps a loop runs on all its threads before its first thread probe (its one-time costs: pools, compiles).
 THREAD_WARMUP_STEPS = 5
 

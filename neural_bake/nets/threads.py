@@ -27,7 +27,7 @@ from typing import Callable
 
 import torch
 
-from ..constants import (THREAD_ABORT_FACTOR, THREAD_DRIFT, THREAD_MARGIN, THREAD_PROBE_INTERVAL_S,
+from ..constants import (THREAD_ABORT_FACTOR, THREAD_DECISIVE, THREAD_DRIFT, THREAD_MARGIN, THREAD_PROBE_INTERVAL_S,
                          THREAD_PROBE_SHARE, THREAD_REPROBE_S, THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
 from ..errors import NeuralBakeError
 
@@ -109,7 +109,9 @@ def choose_threads(work: Callable[[], object], *, device: torch.device | str = "
                    candidates: tuple[int, ...] | None = None, clock: Callable[[], float] = time.perf_counter,
                    env: str | None = None) -> ThreadChoice:
     """Set torch's thread count to the fastest for ``work`` (a representative slice of what is about to run,
-    called ``1 + repeats`` times per count: one warm-up, then the best of ``repeats``) and return the choice.
+    called ``1 + repeats`` times per count: one warm-up, then the best of ``repeats`` timed rounds) and return
+    the choice. The rounds stop early once one count is faster than every other by
+    :data:`~neural_bake.constants.THREAD_DECISIVE` (a busy neighbour, or threads that pay, show that at once).
 
     A fixed count (``NEURAL_BAKE_THREADS``, or ``env``) is set without timing anything; work on a device
     other than the CPU leaves the setting alone.
@@ -123,18 +125,29 @@ def choose_threads(work: Callable[[], object], *, device: torch.device | str = "
         return ThreadChoice(fixed, f"{ENV_THREADS}={fixed}", how="fixed")
     counts = candidates or thread_candidates()
     seconds: dict[int, float] = {}
-    for n in counts:
+    for n in counts:  # the warm-ups: a count's first call starts its threads
         torch.set_num_threads(n)
         work()
-        best = float("inf")
-        for _ in range(max(1, int(repeats))):
+        t0 = clock()
+        work()
+        seconds[n] = clock() - t0
+    for _ in range(max(1, int(repeats)) - 1):
+        if len(seconds) < 2 or _decisive(seconds):
+            break
+        for n in counts:
+            torch.set_num_threads(n)
             t0 = clock()
             work()
-            best = min(best, clock() - t0)
-        seconds[n] = best
+            seconds[n] = min(seconds[n], clock() - t0)
     pick = _best(seconds)
     torch.set_num_threads(pick)
     return ThreadChoice(pick, _reason(pick, seconds), seconds)
+
+
+def _decisive(seconds: dict[int, float]) -> bool:
+    """True when the fastest count beats every other by :data:`~neural_bake.constants.THREAD_DECISIVE`."""
+    times = sorted(seconds.values())
+    return times[1] >= THREAD_DECISIVE * times[0]
 
 
 def _reason(pick: int, seconds: dict[int, float]) -> str:
