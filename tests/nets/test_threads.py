@@ -4,6 +4,7 @@ a neighbour's load, so every decision is tested without a wall-clock assertion."
 import pytest
 import torch
 
+from neural_bake.constants import THREAD_DECISIVE
 from neural_bake.errors import NeuralBakeError
 from neural_bake.nets.threads import (ENV_MAX_THREADS, ThreadTuner, choose_threads, fixed_threads,
                                       thread_candidates)
@@ -45,7 +46,7 @@ def test_choose_threads_keeps_the_fastest(costs, expected):
     assert choice.threads == expected == torch.get_num_threads()
     assert choice.how == "measured" and set(choice.seconds) == {1, 2}
     assert choice.seconds[1] == pytest.approx(costs[1]) and choice.seconds[2] == pytest.approx(costs[2])
-    decisive = max(costs.values()) >= 1.4 * min(costs.values())
+    decisive = max(costs.values()) >= THREAD_DECISIVE * min(costs.values())
     assert m.calls == (2 * 2 if decisive else 2 * 3)  # a warm-up and one timed call per count; a second round
     # only when the first did not decide
     assert f"{expected} thread" in choice.reason and choice.as_dict()["threads"] == expected
