@@ -248,16 +248,22 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         if any(m in maps for m in ("normal", "albedo")):
             baked = _bake_texels(inputs, coarse_m, cfg, maps=maps, keep=keep, log=log, layouts=layouts)
             timings["prepare"] = baked.seconds
-            t0 = time.perf_counter()
-            files, kept = job.write_maps(stage, baked, inputs, maps=maps, formats=formats, bits=cfg.bits,
-                                         exr=cfg.exr, normal_space=cfg.normal_space, directx=cfg.directx, keep=keep)
-            written += files
+
+            def write():
+                t0 = time.perf_counter()
+                out = job.write_maps(stage, baked, inputs, maps=maps, formats=formats, bits=cfg.bits, exr=cfg.exr,
+                                     normal_space=cfg.normal_space, directx=cfg.directx, keep=keep)
+                return out, time.perf_counter() - t0
+
+            # the maps are written while the report measures them: PNG and EXR encoding release the
+            # interpreter lock, and the report's own work is mostly single-threaded
+            ((files, kept), write_s), (rep, report_files) = _beside(
+                write, lambda: job.report_maps(stage, baked, inputs, baseline=cfg.baseline, cage=cfg.cage,
+                                               truth=truth, bits=cfg.bits, timings=timings, coarse=coarse, log=log))
+            timings["write"] = rep["seconds"]["write"] = write_s
+            written += files + report_files
             if kept is not None:
                 report["kept"] = kept
-            timings["write"] = time.perf_counter() - t0
-            rep, files = job.report_maps(stage, baked, inputs, baseline=cfg.baseline, cage=cfg.cage, truth=truth,
-                                         bits=cfg.bits, timings=timings, coarse=coarse, log=log)
-            written += files
             report.update(rep)
             for w in report["warnings"]:
                 log(f"warning: {w}")
@@ -270,6 +276,17 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         atomic_write_text(stage / "report.json", dumps(report))
     _log_summary(report, mesh, folder.out, written, log)
     return report
+
+
+def _beside(first: Callable, second: Callable) -> tuple:
+    """(``first()``, ``second()``), ``first`` run in a worker thread while ``second`` runs here. Both have
+    finished when this returns or raises; an error of ``second`` is raised before one of ``first``."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="bake-write") as pool:  # leaving it waits
+        pending = pool.submit(first)
+        other = second()
+        return pending.result(), other
 
 
 def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], keep: bool, log, layouts=None):
