@@ -152,6 +152,12 @@ HYBRID_SDF_TOL = 0.01
 #: 4.6°, nefertiti 4.4° → 3.1°) for 0.4–9 % more classical texels and no measurable bake time (docs/findings.md).
 HYBRID_ANGLE_DEG = 5.0
 
+#: Heap a texel bake uses per sample position (H·W·s²) beyond what the process holds before it (imports, model):
+#: the peak resident sets of the bake command on Spot were 0.9 GB at 1024² and 1.6 GB at 2048², against 0.5 GB
+#: before its first stage: 370 and 270 bytes a sample. The command reserves this much heap ahead of its first
+#: stage (:func:`neural_bake.bake.job.reserve_heap`), at most half the machine's free memory.
+BAKE_HEAP_PER_SAMPLE = 280
+
 #: A bake report compares a map larger than this (side, texels) with the truth and the classical baseline on a
 #: lattice of its texels, every k-th of each row and column (k = ceil(side / this)), and draws its error maps
 #: at that lattice: the figures are then a systematic subsample stated with their confidence intervals.

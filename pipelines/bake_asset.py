@@ -227,6 +227,8 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
     nested = isinstance(out, OutputFolder)
     folder = out if nested else OutputFolder(out)
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
+        if any(m in maps for m in ("normal", "albedo")):  # its pages fault in on another core while it loads
+            job.reserve_heap(cfg.size, cfg.supersample)
         inputs = job.load_inputs(mesh, sdf_path, texture_model, coarse=coarse, texture_image=cfg.texture,
                                  truth=truth, delta=cfg.delta, device=cfg.device, force=cfg.force, log=log)
         timings: dict[str, float] = {"load": inputs.seconds}

@@ -16,6 +16,7 @@ found. Errors are :class:`~neural_bake.errors.NeuralBakeError` naming the file o
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -258,6 +259,21 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
         raise MeshError(f"{inputs.mesh_path}: the coarse mesh's UV layout covers no texel of the {size}x{size} map")
     return TexelBake(baker=baker, result=res, hybrid=fallback, colour_tol=colour_tol, seconds=prepare,
                      colour_psnr=colour_psnr, colour_within=colour_within)
+
+
+def reserve_heap(size: int, supersample: int = 1) -> str:
+    """Reserve the heap a texel bake of ``size``² (``supersample``) is about to use and fault it in on a
+    background thread while the bake loads (:func:`neural_bake.nets.heap.reserve`):
+    :data:`~neural_bake.constants.BAKE_HEAP_PER_SAMPLE` a sample position, at most half the free memory."""
+    from ..constants import BAKE_HEAP_PER_SAMPLE
+    from ..nets.heap import reserve
+
+    want = BAKE_HEAP_PER_SAMPLE * int(size) ** 2 * int(supersample) ** 2
+    try:
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not a POSIX system that says
+        free = want
+    return reserve(min(want, free // 2))
 
 
 def write_maps(stage: Path, baked: TexelBake, inputs: BakeInputs, *, maps: list[str], formats: list[str],

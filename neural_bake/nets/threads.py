@@ -30,6 +30,7 @@ import torch
 from ..constants import (THREAD_ABORT_FACTOR, THREAD_DECISIVE, THREAD_DRIFT, THREAD_MARGIN, THREAD_PROBE_INTERVAL_S,
                          THREAD_PROBE_SHARE, THREAD_REPROBE_S, THREAD_TRIAL_STEPS, THREAD_WARMUP_STEPS, THREAD_WINDOW)
 from ..errors import NeuralBakeError
+from .heap import wait_reserved
 
 __all__ = ["ENV_THREADS", "ENV_MAX_THREADS", "ThreadChoice", "ThreadTuner", "choose_threads", "fixed_threads", "usable_cores",
            "thread_candidates"]
@@ -124,6 +125,7 @@ def choose_threads(work: Callable[[], object], *, device: torch.device | str = "
         torch.set_num_threads(fixed)
         return ThreadChoice(fixed, f"{ENV_THREADS}={fixed}", how="fixed")
     counts = candidates or thread_candidates()
+    wait_reserved()  # pages being faulted in on another thread would look like a busy neighbour (nets.heap)
     seconds: dict[int, float] = {}
     for n in counts:  # the warm-ups: a count's first call starts its threads
         torch.set_num_threads(n)

@@ -159,3 +159,55 @@ def test_numpy_arrays_leave_transparent_huge_pages():
     off, off_status = _faults(script, "0")
     assert on == 0 and "ordinary pages" in on_status
     assert off == 1 and "ordinary pages" not in off_status
+
+
+# A 64 MB array written after reserve(): its pages were faulted in ahead (by the reserve's thread), so writing it
+# faults a handful of pages; without the reserve, one a 4 KB page (16,384) or one a huge page.
+_RESERVED = textwrap.dedent("""
+    import os, resource, sys
+    import numpy as np
+    from neural_bake.nets import heap
+    if os.environ.get("RESERVE") == "1":
+        heap.reserve(96 << 20)
+        heap.wait_reserved()
+    else:
+        heap.keep_freed_memory()
+    print(heap.status(), file=sys.stderr)
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    a = np.empty(8 << 20)  # 64 MB
+    a.fill(1.0)
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+""")
+
+
+@pytest.mark.skipif(not GLIBC, reason="the tuning applies to glibc's malloc only")
+def test_reserved_heap_is_faulted_in_ahead(monkeypatch):
+    monkeypatch.setenv("RESERVE", "0")
+    plain, _ = _faults(_RESERVED, None)
+    monkeypatch.setenv("RESERVE", "1")
+    reserved, status = _faults(_RESERVED, None)
+    assert "96 MB of heap" in status
+    if "faulted in ahead" not in status:  # a kernel before 5.14: the heap is kept, its pages fault at first use
+        pytest.skip(status)
+    assert plain >= 32 and reserved <= min(50, plain / 10), (plain, reserved)
+
+
+def test_reserve_is_off_with_the_switch_and_does_not_shrink(monkeypatch):
+    monkeypatch.setitem(heap._state, "status", None)
+    monkeypatch.setitem(heap._state, "reserved", 0)
+    monkeypatch.setitem(heap._state, "thread", None)
+    monkeypatch.setitem(heap._state, "reserve", None)
+    monkeypatch.setenv(heap.ENV_SWITCH, "0")
+    assert heap.reserve(1 << 20).startswith("nothing reserved: off")
+    assert heap._state["thread"] is None
+    monkeypatch.delenv(heap.ENV_SWITCH)
+    monkeypatch.setitem(heap._state, "status", None)
+    if not GLIBC:
+        assert heap.reserve(1 << 20).startswith("nothing reserved")
+        return
+    first = heap.reserve(2 << 20)
+    heap.wait_reserved()
+    assert first.startswith("2 MB of heap") and heap._state["reserved"] == 2 << 20
+    thread = heap._state["thread"]
+    heap.reserve(1 << 20)  # smaller than what is held: nothing new
+    assert heap._state["thread"] is thread and heap._state["reserved"] == 2 << 20

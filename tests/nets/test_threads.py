@@ -215,3 +215,19 @@ def test_initial_probe_sets_the_first_steps_count_and_a_failing_one_is_skipped()
     tuner = ThreadTuner(candidates=(2, 1), clock=m.clock, env="auto", warmup=3, initial=broken)
     assert tuner.initial is None and tuner.threads == 2 == torch.get_num_threads()
     assert tuner.summary()["initial"] is None
+
+
+def test_the_probe_waits_for_the_heap_reserve(monkeypatch):
+    """Pages being faulted in on another core would look like a busy neighbour: the probe joins that thread
+    before it times anything."""
+    from neural_bake.nets import heap
+
+    order = []
+
+    class Reserve:
+        def join(self, timeout=None):
+            order.append("joined")
+
+    monkeypatch.setitem(heap._state, "thread", Reserve())
+    choose_threads(lambda: order.append("work"), candidates=(1, 2), clock=iter(range(100)).__next__, env="auto")
+    assert order[0] == "joined" and order.count("joined") == 1 and "work" in order
