@@ -157,14 +157,13 @@ def reserve(nbytes: int) -> str:
         start = -(-block // _PAGE) * _PAGE
         length = (block + nbytes - start) // _PAGE * _PAGE
         _state["reserved"] = nbytes
-        _state["reserve"] = f"{nbytes >> 20} MB of heap being faulted in on a background thread"
+        _state["reserve"] = f"{nbytes >> 20} MB of heap faulted in ahead, on a background thread"
 
         def populate():
             for at in range(start, start + length, _POPULATE_STEP):  # in steps: the lock is held per call
                 if libc.madvise(at, min(_POPULATE_STEP, start + length - at), _MADV_POPULATE_WRITE) != 0:
                     break
             else:
-                _state["reserve"] = f"{nbytes >> 20} MB of heap faulted in ahead, on a background thread"
                 return
             err = ctypes.get_errno()
             why = ("the kernel has no MADV_POPULATE_WRITE (Linux < 5.14)" if err == errno.EINVAL
