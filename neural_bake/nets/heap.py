@@ -168,7 +168,7 @@ def reserve(nbytes: int) -> str:
             err = ctypes.get_errno()
             why = ("the kernel has no MADV_POPULATE_WRITE (Linux < 5.14)" if err == errno.EINVAL
                    else f"madvise: {os.strerror(err)}")
-            _state["reserve"] = f"{nbytes >> 20} MB of heap kept, its pages faulted in at first use ({why})"
+            _state["reserve"] = f"{nbytes >> 20} MB of heap reserved, its pages not faulted in ahead ({why})"
 
         _state["thread"] = threading.Thread(target=populate, name="heap-reserve", daemon=True)
         _state["thread"].start()
