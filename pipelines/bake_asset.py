@@ -227,7 +227,8 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
     nested = isinstance(out, OutputFolder)
     folder = out if nested else OutputFolder(out)
     with contextlib.nullcontext(folder.stage) if nested else folder as stage:  # lock, leftovers, staging
-        if any(m in maps for m in ("normal", "albedo")):  # its pages fault in on another core while it loads
+        texel_maps = any(m in maps for m in ("normal", "albedo"))
+        if texel_maps:  # its pages fault in on another core while it loads
             job.reserve_heap(cfg.size, cfg.supersample)
         inputs = job.load_inputs(mesh, sdf_path, texture_model, coarse=coarse, texture_image=cfg.texture,
                                  truth=truth, delta=cfg.delta, device=cfg.device, force=cfg.force, log=log)
@@ -241,13 +242,13 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         timings["coarse"] = coarse_info["seconds"]
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices"
             + (" (from the layout cache)" if coarse_info.get("cached") else ""))
-        if any(m in maps for m in ("normal", "albedo")) and coarse_m.uv is not None:
+        if texel_maps and coarse_m.uv is not None:
             job.check_uv_area(mesh, coarse_m.uv, cfg.size)
         written: list[str] = []
         report: dict = {"mesh": None if mesh is None else str(mesh), "sdf": folder.shown(sdf_path),
                         "texture_model": texture_model and folder.shown(texture_model), "coarse": coarse_info,
                         "maps": maps, "sdf_check": inputs.sdf_check}
-        if any(m in maps for m in ("normal", "albedo")):
+        if texel_maps:
             baked = _bake_texels(inputs, coarse_m, cfg, maps=maps, keep=keep, log=log, layouts=layouts)
             timings["prepare"] = baked.seconds
 

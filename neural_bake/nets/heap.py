@@ -70,10 +70,11 @@ _MADV_POPULATE_WRITE = 23  # Linux's mman.h (5.14)
 _PAGE = 4096
 _POPULATE_STEP = 4 << 20
 _lock = threading.Lock()
-_state: dict = {"status": None, "reserved": 0, "thread": None, "reserve": None}
+_state: dict = {"status": None, "any_size": False, "reserved": 0, "thread": None, "reserve": None}
 
 
 def _tune() -> str:
+    _state["any_size"] = False  # set below once every block size is kept
     if env_switch(ENV_SWITCH) is False:
         return f"off ({ENV_SWITCH}=0): malloc left as it is"
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
@@ -90,6 +91,7 @@ def _tune() -> str:
         return f"mallopt refused the trim threshold: blocks up to {MMAP_THRESHOLD >> 20} MB come from the heap"
     if mallopt(_M_MMAP_MAX, 0) != 1:
         return f"glibc malloc keeps freed blocks up to {MMAP_THRESHOLD >> 20} MB for reuse" + _small_pages()
+    _state["any_size"] = True
     return "glibc malloc keeps freed blocks of any size for reuse" + _small_pages()
 
 
@@ -140,7 +142,7 @@ def reserve(nbytes: int) -> str:
     call reserved, or while an earlier call's thread still runs."""
     nbytes = min(int(nbytes), RESERVE_MAX)
     tuned = keep_freed_memory()
-    if "of any size" not in tuned:  # off, not glibc, or large blocks still mapped on their own
+    if not _state["any_size"]:  # off, not glibc, or large blocks still mapped on their own
         return f"nothing reserved: {tuned}"
     with _lock:
         if nbytes <= _state["reserved"] or (_state["thread"] is not None and _state["thread"].is_alive()):

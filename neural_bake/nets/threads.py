@@ -130,17 +130,14 @@ def choose_threads(work: Callable[[], object], *, device: torch.device | str = "
     for n in counts:  # the warm-ups: a count's first call starts its threads
         torch.set_num_threads(n)
         work()
-        t0 = clock()
-        work()
-        seconds[n] = clock() - t0
-    for _ in range(max(1, int(repeats)) - 1):
-        if len(seconds) < 2 or _decisive(seconds):
+    for _ in range(max(1, int(repeats))):  # rounds, the counts in turn
+        if len(seconds) > 1 and _decisive(seconds):
             break
         for n in counts:
             torch.set_num_threads(n)
             t0 = clock()
             work()
-            seconds[n] = min(seconds[n], clock() - t0)
+            seconds[n] = min(seconds.get(n, float("inf")), clock() - t0)
     pick = _best(seconds)
     torch.set_num_threads(pick)
     return ThreadChoice(pick, _reason(pick, seconds), seconds)
