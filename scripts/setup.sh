@@ -44,6 +44,10 @@ fi
 #    extras hold usd-core, so `make demo` writes asset.usd and the tests validate it).
 say "installing neural-bake and its dependencies"
 "${PIP[@]}" -e ".[test,usd]"
+# The package's bytecode, as a wheel install writes it: an editable install leaves it to the first run, and
+# where bytecode is never written (PYTHONDONTWRITEBYTECODE) every command would compile its sources again.
+"$VENV/bin/python" -m compileall -q neural_bake cli pipelines samples >/dev/null \
+  || say "warning: could not write the package's bytecode: commands start slower"
 "$VENV/bin/python" -c "import open3d, torch, OpenImageIO, pymeshlab, xatlas; print('setup: ok: torch', torch.__version__)"
 
 # 5. The visual checks: model-viewer (npm) beside the reports, the Khronos glTF validator (npm) for the GLB

@@ -21,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from .common import last_error_line, load_note, machine_info, run_command
+from .common import bytecode_note, last_error_line, load_note, machine_info, run_command
 
 __all__ = ["run"]
 
@@ -520,6 +520,7 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
                  "(--no-layout-cache: the coarse mesh decimated and unwrapped) and the same bake again (both from "
                  "the layout cache); rounds: our two commands and Blender's script in turn, wall and bake the best "
                  "of the rounds (range beside), the other stages the fastest round's")
+    notes.append(bytecode_note())
     for r in rows:
         for k in ("wall s", *(f"{k} s" for k in _COMMAND_STAGES), "hybrid s", "evaluated", "vs source med°",
                   "vs source p95°", "rounds", "wall range s", "bake range s"):

@@ -6,6 +6,7 @@ with :func:`format_table` and writes it with :func:`write_json` when ``--json PA
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import subprocess
@@ -76,11 +77,50 @@ def timeit_interleaved(methods: dict[str, Callable[[], object]], repeat: int = 3
 def run_command(args: Sequence[str], *, env: dict[str, str] | None = None) -> tuple[float, subprocess.CompletedProcess]:
     """Run ``neural-bake ARGS`` as a user does, in a process of its own (``python -m neural_bake.cli.main``,
     with ``env`` as its environment, default this one's): its wall seconds, start-up included, and the finished
-    process (exit code, output captured as text)."""
+    process (exit code, output captured as text). The package's bytecode is written first, once a process
+    (:func:`compile_bytecode`; :func:`bytecode_note` says how that went)."""
+    bytecode_note()
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "neural_bake.cli.main", *args], env=env, capture_output=True,
                           text=True)
     return time.perf_counter() - t0, proc
+
+
+#: The packages of neural-bake: the library and the folders mapped under its namespace (pyproject.toml).
+PACKAGES = ("neural_bake", "neural_bake.cli", "neural_bake.pipelines", "neural_bake.samples")
+
+
+def compile_bytecode(packages: Sequence[str] = PACKAGES) -> str:
+    """Write the bytecode of every module of ``packages`` (and their subpackages) that lacks it or has a stale
+    one, as installing a package does, so a timed command starts as it does for a user and not after compiling
+    its sources in memory (which every start does where bytecode is never written, e.g. under
+    ``PYTHONDONTWRITEBYTECODE``). Returns a note for the bench's notes; a folder that cannot be written is
+    named there, not raised (the command then runs as it is)."""
+    import compileall
+    import importlib
+    import io
+    from contextlib import redirect_stdout
+
+    folders: list[str] = []
+    for name in packages:
+        folders += list(importlib.import_module(name).__path__)
+    roots = sorted({str(Path(f).resolve()) for f in folders})
+    failed = []
+    for root in roots:
+        if any(root != other and root.startswith(other + os.sep) for other in roots):
+            continue  # a subpackage inside another root (compile_dir recurses)
+        with redirect_stdout(io.StringIO()):
+            if not compileall.compile_dir(root, quiet=2, workers=1):
+                failed.append(root)
+    if failed:
+        return f"bytecode could not be written in {', '.join(failed)}: the commands compiled their sources as they ran"
+    return "the package's bytecode was written before the commands ran, as an installed package's is"
+
+
+@functools.lru_cache(maxsize=1)
+def bytecode_note() -> str:
+    """:func:`compile_bytecode`'s note, compiling once a process."""
+    return compile_bytecode()
 
 
 def last_error_line(proc: subprocess.CompletedProcess) -> str:
