@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..constants import UNWRAP_PACK_SIDE
 from ..errors import MeshError, NeuralBakeError
 from ..types import Mesh
 from ..geometry import vertex_normals
@@ -20,7 +21,9 @@ class UnwrapConfig:
     """xatlas options (ChartOptions and PackOptions); ``None`` keeps xatlas' default."""
 
     resolution: int = 1024
-    """Texel resolution the charts are packed for (the atlas is resolution × resolution)."""
+    """Texel resolution the charts are packed for (the atlas is resolution × resolution). Above
+    :data:`~neural_bake.constants.UNWRAP_PACK_SIDE` they are packed on that grid with the padding scaled to it
+    (rounded up), which keeps the gaps in texels of the map and takes a fraction of the time."""
     padding: int = 4
     """Texels left between charts, so padding/dilation and mip-maps do not bleed across charts."""
     max_chart_area: float | None = None
@@ -73,8 +76,9 @@ def _options(cfg: UnwrapConfig):
         if v is not None:
             setattr(co, name, type(getattr(co, name))(v))
     po = xatlas.PackOptions()
-    po.resolution = int(cfg.resolution)
-    po.padding = int(cfg.padding)
+    # a map wider than UNWRAP_PACK_SIDE is packed on that grid, its padding scaled (rounded up), and scaled up
+    po.resolution = min(int(cfg.resolution), UNWRAP_PACK_SIDE)
+    po.padding = -(-int(cfg.padding) * po.resolution // int(cfg.resolution))
     po.bilinear = bool(cfg.bilinear)
     po.blockAlign = bool(cfg.block_align)
     po.bruteForce = bool(cfg.brute_force)

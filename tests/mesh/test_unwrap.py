@@ -119,3 +119,48 @@ def test_unwrap_non_manifold_mesh():
     np.testing.assert_array_equal(vmap[m.faces], f)
     assert (m.uv >= 0).all() and (m.uv <= 1).all()
     assert rasterize_texels(m, 32, conservative=False).overlaps == 0
+
+
+def _chart_gap(m, size: int) -> int:
+    """The smallest Chebyshev distance in texels of a ``size``² map between texels of two different charts."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(np.arange(m.n_faces), 3)
+    inc = coo_matrix((np.ones(rows.size), (rows, m.faces.ravel())), shape=(m.n_faces, m.n_vertices)).tocsr()
+    _, chart = connected_components(inc @ inc.T, directed=False)
+    ts = rasterize_texels(m, size, conservative=False)
+    ids = np.zeros((size + 32, size + 32), dtype=np.int64)  # a margin, so shifted views stay in range
+    ids[ts.pixel[:, 0] + 16, ts.pixel[:, 1] + 16] = chart[ts.face] + 1
+    for r in range(1, 16):
+        for dr in range(-r, r + 1):
+            for dc in range(-r, r + 1):
+                if max(abs(dr), abs(dc)) != r:
+                    continue
+                a = ids[16:-16, 16:-16]
+                b = ids[16 + dr: 16 + dr + size, 16 + dc: 16 + dc + size]
+                if ((a > 0) & (b > 0) & (a != b)).any():
+                    return r
+    return 16
+
+
+def test_a_large_map_is_packed_on_the_pack_grid_keeping_its_gaps(sphere, monkeypatch):
+    """Above UNWRAP_PACK_SIDE the charts are packed on that grid with the padding scaled up to whole grid texels:
+    the same charts, and gaps between them of about the padding in texels of the map."""
+    import neural_bake.mesh.unwrap as unwrap_mod
+
+    _, po = unwrap_mod._options(UnwrapConfig(resolution=4096, padding=4))
+    assert (po.resolution, po.padding) == (1024, 1)
+    _, po = unwrap_mod._options(UnwrapConfig(resolution=1024, padding=4))
+    assert (po.resolution, po.padding) == (1024, 4)
+    _, po = unwrap_mod._options(UnwrapConfig(resolution=3000, padding=5))
+    assert (po.resolution, po.padding) == (1024, 2)  # 5 · 1024 / 3000 = 1.7, rounded up
+    native = _chart_gap(unwrap(sphere, resolution=256, padding=4), 256)
+    monkeypatch.setattr(unwrap_mod, "UNWRAP_PACK_SIDE", 64)
+    packed = unwrap(sphere, resolution=256, padding=4)
+    assert (packed.uv >= 0).all() and (packed.uv <= 1).all()
+    ts = rasterize_texels(packed, 256, conservative=False)
+    assert ts.overlaps == 0 and 0.3 < ts.coverage.mean() < 0.95
+    # 1 grid texel = 4 map texels: the gaps are those of a packing at 256 (xatlas' rescaling to the square aside);
+    # unscaled (padding 4 on the 64 grid) they would be 16, without padding 4
+    assert native - 1 <= _chart_gap(packed, 256) < 16
