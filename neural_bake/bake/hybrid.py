@@ -34,7 +34,10 @@ f at the source point p of a sample the bake evaluated (where f(x) and ∇f(x) a
 is first estimated to first order, ``f(x) + n(x)·(p − x)`` with n the unit gradient: where the ray is shorter
 than ``sdf_tol / 2`` and the estimate is under ``sdf_tol / 2`` the sample is faithful as far as f goes, and
 the network's forward pass runs only at the others (a first-order error above ``sdf_tol / 2`` over such a
-distance would need second derivatives of f far beyond a fitted SDF's: docs/findings.md, "Baking"). A seeded uniform subsample of the estimated samples is evaluated anyway as a
+distance would need second derivatives of f far beyond a fitted SDF's: docs/findings.md, "Baking"). The
+interpolated samples the ring decides are estimated likewise from the bake's interpolated f(x) and ∇f(x), with
+the estimate under ``sdf_tol / 4`` (the other quarter is room for the interpolation's error, which the bake
+holds within its value tolerance). A seeded uniform subsample of the estimated samples is evaluated anyway as a
 check (``summary()["estimate_check"]``: how many the estimate would have called faithful wrongly; they are
 decided on the evaluated f).
 
@@ -234,10 +237,12 @@ class HybridFallback:
         return out
 
     def _source_values(self, coarse: Mesh, texels, idx: np.ndarray, source_points: np.ndarray,
-                       normals: np.ndarray, values: np.ndarray | None, valid: np.ndarray) -> np.ndarray:
+                       normals: np.ndarray, values: np.ndarray | None, valid: np.ndarray,
+                       share: float = 0.5) -> np.ndarray:
         """f at the source points of the samples ``idx``: estimated to first order from ``values`` (f at
-        the texel points, None: not known) and the unit ``normals`` where that is safe (module docstring),
-        the field's forward pass elsewhere and at a seeded check subsample of the estimated ones."""
+        the texel points, None: not known) and the unit ``normals`` where that is safe (module docstring; the
+        estimate must stay under ``share`` · sdf_tol), the field's forward pass elsewhere and at a seeded check
+        subsample of the estimated ones."""
         from .baker import _to_field_frame
 
         f = np.empty(len(idx))
@@ -249,7 +254,7 @@ class HybridFallback:
             step = p - x
             dist = np.sqrt(np.einsum("ij,ij->i", step, step))
             est = values[idx] + np.einsum("ij,ij->i", normals[idx], step)
-            near = valid[idx] & np.isfinite(est) & (dist < 0.5 * self.sdf_tol) & (np.abs(est) < 0.5 * self.sdf_tol)
+            near = valid[idx] & np.isfinite(est) & (dist < 0.5 * self.sdf_tol) & (np.abs(est) < share * self.sdf_tol)
             check[near] = self._check_mask(idx[near], 2)
             f[near] = est[near]
         exact = ~near | check
@@ -262,10 +267,11 @@ class HybridFallback:
 
     def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
                 base: dict | None, colors: np.ndarray | None = None,
-                values: np.ndarray | None = None) -> tuple[dict, dict]:
+                values: np.ndarray | None = None, share: float = 0.5) -> tuple[dict, dict]:
         """(reasons, classical bake) of the samples ``idx``: rays cast unless ``base`` holds the band's.
         With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful;
-        with ``values`` (f at the evaluated texel points), f at the source is estimated where safe."""
+        with ``values`` (f at the texel points), f at the source is estimated where safe (``share``:
+        :meth:`_source_values`)."""
         from .baseline import baseline_bake
 
         if base is None:
@@ -273,7 +279,7 @@ class HybridFallback:
             b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
-        f_surf = self._source_values(coarse, texels, idx, b["points"], normals, values, valid) if len(idx) \
+        f_surf = self._source_values(coarse, texels, idx, b["points"], normals, values, valid, share) if len(idx) \
             else np.zeros(0)
         self.f_abs.append(np.abs(f_surf))
         why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
@@ -383,8 +389,10 @@ class HybridFallback:
         if len(rest):
             near = self._near(texels, first[either(why)], rest, side)
             ring = rest[near]
-            if len(ring):
-                take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors))
+            if len(ring):  # f at their points is the bake's interpolation: half the estimate's room for its error
+                take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors,
+                                         values=None if values is None else np.asarray(values, dtype=np.float64),
+                                         share=0.25))
             check = self._check_pick(rest[~near])
             if len(check):
                 why, b = self._decide(coarse, texels, check, normals, valid, base, colors)

@@ -503,3 +503,40 @@ def test_estimate_check_catches_and_decides_a_wrong_estimate():
     s = hybrid.summary()["estimate_check"]
     assert s["samples"] >= 256 and s["missed"] > 0.5 * s["samples"]
     assert out.replaced.sum() == s["missed"] and s["estimated"] + s["samples"] == tx.n_samples
+
+
+def test_ring_estimates_from_interpolated_values_within_a_quarter_of_the_tolerance(monkeypatch):
+    """The interpolated samples the ring decides are estimated from the bake's f at their points, like the
+    evaluated ones, but only where the estimate is under sdf_tol / 4: the same samples are replaced as with f
+    evaluated at their source points, with fewer forward passes; with f known only at the evaluated samples
+    (NaN elsewhere) the ring is evaluated as before."""
+    coarse = unwrap(ico(3), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 128)
+    tx, values, normals, valid = _analytic_band(field, baker)
+    pix = np.asarray(tx.pixel)
+    evaluated = (pix[:, 0] % 4 == 0) & (pix[:, 1] % 4 == 0)  # a lattice of nodes; the rest "interpolated"
+    passes: dict[int, list[int]] = {}
+    real = HybridFallback.field_values
+    monkeypatch.setattr(HybridFallback, "field_values",
+                        lambda self, pts: passes.setdefault(id(self), []).append(len(pts)) or real(self, pts))
+    known_everywhere = HybridFallback(ico(5), field)
+    known_at_nodes = HybridFallback(ico(5), field)
+    a = known_everywhere(baker.mesh, tx, normals, valid, evaluated, values=values)
+    b = known_at_nodes(baker.mesh, tx, normals, valid, evaluated, values=np.where(evaluated, values, np.nan))
+    assert a.replaced.sum() > 100
+    np.testing.assert_array_equal(a.replaced, b.replaced)
+    sa, sb = known_everywhere.summary(), known_at_nodes.summary()
+    assert sa["decided"] == sb["decided"] > evaluated.sum()  # the same ring
+    ring_estimated = sa["estimate_check"]["estimated"] - sb["estimate_check"]["estimated"]
+    assert ring_estimated > 100 and sum(passes[id(known_everywhere)]) < sum(passes[id(known_at_nodes)])
+    assert sa["estimate_check"]["missed"] == 0
+    # the quarter: a sample whose estimate lies between sdf_tol / 4 and sdf_tol / 2 is estimated at a half, not a quarter
+    h = HybridFallback(ico(5), field)
+    idx = np.flatnonzero(np.abs(values) < 1e-3)
+    src = np.asarray(tx.points) + (0.3 * h.sdf_tol - values)[:, None] * normals  # first order: f(p) = 0.3·sdf_tol
+    h._source_values(baker.mesh, tx, idx, src[idx], normals, values, valid, share=0.5)
+    half = dict(h.estimate)
+    assert half["estimated"] + half["samples"] == len(idx) > 500  # every one estimated (or checked)
+    h._source_values(baker.mesh, tx, idx, src[idx], normals, values, valid, share=0.25)
+    assert h.estimate == half  # none
