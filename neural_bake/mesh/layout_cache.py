@@ -27,7 +27,7 @@ from ..types import Mesh
 __all__ = ["LayoutCache", "mesh_digest", "LAYOUT_CACHE_VERSION", "LAYOUT_CACHE_ENTRIES"]
 
 #: Part of every key: raised when what an entry holds (or how it is made) changes.
-LAYOUT_CACHE_VERSION = 1
+LAYOUT_CACHE_VERSION = 2
 
 #: Entries kept (least recently used deleted beyond it); a 2,000-face layout is about 150 KB.
 LAYOUT_CACHE_ENTRIES = 64
