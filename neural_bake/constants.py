@@ -166,8 +166,10 @@ UNWRAP_PACK_SIDE = 1024
 
 #: A bake report compares a map larger than this (side, texels) with the truth and the classical baseline on a
 #: lattice of its texels, every k-th of each row and column (k = ceil(side / this)), and draws its error maps
-#: at that lattice: the figures are then a systematic subsample stated with their confidence intervals.
-REPORT_LATTICE_SIDE = 1024
+#: at that lattice: the figures are then a systematic subsample stated with their confidence intervals. At 512
+#: the error maps are at least as fine as the report shows them (256 px, and as the coarse mesh's texture in
+#: its views), and a 2048² normal map's report takes 0.25 s instead of 0.7 s (its median's interval ±0.003°).
+REPORT_LATTICE_SIDE = 512
 
 #: Hybrid bake with a texture: a texel whose neural colour differs from the source texture's at the same source
 #: point by more than this CIEDE2000 ΔE (about 1 to 2 is just noticeable, 10 a clearly different colour) takes the
