@@ -65,11 +65,11 @@ def _build() -> tuple[tuple | None, str]:
 def _calibrate(kernel, reference) -> tuple[float, float]:
     """Best-of-5 seconds of ``kernel(a, s)`` and ``reference(a, s)`` on one (4,096, 64) chunk, interleaved."""
     a = torch.randn(4096, 64, generator=torch.Generator().manual_seed(0)) * 30
-    s = torch.empty_like(a)
+    s, b = torch.empty_like(a), torch.empty_like(a)
     times = {"kernel": [], "torch": []}
     for _ in range(5):
         for name, fn in (("kernel", kernel), ("torch", reference)):
-            b = a.clone()
+            b.copy_(a)  # one buffer: a fresh one a round would time the machine's first touches of its pages
             t = time.perf_counter()
             fn(b, s)
             times[name].append(time.perf_counter() - t)
