@@ -301,8 +301,9 @@ class HybridFallback:
     def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray, side: np.ndarray | None = None) -> np.ndarray:
         """Which ``candidates`` (indices) lie within ``reach`` sample-grid positions of a ``seeds`` sample; with
         ``side`` ((M,) the band's interpolation cell sides), within their own cell's side (at most ``reach``).
-        Counted in texels (a reach of k positions is ⌈k / s⌉ + 1 texels at supersample s) from the seeds'
-        integral image, four lookups a candidate."""
+        Counted in texels (a reach of k positions is ⌈k / s⌉ + 1 texels at supersample s). Blocks of the
+        largest reach in texels first rule out the candidates with no seed in their own or a neighbouring block;
+        the others are counted exactly from the seeds' integral image, four lookups a candidate."""
         if not len(seeds) or not len(candidates):
             return np.zeros(len(candidates), dtype=bool)
         from .adaptive import _integral
@@ -311,19 +312,35 @@ class HybridFallback:
         r0 = int(pix[:, 0].min())
         h = int(pix[:, 0].max()) - r0 + 1
         w = int(texels.size[1])
-        seed_image = np.zeros((h, w), dtype=bool)
-        seed_image[pix[seeds, 0] - r0, pix[seeds, 1]] = True
-        counts = _integral(seed_image)
-        reach = np.full(len(candidates), self.reach, dtype=np.int64)
-        if side is not None:
-            own = np.asarray(side, dtype=np.int64)[candidates]
-            reach = np.where(own > 0, np.minimum(own, self.reach), self.reach)
         s = max(1, int(getattr(texels, "supersample", 1)))
+        block = -(-self.reach // s) + 1  # the largest reach in texels: a seed that near is in a neighbouring block
+        rows, cols = pix[:, 0] - r0, pix[:, 1]
+        seed_blocks = np.zeros((-(-h // block) + 2, -(-w // block) + 2), dtype=bool)  # a ring of empty blocks
+        seed_blocks[rows[seeds] // block + 1, cols[seeds] // block + 1] = True
+        near_blocks = seed_blocks.copy()
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr or dc:
+                    near_blocks[1:-1, 1:-1] |= seed_blocks[1 + dr: seed_blocks.shape[0] - 1 + dr,
+                                                           1 + dc: seed_blocks.shape[1] - 1 + dc]
+        row, col = rows[candidates], cols[candidates]
+        out = near_blocks[row // block + 1, col // block + 1]
+        maybe = np.flatnonzero(out)
+        if not len(maybe):
+            return out
+        seed_image = np.zeros((h, w), dtype=bool)
+        seed_image[rows[seeds], cols[seeds]] = True
+        counts = _integral(seed_image)
+        reach = np.full(len(maybe), self.reach, dtype=np.int64)
+        if side is not None:
+            own = np.asarray(side, dtype=np.int64)[candidates[maybe]]
+            reach = np.where(own > 0, np.minimum(own, self.reach), self.reach)
         reach = -(-reach // s) + 1
-        row, col = pix[candidates, 0] - r0, pix[candidates, 1]
+        row, col = row[maybe], col[maybe]
         top, bottom = np.maximum(row - reach, 0), np.minimum(row + reach, h - 1) + 1
         left, right = np.maximum(col - reach, 0), np.minimum(col + reach, w - 1) + 1
-        return (counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left]) > 0
+        out[maybe] = (counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left]) > 0
+        return out
 
     def _check_mask(self, candidates: np.ndarray, stream: int) -> np.ndarray:
         """(len(candidates),) bool: a seeded uniform choice among ``candidates`` (indices into the band) of

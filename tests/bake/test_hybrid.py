@@ -209,21 +209,22 @@ def test_decision_points_of_interpolated_samples_are_decided():
 
 
 @pytest.mark.parametrize("supersample", [1, 2])
-def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, rng):
+@pytest.mark.parametrize("h, w, reach", [(40, 56, 16), (150, 170, 4)])
+def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, h, w, reach, rng):
     """The ring around unfaithful nodes against brute force: Chebyshev distance in texels at most ⌈reach / s⌉ + 1,
-    reach the candidate's own cell side (at most the hybrid's reach; the reach where the side is 0 or unknown)."""
-    h, w = 40, 56
+    reach the candidate's own cell side (at most the hybrid's reach; the reach where the side is 0 or unknown).
+    On the larger grid most blocks hold no seed: the block test rules their candidates out."""
     pix = np.stack(np.meshgrid(np.arange(3, 3 + h), np.arange(w), indexing="ij"), axis=-1).reshape(-1, 2)
-    texels = SimpleNamespace(pixel=pix, size=(64, w), supersample=supersample)
+    texels = SimpleNamespace(pixel=pix, size=(h + 24, w), supersample=supersample)
     seeds = rng.choice(len(pix), 6, replace=False)
     candidates = np.setdiff1d(np.arange(len(pix)), seeds)
-    side = rng.choice([0, 4, 8, 16, 32], len(pix)).astype(np.int16)
-    hybrid = HybridFallback(ico(1), sphere_field(), reach=16)
+    side = rng.choice([0, 2, 4, 8, 16, 32], len(pix)).astype(np.int16)
+    hybrid = HybridFallback(ico(1), sphere_field(), reach=reach)
     cheb = np.abs(pix[candidates, None, :] - pix[None, seeds, :]).max(axis=2).min(axis=1)
     for sides in (None, side):
-        reach = np.full(len(candidates), 16) if sides is None else np.where(sides[candidates] > 0,
-                                                                           np.minimum(sides[candidates], 16), 16)
-        expected = cheb <= -(-reach // supersample) + 1
+        own = np.full(len(candidates), reach) if sides is None else np.where(
+            sides[candidates] > 0, np.minimum(sides[candidates], reach), reach)
+        expected = cheb <= -(-own // supersample) + 1
         found = hybrid._near(texels, seeds, candidates, sides)
         np.testing.assert_array_equal(found, expected)
         assert 0 < found.sum() < len(candidates)
