@@ -214,12 +214,13 @@ ADAPTIVE_VALUE_TOL = 5e-3
 #: at most this fraction of each tolerance: the margin for what an estimate from five points can miss.
 ADAPTIVE_SAFETY = 0.5
 
-#: Adaptive evaluation: a cell wider than this (sample-grid positions) is refined when a vertex of the coarse mesh
-#: lies inside it: around a vertex the piecewise-flat surface is a cone, where interpolation errs most.
+#: Adaptive evaluation: a cell wider than this (sample-grid positions) is refined when a feature of the coarse mesh
+#: lies inside it (an edge bending more than ``ADAPTIVE_EDGE_DEG``, with its end vertices), where interpolation
+#: errs most.
 ADAPTIVE_VERTEX_SIDE = 4
 
 #: Adaptive evaluation: an edge of the coarse mesh whose faces' normals differ by more than this (degrees) is a
-#: feature like a vertex: cells wider than ``ADAPTIVE_VERTEX_SIDE`` it crosses are refined. At 2048² on a
+#: feature: cells wider than ``ADAPTIVE_VERTEX_SIDE`` it crosses are refined. At 2048² on a
 #: 2,000-face Spot, 10° refined a third of the evaluations for nothing the check against a full evaluation
 #: could see; at 40° the ogre's largest checked error rose from 0.18° to 0.91° (docs/findings.md).
 ADAPTIVE_EDGE_DEG = 20.0

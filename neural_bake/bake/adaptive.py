@@ -3,8 +3,8 @@
 The samples of a band of texels lie on the sample grid (H·s, W·s) (s = supersample). A *cell* is a square of
 that grid whose corners are multiples of its side k, from k = ``lattice`` down to 4. A cell is *pure* when
 every position of its closed square holds a sample of one chart (no seam, no uncovered texel, no border
-sample inside it) and, when wider than ``vertex_side``, no feature of the coarse mesh (a vertex, or an edge
-that bends more than ``ADAPTIVE_EDGE_DEG``) lies inside it. For a pure cell the fields are evaluated at its
+sample inside it) and, when wider than ``vertex_side``, no feature of the coarse mesh (an edge that bends
+more than ``ADAPTIVE_EDGE_DEG``, with its ends) lies inside it. For a pure cell the fields are evaluated at its
 3×3 nodes (corners, edge midpoints, centre), and the cell is accepted when the midpoints' and the centre's
 values lie within ``ADAPTIVE_SAFETY`` times the tolerances of what the corners predict (the hierarchical
 surplus: an estimate of the interpolation error, larger than the error left when interpolating from the 3×3
@@ -88,7 +88,7 @@ class AdaptiveOptions:
     value_tol: float = ADAPTIVE_VALUE_TOL
     """Largest |f| difference (unit frame) between a midpoint and its interpolation."""
     vertex_side: int = ADAPTIVE_VERTEX_SIDE
-    """Largest side of a cell that may hold a mesh vertex (where the piecewise-flat surface is a cone)."""
+    """Largest side of a cell that may hold a feature of the mesh (:func:`vertex_positions`: its bent edges)."""
 
     def __post_init__(self):
         t = self.tolerance_deg
@@ -175,16 +175,19 @@ def _grid_positions_from_uv(texels, mesh: Mesh, face: np.ndarray) -> tuple[np.nd
 def vertex_positions(mesh: Mesh, size: tuple[int, int], supersample: int,
                      edge_deg: float = ADAPTIVE_EDGE_DEG) -> np.ndarray:
     """(K, 2) float64 (row, col) positions on the sample grid (H·s, W·s) of the coarse mesh's geometric
-    features: every face corner, and points at most half a grid step apart along every edge whose two faces'
-    normals differ by more than ``edge_deg`` degrees. Interpolation errs most there: around a vertex the
-    piecewise-flat surface is a cone, across such an edge it bends."""
+    features: points at most half a grid step apart along every edge whose two faces' normals differ by more
+    than ``edge_deg`` degrees, its two end vertices included. Interpolation errs most there: across such an
+    edge the surface bends. A vertex only counts where such an edge ends: around the others the piecewise-flat
+    surface bends by less than ``edge_deg`` between any two faces, and refining every cell that holds a vertex
+    cost 0.3–4.9 % more evaluations on the data meshes for nothing the check against a full evaluation saw
+    (docs/findings.md, "The bake command: bytecode, …")."""
     if mesh.uv is None or mesh.n_faces == 0:
         return np.zeros((0, 2))
     h, w = size
     s = int(supersample)
     uv = np.asarray(mesh.uv, dtype=np.float64)  # (F, 3, 2)
     grid = np.stack([(1.0 - uv[..., 1]) * (h * s) - 0.5, uv[..., 0] * (w * s) - 0.5], axis=-1)  # (F, 3, 2)
-    out = [grid.reshape(-1, 2)]
+    out = [np.zeros((0, 2))]
     faces = np.asarray(mesh.faces, dtype=np.int64)
     fn = np.asarray(mesh.face_normals, dtype=np.float64)
     edges = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)  # (3F, 2)
@@ -266,8 +269,9 @@ def adaptive_evaluate(
     - ``texels``: the band's :class:`~neural_bake.mesh.texels.TexelSet` (M samples).
     - ``charts``: (M,) int64 chart of each sample (``chart_labels(mesh)[texels.face]``).
     - ``grid``: (row, col) of each sample on the sample grid, -1 off it (:func:`grid_positions`).
-    - ``vertices``: (V, 2) float (row, col) sample-grid positions of the mesh's vertices
-      (:func:`vertex_positions`): cells wider than ``options.vertex_side`` holding one are refined.
+    - ``vertices``: (V, 2) float (row, col) sample-grid positions of the mesh's features
+      (:func:`vertex_positions`: points along its bent edges): cells wider than ``options.vertex_side`` holding
+      one are refined.
     - ``dtype``: of the tolerance checks and the interpolation (torch, on the CPU's threads): float32 for
       the fields of a float32 network (its own precision), float64 (the default) to interpolate exactly.
     - ``evaluate``: sample indices (n,) int64 → ``{"values": (n,), "normals": (n, 3) unit ∇f (0 where
@@ -348,7 +352,7 @@ def adaptive_evaluate(
             pure = _box(s0, r0, c0, k) == n  # full
             pure &= (_box(sd, r0, c0, k - 1) == 0) & (lab[r0 + k, c0 + k] == lab[r0, c0])  # one chart
             h = k // 2
-            if k > opt.vertex_side:  # a mesh vertex inside: the surface is a cone there, not smooth
+            if k > opt.vertex_side:  # a bent edge of the mesh inside: the surface bends there, not smooth
                 pure &= _box(sv, r0, c0, k - 1) == 0
             acc = np.zeros(len(r0), bool)
             p = np.flatnonzero(pure)

@@ -561,3 +561,39 @@ def test_bake_interpolates_inside_faces_and_stays_within_the_tolerance(monkeypat
     without = Baker(decimate(mesh, faces=400), 512).bake(sdf, adaptive=opt)
     assert without.stats["adaptive"]["face_nodes"] == 0
     assert res.stats["evaluated_fraction"] < without.stats["evaluated_fraction"]
+
+
+def _folded_sheet(fold_deg: float, n: int = 8):
+    """An n×n grid of unit squares (two triangles each) in the xy plane, folded by ``fold_deg`` along x = n/2,
+    with a planar UV map (its own x, y scaled into [0, 1]): one chart, no seam."""
+    from neural_bake.types import Mesh
+
+    xs, ys = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="xy")
+    x, y = xs.ravel(), ys.ravel()
+    a = np.radians(fold_deg)
+    right = x > n / 2
+    v = np.stack([np.where(right, n / 2 + (x - n / 2) * np.cos(a), x), y,
+                  np.where(right, (x - n / 2) * np.sin(a), 0.0)], axis=1)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    q = np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()], axis=1)
+    faces = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int64)
+    uv = (np.stack([x, y], axis=1) / n * 0.9 + 0.05)[faces]
+    return Mesh(vertices=v, faces=faces, uv=uv)
+
+
+def test_features_are_the_bent_edges_and_their_ends_not_every_vertex():
+    """A flat sheet has no feature (its vertices are not: the surface does not bend there); folded by more than
+    ADAPTIVE_EDGE_DEG, the fold line is one, sampled at most half a grid step apart from end to end."""
+    from neural_bake.constants import ADAPTIVE_EDGE_DEG
+
+    size = 64
+    assert vertex_positions(_folded_sheet(0.0), (size, size), 1).shape == (0, 2)
+    assert vertex_positions(_folded_sheet(ADAPTIVE_EDGE_DEG / 2), (size, size), 1).shape == (0, 2)
+    for supersample in (1, 2):
+        pts = vertex_positions(_folded_sheet(2 * ADAPTIVE_EDGE_DEG), (size, size), supersample)
+        g = size * supersample
+        col = (0.05 + 0.5 * 0.9) * g - 0.5  # the fold's column on the sample grid
+        np.testing.assert_allclose(pts[:, 1], col, atol=1e-9)
+        rows = np.unique(np.round(pts[:, 0], 9))
+        assert rows.min() == pytest.approx(0.05 * g - 0.5) and rows.max() == pytest.approx(0.95 * g - 0.5)
+        assert np.diff(rows).max() <= 0.5 + 1e-9
