@@ -379,9 +379,10 @@ class HybridFallback:
             # the evaluated samples, and the decision points of what was interpolated without them (``decide``)
             first = np.flatnonzero(np.asarray(evaluated if decide is None else decide, dtype=bool) | ~valid)
         # f and ∇f are known at the evaluated samples (all without ``evaluated``): f at their source points
-        # can be estimated; the interpolated samples' (NaN here) are not used
-        estimable = None if values is None else np.asarray(values, dtype=np.float64) if evaluated is None \
-            else np.where(np.asarray(evaluated, dtype=bool), np.asarray(values, dtype=np.float64), np.nan)
+        # can be estimated; the interpolated samples' (NaN here) are not used until the ring
+        values = None if values is None else np.asarray(values, dtype=np.float64)
+        estimable = values if values is None or evaluated is None \
+            else np.where(np.asarray(evaluated, dtype=bool), values, np.nan)
         mask = np.zeros(m, dtype=bool)
         classical = np.zeros((m, 3))
         reasons = {k: np.zeros(m, dtype=bool) for k in ("sdf", "angle", "invalid")}
@@ -407,8 +408,7 @@ class HybridFallback:
             near = self._near(texels, first[either(why)], rest, side)
             ring = rest[near]
             if len(ring):  # f at their points is the bake's interpolation: half the estimate's room for its error
-                take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors,
-                                         values=None if values is None else np.asarray(values, dtype=np.float64),
+                take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors, values=values,
                                          share=0.25))
             check = self._check_pick(rest[~near])
             if len(check):

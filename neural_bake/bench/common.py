@@ -98,8 +98,6 @@ def compile_bytecode(packages: Sequence[str] = PACKAGES) -> str:
     named there, not raised (the command then runs as it is)."""
     import compileall
     import importlib
-    import io
-    from contextlib import redirect_stdout
 
     folders: list[str] = []
     for name in packages:
@@ -109,9 +107,8 @@ def compile_bytecode(packages: Sequence[str] = PACKAGES) -> str:
     for root in roots:
         if any(root != other and root.startswith(other + os.sep) for other in roots):
             continue  # a subpackage inside another root (compile_dir recurses)
-        with redirect_stdout(io.StringIO()):
-            if not compileall.compile_dir(root, quiet=2, workers=1):
-                failed.append(root)
+        if not compileall.compile_dir(root, quiet=2, workers=1):  # quiet=2: prints nothing, errors included
+            failed.append(root)
     if failed:
         return f"bytecode could not be written in {', '.join(failed)}: the commands compiled their sources as they ran"
     return "the package's bytecode was written before the commands ran, as an installed package's is"

@@ -80,11 +80,9 @@ def _tune() -> str:
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return f"not glibc ({platform.system()}): malloc left as it is"
     try:
-        mallopt = ctypes.CDLL(None).mallopt  # the C library this process runs on
+        mallopt = _libc().mallopt  # the C library this process runs on
     except (OSError, AttributeError) as exc:
         return f"mallopt not found ({exc}): malloc left as it is"
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
     if mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) != 1:
         return "mallopt refused the mmap threshold: malloc left as it is"
     if mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) != 1:
@@ -127,6 +125,7 @@ def status() -> str:
 
 
 def _libc():
+    """The C library this process runs on, its malloc calls typed."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     libc.malloc.argtypes, libc.malloc.restype = [ctypes.c_size_t], ctypes.c_void_p
