@@ -11,10 +11,14 @@
    normal is the weighted sum renormalised (its length clamped below at direction_eps), f the weighted sum of each
    node's first-order extrapolation f_i + n_i . (p - p_i), colours the weighted sum. Samples are marked done,
    interpolated and valid. Arrays: points, normals (M, 3), values (M,), colors (M, n_colors) float64 row-major
-   (colors NULL when n_colors is 0); done, interpolated, valid (M,) uint8. */
+   (colors NULL when n_colors is 0); done, interpolated, valid (M,) uint8. The last argument, threads: where built
+   with OpenMP, the samples strictly inside the cells (each held by one cell) are interpolated over a team of that
+   many threads, then the cells' borders in cell order, so every sample takes the value of the loop on one thread.
+   Both entries take it. */
 #include <float.h>
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 static inline double nb_clamp(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
 
@@ -72,35 +76,85 @@ static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, 
     valid[idx] = 1;
 }
 
+/* Which samples of a cell's closed square a pass handles: all of them, those strictly inside it (no other cell
+   of the same side holds them), or those on its border (shared with its neighbours: the first cell in order
+   sets them). */
+enum { NB_ALL = 0, NB_INSIDE = 1, NB_BORDER = 2 };
+
+/* Calls at(cell, dr, dc) for the positions (dr, dc) of a cell of side k that pass `part` handles, the border's
+   alone when it is the border's (each sample is written once, from the cell's nodes, so the order within a cell
+   does not change a value). */
+#define NB_FOR_PART(k, part, at)                                                                              \
+    do {                                                                                                       \
+        if ((part) == NB_BORDER) {                                                                             \
+            for (int64_t dc = 0; dc <= (k); dc++) {                                                            \
+                at(0, dc);                                                                                     \
+                at((k), dc);                                                                                   \
+            }                                                                                                  \
+            for (int64_t dr = 1; dr < (k); dr++) {                                                             \
+                at(dr, 0);                                                                                     \
+                at(dr, (k));                                                                                   \
+            }                                                                                                  \
+        } else {                                                                                               \
+            const int64_t lo = (part) == NB_INSIDE, hi = (part) == NB_INSIDE ? (k) - 1 : (k);                   \
+            for (int64_t dr = lo; dr <= hi; dr++)                                                              \
+                for (int64_t dc = lo; dc <= hi; dc++) at(dr, dc);                                              \
+        }                                                                                                      \
+    } while (0)
+
+static void nb_interp_cell(const int64_t *flat_index, int64_t wg, int64_t r0, int64_t c0, int64_t k,
+                           const double *points, double *normals, double *values, double *colors, int64_t n_colors,
+                           uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
+                           double direction_eps, int part) {
+    const int64_t h = k / 2;
+    const int64_t base = r0 * wg + c0;
+#define NB_AT(dr_, dc_)                                                                                        \
+    do {                                                                                                       \
+        const int64_t ar = (dr_), ac = (dc_);                                                                  \
+        if (ar % h == 0 && ac % h == 0) break; /* a node: evaluated */                                        \
+        const int64_t idx = flat_index[base + ar * wg + ac];                                                   \
+        if (done[idx]) break;                                                                                  \
+        const int64_t a = ar / h < 1 ? ar / h : 1, b = ac / h < 1 ? ac / h : 1;                                \
+        int64_t corner[4];                                                                                     \
+        corner[0] = flat_index[base + (a * wg + b) * h];                                                       \
+        corner[1] = flat_index[base + (a * wg + b + 1) * h];                                                   \
+        corner[2] = flat_index[base + ((a + 1) * wg + b) * h];                                                 \
+        corner[3] = flat_index[base + ((a + 1) * wg + b + 1) * h];                                             \
+        double t, u;                                                                                           \
+        nb_coordinates(points + 3 * corner[0], points + 3 * corner[1], points + 3 * corner[2],                 \
+                       points + 3 * corner[3], points + 3 * idx, extrapolate, direction_eps, &t, &u);          \
+        const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};                              \
+        nb_blend(corner, w, 4, idx, points, normals, values, colors, n_colors, done, interpolated, valid,      \
+                 direction_eps);                                                                               \
+    } while (0)
+    NB_FOR_PART(k, part, NB_AT);
+#undef NB_AT
+}
+
+/* Cells handled at once by one thread of the team (a cell of side 4 holds 16 samples to interpolate). */
+#define NB_CELLS_CHUNK 64
+
 void nb_interp_cells(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0, int64_t n_cells,
                      int64_t k, const double *points, double *normals, double *values, double *colors,
                      int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
-                     double direction_eps) {
-    const int64_t h = k / 2;
-    for (int64_t cell = 0; cell < n_cells; cell++) {
-        const int64_t base = r0[cell] * wg + c0[cell];
-        for (int64_t dr = 0; dr <= k; dr++) {
-            const int64_t a = dr / h < 1 ? dr / h : 1;
-            for (int64_t dc = 0; dc <= k; dc++) {
-                if (dr % h == 0 && dc % h == 0) continue; /* a node: evaluated */
-                const int64_t idx = flat_index[base + dr * wg + dc];
-                if (done[idx]) continue;
-                const int64_t b = dc / h < 1 ? dc / h : 1;
-                int64_t corner[4];
-                corner[0] = flat_index[base + (a * wg + b) * h];
-                corner[1] = flat_index[base + (a * wg + b + 1) * h];
-                corner[2] = flat_index[base + ((a + 1) * wg + b) * h];
-                corner[3] = flat_index[base + ((a + 1) * wg + b + 1) * h];
-                const double *pa = points + 3 * idx;
-                double t, u;
-                nb_coordinates(points + 3 * corner[0], points + 3 * corner[1], points + 3 * corner[2],
-                               points + 3 * corner[3], pa, extrapolate, direction_eps, &t, &u);
-                const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};
-                nb_blend(corner, w, 4, idx, points, normals, values, colors, n_colors, done, interpolated, valid,
-                         direction_eps);
-            }
-        }
+                     double direction_eps, int64_t threads) {
+    if (threads < 2 || n_cells < 2 * NB_CELLS_CHUNK) {
+        for (int64_t cell = 0; cell < n_cells; cell++)
+            nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
+                           interpolated, valid, extrapolate, direction_eps, NB_ALL);
+        return;
     }
+    /* the insides over the team (each written by its one cell), then the borders in cell order: the samples
+       and values of the loop above */
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK) num_threads((int)threads)
+#endif
+    for (int64_t cell = 0; cell < n_cells; cell++)
+        nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
+                       interpolated, valid, extrapolate, direction_eps, NB_INSIDE);
+    for (int64_t cell = 0; cell < n_cells; cell++)
+        nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
+                       interpolated, valid, extrapolate, direction_eps, NB_BORDER);
 }
 
 /* The tensor-product quadratic Lagrange basis on the nodes {0, 1/2, 1}^2 at (t, u), in node order (row index with
@@ -152,44 +206,84 @@ static int nb_invert9(const double *m, double *inv) {
    whose correction is singular interpolates nothing. Every sample of the cell's closed square not yet done takes
    the quadratic's weights at its clamped coordinates: the normal renormalised, f from each node's first-order
    extrapolation, colours; and is marked done, interpolated and valid. Arguments as nb_interp_cells's. */
-void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0,
-                               int64_t n_cells, int64_t k, const double *points, double *normals, double *values,
-                               double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
-                               double extrapolate, double direction_eps) {
+static void nb_interp_cell_quadratic(const int64_t *flat_index, int64_t wg, int64_t r0, int64_t c0, int64_t k,
+                                     const double *points, double *normals, double *values, double *colors,
+                                     int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
+                                     double extrapolate, double direction_eps, int part, double *inv,
+                                     uint8_t *good_out) {
+    /* inv: the cell's 81 correction weights, computed here unless `part` is the border's (then the inside's pass
+       left them, with *good_out) */
     const int64_t h = k / 2;
-    for (int64_t cell = 0; cell < n_cells; cell++) {
-        const int64_t base = r0[cell] * wg + c0[cell];
-        int64_t node[9];
-        for (int a = 0; a < 3; a++)
-            for (int b = 0; b < 3; b++) node[3 * a + b] = flat_index[base + (a * wg + b) * h];
-        const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
-        const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
-        double vander[81], inv[81];
-        int good = 1;
+    const int64_t base = r0 * wg + c0;
+    int64_t node[9];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) node[3 * a + b] = flat_index[base + (a * wg + b) * h];
+    const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
+    const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
+    int good = 1;
+    if (part == NB_BORDER) {
+        good = *good_out;
+    } else {
+        double vander[81];
         for (int j = 0; j < 9 && good; j++) {
             double t, u;
             good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u);
             nb_lagrange(t, u, vander + 9 * j);
         }
-        if (!good || !nb_invert9(vander, inv)) continue;
-        for (int64_t dr = 0; dr <= k; dr++) {
-            for (int64_t dc = 0; dc <= k; dc++) {
-                const int64_t idx = flat_index[base + dr * wg + dc];
-                if (done[idx]) continue;
-                const double *pa = points + 3 * idx;
-                double t, u, basis[9], w[9];
-                nb_coordinates(q0, q1, q2, q3, pa, extrapolate, direction_eps, &t, &u);
-                nb_lagrange(t, u, basis);
-                for (int j = 0; j < 9; j++) {
-                    double s = 0.0;
-                    for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];
-                    w[j] = s;
-                }
-                nb_blend(node, w, 9, idx, points, normals, values, colors, n_colors, done, interpolated, valid,
-                         direction_eps);
-            }
-        }
+        good = good && nb_invert9(vander, inv);
+        *good_out = (uint8_t)good;
     }
+    if (!good) return;
+#define NB_AT(dr_, dc_)                                                                                        \
+    do {                                                                                                       \
+        const int64_t idx = flat_index[base + (dr_) * wg + (dc_)];                                             \
+        if (done[idx]) break;                                                                                  \
+        double t, u, basis[9], w[9];                                                                           \
+        nb_coordinates(q0, q1, q2, q3, points + 3 * idx, extrapolate, direction_eps, &t, &u);                  \
+        nb_lagrange(t, u, basis);                                                                              \
+        for (int j = 0; j < 9; j++) {                                                                          \
+            double s = 0.0;                                                                                    \
+            for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];                                        \
+            w[j] = s;                                                                                          \
+        }                                                                                                      \
+        nb_blend(node, w, 9, idx, points, normals, values, colors, n_colors, done, interpolated, valid,        \
+                 direction_eps);                                                                               \
+    } while (0)
+    NB_FOR_PART(k, part, NB_AT);
+#undef NB_AT
+}
+
+void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int64_t *r0, const int64_t *c0,
+                               int64_t n_cells, int64_t k, const double *points, double *normals, double *values,
+                               double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
+                               double extrapolate, double direction_eps, int64_t threads) {
+    double *inv = threads < 2 || n_cells < 2 * NB_CELLS_CHUNK / 4 ? NULL
+                                                                   : (double *)malloc(sizeof(double) * 81 * (size_t)n_cells);
+    uint8_t *good = inv == NULL ? NULL : (uint8_t *)malloc((size_t)n_cells);
+    if (good == NULL) { /* one thread (or no scratch): every cell whole, in order */
+        free(inv);
+        double one[81];
+        uint8_t ok;
+        for (int64_t cell = 0; cell < n_cells; cell++)
+            nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors,
+                                     n_colors, done, interpolated, valid, extrapolate, direction_eps, NB_ALL, one, &ok);
+        return;
+    }
+    /* as nb_interp_cells: the insides over the team, keeping each cell's weights, then the borders in cell order
+       (cells of side 8 and up hold four times the samples of side 4: a quarter of the chunk) */
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK / 4) num_threads((int)threads)
+#endif
+    for (int64_t cell = 0; cell < n_cells; cell++)
+        nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors,
+                                 done, interpolated, valid, extrapolate, direction_eps, NB_INSIDE, inv + 81 * cell,
+                                 good + cell);
+    for (int64_t cell = 0; cell < n_cells; cell++)
+        nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors,
+                                 done, interpolated, valid, extrapolate, direction_eps, NB_BORDER, inv + 81 * cell,
+                                 good + cell);
+    free(inv);
+    free(good);
 }
 
 static int64_t nb_find(int64_t *parent, int64_t x) {

@@ -41,7 +41,7 @@ import torch
 from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTICE, ADAPTIVE_SAFETY, ADAPTIVE_TOLERANCE_DEG,
                          ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
 from ..errors import NeuralBakeError
-from ..nets.native import Kernel
+from ..nets.native import Kernel, threads
 from ..types import Mesh
 from .adaptive_faces import FaceGeometry, face_pass
 
@@ -54,7 +54,7 @@ ENV_SWITCH = "NEURAL_BAKE_NATIVE_ADAPTIVE"
 
 def _declare(lib) -> None:
     p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
-    lib.nb_interp_cells.argtypes = [p, i64, p, p, i64, i64, p, p, p, p, i64, p, p, p, f64, f64]
+    lib.nb_interp_cells.argtypes = [p, i64, p, p, i64, i64, p, p, p, p, i64, p, p, p, f64, f64, i64]
     lib.nb_interp_cells.restype = None
     lib.nb_interp_cells_quadratic.argtypes = lib.nb_interp_cells.argtypes
     lib.nb_interp_cells_quadratic.restype = None
@@ -62,8 +62,9 @@ def _declare(lib) -> None:
     lib.nb_face_components.restype = i64
 
 
-#: The C kernel (adaptive.c, :class:`neural_bake.nets.native.Kernel`); torch where it does not build.
-KERNEL = Kernel(Path(__file__).with_name("adaptive.c"), switch=ENV_SWITCH, declare=_declare)
+#: The C kernel (adaptive.c, :class:`neural_bake.nets.native.Kernel`; the cells' insides on torch's OpenMP team
+#: where it shares it); torch where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("adaptive.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
 
 
 def kernel_status() -> str:
@@ -583,7 +584,8 @@ def _interpolate_native(lib, store: _Store, points: np.ndarray, index: np.ndarra
     fn = lib.nb_interp_cells_quadratic if quadratic else lib.nb_interp_cells
     fn(flat.ctypes.data, index.shape[1], r0.ctypes.data, c0.ctypes.data, len(r0), int(k), pts.ctypes.data,
        store.normals.ctypes.data, store.values.ctypes.data, None if store.colors is None else store.colors.ctypes.data,
-       n_colors, done.ctypes.data, interp.ctypes.data, valid.ctypes.data, float(_EXTRAPOLATE), float(DIRECTION_EPS))
+       n_colors, done.ctypes.data, interp.ctypes.data, valid.ctypes.data, float(_EXTRAPOLATE), float(DIRECTION_EPS),
+       threads())
 
 
 #: Smallest side of a cell that may be accepted with quadratic interpolation (:func:`_quadratic_ok`): its test

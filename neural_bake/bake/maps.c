@@ -5,7 +5,8 @@
    the matrix with columns T, B, N applied to n (rows cross(B, N), cross(N, T), cross(T, B), the sign of the
    determinant), renormalised; a singular frame (|det| not above det_rel_eps · |T||B||N|), a non-finite
    input or a zero result gives (0, 0, 1) and ok = 0. directx negates y. All arrays (m, 3) float64 row-major,
-   ok (m,) uint8. */
+   ok (m,) uint8. The last argument, threads: the samples split over an OpenMP team of that many where built with
+   OpenMP (each computed as on one thread); nb_normal_map takes it too. */
 #include <math.h>
 #include <stdint.h>
 
@@ -17,8 +18,15 @@ static inline void nb_cross(const double *a, const double *b, double *o) {
 
 static inline double nb_dot(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
+/* samples or texels below which the threaded entries stay on the calling thread (a team's wake-up costs more) */
+#define NB_MT_MIN 16384
+
 void nb_encode_tangent(const double *n, const double *t, const double *b, const double *g, int64_t m,
-                       double det_rel_eps, double direction_eps, int directx, double *out, uint8_t *ok) {
+                       double det_rel_eps, double direction_eps, int directx, double *out, uint8_t *ok,
+                       int64_t threads) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && m >= NB_MT_MIN)
+#endif
     for (int64_t s = 0; s < m; s++) {
         const double *ns = n + 3 * s, *ts = t + 3 * s, *bs = b + 3 * s, *gs = g + 3 * s;
         double r0[3], r1[3], r2[3], x[3];
@@ -70,7 +78,10 @@ void nb_splat(const double *values, const int64_t *flat, const double *weight, i
    normal map in place: each divided by its length, (0, 0, 1) where the length is not above direction_eps (texels
    whose samples cancel out, and the background), then (x + 1) / 2 clipped to [0, 1]. The length in float, as
    numpy's float32 arithmetic forms it. */
-void nb_normal_map(float *vec, int64_t n, double direction_eps) {
+void nb_normal_map(float *vec, int64_t n, double direction_eps, int64_t threads) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && n >= NB_MT_MIN)
+#endif
     for (int64_t i = 0; i < n; i++) {
         float *v = vec + 3 * i;
         const float norm = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..constants import DIRECTION_EPS, TBN_DET_REL_EPS
 from ..errors import NeuralBakeError
-from ..nets.native import Kernel
+from ..nets.native import Kernel, threads
 
 __all__ = [
     "NORMAL_SPACES",
@@ -43,16 +43,18 @@ ENV_SWITCH = "NEURAL_BAKE_NATIVE_MAPS"
 
 def _declare(lib) -> None:
     p = ctypes.c_void_p
-    lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int, p, p]
+    lib.nb_encode_tangent.argtypes = [p, p, p, p, ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int, p, p,
+                                      ctypes.c_int64]
     lib.nb_encode_tangent.restype = None
     lib.nb_splat.argtypes = [p, p, p, ctypes.c_int64, ctypes.c_int64, p, p]
     lib.nb_splat.restype = None
-    lib.nb_normal_map.argtypes = [p, ctypes.c_int64, ctypes.c_double]
+    lib.nb_normal_map.argtypes = [p, ctypes.c_int64, ctypes.c_double, ctypes.c_int64]
     lib.nb_normal_map.restype = None
 
 
-#: The C kernel (maps.c, :class:`neural_bake.nets.native.Kernel`); numpy where it does not build.
-KERNEL = Kernel(Path(__file__).with_name("maps.c"), switch=ENV_SWITCH, declare=_declare)
+#: The C kernel (maps.c, :class:`neural_bake.nets.native.Kernel`; the encoding and the normal map on torch's
+#: OpenMP team where it shares it); numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("maps.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
 _kernel = KERNEL.lib
 
 
@@ -95,7 +97,7 @@ def encode_tangent_space(
         n, t, b, g = (np.ascontiguousarray(v) for v in (n, t, b, g))
         out, ok = np.empty_like(n), np.empty(len(n), dtype=np.uint8)
         lib.nb_encode_tangent(n.ctypes.data, t.ctypes.data, b.ctypes.data, g.ctypes.data, len(n), TBN_DET_REL_EPS,
-                              DIRECTION_EPS, int(y_convention == "directx"), out.ctypes.data, ok.ctypes.data)
+                              DIRECTION_EPS, int(y_convention == "directx"), out.ctypes.data, ok.ctypes.data, threads())
         return out, ok.view(bool)
     # inverse of the matrix with columns T, B, N: rows cross(B, N), cross(N, T), cross(T, B) over det
     r0, r1, r2 = _cross(b, g), _cross(g, t), _cross(t, b)
@@ -158,7 +160,7 @@ def normal_map_from_sums(vec: np.ndarray) -> np.ndarray:
     ``(x + 1) / 2`` clipped. Float32 maps take the C kernel (maps.c) where it builds."""
     lib = _kernel()
     if lib is not None and vec.dtype == np.float32 and vec.flags.c_contiguous:
-        lib.nb_normal_map(vec.ctypes.data, vec.size // 3, float(DIRECTION_EPS))
+        lib.nb_normal_map(vec.ctypes.data, vec.size // 3, float(DIRECTION_EPS), threads())
         return vec
     return _normal_map_numpy(vec)
 

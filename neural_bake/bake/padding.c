@@ -2,12 +2,13 @@
    references; the tests hold the pull-push within a few ulps of torch's and the dilation bit for bit equal to
    numpy's).
 
-   nb_pull_push_T(img, covered, h, w, c, work, out): img (h, w, c) row-major, covered (h, w) uint8; out (h, w, c)
+   nb_pull_push_T(img, covered, h, w, c, work, out, threads): img (h, w, c) row-major, covered (h, w) uint8; out (h, w, c)
    gets the pushed-down values of the pyramid of coverage-weighted 2×2 averages at every texel (the caller
    restores the covered ones). work: scratch of nb_pull_push_work(h, w, c) elements. The same arithmetic as
    the torch path: each level pads an odd side with zero weight, sums 2×2 blocks, holds averages with weight
    min(1, sum); the push upsamples ×2 bilinearly (texel centres aligned, borders replicated) and blends each
-   level's own average in by its weight.
+   level's own average in by its weight. Each level's rows are split over an OpenMP team of `threads` where
+   built with OpenMP (every texel is computed as on one thread).
 
    nb_dilate_T(out, filled, h, w, c, steps): steps rings of dilation in place: each ring gives the unfilled
    texels next to a filled one the mean of their filled 8-neighbours (texels filled before the ring only, in
@@ -35,13 +36,22 @@ int64_t nb_pull_push_work(int64_t h, int64_t w, int64_t c) {
     return total;
 }
 
+/* a level's rows over the team, where the level holds enough values to pay for its wake-up */
+#ifdef _OPENMP
+#define NB_ROWS _Pragma("omp parallel for schedule(static) num_threads(nt) if(big)")
+#else
+#define NB_ROWS
+#endif
+#define NB_ROWS_MIN 32768
+
 static const int NB_DI[8] = {-1, -1, -1, 0, 0, 1, 1, 1};
 static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
 
 #define NB_PADDING(T, SUFFIX)                                                                                  \
     void nb_pull_push_##SUFFIX(const T *img, const uint8_t *covered, int64_t h, int64_t w, int64_t c, T *work, \
-                               T *out) {                                                                       \
+                               T *out, int64_t threads) {                                                      \
         int64_t hs[64], ws[64];                                                                                \
+        const int nt = threads > 1 ? (int)threads : 1;                                                         \
         int64_t n = nb_levels(h, w, hs, ws);                                                                   \
         T *cl[64], *wl[64];                                                                                    \
         T *p = work;                                                                                           \
@@ -58,6 +68,8 @@ static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
         /* pull */                                                                                             \
         for (int64_t i = 1; i < n; i++) {                                                                      \
             int64_t ph = hs[i - 1], pw = ws[i - 1];                                                            \
+            const int big = nt > 1 && hs[i] * ws[i] * (c + 1) >= NB_ROWS_MIN;                                  \
+            NB_ROWS                                                                                            \
             for (int64_t y = 0; y < hs[i]; y++) {                                                              \
                 for (int64_t x = 0; x < ws[i]; x++) {                                                          \
                     T *cv = cl[i] + (y * ws[i] + x) * c;                                                       \
@@ -101,6 +113,8 @@ static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
             int64_t hh = hs[i + 1], ww = ws[i + 1];                                                            \
             const T *src = cl[i + 1];                                                                          \
             T *dst = i == 0 ? out : cl[i];                                                                     \
+            const int big = nt > 1 && hs[i] * ws[i] * (c + 1) >= NB_ROWS_MIN;                                  \
+            NB_ROWS                                                                                            \
             for (int64_t y = 0; y < hs[i]; y++) {                                                              \
                 T sy = ((T)y + (T)0.5) * (T)0.5 - (T)0.5;                                                      \
                 if (sy < 0) sy = 0;                                                                            \

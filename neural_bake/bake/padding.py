@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NeuralBakeError
-from ..nets.native import Kernel
+from ..nets.native import Kernel, threads
 
 __all__ = ["pad_charts", "PADDING_METHODS", "kernel_status", "ENV_SWITCH"]
 
@@ -21,14 +21,15 @@ def _declare(lib) -> None:
     lib.nb_pull_push_work.argtypes = [i64, i64, i64]
     lib.nb_pull_push_work.restype = i64
     for suffix in ("f32", "f64"):
-        getattr(lib, f"nb_pull_push_{suffix}").argtypes = [p, p, i64, i64, i64, p, p]
+        getattr(lib, f"nb_pull_push_{suffix}").argtypes = [p, p, i64, i64, i64, p, p, i64]
         getattr(lib, f"nb_pull_push_{suffix}").restype = None
         getattr(lib, f"nb_dilate_{suffix}").argtypes = [p, p, i64, i64, i64, i64]
         getattr(lib, f"nb_dilate_{suffix}").restype = ctypes.c_int
 
 
-#: The C kernel (padding.c, :class:`neural_bake.nets.native.Kernel`); torch and numpy where it does not build.
-KERNEL = Kernel(Path(__file__).with_name("padding.c"), switch=ENV_SWITCH, declare=_declare)
+#: The C kernel (padding.c, :class:`neural_bake.nets.native.Kernel`; the pull-push's rows on torch's OpenMP team
+#: where it shares it); torch and numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("padding.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
 
 _SUFFIX = {np.dtype(np.float32): "f32", np.dtype(np.float64): "f64"}
 
@@ -158,7 +159,7 @@ def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
         work = np.empty(int(lib.nb_pull_push_work(h, w, c)), dtype=img.dtype)
         out = np.empty_like(img)
         getattr(lib, f"nb_pull_push_{_SUFFIX[img.dtype]}")(img.ctypes.data, cov.ctypes.data, h, w, c,
-                                                           work.ctypes.data, out.ctypes.data)
+                                                           work.ctypes.data, out.ctypes.data, threads())
         return out
     return _pull_push_torch(img, covered)
 

@@ -6,9 +6,12 @@ two passes are most of the cost (each costs about as much as a 64×64 GEMM of th
 computes both from one shared reduction in one vectorised pass, for about the cost of ``torch.sin`` alone.
 
 The C file is compiled on first use and loaded with ctypes (:func:`neural_bake.nets.native.build`). On x86-64 with GCC it
-carries an AVX2/FMA clone and a baseline one, chosen at run time. The kernel runs on the calling thread: on
-a 2-core machine splitting it across a second thread was slower (torch's OpenMP workers spin on the other
-core after each GEMM; docs/findings.md). Because machines with many cores may run torch's parallel sin + cos faster than one thread, the
+carries an AVX-512 and an AVX2/FMA clone and a baseline one, chosen at run time. Where torch runs on GNU
+OpenMP the kernel splits each call over torch's own OpenMP team (:func:`neural_bake.nets.native.torch_openmp`;
+torch's thread count, in pieces of whole blocks, so the values are those of one thread): the workers torch's
+GEMMs leave spinning take their share at once. (Split over a Python thread of its own instead, it was slower:
+those workers spun on the second core beside it; docs/findings.md.) Elsewhere it runs on the calling thread.
+Because torch's own parallel sin + cos may still be faster on some machines, the
 first use times both on one (4,096, 64) chunk and keeps the faster (``NEURAL_BAKE_FAST_SINCOS=1`` forces the
 kernel, ``=0`` turns it off); when no compiler is found or the build fails, torch's functions are used.
 :func:`status` says which is in use and why.
@@ -32,7 +35,7 @@ from pathlib import Path
 import torch
 
 from .compiled import env_switch
-from .native import build
+from .native import build, threads
 
 __all__ = ["sincos", "sincos_", "sin_", "status", "sin_status", "kernel_available", "sin_kernel_available",
            "ENV_SWITCH"]
@@ -49,16 +52,23 @@ _state: dict = {"built": None, "fn": None, "status": None, "sin_fn": None, "sin_
 
 def _build() -> tuple[tuple | None, str]:
     """The compiled (sincos, sin) entries, or None and why (the caller names the fallback)."""
-    lib, msg = build(_SOURCE, switch=ENV_SWITCH, flags=_FLAGS)
+    lib, msg = build(_SOURCE, switch=ENV_SWITCH, flags=_FLAGS, openmp=True)
     if lib is None:
         return None, msg
     try:
-        fn, sin_fn = lib.nb_sincos_f32, lib.nb_sin_f32
+        mt, sin_mt = lib.nb_sincos_f32_mt, lib.nb_sin_f32_mt
     except AttributeError as exc:
         return None, f"the C kernel could not be built or loaded ({exc})"
-    fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
-    sin_fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64]
-    fn.restype = sin_fn.restype = None
+    mt.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64]
+    sin_mt.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64]
+    mt.restype = sin_mt.restype = None
+
+    def fn(a: int, s: int, c: int, n: int) -> None:
+        mt(a, s, c, n, threads())
+
+    def sin_fn(a: int, s: int, n: int) -> None:
+        sin_mt(a, s, n, threads())
+
     return (fn, sin_fn), "fused " + msg
 
 

@@ -5,6 +5,14 @@ clang) into ``$XDG_CACHE_HOME/neural_bake`` (else ``~/.cache/neural_bake``, else
 file's stem and a hash of its source, the flags, the compiler and the platform, written atomically (a concurrent
 process sees no file or the whole one), and loads it. Every caller keeps a pure numpy or torch path for when
 no compiler is found, the build fails or its switch is off, and says which one ran.
+
+A kernel built with ``openmp=True`` splits its loops over torch's own OpenMP team (``#pragma omp`` under
+``_OPENMP``, the thread count passed in by the caller: :func:`threads`). It is compiled with ``-fopenmp`` only
+where torch's parallel backend is GNU OpenMP and the process maps torch's ``libgomp.so.1`` (:func:`torch_openmp`):
+the kernel's dependency on that soname then binds to the runtime already loaded, so the kernel's parallel
+regions run on the worker threads torch's GEMMs leave spinning instead of starting a second pool. Elsewhere (or
+when ``-fopenmp`` does not build) the same file builds without it and runs on the calling thread. Every split
+is by whole outputs, so a kernel gives the same bits with any thread count.
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ from pathlib import Path
 
 from .compiled import env_switch
 
-__all__ = ["Kernel", "build", "cache_dir", "compiler", "FLAGS"]
+__all__ = ["Kernel", "build", "cache_dir", "compiler", "torch_openmp", "threads", "FLAGS"]
 
 #: Optimised, position independent, no errno from libm; no contraction into FMAs, so a kernel's arithmetic
 #: is the same, operation by operation, as the numpy reference it replaces.
@@ -49,15 +57,62 @@ def compiler() -> str | None:
     return None
 
 
-def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS) -> tuple[ctypes.CDLL | None, str]:
+_openmp: dict = {}
+
+
+def torch_openmp() -> tuple[bool, str]:
+    """``(usable, why)``: whether a kernel compiled with ``-fopenmp`` shares torch's OpenMP runtime here (torch's
+    parallel backend is OpenMP and the process maps a ``libgomp.so.1``, the soname ``-fopenmp`` links to, and
+    no other OpenMP runtime). Checked once per process, after importing torch."""
+    if "state" not in _openmp:
+        import torch
+
+        info = torch.__config__.parallel_info()
+        try:
+            with open("/proc/self/maps") as fh:
+                names = {Path(line.split()[-1]).name for line in fh if "/" in line}
+        except OSError:
+            names = set()
+        runtimes = sorted(n for n in names if n.startswith(("libgomp", "libiomp", "libomp")))
+        if "ATen parallel backend: OpenMP" not in info:
+            state = (False, "torch's parallel backend is not OpenMP")
+        elif runtimes != ["libgomp.so.1"]:
+            state = (False, f"torch's OpenMP runtime is {', '.join(runtimes) or 'not found'}, not libgomp.so.1")
+        else:
+            state = (True, "torch's libgomp.so.1")
+        _openmp["state"] = state
+    return _openmp["state"]
+
+
+def threads() -> int:
+    """The thread count a parallel kernel call runs with: torch's (``torch.get_num_threads()``, what the thread
+    probe of :mod:`neural_bake.nets.threads` or ``--threads`` set)."""
+    import torch
+
+    return max(1, int(torch.get_num_threads()))
+
+
+def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS,
+          openmp: bool = False) -> tuple[ctypes.CDLL | None, str]:
     """``(library, message)``: ``source`` compiled and loaded, or ``(None, why not)``.
 
-    ``switch`` names the environment variable that turns the kernel off (0/off/false)."""
+    ``switch`` names the environment variable that turns the kernel off (0/off/false). ``openmp``: compiled
+    with ``-fopenmp`` where :func:`torch_openmp` allows it (else, or when that build fails, without it; the
+    message says which)."""
     if env_switch(switch) is False:
         return None, f"off ({switch}=0)"
     cc = compiler()
     if cc is None:
         return None, "no C compiler found"
+    if openmp:
+        usable, why = torch_openmp()
+        if usable:
+            lib, msg = build(source, switch=switch, flags=(*flags, "-fopenmp"))
+            if lib is not None:
+                return lib, f"{msg}, OpenMP on {why}"
+            why = msg
+        lib, msg = build(source, switch=switch, flags=flags)
+        return lib, msg if lib is None else f"{msg}, one thread ({why})"
     src = Path(source).read_bytes()
     key = hashlib.sha256(src + " ".join(flags).encode() + cc.encode() + platform.machine().encode()).hexdigest()[:16]
     try:
@@ -79,11 +134,11 @@ def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS) -> tuple
 class Kernel:
     """A C file built and loaded on first use (:func:`build`), once per process, thread-safe.
 
-    ``declare(lib)`` sets the entries' ctypes signatures. :meth:`lib` is the library or None (the caller's
+    ``declare(lib)`` sets the entries' ctypes signatures; ``openmp``: see :func:`build`. :meth:`lib` is the library or None (the caller's
     numpy or torch path runs); :meth:`status` says which runs and why."""
 
-    def __init__(self, source: Path, *, switch: str, declare):
-        self.source, self.switch, self.declare = Path(source), switch, declare
+    def __init__(self, source: Path, *, switch: str, declare, openmp: bool = False):
+        self.source, self.switch, self.declare, self.openmp = Path(source), switch, declare, bool(openmp)
         self._lock = threading.Lock()
         self._state: dict = {}
 
@@ -91,7 +146,7 @@ class Kernel:
         if "lib" not in self._state:
             with self._lock:
                 if "lib" not in self._state:
-                    lib, msg = build(self.source, switch=self.switch)
+                    lib, msg = build(self.source, switch=self.switch, openmp=self.openmp)
                     if lib is not None:
                         try:
                             self.declare(lib)

@@ -8,7 +8,10 @@
    the same bits, as FMA contraction is off).
 
    nb_sincos_f32(a, s, c, n): s[i] = sin a[i], c[i] = cos a[i]; c may be a (cos written in place).
-   nb_sin_f32(a, s, n): s[i] = sin a[i]; s may be a (in place). The same reduction and polynomials. */
+   nb_sin_f32(a, s, n): s[i] = sin a[i]; s may be a (in place). The same reduction and polynomials.
+   nb_sincos_f32_mt(a, s, c, n, threads), nb_sin_f32_mt(a, s, n, threads): the same split over an OpenMP team of
+   `threads` in pieces of whole blocks (so each block, and each value, is computed as on one thread); on the
+   calling thread where built without OpenMP or for fewer than two pieces. */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -101,5 +104,38 @@ void nb_sincos_f32(const float *a, float *s, float *c, int64_t n) {
             sb[j] = nb_pick(sp, cp, q);
             cb[j] = nb_pick(sp, cp, q + 1);
         }
+    }
+}
+
+/* values a piece of the threaded entries holds: whole blocks, large enough to pay for a team's wake-up */
+#define NB_PIECE (64 * NB_BLOCK)
+
+void nb_sincos_f32_mt(const float *a, float *s, float *c, int64_t n, int64_t threads) {
+    const int64_t pieces = (n + NB_PIECE - 1) / NB_PIECE;
+    if (threads < 2 || pieces < 2) {
+        nb_sincos_f32(a, s, c, n);
+        return;
+    }
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads)
+#endif
+    for (int64_t p = 0; p < pieces; p++) {
+        const int64_t i0 = p * NB_PIECE, m = (n - i0) < NB_PIECE ? (n - i0) : NB_PIECE;
+        nb_sincos_f32(a + i0, s + i0, c + i0, m);
+    }
+}
+
+void nb_sin_f32_mt(const float *a, float *s, int64_t n, int64_t threads) {
+    const int64_t pieces = (n + NB_PIECE - 1) / NB_PIECE;
+    if (threads < 2 || pieces < 2) {
+        nb_sin_f32(a, s, n);
+        return;
+    }
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads)
+#endif
+    for (int64_t p = 0; p < pieces; p++) {
+        const int64_t i0 = p * NB_PIECE, m = (n - i0) < NB_PIECE ? (n - i0) : NB_PIECE;
+        nb_sin_f32(a + i0, s + i0, m);
     }
 }

@@ -597,3 +597,49 @@ def test_features_are_the_bent_edges_and_their_ends_not_every_vertex():
         rows = np.unique(np.round(pts[:, 0], 9))
         assert rows.min() == pytest.approx(0.05 * g - 0.5) and rows.max() == pytest.approx(0.95 * g - 0.5)
         assert np.diff(rows).max() <= 0.5 + 1e-9
+
+
+@pytest.mark.skipif(compiler() is None, reason="no C compiler: the torch path is the only one")
+@pytest.mark.parametrize("quadratic", [False, True])
+def test_native_cell_interpolation_gives_the_same_bits_on_any_thread_count(monkeypatch, quadratic):
+    # enough cells to be split over the team (where the kernel shares torch's OpenMP), in a shuffled order, with
+    # some samples done before: the insides in parallel, then the shared borders in cell order, as one thread
+    # (the first cell in order sets a shared border sample; its neighbour would give it another value)
+    from neural_bake.bake import adaptive as adaptive_module
+
+    rng = np.random.default_rng(3)
+    side, k = 129, 8
+    r, c = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    index = (r * side + c).astype(np.int64)
+    x, y = 0.004 * c.reshape(-1), 0.004 * r.reshape(-1)
+    points = np.stack([x + 1e-4 * np.sin(40 * y), y, 0.3 * np.sin(3 * x) * np.cos(2 * y)], axis=1)
+    r0, c0 = (a.reshape(-1) for a in np.meshgrid(np.arange(0, side - 1, k), np.arange(0, side - 1, k), indexing="ij"))
+    order = rng.permutation(len(r0))
+    r0, c0 = r0[order].astype(np.int64), c0[order].astype(np.int64)
+    assert len(r0) == 256
+    runs = {}
+    for n in (1, 2):
+        monkeypatch.setattr(adaptive_module, "threads", lambda n=n: n)
+        m = len(points)
+        normals = np.stack([np.sin(2 * x + y), np.cos(3 * y), 1.0 + x * y], axis=1)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        store = _Store(values=np.random.default_rng(5).normal(scale=0.01, size=m), normals=normals,
+                       valid=np.zeros(m, bool), colors=np.random.default_rng(6).uniform(size=(m, 3)),
+                       evaluated=(r.reshape(-1) % (k // 2) == 0) & (c.reshape(-1) % (k // 2) == 0),
+                       interpolated=np.zeros(m, bool))
+        store.evaluated[np.random.default_rng(8).choice(m, 500, replace=False)] = True
+        store.valid[store.evaluated] = True
+        _interpolate_native(KERNEL.lib(), store, points, index, r0, c0, k, quadratic=quadratic)
+        runs[n] = store
+    assert runs[1].interpolated.sum() > 10_000
+    for name in ("normals", "values", "colors", "interpolated", "valid"):
+        np.testing.assert_array_equal(getattr(runs[1], name), getattr(runs[2], name))
+    # and the border order matters: the same cells in another order change some shared samples
+    monkeypatch.setattr(adaptive_module, "threads", lambda: 1)
+    other = _Store(values=runs[1].values.copy(), normals=runs[1].normals.copy(), valid=np.zeros(len(points), bool),
+                   colors=None, evaluated=runs[1].evaluated.copy(), interpolated=np.zeros(len(points), bool))
+    ev = other.evaluated
+    base = runs[2]
+    other.values[~ev], other.normals[~ev] = 0.0, 0.0
+    _interpolate_native(KERNEL.lib(), other, points, index, r0[::-1].copy(), c0[::-1].copy(), k, quadratic=quadratic)
+    assert not np.array_equal(other.values, base.values)

@@ -171,3 +171,20 @@ def test_encode_oracles_orthonormal_frame_round_trip_and_directx(monkeypatch, rn
     back = decode_tangent_space(x2[ok2], t2[ok2], b2[ok2], g2[ok2])
     np.testing.assert_allclose(back, n2[ok2], atol=1e-9)
     np.testing.assert_array_equal(x2[~ok2], np.tile([0.0, 0.0, 1.0], ((~ok2).sum(), 1)))
+
+
+def test_encoding_and_normal_map_kernels_give_the_same_bits_on_any_thread_count(monkeypatch, rng):
+    # enough samples and texels to be split over the team where the kernel shares torch's OpenMP
+    if maps_module._kernel() is None:
+        pytest.skip(f"no C kernel here: {maps_module.kernel_status()}")
+    from neural_bake.bake.maps import normal_map_from_sums
+
+    n, t, b, g = _frames(rng, 40_000, np.float64)
+    vec = rng.normal(size=(150, 200, 3)).astype(np.float32)
+    vec[:5] = 0.0
+    out = {}
+    for k in (1, 2):
+        monkeypatch.setattr(maps_module, "threads", lambda k=k: k)
+        out[k] = (*encode_tangent_space(n, t, b, g), normal_map_from_sums(vec.copy()))
+    for a, c in zip(out[1], out[2]):
+        np.testing.assert_array_equal(a, c)

@@ -196,3 +196,16 @@ def test_pad_charts_the_same_with_and_without_the_kernel(monkeypatch, rng, metho
     np.testing.assert_allclose(fast, slow, rtol=0, atol=4 * np.finfo(np.float32).eps)
     if method == "dilate":
         np.testing.assert_array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_pull_push_kernel_gives_the_same_bits_on_any_thread_count(monkeypatch, rng, dtype):
+    # a map whose first levels are split over the team (where it shares torch's OpenMP): every texel as on one thread
+    _need_kernel()
+    img = rng.uniform(-1, 1, size=(301, 259, 4)).astype(dtype)
+    cov = _charts(rng, (301, 259), 30)
+    out = {}
+    for n in (1, 2):
+        monkeypatch.setattr(padding_module, "threads", lambda n=n: n)
+        out[n] = padding_module._pull_push(img, cov)
+    np.testing.assert_array_equal(out[1], out[2])

@@ -177,3 +177,23 @@ def test_fresh_build_into_an_empty_cache(monkeypatch, tmp_path):
     assert max(_max_errors(x, s, c)) <= TOL
     fns[1](x.data_ptr(), c.data_ptr(), x.numel())
     assert torch.equal(c, s)
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_threaded_calls_give_the_bits_of_one_thread(monkeypatch):
+    # over a team (where the kernel shares torch's OpenMP) each whole block is computed as on one thread: the same
+    # bits, also for a block that takes libm's path (a huge value, an infinity, a NaN)
+    fns, msg = fastmath._build()
+    assert fns is not None, msg
+    x = torch.linspace(-300, 300, 5 * 16384 + 123)
+    x[70000], x[70001], x[3] = 1e9, float("inf"), float("nan")
+    out = {}
+    for n in (1, 2):
+        monkeypatch.setattr(fastmath, "threads", lambda n=n: n)
+        s, c, s_only = torch.empty_like(x), torch.empty_like(x), torch.empty_like(x)
+        fns[0](x.data_ptr(), s.data_ptr(), c.data_ptr(), x.numel())
+        fns[1](x.data_ptr(), s_only.data_ptr(), x.numel())
+        out[n] = (s, c, s_only)
+    for a, b in zip(out[1], out[2]):
+        assert torch.equal(a.nan_to_num(7.0), b.nan_to_num(7.0)) and torch.equal(a.isnan(), b.isnan())
+    assert torch.equal(out[1][0].nan_to_num(7.0), out[1][2].nan_to_num(7.0))  # the sin-only entry: the same sines
