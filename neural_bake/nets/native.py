@@ -49,12 +49,16 @@ def cache_dir() -> Path:
     raise OSError("no writable cache folder")
 
 
+_compilers: dict[tuple[str | None, str | None], str | None] = {}
+
+
 def compiler() -> str | None:
-    """The C compiler's path ($CC, cc, gcc, clang: the first found), or None."""
-    for c in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if c and shutil.which(c):
-            return shutil.which(c)
-    return None
+    """The C compiler's path ($CC, cc, gcc, clang: the first found), or None; looked up once per $CC and $PATH."""
+    key = (os.environ.get("CC"), os.environ.get("PATH"))
+    if key not in _compilers:
+        found = (shutil.which(c) for c in (key[0], "cc", "gcc", "clang") if c)
+        _compilers[key] = next((path for path in found if path), None)
+    return _compilers[key]
 
 
 _openmp: dict = {}
