@@ -79,11 +79,12 @@ def pad_charts(
     covered = cov > 0
     if not covered.any() or covered.all() or pixels == 0:
         return np.array(image, copy=True)
-    work = np.array(img, dtype=np.float32 if img.dtype == np.float32 else np.float64, order="C")  # filled in place
+    ftype = np.float32 if img.dtype == np.float32 else np.float64
     if method == "dilate":
-        out = work
+        out = np.array(img, dtype=ftype, order="C")  # a copy, filled in place
         _dilate(out, covered, 16 if pixels is None else int(pixels))
     else:
+        work = np.ascontiguousarray(img, dtype=ftype)  # read only: the image itself where it is one already
         out = _pull_push(work, covered)
         np.copyto(out, work, where=covered[:, :, None])
         # the first rings come from dilation (values of the nearest chart only), so that bilinear and the
