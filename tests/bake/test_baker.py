@@ -263,6 +263,22 @@ def test_sample_keys_are_deterministic_and_spread():
     assert np.all(np.abs(counts - 1000) < 4 * np.sqrt(1000 * 0.9))
 
 
+def test_sample_keys_are_splitmix64_of_index_and_seed():
+    # the keys of a few indices against splitmix64 in Python integers; the input array is left alone
+    def splitmix(i: int, seed: int) -> int:
+        m = 2**64 - 1
+        x = (i + seed * 0x9E3779B97F4A7C15 + 0x632BE59BD9B4E019) & m
+        x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & m
+        x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & m
+        return x ^ (x >> 31)
+
+    index = np.array([0, 1, 7, 2**40 + 3, 2**62], dtype=np.uint64)
+    for seed in (0, 5):
+        keys = sample_keys(index, seed)
+        assert [int(k) for k in keys] == [splitmix(int(i), seed) for i in index]
+    assert np.array_equal(index, np.array([0, 1, 7, 2**40 + 3, 2**62], dtype=np.uint64))
+
+
 def test_albedo_is_the_colour_field_at_texels():
     baker = Baker(plane_mesh(), 16, padding=None)
     res = baker.bake(SdfField(lambda p: p[:, 2]), ColorField(lambda p: torch.stack([p[:, 0] + 0.5, p[:, 1] + 0.5, 0 * p[:, 0]], 1)))
