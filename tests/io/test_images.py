@@ -179,3 +179,33 @@ def test_fast_png_holds_the_same_pixels_with_faster_settings(tmp_path, channels)
     np.testing.assert_array_equal(read_image(fast_path, colour="data"), small)
     # the settings reach the encoder: another compressed stream for the same pixels
     assert fast_path.read_bytes() != (tmp_path / "small.png").read_bytes()
+
+
+def _png_row_filters(path) -> set[int]:
+    """The filter type byte of every row of an 8-bit PNG (its IDAT stream inflated)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    at, idat, width, channels = 8, b"", 0, 0
+    while at < len(data):
+        (length,), kind = struct.unpack(">I", data[at: at + 4]), data[at + 4: at + 8]
+        body = data[at + 8: at + 8 + length]
+        if kind == b"IHDR":
+            width, colour_type = struct.unpack(">I", body[:4])[0], body[9]
+            channels = {0: 1, 2: 3, 4: 2, 6: 4}[colour_type]
+        elif kind == b"IDAT":
+            idat += body
+        at += 12 + length
+    raw = zlib.decompress(idat)
+    stride = 1 + width * channels
+    return {raw[i] for i in range(0, len(raw), stride)}
+
+
+@pytest.mark.parametrize("fast,filter_type", [(False, 4), (True, 1)])  # Paeth, or Sub for a fast PNG
+def test_png_rows_take_one_filter(tmp_path, fast, filter_type):
+    # libpng is told which row filter to use (module constants), not left to try all five per row
+    a = _ramp(40, 50, 3)
+    path = write_image(tmp_path / "f.png", a, colour="data", fast=fast)
+    assert _png_row_filters(path) == {filter_type}
+    np.testing.assert_allclose(read_image(path, colour="data"), a, atol=0.5 / 255)
