@@ -6,8 +6,14 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
+import importlib.util
+import re
+import sys
 import threading
+import types
 from collections import OrderedDict
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -16,8 +22,8 @@ from .errors import MeshError
 from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCAST_SCENE_CACHE, SDF_MISMATCH_MEDIAN, UNDERFLOW_EPS
 
 __all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "finish_prefetch",
-           "frame_mismatch", "interpolate_corners", "mismatch_problem", "prefetch_raycasting",
-           "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals"]
+           "frame_mismatch", "import_open3d", "interpolate_corners", "mismatch_problem", "prefetch_raycasting",
+           "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals", "web_visualiser_deferrable"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -185,6 +191,85 @@ def edge_report(faces: np.ndarray) -> dict:
     }
 
 
+#: open3d's web visualiser: its package imports it unconditionally, and it imports plotly and dash (about 0.75 s
+#: of interpreter-bound work a process, beside every other stage's) for functions no stage of ours calls.
+_WEB_VISUALISER = "open3d.visualization.draw_plotly"
+
+#: The names open3d's ``visualization`` package imports from it (0.18–0.20): all functions.
+_WEB_VISUALISER_NAMES = frozenset({"get_plotly_fig", "draw_plotly", "draw_plotly_server"})
+
+_OPEN3D_LOCK = threading.Lock()
+
+
+class _DeferredWebVisualiser(types.ModuleType):
+    """Holds ``open3d.visualization.draw_plotly``'s place in ``sys.modules`` while open3d imports: each of its
+    functions the package asks for is a stand-in that imports the real module on its first call and calls the
+    real function (which stays in the module from then on)."""
+
+    def __getattr__(self, name: str):
+        if name not in _WEB_VISUALISER_NAMES:
+            raise AttributeError(f"module {self.__name__!r} has no attribute {name!r}")
+
+        def call(*args, **kwargs):
+            return getattr(_web_visualiser(), name)(*args, **kwargs)
+
+        call.__name__ = call.__qualname__ = name
+        call.__doc__ = f"open3d.visualization.{name}: open3d's own, imported on its first call."
+        return call
+
+
+def _web_visualiser() -> types.ModuleType:
+    """open3d's real web-visualiser module, imported in place of the stand-in if that is still there."""
+    with _OPEN3D_LOCK:
+        if isinstance(sys.modules.get(_WEB_VISUALISER), _DeferredWebVisualiser):
+            del sys.modules[_WEB_VISUALISER]
+    return importlib.import_module(_WEB_VISUALISER)
+
+
+def web_visualiser_deferrable(source: str) -> bool:
+    """Whether open3d's ``visualization/__init__.py`` (its ``source``) uses its web visualiser only by importing
+    functions the stand-in knows (:data:`_WEB_VISUALISER_NAMES`): every line naming ``draw_plotly`` is a
+    ``from .draw_plotly import …`` of those names."""
+    lines = [line.strip() for line in source.splitlines() if "draw_plotly" in line]
+    names: set[str] = set()
+    for line in lines:
+        m = re.fullmatch(r"from \.draw_plotly import ([\w, ]+)", line)
+        if m is None:
+            return False
+        names |= {n.strip() for n in m.group(1).split(",") if n.strip()}
+    return bool(names) and names <= _WEB_VISUALISER_NAMES
+
+
+def import_open3d() -> types.ModuleType:
+    """``import open3d``, its web visualiser (plotly, dash) imported only if one of its functions is called.
+
+    The stand-in (:class:`_DeferredWebVisualiser`) is put in place only before open3d's first import in the
+    process, and only when its ``visualization`` package imports nothing else of that module
+    (:func:`web_visualiser_deferrable`); otherwise this is a plain import. Import errors are open3d's own."""
+    with _OPEN3D_LOCK:
+        deferred = False
+        if "open3d" not in sys.modules and _WEB_VISUALISER not in sys.modules:
+            spec = importlib.util.find_spec("open3d")
+            init = None
+            if spec is not None and spec.submodule_search_locations:
+                init = Path(list(spec.submodule_search_locations)[0]) / "visualization" / "__init__.py"
+            try:
+                deferred = init is not None and web_visualiser_deferrable(init.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError):
+                deferred = False
+            if deferred:
+                sys.modules[_WEB_VISUALISER] = _DeferredWebVisualiser(_WEB_VISUALISER)
+    try:
+        import open3d
+    except BaseException:
+        if deferred:
+            with _OPEN3D_LOCK:
+                if isinstance(sys.modules.get(_WEB_VISUALISER), _DeferredWebVisualiser):
+                    del sys.modules[_WEB_VISUALISER]
+        raise
+    return open3d
+
+
 _SCENES: OrderedDict[bytes, object] = OrderedDict()
 _SCENES_LOCK = threading.Lock()
 _PREFETCH: list[threading.Thread] = []
@@ -200,7 +285,7 @@ def prefetch_raycasting() -> None:
 
         def load():
             try:
-                import open3d  # noqa: F401
+                import_open3d()
             except Exception:  # noqa: BLE001 - raycasting_scene imports it again and raises there
                 pass
 
@@ -230,7 +315,7 @@ def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
     """open3d ``RaycastingScene`` of the triangles ``vertices[faces]`` (float32 BVH), built once per triangle
     set: scenes are cached by the content of both arrays (the last ``RAYCAST_SCENE_CACHE`` sets), so every
     stage that queries the same mesh shares one BVH. Query it; do not add geometry to it."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     v = np.ascontiguousarray(vertices, dtype=np.float32)
     f = np.ascontiguousarray(faces, dtype=np.uint32).reshape(-1, 3)

@@ -170,3 +170,59 @@ def test_prefetch_loads_open3d_once_in_the_background_and_scenes_still_answer():
     tri = trimesh.creation.icosphere(subdivisions=1)
     scene = raycasting_scene(np.asarray(tri.vertices), np.asarray(tri.faces))
     assert scene is raycasting_scene(np.asarray(tri.vertices), np.asarray(tri.faces))
+
+
+def _fresh_python(code: str) -> str:
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip()
+
+
+def test_open3d_imports_without_its_web_visualiser_which_loads_on_first_call():
+    # a fresh process: open3d works and its plotly/dash visualiser is not imported until one of its functions runs;
+    # then the real module takes the stand-in's place and the call answers with a real plotly figure
+    out = _fresh_python(
+        "import sys\n"
+        "from neural_bake.geometry import import_open3d\n"
+        "o3d = import_open3d()\n"
+        "print('dash' in sys.modules, 'plotly' in sys.modules)\n"
+        "m = o3d.geometry.TriangleMesh.create_box()\n"
+        "fig = o3d.visualization.get_plotly_fig([m])\n"
+        "print(type(fig).__module__.startswith('plotly'), 'dash' in sys.modules,\n"
+        "      hasattr(sys.modules['open3d.visualization.draw_plotly'], '__file__'))\n")
+    assert out.splitlines() == ["False False", "True True True"]
+
+
+def test_open3d_imported_earlier_is_left_as_it_is():
+    out = _fresh_python(
+        "import sys\n"
+        "import open3d\n"
+        "from neural_bake.geometry import import_open3d\n"
+        "print(import_open3d() is open3d, 'dash' in sys.modules,\n"
+        "      hasattr(sys.modules['open3d.visualization.draw_plotly'], '__file__'))\n")
+    assert out == "True True True"
+
+
+@pytest.mark.parametrize("source,ok", [
+    ("from .draw_plotly import get_plotly_fig\nfrom .draw_plotly import draw_plotly\n", True),
+    ("from .draw_plotly import get_plotly_fig, draw_plotly_server\n", True),
+    ("from .draw_plotly import get_plotly_fig\nfrom .draw_plotly import PlotlyWidget\n", False),  # a name it does not know
+    ("from . import draw_plotly\n", False),  # the module itself
+    ("from .draw_plotly import *\n", False),
+    ("from .other import thing\n", False),  # nothing of it: nothing to defer
+])
+def test_web_visualiser_is_deferred_only_for_the_imports_the_stand_in_knows(source, ok):
+    assert geometry.web_visualiser_deferrable(source) is ok
+
+
+def test_installed_open3d_is_one_the_stand_in_knows():
+    # the installed open3d's package source passes the check, so bakes here do defer it
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.find_spec("open3d")
+    init = Path(list(spec.submodule_search_locations)[0]) / "visualization" / "__init__.py"
+    assert geometry.web_visualiser_deferrable(init.read_text(encoding="utf-8"))

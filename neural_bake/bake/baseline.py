@@ -14,7 +14,7 @@ import numpy as np
 
 from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
-from ..geometry import interpolate_corners
+from ..geometry import import_open3d, interpolate_corners
 from ..geometry import raycasting_scene as _shared_scene
 from ..types import Mesh
 
@@ -47,7 +47,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
 
     if scene is None:
         scene = raycasting_scene(fine)
-    import open3d as o3d
+    o3d = import_open3d()
 
     q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
     res = scene.compute_closest_points(q)
@@ -86,7 +86,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         raise NeuralBakeError(f"baseline cage must be a positive distance, got {cage!r}")
     if fine.n_faces == 0:
         raise MeshError(f"{fine.name}: baseline: the fine mesh has no faces")
-    import open3d as o3d
+    o3d = import_open3d()
 
     t_all = time.perf_counter()
     pts = np.asarray(texels.points, dtype=np.float64)

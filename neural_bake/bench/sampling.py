@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from ..geometry import raycasting_scene
+from ..geometry import import_open3d, raycasting_scene
 from ..io.mesh_io import load_mesh
 from ..types import Mesh
 from .common import data_file, machine_info
@@ -64,7 +64,7 @@ def _trimesh_sdf(mesh: Mesh, p: np.ndarray) -> np.ndarray:
 
 
 def _open3d_sdf(mesh: Mesh, p: np.ndarray) -> np.ndarray:
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces)
     return scene.compute_signed_distance(o3d.core.Tensor(p.astype(np.float32))).numpy().astype(np.float64)

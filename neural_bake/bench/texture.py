@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..geometry import raycasting_scene
+from ..geometry import import_open3d, raycasting_scene
 from ..errors import NeuralBakeError
 from ..types import Mesh
 from .common import data_file, load_note, machine_info, timeit
@@ -80,7 +80,7 @@ def mesh_sdf(mesh: Mesh):
     Distance to the closest point q (open3d), sign by ray parity; the gradient is sign·(p − q)/|p − q|, or the
     closest face's normal within 1e-5 of the surface. Unit frame, float tensors in and out (CPU).
     """
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces)
 

@@ -25,7 +25,7 @@ import torch
 
 from ..constants import DIRECTION_EPS, NEWTON_MIN_GRAD_SQ
 from ..errors import FitError, TrainingDivergedError
-from ..geometry import angular_error, raycasting_scene
+from ..geometry import angular_error, import_open3d, raycasting_scene
 from ..nets.gemm import gemm_gradient, normalized_gradient
 from ..types import Mesh
 
@@ -39,7 +39,7 @@ def _closest_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarra
 
 def _closest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N,) float64 distances from ``points`` (N, 3) to the triangles and (N, 3) the closest points."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(vertices, faces)
     closest = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)))

@@ -39,7 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from ..constants import DIRECTION_EPS, SIGN_SURE_MARGIN
-from ..geometry import check_points, raycasting_scene, sampleable_faces, vertex_normals
+from ..geometry import check_points, import_open3d, raycasting_scene, sampleable_faces, vertex_normals
 from ..io.colour import sample_texture
 from ..mesh.winding import winding_number
 from ..types import Mesh
@@ -296,7 +296,7 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     idx, _ = sampleable_faces(mesh)
     if p.shape[0] == 0:
         return np.zeros(0)
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
     closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))["points"].numpy()
@@ -341,7 +341,7 @@ def _inside_and_sure(mesh: Mesh, points, method: str) -> tuple[np.ndarray, np.nd
     if method == "auto":
         method = "raycast" if mesh.watertight else "winding"
     if method == "raycast":
-        import open3d as o3d
+        o3d = import_open3d()
 
         idx, _ = sampleable_faces(mesh)
         scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
@@ -364,7 +364,7 @@ def _inside_and_sure(mesh: Mesh, points, method: str) -> tuple[np.ndarray, np.nd
 
 def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:
     """(k, N) bool: odd number of crossings along each of ``k`` fixed, well-spread, non-axis directions."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     idx, _ = sampleable_faces(mesh)
     scene = raycasting_scene(mesh.vertices, mesh.faces[idx])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import raycasting_scene
+from ..geometry import import_open3d, raycasting_scene
 from ..types import Mesh
 
 __all__ = ["render_views"]
@@ -19,7 +19,7 @@ def render_views(mesh: Mesh, n_views: int = 6, resolution: int = 128) -> list[di
     ``face_index`` (M,), ``bary`` (M, 3) barycentrics, ``pixels`` (M,) flat pixel indices of the hits, and
     ``resolution``. Uses open3d's ``RaycastingScene``.
     """
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces)
     views = []

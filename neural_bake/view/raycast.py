@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from ..constants import UNDERFLOW_EPS
-from ..geometry import raycasting_scene
+from ..geometry import import_open3d, raycasting_scene
 from ..io.colour import sample_texture
 from ..render.camera import Camera
 from ..render.shading import Material, default_lights, shade_blinn_phong
@@ -52,7 +52,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _cast(mesh: ViewMesh, origins: np.ndarray, dirs: np.ndarray):
-    import open3d as o3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(mesh.positions, mesh.faces)
     rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
