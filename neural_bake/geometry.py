@@ -23,7 +23,8 @@ from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCA
 
 __all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "finish_prefetch",
            "frame_mismatch", "import_open3d", "interpolate_corners", "mismatch_problem", "prefetch_raycasting",
-           "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals", "web_visualiser_deferrable"]
+           "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals",
+           "web_visualiser_deferrable"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:

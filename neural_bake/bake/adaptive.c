@@ -81,7 +81,7 @@ static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, 
    sets them). */
 enum { NB_ALL = 0, NB_INSIDE = 1, NB_BORDER = 2 };
 
-/* Calls at(cell, dr, dc) for the positions (dr, dc) of a cell of side k that pass `part` handles, the border's
+/* Calls at(dr, dc) for the positions (dr, dc) of a cell of side k that pass `part` handles, the border's
    alone when it is the border's (each sample is written once, from the cell's nodes, so the order within a cell
    does not change a value). */
 #define NB_FOR_PART(k, part, at)                                                                              \
@@ -257,8 +257,8 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
                                int64_t n_cells, int64_t k, const double *points, double *normals, double *values,
                                double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
                                double extrapolate, double direction_eps, int64_t threads) {
-    double *inv = threads < 2 || n_cells < 2 * NB_CELLS_CHUNK / 4 ? NULL
-                                                                   : (double *)malloc(sizeof(double) * 81 * (size_t)n_cells);
+    const int split = threads >= 2 && n_cells >= 2 * NB_CELLS_CHUNK / 4;
+    double *inv = split ? (double *)malloc(sizeof(double) * 81 * (size_t)n_cells) : NULL;
     uint8_t *good = inv == NULL ? NULL : (uint8_t *)malloc((size_t)n_cells);
     if (good == NULL) { /* one thread (or no scratch): every cell whole, in order */
         free(inv);

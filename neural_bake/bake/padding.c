@@ -2,9 +2,9 @@
    references; the tests hold the pull-push within a few ulps of torch's and the dilation bit for bit equal to
    numpy's).
 
-   nb_pull_push_T(img, covered, h, w, c, work, out, threads): img (h, w, c) row-major, covered (h, w) uint8; out (h, w, c)
-   gets the pushed-down values of the pyramid of coverage-weighted 2×2 averages at every texel (the caller
-   restores the covered ones). work: scratch of nb_pull_push_work(h, w, c) elements. The same arithmetic as
+   nb_pull_push_T(img, covered, h, w, c, work, out, threads): img (h, w, c) row-major, covered (h, w) uint8;
+   out (h, w, c) gets the pushed-down values of the pyramid of coverage-weighted 2×2 averages at every texel (the
+   caller restores the covered ones). work: scratch of nb_pull_push_work(h, w, c) elements. The same arithmetic as
    the torch path: each level pads an odd side with zero weight, sums 2×2 blocks, holds averages with weight
    min(1, sum); the push upsamples ×2 bilinearly (texel centres aligned, borders replicated) and blends each
    level's own average in by its weight. Each level's rows are split over an OpenMP team of `threads` where

@@ -138,8 +138,8 @@ def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS,
 class Kernel:
     """A C file built and loaded on first use (:func:`build`), once per process, thread-safe.
 
-    ``declare(lib)`` sets the entries' ctypes signatures; ``openmp``: see :func:`build`. :meth:`lib` is the library or None (the caller's
-    numpy or torch path runs); :meth:`status` says which runs and why."""
+    ``declare(lib)`` sets the entries' ctypes signatures; ``openmp``: see :func:`build`. :meth:`lib` is the
+    library or None (the caller's numpy or torch path runs); :meth:`status` says which runs and why."""
 
     def __init__(self, source: Path, *, switch: str, declare, openmp: bool = False):
         self.source, self.switch, self.declare, self.openmp = Path(source), switch, declare, bool(openmp)
