@@ -36,7 +36,8 @@ import numpy as np
 
 from ..constants import ADAPTIVE_SAFETY, DIRECTION_EPS
 
-__all__ = ["FaceGeometry", "face_geometry", "face_pass", "FACE_START_SIDE", "FACE_MIN_SIDE", "FACE_MIN_SAMPLES"]
+__all__ = ["FaceGeometry", "face_geometry", "face_pass", "group_argmax", "FACE_START_SIDE", "FACE_MIN_SIDE",
+           "FACE_MIN_SAMPLES"]
 
 #: Longest edge (sample-grid positions) of a face's first sub-triangles; at most the hybrid's reach.
 FACE_START_SIDE = 16.0
@@ -147,6 +148,26 @@ class _Nodes:
             col = np.asarray(col, dtype=np.float64)
             old = self.colors if self.colors is not None else np.zeros((start, col.shape[1]))
             self.colors = np.concatenate([old, col])
+
+
+def group_argmax(groups: np.ndarray, scores: list[np.ndarray]) -> list[np.ndarray]:
+    """For each score array (n,), the position of its largest value within every group of equal ``groups`` (n,)
+    ints, the first such position where several tie: ``np.lexsort((-score, groups))``'s first element per group,
+    from one stable sort of the groups shared by every score. Positions in the order of the groups' values."""
+    order = np.argsort(groups, kind="stable")
+    g = groups[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]]) if len(g) else np.zeros(0, dtype=np.int64)
+    member = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(g)]))
+    out = []
+    for score in scores:
+        sc = score[order]
+        if not len(sc):
+            out.append(np.zeros(0, dtype=np.int64))
+            continue
+        hit = np.flatnonzero(sc == np.maximum.reduceat(sc, starts)[member])
+        first = hit[np.r_[True, member[hit][1:] != member[hit][:-1]]]
+        out.append(order[first])
+    return out
 
 
 def _blend(nodes: _Nodes, at: np.ndarray, weights: np.ndarray, points: np.ndarray):
@@ -294,11 +315,8 @@ def face_pass(
                 out_col[s] = col
             done[s] = True
             # decision points: per accepted sub-triangle, the samples closest to its corners and its centre
-            for score in (w, u, v, -np.abs(u - 1 / 3) - np.abs(v - 1 / 3)):
-                order = np.lexsort((-score, t))
-                first = np.ones(len(order), dtype=bool)
-                first[1:] = t[order][1:] != t[order][:-1]
-                decide[s[order[first]]] = True
+            for first in group_argmax(t, [w, u, v, -np.abs(u - 1 / 3) - np.abs(v - 1 / 3)]):
+                decide[s[first]] = True
         # the failed sub-triangles' samples go one level finer while their sub-triangles stay large enough
         again = ~take & big[inverse]
         nxt = active[again]

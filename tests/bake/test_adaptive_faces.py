@@ -109,3 +109,19 @@ def test_a_mesh_beyond_the_packed_face_index_is_left_to_evaluation(rng):
     res = face_pass(np.arange(len(b)), face, b, pts, many, lambda p: pytest.fail("evaluated"), tolerance_deg=0.5,
                     value_tol=5e-3, color_tol=1e-3)
     assert not res["done"].any() and res["nodes"] == 0
+
+
+@pytest.mark.parametrize("n,groups", [(0, 1), (1, 1), (7, 3), (2000, 1), (2000, 50), (5000, 4000)])
+def test_group_argmax_is_the_lexsort_choice(n, groups):
+    # per group, the position of the largest score, the first of ties (scores rounded to force them): what
+    # np.lexsort((-score, groups)) puts first in each group, in the same order
+    from neural_bake.bake.adaptive_faces import group_argmax
+
+    rng = np.random.default_rng(n + groups)
+    t = rng.integers(0, groups, n)
+    scores = [rng.random(n), np.round(rng.random(n), 1), np.zeros(n), -np.abs(rng.random(n) - 1 / 3)]
+    for score, got in zip(scores, group_argmax(t, scores)):
+        order = np.lexsort((-score, t))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = t[order][1:] != t[order][:-1]
+        np.testing.assert_array_equal(got, order[first])
