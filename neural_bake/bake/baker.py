@@ -61,6 +61,21 @@ def sample_keys(index: np.ndarray, seed: int = 0) -> np.ndarray:
     return x
 
 
+def keys_below(keys: np.ndarray, fraction: float) -> np.ndarray:
+    """``keys.astype(float64) / 2**64 < fraction`` for :func:`sample_keys` ``keys`` (uint64), as one integer
+    comparison: the smallest key whose float64 share reaches ``fraction`` is found by bisection (the rounding of
+    uint64 to float64 is monotonic), so the same keys pass, without a float copy of them."""
+    lo, hi = 0, 2**64  # the bound lies in [0, 2**64]; 2**64: every key passes
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if float(np.uint64(mid)) / 2.0**64 >= fraction:
+            hi = mid
+        else:
+            lo = mid + 1
+    keys = np.asarray(keys, dtype=np.uint64)
+    return np.ones(keys.shape, dtype=bool) if lo >= 2**64 else keys < np.uint64(lo)
+
+
 @dataclass
 class TexelSample:
     """A uniform subsample of a bake's texel samples with their per-sample values (for the quality report).
@@ -343,7 +358,7 @@ class _ErrorControl:
         if self.fraction <= 0 or n == 0:
             return
         keys = sample_keys(index, self.seed)
-        pick = np.flatnonzero(keys.astype(np.float64) < self.fraction * 2.0**64)
+        pick = np.flatnonzero(keys_below(keys, self.fraction))
         if pick.size == 0:
             return
         exact = ev["evaluated"][pick] & (not self.reduced)  # evaluated in float32: the reference itself

@@ -346,12 +346,12 @@ class HybridFallback:
         """(len(candidates),) bool: a seeded uniform choice among ``candidates`` (indices into the band) of
         :data:`~neural_bake.constants.HYBRID_CHECK_FRACTION` of them, at least
         :data:`~neural_bake.constants.HYBRID_CHECK_MIN`; ``stream`` keeps the checks' choices apart."""
-        from .baker import sample_keys
+        from .baker import keys_below, sample_keys
 
         if not len(candidates):
             return np.zeros(0, dtype=bool)
-        keys = sample_keys(self._seen + candidates, self.seed + stream).astype(np.float64) / 2.0**64
-        return keys < max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates)))
+        return keys_below(sample_keys(self._seen + candidates, self.seed + stream),
+                          max(HYBRID_CHECK_FRACTION, min(1.0, HYBRID_CHECK_MIN / len(candidates))))
 
     def _check_pick(self, candidates: np.ndarray) -> np.ndarray:
         """The lattice rule's check: :meth:`_check_mask`'s choice among ``candidates``."""

@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from neural_bake.bake.baker import Baker, bake_texels, bake_vertices, sample_keys
+from neural_bake.bake.baker import Baker, bake_texels, bake_vertices, keys_below, sample_keys
 from neural_bake.bake.export import export_glb, read_glb
 from neural_bake.fields import ColorField, SdfField
 from neural_bake.bake.maps import colors_to_normals, decode_tangent_space
@@ -277,6 +277,16 @@ def test_sample_keys_are_splitmix64_of_index_and_seed():
         keys = sample_keys(index, seed)
         assert [int(k) for k in keys] == [splitmix(int(i), seed) for i in index]
     assert np.array_equal(index, np.array([0, 1, 7, 2**40 + 3, 2**62], dtype=np.uint64))
+
+
+@pytest.mark.parametrize("fraction", [0.0, 1e-300, 2.0**-10, 256 / 2_400_000, 1 / 3, 0.5, 1 - 1e-12, 1.0, 1.5])
+def test_keys_below_is_the_float_comparison(fraction):
+    # the integer bound picks exactly the keys whose float64 share is below the fraction, also where float64
+    # rounds neighbouring keys together (around 2**54 and next to 2**64)
+    edges = np.concatenate([np.array([0, 1, 2**53, 2**63, 2**64 - 1, 2**64 - 1024, 2**64 - 1025], dtype=np.uint64),
+                            (2**54 + np.arange(-3000, 3000)).astype(np.uint64)])
+    for keys in (sample_keys(np.arange(200_000), 3), edges):
+        np.testing.assert_array_equal(keys_below(keys, fraction), keys.astype(np.float64) / 2.0**64 < fraction)
 
 
 def test_albedo_is_the_colour_field_at_texels():
