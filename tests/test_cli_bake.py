@@ -385,6 +385,31 @@ def test_bench_bake_anchor_table_shrunken():
     assert "a first bake" in c["method"] and "--no-layout-cache" in notes
 
 
+def test_bench_bake_anchor_tables_on_another_mesh(files):
+    # --anchor-mesh: the anchor table and the user's command read that mesh (here the fixture's sphere) instead of
+    # Spot, at the sizes asked for
+    from neural_bake.bench.bake import run
+    from neural_bake.fields import SdfField
+    from neural_bake.nets.siren import Siren
+
+    field = SdfField.from_model(Siren(32, 1, generator=torch.Generator().manual_seed(0)), name="tiny")
+    res = run(quick=True, sizes=[16], faces=[300], map_sizes=[16], autograd=False, anchor_sizes=[64],
+              anchor_model=field, anchor_mesh=files["obj"], repeats=1)
+    notes = " ".join(res["notes"])
+    assert "against the anchor: sphere," in notes
+    assert {r["map"] for r in res["tables"]["against the anchor"]} == {"64²"}
+    (cmd,) = [r for r in res["tables"]["the user's command"] if r["method"].startswith("neural-bake bake")]
+    assert cmd["map"] == "64²" and cmd["wall s"] > cmd["bake s"] > 0
+
+
+def test_bench_bake_anchor_options_refuse_bad_values(tmp_path, capsys):
+    # a missing anchor mesh and a map size below the range are usage errors, before any work
+    assert main(["bench", "bake", "--anchor-mesh", str(tmp_path / "missing.obj")]) == 2
+    assert "missing.obj" in capsys.readouterr().err
+    assert main(["bench", "bake", "--anchor-size", "8"]) == 2
+    assert "--anchor-size" in capsys.readouterr().err
+
+
 def test_infinite_colour_rules_keep_the_networks_colours(files, tmp_path, capsys):
     out = tmp_path / "out"
     code, _, err = run([files["obj"], "--sdf", files["sdf"], "--texture-model", files["tex"], "--coarse", "decimate:200",

@@ -67,6 +67,7 @@ def run(
     anchor: bool = True,
     anchor_sizes=None,
     anchor_model=None,
+    anchor_mesh=None,
     blender_python=None,
     repeats: int | None = None,
 ) -> dict:
@@ -86,6 +87,8 @@ def run(
         anchor_sizes: its map sizes (default 2048, 4096; quick: 256, 512).
         anchor_model: a (256, 3) SDF model file of the anchor mesh (Spot when the reference data is there,
             else the bumpy sphere sample), or an SDF field; default a randomly initialised (256, 3) SIREN.
+        anchor_mesh: another mesh file as the anchor (its SDF: ``anchor_model``), e.g. a mesh of the data folder,
+            so the anchor and user's command tables can be read on every asset.
         blender_python: the Python interpreter with ``bpy`` for the Blender rows of the anchor table
             (default: :func:`neural_bake.bench.blender.find_python`); without one the rows are skipped with a note.
         repeats: rounds of the user's command table (our command, then Blender's script, in turn; each figure
@@ -191,10 +194,10 @@ def run(
         a_sizes = anchor_sizes or ([256, 512] if quick else [2048, 4096])
         coarse_meshes: dict = {}
         anchor_rows = _anchor(a_sizes, anchor_model, seed, notes, quick=quick, blender_python=blender_python,
-                              keep_coarse=coarse_meshes)
+                              keep_coarse=coarse_meshes, mesh=anchor_mesh)
         rounds = (1 if quick else 3) if repeats is None else int(repeats)
         command_rows = _command(a_sizes, anchor_model, seed, notes, anchor_rows, repeats=rounds,
-                                blender_meshes=coarse_meshes, blender_python=blender_python)
+                                blender_meshes=coarse_meshes, blender_python=blender_python, mesh=anchor_mesh)
     notes.append(load_note())
     tables = {"throughput": rows, "error vs time": err_rows}
     if anchor:
@@ -210,20 +213,23 @@ def run(
     }
 
 
-def _anchor_mesh():
-    """(name, fine mesh): Spot from the reference data folder when present
-    (:func:`neural_bake.bench.common.data_folder`), else the bumpy sphere sample."""
-    name, _, mesh = _anchor_source()
-    return name, mesh
+def _anchor_mesh(mesh=None):
+    """(name, fine mesh): ``mesh`` (a mesh file) when given, else Spot from the reference data folder when
+    present (:func:`neural_bake.bench.common.data_folder`), else the bumpy sphere sample."""
+    name, _, fine = _anchor_source(mesh)
+    return name, fine
 
 
-def _anchor_source():
+def _anchor_source(mesh=None):
     """(name, mesh file, fine mesh) of :func:`_anchor_mesh` (the file a user's command reads)."""
     import warnings
+    from pathlib import Path
 
     from ..io.mesh_io import load_mesh
     from .common import data_folder
 
+    if mesh is not None:
+        return Path(mesh).stem, Path(mesh), load_mesh(mesh)
     data = data_folder()
     obj = data / "spot" / "spot_triangulated.obj" if data is not None else None
     if obj is not None and obj.is_file():
@@ -250,7 +256,7 @@ def _splat_map(normals: np.ndarray, texels, size: int) -> tuple[slice, np.ndarra
 
 
 def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool, blender_python=None,
-            keep_coarse: dict | None = None) -> list[dict]:
+            keep_coarse: dict | None = None, mesh=None) -> list[dict]:
     """Our bake (full / adaptive × fp32 / auto) beside the open3d mesh-to-mesh baseline and Blender's Cycles
     "selected to active" bake of the same texels, every map decoded by the same decoder (object space, 8
     bits) at the same seeded 2^18 texel samples.
@@ -266,7 +272,7 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool, blender_p
     and object space, decoded exactly as ours. Its rows add the whole script's wall (``whole script s``:
     interpreter start-up, import of bpy, scene set-up, bake, map out) beside its bake seconds.
     ``keep_coarse``: filled with {size: (the coarse mesh with its UVs, the source mesh)} when Blender ran, for the
-    user's command table's own Blender rounds.
+    user's command table's own Blender rounds. ``mesh``: the anchor's mesh file (:func:`_anchor_mesh`).
     """
     from ..bake.adaptive import AdaptiveOptions
     from ..bake.baker import Baker
@@ -279,7 +285,7 @@ def _anchor(sizes, model_path, seed: int, notes: list, *, quick: bool, blender_p
     from ..nets.siren import Siren
     from . import blender
 
-    name, fine = _anchor_mesh()
+    name, fine = _anchor_mesh(mesh)
     coarse = decimate(fine, faces=2000)
     if isinstance(model_path, SdfField):
         field, label = model_path, f"{name}, SDF {model_path.name}"
@@ -404,7 +410,7 @@ _COMMAND_STAGES = ("load", "coarse", "prepare", "bake", "write")
 
 
 def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict], *, repeats: int = 1,
-             blender_meshes: dict | None = None, blender_python=None) -> list[dict]:
+             blender_meshes: dict | None = None, blender_python=None, mesh=None) -> list[dict]:
     """What a user runs: ``neural-bake bake MESH --sdf MODEL --coarse decimate:2000 --maps normal --size N
     --no-baseline -o OUT`` with every other setting at its default (hybrid on, adaptive, precision auto), as its
     own process: wall seconds, the stages of its report, beside Blender's whole script and bake (the same coarse
@@ -412,7 +418,8 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
     (``blender_meshes``: {size: (coarse mesh, source)} from :func:`_anchor`; without it, the anchor table's one
     Blender run), so both meet the machine in the same states; the wall and bake figures are each the best of
     the rounds, with the range beside them, the other stages those of the fastest round. Targets: the bake
-    stage no slower than Blender's bake, the wall at most twice Blender's whole script."""
+    stage no slower than Blender's bake, the wall at most twice Blender's whole script. ``mesh``: the anchor's
+    mesh file (:func:`_anchor_source`)."""
     import json
     import os
     import tempfile
@@ -422,7 +429,7 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
     from ..nets.siren import Siren
     from . import blender as blender_mod
 
-    name, mesh_file, fine = _anchor_source()
+    name, mesh_file, fine = _anchor_source(mesh)
     rows: list[dict] = []
 
     def spread(values):
