@@ -25,7 +25,7 @@ void nb_encode_tangent(const double *n, const double *t, const double *b, const 
                        double det_rel_eps, double direction_eps, int directx, double *out, uint8_t *ok,
                        int64_t threads) {
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && m >= NB_MT_MIN)
+#pragma omp parallel for schedule(static) num_threads(threads > 1 ? (int)threads : 1) if(threads > 1 && m >= NB_MT_MIN)
 #endif
     for (int64_t s = 0; s < m; s++) {
         const double *ns = n + 3 * s, *ts = t + 3 * s, *bs = b + 3 * s, *gs = g + 3 * s;
@@ -80,7 +80,7 @@ void nb_splat(const double *values, const int64_t *flat, const double *weight, i
    numpy's float32 arithmetic forms it. */
 void nb_normal_map(float *vec, int64_t n, double direction_eps, int64_t threads) {
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && n >= NB_MT_MIN)
+#pragma omp parallel for schedule(static) num_threads(threads > 1 ? (int)threads : 1) if(threads > 1 && n >= NB_MT_MIN)
 #endif
     for (int64_t i = 0; i < n; i++) {
         float *v = vec + 3 * i;

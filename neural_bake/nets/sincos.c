@@ -110,32 +110,25 @@ void nb_sincos_f32(const float *a, float *s, float *c, int64_t n) {
 /* values a piece of the threaded entries holds: whole blocks, large enough to pay for a team's wake-up */
 #define NB_PIECE (64 * NB_BLOCK)
 
-void nb_sincos_f32_mt(const float *a, float *s, float *c, int64_t n, int64_t threads) {
+/* sin (c NULL) or sin and cos of a over a team of `threads`, piece by piece */
+static void nb_split(const float *a, float *s, float *c, int64_t n, int64_t threads) {
     const int64_t pieces = (n + NB_PIECE - 1) / NB_PIECE;
-    if (threads < 2 || pieces < 2) {
-        nb_sincos_f32(a, s, c, n);
-        return;
-    }
+    const int team = threads >= 2 && pieces >= 2;
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads((int)threads)
+#pragma omp parallel for schedule(static) num_threads(team ? (int)threads : 1) if(team)
 #endif
     for (int64_t p = 0; p < pieces; p++) {
         const int64_t i0 = p * NB_PIECE, m = (n - i0) < NB_PIECE ? (n - i0) : NB_PIECE;
-        nb_sincos_f32(a + i0, s + i0, c + i0, m);
+        if (c != NULL)
+            nb_sincos_f32(a + i0, s + i0, c + i0, m);
+        else
+            nb_sin_f32(a + i0, s + i0, m);
     }
+    (void)team;
 }
 
-void nb_sin_f32_mt(const float *a, float *s, int64_t n, int64_t threads) {
-    const int64_t pieces = (n + NB_PIECE - 1) / NB_PIECE;
-    if (threads < 2 || pieces < 2) {
-        nb_sin_f32(a, s, n);
-        return;
-    }
-#ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads((int)threads)
-#endif
-    for (int64_t p = 0; p < pieces; p++) {
-        const int64_t i0 = p * NB_PIECE, m = (n - i0) < NB_PIECE ? (n - i0) : NB_PIECE;
-        nb_sin_f32(a + i0, s + i0, m);
-    }
+void nb_sincos_f32_mt(const float *a, float *s, float *c, int64_t n, int64_t threads) {
+    nb_split(a, s, c, n, threads);
 }
+
+void nb_sin_f32_mt(const float *a, float *s, int64_t n, int64_t threads) { nb_split(a, s, NULL, n, threads); }
