@@ -1,6 +1,7 @@
 """Small geometric measures that loading, fitting, baking and rendering all use (numpy; no stage imports):
 angles, frame agreement, area-weighted vertex normals (of arrays, or of a mesh), a mesh's sampleable faces,
-the edge report, and one cached open3d ray-casting scene per triangle set."""
+the edge report, one cached open3d ray-casting scene per triangle set, and open3d's import itself (its web
+visualiser deferred: :func:`import_open3d`)."""
 
 from __future__ import annotations
 
