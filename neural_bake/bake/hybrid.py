@@ -169,7 +169,8 @@ class HybridFallback:
     colours (None: no texture baked); ``values`` (f at the samples), ``decide`` (the adaptive bake's decision
     points) and ``side`` (its interpolation cell sides, :func:`~neural_bake.bake.adaptive.adaptive_evaluate`)
     are optional keywords; returns a :class:`HybridBand`. ``self.counts`` sums the samples per
-    reason over the calls; ``self.f_abs`` keeps |f| at the source points of the decided samples.
+    reason over the calls (f at the source is tested, and counted, only where the angle and validity rules keep
+    the sample); ``self.f_abs`` keeps |f| at the source points of those tested samples.
     """
 
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
@@ -279,10 +280,16 @@ class HybridFallback:
             b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
-        f_surf = self._source_values(coarse, texels, idx, b["points"], normals, values, valid, share) if len(idx) \
-            else np.zeros(0)
+        # the angle and validity rules first: f at the source is needed only where neither replaces the sample
+        why = unfaithful(np.zeros(len(idx)), normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol,
+                         angle_deg=self.angle_deg)
+        tested = np.flatnonzero(~why["mask"])
+        f_surf = self._source_values(coarse, texels, idx[tested], b["points"][tested], normals, values, valid, share) \
+            if len(tested) else np.zeros(0)
         self.f_abs.append(np.abs(f_surf))
-        why = unfaithful(f_surf, normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol, angle_deg=self.angle_deg)
+        far = np.zeros(len(idx), dtype=bool)
+        far[tested] = ~(np.abs(f_surf) <= self.sdf_tol)  # NaN counts as far
+        why["sdf"], why["mask"] = far, why["mask"] | far
         if colors is not None:
             bad = np.zeros(len(idx), dtype=bool)
             # a budget of 0 replaces every colour the map would store differently, which takes in every colour

@@ -96,6 +96,28 @@ def test_poor_field_takes_the_baseline_normals():
     assert s["replaced"] == rep.sum() and s["sdf"] > 0 and s["samples"] == len(rep)
 
 
+def test_f_at_the_source_is_tested_only_where_the_angle_rule_keeps_the_sample():
+    # a sphere SDF as the field of a plank, every sample decided: the samples the angle rule replaces take no
+    # forward pass at their source points; the rest are tested for f, and the replaced set is the union of the rules
+    plank = thin_box()
+    coarse = unwrap(plank, resolution=128)
+    baker = Baker(coarse, 48)
+    hybrid = HybridFallback(plank, sphere_field(0.5), decide="all")
+    asked = []
+    real = hybrid.field_values
+    hybrid.field_values = lambda points: asked.append(len(points)) or real(points)
+    res = baker.bake(sphere_field(0.5), hybrid=hybrid)
+    tx = baker.texels
+    base = baseline_bake(baker.mesh, plank, tx)
+    f_src = sphere_field(0.5).value(__import__("torch").as_tensor(base["points"])).numpy()
+    why = unfaithful(f_src, res.neural, base["normals"], np.ones(len(f_src), dtype=bool), sdf_tol=hybrid.sdf_tol,
+                     angle_deg=hybrid.angle_deg)
+    np.testing.assert_array_equal(res.replaced, why["mask"])  # the same samples as testing every rule everywhere
+    kept = ~why["angle"]
+    assert hybrid.counts["angle"] == why["angle"].sum() > 0 and hybrid.counts["sdf"] == (why["sdf"] & kept).sum()
+    assert sum(asked) <= kept.sum() < len(f_src)  # forward passes only where the angle rule kept the sample
+
+
 def test_streamed_hybrid_matches_cached():
     plank = thin_box()
     coarse = unwrap(plank, resolution=128)
