@@ -263,7 +263,7 @@ def adaptive_evaluate(
     vertices: np.ndarray | None = None,
     dtype: torch.dtype = torch.float64,
     faces: FaceGeometry | None = None,
-    evaluate_points: Callable[[np.ndarray], dict] | None = None,
+    evaluate_points: Callable[[np.ndarray, np.ndarray], dict] | None = None,
 ) -> dict:
     """Evaluate the fields at a band's samples adaptively (module docstring).
 
@@ -277,8 +277,8 @@ def adaptive_evaluate(
       the fields of a float32 network (its own precision), float64 (the default) to interpolate exactly.
     - ``evaluate``: sample indices (n,) int64 → ``{"values": (n,), "normals": (n, 3) unit ∇f (0 where
       invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
-    - ``faces`` and ``evaluate_points`` (points (n, 3) → the same dict): with both, the samples no cell
-      covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
+    - ``faces`` and ``evaluate_points`` ((points (n, 3), their faces (n,)) → the same dict): with both, the
+      samples no cell covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),

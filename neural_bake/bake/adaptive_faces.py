@@ -84,7 +84,7 @@ class _Nodes:
     The values are appended in evaluation order (a node's position never moves); ``_sorted`` and ``_where``
     (the keys in order and their positions) answer lookups."""
 
-    def __init__(self, geometry: FaceGeometry, evaluate_points: Callable[[np.ndarray], dict]):
+    def __init__(self, geometry: FaceGeometry, evaluate_points: Callable[[np.ndarray, np.ndarray], dict]):
         self.geometry = geometry
         self.evaluate_points = evaluate_points
         self._sorted = np.zeros(0, dtype=np.int64)
@@ -130,7 +130,7 @@ class _Nodes:
         b2 = (new & mask).astype(np.float64) / (1 << _RES_BITS)
         c = self.geometry.corners[face]
         pts = c[:, 0] + b1[:, None] * (c[:, 1] - c[:, 0]) + b2[:, None] * (c[:, 2] - c[:, 0])
-        ev = self.evaluate_points(pts)
+        ev = self.evaluate_points(pts, face)
         nrm = np.asarray(ev["normals"], dtype=np.float64)
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > DIRECTION_EPS)
@@ -187,7 +187,7 @@ def face_pass(
     bary: np.ndarray,
     points: np.ndarray,
     geometry: FaceGeometry,
-    evaluate_points: Callable[[np.ndarray], dict],
+    evaluate_points: Callable[[np.ndarray, np.ndarray], dict],
     *,
     tolerance_deg: float,
     value_tol: float,
@@ -196,7 +196,8 @@ def face_pass(
     """Interpolate what it can of the samples ``idx`` (n,) (module docstring).
 
     ``face`` (n,), ``bary`` (n, 3) and ``points`` (n, 3): each sample's face, barycentric coordinates and point;
-    ``evaluate_points``: points (k, 3) → ``{"values", "normals", "valid", "colors" (or None)}``.
+    ``evaluate_points``: (points (k, 3), their faces (k,)) → ``{"values", "normals", "valid", "colors" (or
+    None)}`` (the faces for fields that read the mesh's normal there).
 
     Returns ``{"done": (n,) bool interpolated, "normals", "values", "colors" (rows of the done samples; None
     without colours), "decide": (n,) bool decision points, "nodes": evaluations made, "accepted":

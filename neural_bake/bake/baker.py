@@ -233,10 +233,14 @@ TEXTURE_AT = ("surface", "point")
 
 def _evaluate(
     points: np.ndarray, mesh_frame: Frame, sdf: SdfField | None, texture: TextureField | None, chunk_size: int,
-    texture_at: str = "point",
+    texture_at: str = "point", surface_normals: np.ndarray | None = None,
 ) -> dict:
     """f, unit ∇f, valid and g at ``points`` (M, 3) (mesh unit frame), in chunks of ``chunk_size``; g at the
-    points themselves or, ``texture_at="surface"`` (with an SDF), at their closest points on f = 0."""
+    points themselves or, ``texture_at="surface"`` (with an SDF), at their closest points on f = 0.
+
+    A colour field with normal inputs reads the SDF's unit ∇f where it reads at f = 0 (the normal of the surface
+    it reads), and ``surface_normals`` (M, 3), the mesh's normals at the points, where it reads at the points
+    themselves or ∇f is unusable or faces the other way there (:func:`_texture_normals`)."""
     m = len(points)
     out: dict = {"time_sdf": 0.0, "time_texture": 0.0}
     if sdf is not None:
@@ -261,13 +265,40 @@ def _evaluate(
                                        torch.from_numpy(normals), torch.from_numpy(valid), reach).numpy()
             at = q if sdf.frame is None or sdf.frame == mesh_frame else mesh_frame.to_unit(sdf.frame.to_source(q))
         pts = _to_field_frame(at, mesh_frame, texture.frame)
+        nrm = _texture_normals(texture, m, surface_normals, out if texture_at == "surface" else None)
         chunks = []
         t0 = time.perf_counter()
         for s in range(0, m, chunk_size):
-            chunks.append(texture.color(torch.as_tensor(pts[s : s + chunk_size], **kw)).double().cpu().numpy())
+            x = torch.as_tensor(pts[s : s + chunk_size], **kw)
+            c = texture.color(x) if nrm is None else texture.color(x, torch.as_tensor(nrm[s : s + chunk_size], **kw))
+            chunks.append(c.double().cpu().numpy())
         out["time_texture"] = time.perf_counter() - t0
         out["colors"] = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     return out
+
+
+def _texture_normals(texture: TextureField, m: int, surface: np.ndarray | None, sdf_eval: dict | None
+                     ) -> np.ndarray | None:
+    """The (m, 3) normals a colour field with normal inputs reads (None for any other field): the SDF's unit ∇f
+    where ``sdf_eval`` (its evaluation at the samples) has a valid one facing the same side as the mesh's
+    ``surface`` normal there, else that normal (an open mesh's SDF may face the other way: the colour of the
+    other side). Without either, :class:`~neural_bake.errors.NeuralBakeError` names what is missing."""
+    if not getattr(texture, "normal_inputs", False):
+        return None
+    if sdf_eval is not None and "normals" in sdf_eval:
+        out = np.array(sdf_eval["normals"], dtype=np.float64)
+        bad = ~np.asarray(sdf_eval["valid"], dtype=bool)
+        if surface is None:
+            out[bad] = 0.0
+        else:
+            surface = np.asarray(surface, dtype=np.float64)
+            bad |= np.einsum("ij,ij->i", out, surface) < 0
+            out[bad] = surface[bad]
+        return out
+    if surface is None:
+        raise NeuralBakeError(f"{texture.name}: the colour field reads surface normals, and this bake gave none "
+                              "(bake with the SDF, or from a mesh)")
+    return np.asarray(surface, dtype=np.float64).reshape(m, 3)
 
 
 def _quantiles(x: np.ndarray) -> dict:
@@ -309,14 +340,25 @@ class _ErrorControl:
         self.interp: list[np.ndarray] = []
         self._charts = None
         self._faces = None
+        self._face_normals: np.ndarray | None = None
         # float32 fields are interpolated in float32 (their own precision), anything else in float64
         dtypes = {_tensor_kwargs(f)["dtype"] for f in (sdf, texture) if f is not None}
         self.dtype = torch.float32 if dtypes == {torch.float32} else torch.float64
 
-    def evaluate(self, tx, points: np.ndarray) -> dict:
+    def face_normals(self, face: np.ndarray) -> np.ndarray | None:
+        """The coarse mesh's normals of the faces ``face`` (any shape), when the colour field reads normals."""
+        if not getattr(self.texture, "normal_inputs", False):
+            return None
+        if self._face_normals is None:
+            self._face_normals = self.baker.mesh.face_normals
+        return self._face_normals[np.asarray(face, dtype=np.int64)]
+
+    def evaluate(self, tx, points: np.ndarray, normals: np.ndarray | None = None) -> dict:
+        """The fields at the band ``tx``'s ``points``; ``normals``: :meth:`face_normals` of its samples."""
         b = self.baker
         if self.adaptive is None:
-            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
+            ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at,
+                           normals)
             ev["evaluated"] = np.ones(len(points), dtype=bool)
             self.counts["samples"] += len(points)
             self.counts["evaluated"] += len(points)
@@ -328,15 +370,21 @@ class _ErrorControl:
             self._faces = face_geometry(b.mesh, b.shape, b.supersample)
         times = {"time_sdf": 0.0, "time_texture": 0.0}
 
-        def at_points(p):
-            e = _evaluate(p, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at)
+        def at_points(p, nrm=None):
+            e = _evaluate(p, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at, nrm)
             times["time_sdf"] += e["time_sdf"]
             times["time_texture"] += e["time_texture"]
             return e
 
+        def at_samples(idx):
+            return at_points(points[idx], None if normals is None else normals[idx])
+
+        def at_face_points(p, face):
+            return at_points(p, self.face_normals(face))
+
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
-                                lambda idx: at_points(points[idx]), self.adaptive, vertices=self._vertices,
-                                dtype=self.dtype, faces=self._faces, evaluate_points=at_points)
+                                at_samples, self.adaptive, vertices=self._vertices,
+                                dtype=self.dtype, faces=self._faces, evaluate_points=at_face_points)
         st = res["stats"]
         for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells"):
             self.counts[k] += st[k]
@@ -351,7 +399,7 @@ class _ErrorControl:
         ev["time_adaptive"] = time.perf_counter() - t0 - times["time_sdf"] - times["time_texture"]
         return ev
 
-    def check(self, points: np.ndarray, ev: dict) -> None:
+    def check(self, points: np.ndarray, ev: dict, normals: np.ndarray | None = None) -> None:
         n = len(points)
         index = np.arange(self.seen, self.seen + n, dtype=np.int64)
         self.seen += n
@@ -369,7 +417,7 @@ class _ErrorControl:
         redo = pick[~exact]
         if redo.size:
             ref = _evaluate(points[redo], self.baker.mesh.frame, self.sdf, self.texture, self.baker.chunk_size,
-                            self.texture_at)
+                            self.texture_at, None if normals is None else normals[redo])
             both = ref["valid"] & ev["valid"][redo]
             a = np.zeros(redo.size)
             a[both] = angular_error(ev["normals"][redo][both], ref["normals"][both])
@@ -433,7 +481,11 @@ def bake_vertices(
     "valid": (V,) bool, "sdf": (V,) f at the vertices, "invalid": count}``. Vertices with an unusable
     gradient (|∇f| ≈ 0) keep the mesh's own vertex normal.
     """
-    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size), _check_texture_at(texture_at))
+    from ..geometry import vertex_normals as mesh_vertex_normals
+
+    surface = mesh_vertex_normals(mesh) if getattr(texture, "normal_inputs", False) else None
+    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size), _check_texture_at(texture_at),
+                   surface)
     normals = ev["normals"]
     valid = ev["valid"]
     from ..mesh.tangents import vertex_normals
@@ -635,12 +687,13 @@ class Baker:
             if self.texels is None:
                 secs["rasterize"] += time.perf_counter() - t_band
             points = np.asarray(tx.points, dtype=np.float64)
-            ev = control.evaluate(tx, points)
+            surface = control.face_normals(tx.face)
+            ev = control.evaluate(tx, points, surface)
             secs["sdf"] += ev["time_sdf"]
             secs["texture"] += ev["time_texture"]
             secs["adaptive"] += ev.get("time_adaptive", 0.0)
             t0 = time.perf_counter()
-            control.check(points, ev)
+            control.check(points, ev, surface)
             secs["check"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             normals, valid, values = ev["normals"], ev["valid"], ev["values"]

@@ -172,13 +172,17 @@ def bake_frames(
 
 
 def _colours(texture: FrameTexture, t: float, mesh) -> np.ndarray:
-    """Linear colours (V, C) of the texture field at time ``t`` at the mesh's vertices (mesh unit frame)."""
+    """Linear colours (V, C) of the texture field at time ``t`` at the mesh's vertices (mesh unit frame; a field
+    with normal inputs reads the mesh's vertex normals)."""
     from .baker import _evaluate
 
     field = texture if isinstance(texture, TextureField) else texture(t)
     if not isinstance(field, TextureField):
         raise NeuralBakeError(f"texture: at t = {t:g} expected a TextureField, got {type(field).__name__}")
-    colours = _evaluate(mesh.vertices, mesh.frame, None, field, 65536)["colors"]
+    from ..geometry import vertex_normals
+
+    normals = vertex_normals(mesh) if getattr(field, "normal_inputs", False) else None
+    colours = _evaluate(mesh.vertices, mesh.frame, None, field, 65536, surface_normals=normals)["colors"]
     if colours.ndim != 2 or colours.shape[1] not in (3, 4):
         raise NeuralBakeError(f"texture: {field.name} gives {colours.shape[1:]} values per point, expected 3 or 4")
     return colours

@@ -53,12 +53,13 @@ SAMPLE_MESHES: dict[str, dict] = {"dots": {"sample": "dots", "coarse": "keep", "
 #: Colour-network constructions the texture rows compare (``texture_networks``): "siren", the preset's SIREN
 #: (its own network, or :data:`~neural_bake.fit.texture.PRESET_SIRENS` where that is a grid); "siren-wide",
 #: that SIREN twice as wide and one hidden matrix deeper; "grid", a multiresolution feature grid in front of a
-#: 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2, half the samples at the texture's edges); "grid-uniform",
-#: that grid with no edge samples.
-TEXTURE_NETWORKS = ("siren", "siren-wide", "grid", "grid-uniform")
+#: 64x1 ReLU MLP (the grid settings' defaults, lr 1e-2, half the samples at the texture's edges), reading the
+#: point alone; "grid-uniform", that grid with no edge samples; "grid-normals", that grid's MLP also reading the
+#: surface normal (``normal_inputs`` "on"); "grid-auto", reading it on open meshes only ("auto").
+TEXTURE_NETWORKS = ("siren", "siren-wide", "grid", "grid-uniform", "grid-normals", "grid-auto")
 
 #: The fit settings of the "grid" construction beside the preset's.
-GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_share": 0.5}
+GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "off"}
 
 
 def texture_network_settings(name: str, preset: str) -> dict:
@@ -78,18 +79,27 @@ def texture_network_settings(name: str, preset: str) -> dict:
         over = dict(GRID_TEXTURE)
     elif name == "grid-uniform":
         over = {**GRID_TEXTURE, "edge_share": 0.0}
+    elif name == "grid-normals":
+        over = {**GRID_TEXTURE, "normal_inputs": "on"}
+    elif name == "grid-auto":
+        over = {**GRID_TEXTURE, "normal_inputs": "auto"}
     else:
         raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
     return {} if all(own.get(k) == v for k, v in over.items()) else over
 
 
 def own_texture_network(preset: str) -> str:
-    """The construction (:data:`TEXTURE_NETWORKS`) a texture ``preset`` fits by itself: "grid" or "siren"."""
+    """The construction (:data:`TEXTURE_NETWORKS`) a texture ``preset`` fits by itself: "grid", "grid-normals",
+    "grid-auto" or "siren"."""
     from ..fit.presets import TEXTURE_ALIASES, resolve_preset
     from ..fit.texture import PRESETS
 
     key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
-    return "siren" if key is None else str(PRESETS[key].get("network", "siren"))
+    own = {} if key is None else PRESETS[key]
+    network = str(own.get("network", "siren"))
+    if network != "grid":
+        return network
+    return {"on": "grid-normals", "auto": "grid-auto"}.get(str(own.get("normal_inputs", "off")), "grid")
 
 
 def network_label(model) -> str:
@@ -97,7 +107,8 @@ def network_label(model) -> str:
     arch = getattr(model, "architecture", {})
     if arch.get("network") == "grid":
         return (f"grid {arch['levels']}x{arch['features']} 2^{arch['log2_table']} {arch['base_resolution']}–"
-                f"{arch['max_resolution']}, {arch['width']}x{arch['depth']} {arch['activation']}")
+                f"{arch['max_resolution']}, {arch['width']}x{arch['depth']} {arch['activation']}"
+                + (", normals" if arch.get("in_dim") == 6 else ""))
     return f"{arch.get('width')}x{arch.get('depth')}"
 
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.

@@ -79,14 +79,21 @@ def feature_ssim(a: np.ndarray, b: np.ndarray, windows: list[tuple[slice, slice]
     return [float(structural_similarity(a[r, c], b[r, c], channel_axis=2, data_range=1.0)) for r, c in windows]
 
 
-def _closest_source_colours(baker, reference) -> tuple[np.ndarray, np.ndarray]:
+def _closest_source_colours(baker, reference, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(linear colours (M, C) of ``reference``'s texture at the closest point of every texel sample of
-    ``baker``, the samples' (M, 2) texel rows and columns)."""
+    ``baker``, the samples' (M, 2) texel rows and columns). With ``keep`` (the baked mesh is ``reference``
+    itself, same faces) each sample is its own closest point, on its own face: where two faces coincide (boards
+    back to back) a closest-point search would pick either."""
     from ..bake.baseline import closest_surface
     from ..geometry import interpolate_corners
     from ..io.colour import sample_texture
 
     tx = baker.texels
+    same = keep and np.array_equal(np.asarray(baker.mesh.faces), np.asarray(reference.faces)) and np.allclose(
+        baker.mesh.vertices, reference.vertices)
+    if same:
+        uv = interpolate_corners(reference.uv, np.asarray(tx.face, dtype=np.int64), np.asarray(tx.bary))
+        return sample_texture(reference.texture, uv, reference.uv_policy).astype(np.float64), np.asarray(tx.pixel)
     pts = np.asarray(tx.points, dtype=np.float64)
     if reference.frame != baker.mesh.frame:
         pts = reference.frame.to_unit(baker.mesh.frame.to_source(pts))
@@ -137,7 +144,7 @@ def texture_row(inputs, coarse, *, size: int, keep: bool, log=None,
     maps["classical"] = srgb8(classical.albedo)
     baker = baked["network"].baker
     covered = np.asarray(baked["network"].result.coverage, dtype=bool)
-    truth, pix = _closest_source_colours(baker, inputs.reference)
+    truth, pix = _closest_source_colours(baker, inputs.reference, keep)
     source = np.zeros((*covered.shape, 3))
     source[pix[:, 0], pix[:, 1]] = np.clip(linear_to_srgb(truth[:, :3]), 0.0, 1.0)
     row: dict = {"size": int(size), "texels": int(covered.sum())}

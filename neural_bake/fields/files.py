@@ -235,9 +235,10 @@ def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
 
 def _read_texture(path: Path, header: dict, *, device=None, dtype=None) -> TextureField:
     arch, meta = header["architecture"], header["metadata"]
-    if arch["in_dim"] != 3 or arch["out_dim"] not in (3, 4):
-        raise ModelFileError(f"{path}: a texture maps R^3 to RGB(A), this network maps R^{arch['in_dim']} to "
-                             f"R^{arch['out_dim']}")
+    sided = arch.get("network") == "grid" and arch["in_dim"] == 6  # points and surface normals
+    if arch["in_dim"] != 3 and not sided or arch["out_dim"] not in (3, 4):
+        raise ModelFileError(f"{path}: a texture maps R^3 (or a grid network's points and normals, R^6) to "
+                             f"RGB(A), this network maps R^{arch['in_dim']} to R^{arch['out_dim']}")
     frame = check_frame(meta.get("frame"), path)
     delta = check_delta(meta.get("delta"), path)
     against = meta.get("fitted_against")

@@ -1,5 +1,10 @@
 """A texture field g: unit-frame points (N, 3) -> linear RGB (N, 3) or RGBA (N, 4).
 
+A field with normal inputs (a grid network with ``in_dim`` 6) also reads the unit surface normal at each point:
+the two sides of a thin board, or the two faces at its edge, keep their own colours. Its readers pass the normal
+they have: a bake onto the source itself the mesh's face normal (what the field was fitted with), a bake onto
+another mesh the SDF's ∇f (the coarse face's normal where ∇f faces the other way), the renderer ∇f.
+
 A fitted network may hold its colours sRGB-encoded (``encoding="srgb"``, what an 8-bit colour map stores);
 :meth:`TextureField.color` decodes them, so every reader sees linear RGB.
 """
@@ -48,11 +53,13 @@ class TextureField:
     - ``model``: the network of a fitted field (a Siren or a GridNet), None for an analytic one.
     - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
     - ``encoding``: what ``fn`` outputs, "linear" or "srgb" (:data:`ENCODINGS`); :meth:`color` gives linear RGB.
+    - ``normal_inputs``: whether ``fn`` also reads unit surface normals (:attr:`normal_inputs`; None: the
+      network says).
     """
 
     def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], *, frame: Frame | None = None,
                  name: str = "analytic", delta: float | None = None, fitted_against: dict | None = None,
-                 metadata: dict | None = None, encoding: str = "linear"):
+                 metadata: dict | None = None, encoding: str = "linear", normal_inputs: bool | None = None):
         if encoding not in ENCODINGS:
             raise ModelFileError(f"{name}: colour encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
         self.fn, self.frame, self.name, self.delta, self.encoding = fn, frame, name, delta, encoding
@@ -60,6 +67,7 @@ class TextureField:
         self.metadata = dict(metadata or {})
         self.model = fn if isinstance(fn, torch.nn.Module) else None
         self.gemm_dtype: torch.dtype | None = None
+        self._normal_inputs = normal_inputs
 
     @classmethod
     def from_model(cls, model, *, frame: Frame | None = None, name: str = "siren", delta: float | None = None,
@@ -102,10 +110,28 @@ class TextureField:
             reason += f"; colours {diff:.2g} median off float32 at {len(probe)} points"
         return out, resolved, reason
 
-    def color(self, points: torch.Tensor) -> torch.Tensor:
+    @property
+    def normal_inputs(self) -> bool:
+        """Whether :meth:`color` needs the surface normals: a network with normal inputs, or an analytic field
+        made with ``normal_inputs=True`` (its ``fn`` then reads (N, 6): points, then normals)."""
+        if self._normal_inputs is not None:
+            return bool(self._normal_inputs)
+        return bool(getattr(self.model, "normal_inputs", False))
+
+    def color(self, points: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
         """Linear RGB(A) (N, C) at ``points`` (N, 3) (sRGB outputs decoded); non-finite outputs become 0. A
         field with a ``gemm_dtype`` runs its Siren through :func:`~neural_bake.nets.siren.siren_forward_inference`
-        with it."""
+        with it. ``normals`` (N, 3), unit surface normals at the points, are read by a field with
+        :attr:`normal_inputs` (it needs them: :class:`~neural_bake.errors.NeuralBakeError` without) and ignored
+        by any other."""
+        if self.normal_inputs:
+            if normals is None or tuple(normals.shape) != (points.shape[0], 3):
+                from ..errors import NeuralBakeError
+
+                got = "none" if normals is None else f"shape {tuple(normals.shape)}"
+                raise NeuralBakeError(f"{self.name}: this colour field reads the surface normal at each point; "
+                                      f"pass normals of shape ({points.shape[0]}, 3), got {got}")
+            points = torch.cat([points, normals.to(points.dtype)], dim=1)
         with torch.no_grad():
             if self.gemm_dtype is not None:
                 from ..nets.siren import siren_forward_inference
@@ -118,7 +144,8 @@ class TextureField:
         return decode_colors(out, self.encoding)
 
     def __repr__(self) -> str:
-        return f"TextureField({self.name!r}, delta={self.delta}, encoding={self.encoding!r})"
+        extra = ", normal inputs" if self.normal_inputs else ""
+        return f"TextureField({self.name!r}, delta={self.delta}, encoding={self.encoding!r}{extra})"
 
 
 #: The name of earlier releases.

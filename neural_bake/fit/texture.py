@@ -114,6 +114,15 @@ class TextureFitConfig(PresetLoopSettings):
     """network "grid": cells per side at the finest level (about the texture's texels across the asset)."""
     grid_activation: str = "relu"
     """network "grid": the MLP's hidden activation, "relu" or "sine" (sin(ω x), ω = hidden_omega)."""
+    normal_inputs: str = "off"
+    """network "grid": "on", the MLP also reads the surface normal (the mesh's face normal in training; bakes
+    onto the mesh itself read it, others and the renderer the SDF's ∇f), so faces meeting at an edge or lying
+    back to back keep their own colours; "off"; "auto": on for an open mesh (boards, panels), off for a closed
+    one, whose smooth textures it costs (BENCHMARKS.md)."""
+    normal_jitter_deg: float = 15.0
+    """normal_inputs: each step tilts every sample's normal by a random angle up to this (degrees), in a random
+    direction, so the colours do not hang on small changes of the normal: a bake reads ∇f or another mesh's
+    normals, a few degrees from the source's faces (0: the exact face normals)."""
     omega_0: float = 30.0
     """ω0 of the SIREN's first layer (frequency of the colour field over the unit frame)."""
     hidden_omega: float = 30.0
@@ -165,16 +174,18 @@ GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_res
 #: and high).
 PRESETS: dict[str, dict] = {
     "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
-              "lr": 1e-2, "edge_share": 0.5},
+              "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
     "default": {"network": "grid", "width": 64, "depth": 1, "minutes": 4.0, "steps": 200_000, "batch": 4096,
-                "lr": 1e-2, "edge_share": 0.5},
+                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 
 
 #: The SIREN settings of a preset whose network is a grid, applied when ``network="siren"`` is asked for with it.
-PRESET_SIRENS: dict[str, dict] = {"quick": {"width": 64, "depth": 1, "lr": 5e-4, "edge_share": 0.0},
-                                  "default": {"width": 192, "depth": 3, "omega_0": 60.0, "lr": 5e-4, "edge_share": 0.0}}
+PRESET_SIRENS: dict[str, dict] = {"quick": {"width": 64, "depth": 1, "lr": 5e-4, "edge_share": 0.0,
+                                            "normal_inputs": "off"},
+                                  "default": {"width": 192, "depth": 3, "omega_0": 60.0, "lr": 5e-4, "edge_share": 0.0,
+                                              "normal_inputs": "off"}}
 
 
 @dataclass
@@ -513,13 +524,15 @@ def band_orthogonality(model: Siren | GridNet, points: torch.Tensor, normals: to
 
 def _grid_normal_derivative(model: GridNet, points: torch.Tensor, normals: torch.Tensor, *, differentiable: bool,
                             method: str) -> torch.Tensor:
-    """J_g(p) n (N, out_dim) of a grid network, by autograd ("jacobian") or in closed form ("directional")."""
+    """J_g(p) n (N, out_dim) of a grid network, by autograd ("jacobian") or in closed form ("directional"); a
+    network with normal inputs reads ``normals`` as the surface's (its derivative is the point's alone)."""
+    sided = model.normal_inputs
     with torch.set_grad_enabled(differentiable and torch.is_grad_enabled() or method == "jacobian"):
         if method == "directional":
-            d = model.directional(points, normals)[1]
+            d = model.directional(torch.cat([points, normals], dim=1) if sided else points, normals)[1]
         elif method == "jacobian":
             x = points.detach().requires_grad_(True)
-            out = model(x)
+            out = model(torch.cat([x, normals], dim=1) if sided else x)
             create = differentiable and torch.is_grad_enabled()
             rows = [torch.autograd.grad(out[:, c].sum(), x, create_graph=create, retain_graph=True)[0]
                     for c in range(out.shape[1])]
@@ -529,14 +542,42 @@ def _grid_normal_derivative(model: GridNet, points: torch.Tensor, normals: torch
     return d if differentiable else d.detach()
 
 
-def make_texture_network(config: TextureFitConfig, generator: torch.Generator | None = None) -> Siren | GridNet:
-    """The untrained colour network of ``config`` (3 inputs, 3 outputs): a :class:`Siren` (width, depth, ω0,
+def tilt_normals(normals: torch.Tensor, max_angle: float, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Unit ``normals`` (N, 3) each turned by an angle drawn uniformly in [0, ``max_angle``] (radians) towards a
+    uniformly random perpendicular direction; ``max_angle`` 0 returns them as they are. Zero rows stay zero."""
+    if max_angle <= 0:
+        return normals
+    r = torch.randn(normals.shape, generator=generator, dtype=normals.dtype, device=normals.device)
+    r = r - (r * normals).sum(dim=1, keepdim=True) * normals
+    r = r / r.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    a = torch.rand((normals.shape[0], 1), generator=generator, dtype=normals.dtype, device=normals.device) * max_angle
+    has = (normals.abs().sum(dim=1, keepdim=True) > 0).to(normals.dtype)
+    return normals * torch.cos(a) + has * r * torch.sin(a)
+
+
+#: The values of :attr:`TextureFitConfig.normal_inputs`.
+NORMAL_INPUTS = ("off", "on", "auto")
+
+
+def reads_normals(config: TextureFitConfig, open_mesh: bool) -> bool:
+    """Whether ``config``'s colour network reads surface normals, for a mesh that is open (``open_mesh``) or
+    closed: ``normal_inputs`` "on", or "auto" on an open mesh."""
+    return config.normal_inputs == "on" or config.normal_inputs == "auto" and bool(open_mesh)
+
+
+def make_texture_network(config: TextureFitConfig, generator: torch.Generator | None = None, *,
+                         open_mesh: bool = False) -> Siren | GridNet:
+    """The untrained colour network of ``config`` (3 outputs): a :class:`Siren` (3 inputs; width, depth, ω0,
     hidden ω) or, with ``network="grid"``, a :class:`~neural_bake.nets.grid.GridNet` (the grid settings, its MLP
-    of width and depth)."""
+    of width and depth; 6 inputs where it reads normals: :func:`reads_normals`)."""
+    sided = reads_normals(config, open_mesh)
     if config.network == "grid":
         return GridNet(config.grid_levels, config.grid_features, config.grid_log2_table,
                        config.grid_base_resolution, config.grid_max_resolution, config.width, config.depth, 3,
-                       config.grid_activation, config.hidden_omega, generator=generator)
+                       config.grid_activation, config.hidden_omega, 6 if sided else 3, generator=generator)
+    if sided:
+        raise FitError('normal_inputs: needs network "grid" (a SIREN colour network reads points only)',
+                       parameter="normal_inputs")
     return Siren(config.width, config.depth, 3, 3, config.omega_0, config.hidden_omega, generator=generator)
 
 
@@ -600,6 +641,16 @@ def _validate(c: TextureFitConfig) -> None:
         raise FitError(f"max_restarts: must be a non-negative integer, got {c.max_restarts!r}")
     if c.orth_method not in ("jacobian", "directional"):
         raise FitError(f"orth_method: must be 'jacobian' or 'directional', got {c.orth_method!r}")
+    j = c.normal_jitter_deg
+    if isinstance(j, bool) or not isinstance(j, (int, float)) or not 0 <= j <= 90:
+        raise FitError(f"normal_jitter_deg: must be a number of degrees in [0, 90], got {j!r}",
+                       parameter="normal_jitter_deg")
+    if c.normal_inputs not in NORMAL_INPUTS:
+        raise FitError(f"normal_inputs: must be one of {', '.join(NORMAL_INPUTS)}, got {c.normal_inputs!r}",
+                       parameter="normal_inputs")
+    if c.normal_inputs == "on" and c.network != "grid":
+        raise FitError(f'normal_inputs: needs network "grid" (a SIREN colour network reads points only), got '
+                       f'network {c.network!r}', parameter="normal_inputs")
     if c.lr_schedule not in ("constant", "cosine"):
         raise FitError(f"lr_schedule: must be 'constant' or 'cosine', got {c.lr_schedule!r}")
     if c.budget not in ("time", "steps"):
@@ -697,7 +748,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     device, dtype = torch.device(config.device), getattr(torch, config.dtype)
 
     init_gen = torch.Generator().manual_seed(int(config.seed))
-    model = make_texture_network(config, init_gen).to(device, dtype)
+    model = make_texture_network(config, init_gen, open_mesh=not mesh.watertight).to(device, dtype)
 
     samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share,
                               edge_share=config.edge_share)
@@ -722,9 +773,15 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     n_off = bb - n_uni
     lam = float(config.lam)
 
+    # a network with normal inputs reads each sample's face normal (tilted at random) beside its point
+    sided = bool(getattr(model, "normal_inputs", False))
+    face_normals = nrm.to(device, dtype)
+    jitter = math.radians(float(config.normal_jitter_deg))
+
     def step_fn(step: int, gen: torch.Generator) -> dict:
         i = torch.randint(0, pts.shape[0], (config.batch,), generator=gen, device=device)
-        colour = ((model(pts[i]) - col[i]) ** 2).mean()
+        x = torch.cat([pts[i], tilt_normals(face_normals[i], jitter, gen)], dim=1) if sided else pts[i]
+        colour = ((model(x) - col[i]) ** 2).mean()
         if lam == 0:
             return {"loss": colour, "colour": colour}
         j = torch.randint(0, band_off.shape[0], (n_off,), generator=gen, device=device)
@@ -761,19 +818,28 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
 
 
 @torch.no_grad()
-def _eval(model, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
-    """(N, 3) float64 linear colours of a Siren (its dtype and device), a :class:`TextureField` (sRGB outputs
-    decoded) or a callable (float64 CPU tensors)."""
+def _eval(model, points: np.ndarray, normals: np.ndarray | None = None, chunk: int = 65536) -> np.ndarray:
+    """(N, 3) float64 linear colours of a Siren or GridNet (its dtype and device), a :class:`TextureField` (sRGB
+    outputs decoded) or a callable (float64 CPU tensors); a network with normal inputs reads ``normals`` (N, 3),
+    the surface's unit normals at the points."""
     if isinstance(model, TextureField):
         net, fn = model.model, model.color
     else:
         net, fn = model, model
     p = next(net.parameters()) if isinstance(net, torch.nn.Module) else None
     dtype, device = (p.dtype, p.device) if p is not None else (torch.float64, torch.device("cpu"))
+    sided = bool(getattr(net, "normal_inputs", False))
+    if sided and normals is None:
+        raise FitError("this colour network reads surface normals beside the points; none were given")
     out = []
     for i in range(0, len(points), chunk):
         x = torch.as_tensor(np.asarray(points[i:i + chunk]), dtype=dtype, device=device)
-        out.append(torch.as_tensor(fn(x))[:, :3].reshape(-1, 3).to(torch.float64).cpu().numpy())
+        if sided:
+            n = torch.as_tensor(np.asarray(normals[i:i + chunk]), dtype=dtype, device=device)
+            y = fn(x, n) if isinstance(model, TextureField) else fn(torch.cat([x, n], dim=1))
+        else:
+            y = fn(x)
+        out.append(torch.as_tensor(y)[:, :3].reshape(-1, 3).to(torch.float64).cpu().numpy())
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
@@ -812,10 +878,10 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     if delta is None:
         delta = _resolve_delta(TextureFitConfig(), sdf)
     s = texture_targets(mesh, n, seed=seed, texture=rgb)
-    g0 = _eval(texture_model, s["points"])
+    g0 = _eval(texture_model, s["points"], s["normals"])
     mse = float(np.mean((g0 - s["colors"]) ** 2))
     st = texture_targets(mesh, n, seed=seed + 1, texture=rgb, texel_share=1.0)
-    gt_texel = _eval(texture_model, st["points"])
+    gt_texel = _eval(texture_model, st["points"], st["normals"])
     texel_mse = float(np.mean((gt_texel - st["colors"]) ** 2))
     texel_mse_srgb = float(np.mean((linear_to_srgb(gt_texel) - linear_to_srgb(st["colors"])) ** 2))
 
@@ -827,12 +893,14 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
     for t in (0.25 * delta, 0.5 * delta, 0.75 * delta, delta):
         for sign in (1.0, -1.0):
             q = p + sign * t * normals
-            gt = _eval(texture_model, q)
+            gt = _eval(texture_model, q, s["normals"])
             changes.append(np.abs(gt - g0).mean(axis=1)[valid])
             # what a bake reads there: g at the closest point of f = 0, q − f(q)·∇f(q)/|∇f(q)|, |f| ≤ δ
             qt = torch.as_tensor(q)
             fq, gq = _sdf_eval(sdf, qt)
-            back = _eval(texture_model, closest_surface_points(qt, fq, *unit_normals(gq), delta).numpy())
+            nq, okq = unit_normals(gq)
+            back = _eval(texture_model, closest_surface_points(qt, fq, nq, okq, delta).numpy(),
+                         np.where(okq.numpy()[:, None], nq.numpy(), s["normals"]))
             projected.append(np.abs(back - g0).mean(axis=1)[valid])
         if t == delta:
             at_delta = float(np.mean(np.concatenate(changes[-2:]))) if valid.any() else None
@@ -846,11 +914,13 @@ def texture_metrics(texture_model, mesh: Mesh, sdf_model, *, delta: float | None
             continue
         uv = np.einsum("mk,mkj->mj", v["bary"], mesh.uv[v["face_index"]])
         truth = sample_texture(rgb, uv, mesh.uv_policy).astype(np.float64)
-        per_view.append(float(np.mean((_eval(texture_model, v["points"]) - truth) ** 2)))
+        face_n = mesh.face_normals[v["face_index"]]
+        per_view.append(float(np.mean((_eval(texture_model, v["points"], face_n) - truth) ** 2)))
         _, gv = _sdf_eval(sdf, torch.as_tensor(v["points"]))
         nv, _ = unit_normals(gv)
         nv = nv.numpy()
-        band = [np.mean((_eval(texture_model, v["points"] + sg * delta * nv) - truth) ** 2) for sg in (1.0, -1.0)]
+        band = [np.mean((_eval(texture_model, v["points"] + sg * delta * nv, face_n) - truth) ** 2)
+                for sg in (1.0, -1.0)]
         per_view_band.append(float(np.mean(band)))
     return {
         "surface_mse": mse,

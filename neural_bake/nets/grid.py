@@ -7,6 +7,11 @@ concatenated, go through an MLP of ``depth + 1`` hidden layers of ``width`` (ReL
 output. A level whose (R_l + 1)³ vertices fit in 2^``log2_table`` entries is stored densely; a finer one hashes
 its vertices into that many entries (the spatial hash of Instant-NGP, primes 1, 2654435761, 805459861).
 
+With ``in_dim=6`` the network also takes the surface normal at each point (columns 3..5, unit vectors):
+scaled by ``normal_scale``, the three go to the MLP beside the grid's features. A colour field then holds two
+colours at one place of space where two surfaces meet or lie back to back (a board's edge, two sides of a
+thin panel), which one colour per point cannot. The grid reads the point only.
+
 Points outside [-1, 1]³ read the features of the closest point of the cube. The output is differentiable with
 respect to the points (autograd through the interpolation weights; :meth:`GridNet.directional` gives the
 derivative along a direction in closed form, differentiable with respect to the parameters), continuous, and
@@ -27,7 +32,7 @@ from ..constants import (MAX_GRID_FEATURES, MAX_GRID_LEVELS, MAX_GRID_LOG2_TABLE
                          MAX_NET_WIDTH)
 from ..errors import NeuralBakeError
 
-__all__ = ["GridNet", "ACTIVATIONS", "grid_resolutions", "grid_table_sizes", "grid_layer_dims", "check_grid_settings"]
+__all__ = ["GridNet", "ACTIVATIONS", "IN_DIMS", "NORMAL_SCALE", "grid_resolutions", "grid_table_sizes", "grid_layer_dims", "check_grid_settings"]
 
 #: The MLP's hidden activations: ReLU (Instant-NGP's) or sine (sin(ω·(W x + b)), SIREN's initialisation).
 ACTIVATIONS = ("relu", "sine")
@@ -55,9 +60,18 @@ def grid_table_sizes(resolutions: list[int], log2_table: int) -> list[int]:
     return [min((r + 1) ** 3, cap) for r in resolutions]
 
 
-def grid_layer_dims(levels: int, features: int, width: int, depth: int, out_dim: int) -> list[int]:
-    """The MLP's layer sizes, input to output: the L·F features, D + 1 hidden layers of width W, the outputs."""
-    return [int(levels) * int(features)] + [int(width)] * (int(depth) + 1) + [int(out_dim)]
+#: The inputs a grid network takes: points (3), or points and unit surface normals (6).
+IN_DIMS = (3, 6)
+
+#: The default scale of the normal inputs: small beside the grid's features, so the MLP leans on them only where
+#: the colour changes with the side (a normal off by 10° costs 1.4 dB on the cabinet, against 3.7 dB at scale 1).
+NORMAL_SCALE = 0.2
+
+
+def grid_layer_dims(levels: int, features: int, width: int, depth: int, out_dim: int, in_dim: int = 3) -> list[int]:
+    """The MLP's layer sizes, input to output: the L·F features (and the normal's 3 with ``in_dim`` 6), D + 1
+    hidden layers of width W, the outputs."""
+    return [int(levels) * int(features) + int(in_dim) - 3] + [int(width)] * (int(depth) + 1) + [int(out_dim)]
 
 
 def check_grid_settings(*, levels, features, log2_table, base_resolution, max_resolution, activation, width=None,
@@ -102,18 +116,26 @@ class GridNet(nn.Module):
         out_dim: outputs (3 for RGB).
         activation: "relu" or "sine" (:data:`ACTIVATIONS`).
         omega: ω of the sine activation (unused with ReLU).
-        in_dim: 3 (recorded so every network states its inputs).
+        in_dim: 3 (points of the unit frame) or 6 (points, then unit surface normals; module docstring).
+        normal_scale: what the normals are multiplied by before the MLP (``in_dim`` 6 only).
         generator: makes the initialisation reproducible.
     """
 
     def __init__(self, levels: int = 16, features: int = 2, log2_table: int = 17, base_resolution: int = 16,
                  max_resolution: int = 1024, width: int = 64, depth: int = 1, out_dim: int = 3,
-                 activation: str = "relu", omega: float = 1.0, in_dim: int = 3, *,
-                 generator: torch.Generator | None = None):
+                 activation: str = "relu", omega: float = 1.0, in_dim: int = 3, normal_scale: float | None = None,
+                 *, generator: torch.Generator | None = None):
         super().__init__()
-        if in_dim != 3:
-            raise NeuralBakeError(f"GridNet: in_dim must be 3 (points of the unit frame), got {in_dim!r}",
-                                  parameter="in_dim")
+        if isinstance(in_dim, bool) or in_dim not in IN_DIMS:
+            raise NeuralBakeError(f"GridNet: in_dim must be 3 (points of the unit frame) or 6 (points and surface "
+                                  f"normals), got {in_dim!r}", parameter="in_dim")
+        if in_dim == 3 and normal_scale is not None:
+            raise NeuralBakeError("GridNet: normal_scale needs in_dim 6 (normal inputs)", parameter="normal_scale")
+        scale = NORMAL_SCALE if normal_scale is None else normal_scale
+        if (isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale)
+                or not 0 < scale <= 100):
+            raise NeuralBakeError(f"GridNet: normal_scale must be a number in (0, 100], got {normal_scale!r}",
+                                  parameter="normal_scale")
         if isinstance(out_dim, bool) or int(out_dim) != out_dim or not 1 <= out_dim <= 16:
             raise NeuralBakeError(f"GridNet: out_dim must be an integer in 1..16, got {out_dim!r}",
                                   parameter="out_dim")
@@ -122,7 +144,8 @@ class GridNet(nn.Module):
                             depth=depth, activation=activation, omega=omega)
         self.levels, self.features, self.log2_table = int(levels), int(features), int(log2_table)
         self.base_resolution, self.max_resolution = int(base_resolution), int(max_resolution)
-        self.width, self.depth, self.in_dim, self.out_dim = int(width), int(depth), 3, int(out_dim)
+        self.width, self.depth, self.in_dim, self.out_dim = int(width), int(depth), int(in_dim), int(out_dim)
+        self.normal_scale = float(scale) if self.in_dim == 6 else None
         self.activation, self.omega = str(activation), float(omega)
         self.resolutions = grid_resolutions(self.levels, self.base_resolution, self.max_resolution)
         self.sizes = grid_table_sizes(self.resolutions, self.log2_table)
@@ -130,7 +153,7 @@ class GridNet(nn.Module):
         for s in self.sizes:
             offsets.append(offsets[-1] + s)
         self.table = nn.Parameter(torch.empty(offsets[-1], self.features))
-        dims = grid_layer_dims(self.levels, self.features, self.width, self.depth, self.out_dim)
+        dims = grid_layer_dims(self.levels, self.features, self.width, self.depth, self.out_dim, self.in_dim)
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         # per-level integer constants (not saved: they follow from the architecture)
         res = torch.tensor(self.resolutions, dtype=torch.int64)
@@ -144,11 +167,20 @@ class GridNet(nn.Module):
 
     @property
     def architecture(self) -> dict:
-        """The constructor arguments with ``"network": "grid"``: what a model file stores to rebuild it."""
-        return {"network": "grid", "levels": self.levels, "features": self.features, "log2_table": self.log2_table,
+        """The constructor arguments with ``"network": "grid"``: what a model file stores to rebuild it
+        (``normal_scale`` only with normal inputs)."""
+        arch = {"network": "grid", "levels": self.levels, "features": self.features, "log2_table": self.log2_table,
                 "base_resolution": self.base_resolution, "max_resolution": self.max_resolution,
                 "width": self.width, "depth": self.depth, "in_dim": self.in_dim, "out_dim": self.out_dim,
                 "activation": self.activation, "omega": self.omega}
+        if self.normal_scale is not None:
+            arch["normal_scale"] = self.normal_scale
+        return arch
+
+    @property
+    def normal_inputs(self) -> bool:
+        """Whether the network also takes the surface normal at each point (``in_dim`` 6)."""
+        return self.in_dim == 6
 
     @torch.no_grad()
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
@@ -226,13 +258,21 @@ class GridNet(nn.Module):
 
     # ------------------------------------------------------------------------------------------- network
     def _check(self, x: torch.Tensor) -> None:
-        if x.dim() != 2 or x.shape[-1] != 3:
-            raise NeuralBakeError(f"GridNet: expected points of shape (N, 3), got {tuple(x.shape)}")
+        if x.dim() != 2 or x.shape[-1] != self.in_dim:
+            what = "points" if self.in_dim == 3 else "points and surface normals"
+            raise NeuralBakeError(f"GridNet: expected {what} of shape (N, {self.in_dim}), got {tuple(x.shape)}")
+
+    def _mlp_input(self, features: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The MLP's input: the grid's ``features``, and with normal inputs the scaled normals of ``x``."""
+        if self.normal_scale is None:
+            return features
+        return torch.cat([features, x[:, 3:] * self.normal_scale], dim=1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Values (N, out_dim) at points ``x`` (N, 3), in the dtype and device of ``x``."""
+        """Values (N, out_dim) at ``x`` (N, in_dim): points, and with normal inputs their unit surface normals;
+        in the dtype and device of ``x``."""
         self._check(x)
-        h = self.encode(x)
+        h = self._mlp_input(self.encode(x[:, :3]), x)
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
             h = torch.addmm(layer.bias.to(x.dtype), h, layer.weight.to(x.dtype).t())
@@ -242,9 +282,12 @@ class GridNet(nn.Module):
 
     def directional(self, x: torch.Tensor, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(g(x) (N, out_dim), J_g(x) v (N, out_dim))``: values and derivatives along ``v`` (N, 3), one forward
-        tangent stream (differentiable with respect to the parameters: one ordinary backward trains it)."""
+        tangent stream (differentiable with respect to the parameters: one ordinary backward trains it). With
+        normal inputs ``x`` is (N, 6) and the derivative is the point's alone (the normal held fixed)."""
         self._check(x)
-        h, t = self._encode_directional(x, v.to(x.dtype))
+        h, t = self._encode_directional(x[:, :3], v.to(x.dtype))
+        if self.normal_scale is not None:
+            h, t = self._mlp_input(h, x), torch.cat([t, t.new_zeros(t.shape[0], 3)], dim=1)
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
             wt = layer.weight.to(x.dtype).t()
@@ -262,4 +305,5 @@ class GridNet(nn.Module):
     def extra_repr(self) -> str:
         return (f"levels={self.levels}, features={self.features}, table=2^{self.log2_table}, "
                 f"resolution {self.base_resolution}..{self.max_resolution}, MLP (W, D) = ({self.width}, {self.depth}) "
-                f"{self.activation}, out={self.out_dim}")
+                f"{self.activation}, out={self.out_dim}"
+                + ("" if self.normal_scale is None else f", normal inputs ×{self.normal_scale:g}"))

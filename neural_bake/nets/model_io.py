@@ -38,7 +38,7 @@ import torch
 from .. import __version__
 from ..constants import MAX_HEADER_DEPTH, MAX_NET_DEPTH, MAX_NET_IN_DIM, MAX_NET_OUT_DIM, MAX_NET_WIDTH
 from ..errors import ModelFileError
-from .grid import GridNet, check_grid_settings
+from .grid import IN_DIMS, GridNet, check_grid_settings
 from .siren import Siren
 
 __all__ = ["encode_model", "encode_file", "load_model", "read_model_metadata", "read_raw_metadata",
@@ -257,22 +257,31 @@ def check_network_architecture(arch, path, where: str = "") -> dict:
         raise ModelFileError(f"{path}: corrupt model header ({where}network = {arch['network']!r:.40} is not one of "
                              f"siren, {', '.join(NETWORKS)})")
     keys = {"network", "activation", "omega", *_GRID_INT}
-    if set(arch) != keys:
+    if set(arch) != keys and set(arch) != keys | {"normal_scale"}:
         raise ModelFileError(f"{path}: corrupt model header ({where}architecture {arch!r:.120})")
     for key in _GRID_INT:
         v = arch[key]
         if not isinstance(v, int) or isinstance(v, bool):
             raise ModelFileError(f"{path}: corrupt model header ({where}{key} = {v!r:.40} is not an integer)")
-    if arch["in_dim"] != 3 or not 1 <= arch["out_dim"] <= MAX_NET_OUT_DIM:
-        raise ModelFileError(f"{path}: corrupt model header ({where}a grid network maps R^3 to R^1..R^"
-                             f"{MAX_NET_OUT_DIM}, this one R^{arch['in_dim']} to R^{arch['out_dim']})")
+    if arch["in_dim"] not in IN_DIMS or not 1 <= arch["out_dim"] <= MAX_NET_OUT_DIM:
+        raise ModelFileError(f"{path}: corrupt model header ({where}a grid network maps R^3 (or R^6 with surface "
+                             f"normals) to R^1..R^{MAX_NET_OUT_DIM}, this one R^{arch['in_dim']} to "
+                             f"R^{arch['out_dim']})")
+    scale = arch.get("normal_scale")
+    if (arch["in_dim"] == 6) != (scale is not None) or scale is not None and (
+            isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 100):
+        raise ModelFileError(f"{path}: corrupt model header ({where}normal_scale = {scale!r:.40} with in_dim "
+                             f"{arch['in_dim']}: a number in (0, 100] with in_dim 6, absent with 3)")
     try:
         check_grid_settings(**{k: arch[k] for k in ("levels", "features", "log2_table", "base_resolution",
                                                      "max_resolution", "width", "depth", "activation", "omega")},
                             error=ModelFileError)
     except ModelFileError as exc:
         raise ModelFileError(f"{path}: corrupt model header ({where}{exc})") from None
-    return {**arch, "omega": float(arch["omega"])}
+    out = {**arch, "omega": float(arch["omega"])}
+    if scale is not None:
+        out["normal_scale"] = float(scale)
+    return out
 
 
 def expected_network_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int, ...]]:
@@ -284,7 +293,8 @@ def expected_network_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int
     rows = sum(grid_table_sizes(grid_resolutions(arch["levels"], arch["base_resolution"], arch["max_resolution"]),
                                 arch["log2_table"]))
     shapes = {f"{prefix}table": (rows, arch["features"])}
-    dims = grid_layer_dims(arch["levels"], arch["features"], arch["width"], arch["depth"], arch["out_dim"])
+    dims = grid_layer_dims(arch["levels"], arch["features"], arch["width"], arch["depth"], arch["out_dim"],
+                           arch["in_dim"])
     for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
         shapes[f"{prefix}layers.{i}.weight"] = (b, a)
         shapes[f"{prefix}layers.{i}.bias"] = (b,)

@@ -84,12 +84,14 @@ class TraceLevel:
 @dataclass
 class TextureSource:
     """A colour field: points (N, 3), unit frame → linear RGB (N, 3). ``name`` for the counters; ``delta``: its
-    band δ (None: unknown), how far the renderer moves a read onto f = 0 (normal mapping)."""
+    band δ (None: unknown), how far the renderer moves a read onto f = 0 (normal mapping); ``normal_inputs``:
+    ``color`` also reads the unit surface normals there, ``color(points, normals)`` (the renderer passes ∇f's)."""
 
     name: str
     color: Values
     model: Siren | None = None
     delta: float | None = None
+    normal_inputs: bool = False
 
 
 @dataclass
@@ -332,6 +334,12 @@ def as_texture(tex, precision: str = "fp32") -> TextureSource:
     delta = getattr(tex, "delta", None)
     if isinstance(model, Siren) and int(model.out_dim) in (3, 4):
         return siren_texture(model, precision=precision, delta=delta, encoding=getattr(tex, "encoding", "linear"))
+    if getattr(tex, "normal_inputs", False):
+        def color(points, normals):
+            out = tex.color(points, normals).reshape(points.shape[0], -1)[:, :3]
+            return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+
+        return TextureSource(str(getattr(tex, "name", "texture")), color, None, delta, normal_inputs=True)
     if hasattr(tex, "color"):
         return replace(analytic_texture(tex.color, name=str(getattr(tex, "name", "texture"))), delta=delta)
     raise RenderError(f"texture: cannot use a {type(tex).__name__} (expected a texture field or a Siren)")

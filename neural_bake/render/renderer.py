@@ -10,6 +10,7 @@ need it, and counts it under its effect in :class:`~neural_bake.render.stats.Eva
    neural normal mapping, §4.1), counted under ``normal_mapping``.
 3. ``texture``: the texture field at the hits (neural texture mapping, §4.2); with ``normal_mapping``, at
    the hits' closest points of the mapped level's zero set (p − f(p)·∇f(p), |f| clamped to the texture's δ).
+   A colour field with normal inputs also reads the hits' unit normals (step 2's ∇f).
 4. ``shadows``: one shadow ray per hit and light, traced against every object.
 5. ``ambient_occlusion``: SDF samples along the normal of the last traced level.
 6. ``hole_map``: the guaranteed caster on f along the rays sphere tracing missed: pixels where it finds a
@@ -201,6 +202,8 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
     need_color = "color" in want
     need_normals = bool({"shading", "shadows", "ambient_occlusion"} & effects) or "normal" in want or (
         need_color and {"texture", "normal_mapping"} <= effects)  # the texture is read at the mapped point
+    if need_color and "texture" in effects:  # a colour field with normal inputs reads ∇f's at the hits
+        need_normals = need_normals or any(getattr(ob.asset.texture, "normal_inputs", False) for ob in objs)
 
     color = torch.empty((n, 3), dtype=dtype, device=o_w.device)
     color[:] = torch.as_tensor(scene.background, dtype=dtype, device=o_w.device)
@@ -241,7 +244,7 @@ def render(assets, scene: Scene | None = None, *, camera: Camera | None = None, 
                 from ..fields import closest_surface_points
 
                 p_t = closest_surface_points(p_u, v_nm, n_u, ok, ob.asset.texture.delta)
-            albedo = counter.color(ob.asset.texture, "texture", p_t).to(dtype)
+            albedo = counter.color(ob.asset.texture, "texture", p_t, n_u).to(dtype)
             seconds["texture"] = seconds.get("texture", 0.0) + time.perf_counter() - tic
         if "shading" not in effects:
             color[pix] = albedo

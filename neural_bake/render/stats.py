@@ -52,12 +52,14 @@ class EvalCounter:
         lo, hi = level.bound(centers, axes)
         return lo.reshape(-1).to(centers.dtype), hi.reshape(-1).to(centers.dtype)
 
-    def color(self, texture, effect: str, points: torch.Tensor) -> torch.Tensor:
-        """``texture.color(points)``, counted."""
+    def color(self, texture, effect: str, points: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+        """``texture.color(points, normals)``, counted (``normals``: unit surface normals there, read by a colour
+        field with normal inputs)."""
         self._count(texture.name, effect, points.shape[0])
         if points.shape[0] == 0:
             return points.new_zeros((0, 3))
-        return texture.color(points).reshape(points.shape[0], -1)[:, :3]
+        out = texture.color(points, normals) if getattr(texture, "normal_inputs", False) else texture.color(points)
+        return out.reshape(points.shape[0], -1)[:, :3]
 
     def _count(self, name: str, effect: str, n: int) -> None:
         self.points[name][effect] += int(n)

@@ -28,7 +28,7 @@ def one_face(rng, n=4000):
 
 
 def sphere_field(center, radius, dtype=np.float64):
-    def evaluate(p):
+    def evaluate(p, face=None):
         p = np.asarray(p, dtype=np.float64)
         d = p - center
         r = np.linalg.norm(d, axis=1)
@@ -45,7 +45,7 @@ def test_smooth_field_is_interpolated_within_the_tolerance(rng, dtype):
     calls = []
     opt = AdaptiveOptions()
     res = face_pass(np.arange(len(b)), np.zeros(len(b), dtype=np.int64), b, pts, geom,
-                    lambda p: calls.append(len(p)) or field(p), tolerance_deg=opt.tolerance_deg,
+                    lambda p, f: calls.append(len(p)) or field(p), tolerance_deg=opt.tolerance_deg,
                     value_tol=opt.value_tol, color_tol=opt.color_tol)
     done = res["done"]
     exact = field(pts)
@@ -60,7 +60,7 @@ def test_linear_field_is_interpolated_exactly(rng):
     n = np.array([0.2, -0.3, 0.9])
     n /= np.linalg.norm(n)
 
-    def plane(p):
+    def plane(p, face=None):
         return {"values": p @ n - 0.05, "normals": np.repeat(n[None], len(p), axis=0),
                 "valid": np.ones(len(p), dtype=bool), "colors": np.stack([p[:, 0], 2 * p[:, 1] + 0.5], axis=1)}
 
@@ -74,10 +74,28 @@ def test_linear_field_is_interpolated_exactly(rng):
     assert np.abs(res["colors"] - exact["colors"]).max() < 1e-12
 
 
+def test_each_node_is_evaluated_with_its_own_face(rng):
+    """A field reading a per-face input (the normal of a colour field with normal inputs) gets each node's face:
+    colours that are the face's index come out as that index on every interpolated sample."""
+    b, pts, geom = one_face(rng)
+    two = FaceGeometry(corners=np.concatenate([CORNERS, CORNERS]), side=np.concatenate([geom.side, geom.side]))
+    face = np.ones(len(b), dtype=np.int64)
+    seen = []
+
+    def by_face(p, f):
+        seen.append(np.asarray(f))
+        return {"values": np.zeros(len(p)), "normals": np.repeat([[0.0, 0.0, 1.0]], len(p), axis=0),
+                "valid": np.ones(len(p), dtype=bool), "colors": np.asarray(f, dtype=np.float64)[:, None] * [1.0, 2.0]}
+
+    res = face_pass(np.arange(len(b)), face, b, pts, two, by_face, tolerance_deg=0.5, value_tol=5e-3, color_tol=1e-3)
+    assert res["done"].any() and np.concatenate(seen).tolist() == [1] * sum(len(s) for s in seen)
+    assert np.abs(res["colors"][res["done"]] - [1.0, 2.0]).max() < 1e-12
+
+
 def test_a_rough_field_stops_the_pass_after_its_probe(rng):
     b, pts, geom = one_face(rng, n=20000)
 
-    def rough(p):
+    def rough(p, face=None):
         g = np.stack([40 * np.cos(400 * p[:, 0]), 40 * np.sin(300 * p[:, 1]), np.ones(len(p))], axis=1)
         return {"values": 0.1 * np.sin(400 * p[:, 0]), "normals": g / np.linalg.norm(g, axis=1, keepdims=True),
                 "valid": np.ones(len(p), dtype=bool), "colors": None}
@@ -106,7 +124,7 @@ def test_a_mesh_beyond_the_packed_face_index_is_left_to_evaluation(rng):
     many = FaceGeometry(corners=np.broadcast_to(CORNERS[0], (af._MAX_FACES + 1, 3, 3)),
                         side=np.broadcast_to(geom.side, (af._MAX_FACES + 1,)))
     face = np.full(len(b), af._MAX_FACES, dtype=np.int64)
-    res = face_pass(np.arange(len(b)), face, b, pts, many, lambda p: pytest.fail("evaluated"), tolerance_deg=0.5,
+    res = face_pass(np.arange(len(b)), face, b, pts, many, lambda p, f: pytest.fail("evaluated"), tolerance_deg=0.5,
                     value_tol=5e-3, color_tol=1e-3)
     assert not res["done"].any() and res["nodes"] == 0
 

@@ -341,6 +341,55 @@ def test_bake_vertices_reads_texture_on_the_surface_unless_told():
     assert np.allclose(at, np.linalg.norm(mesh.vertices, axis=1))
 
 
+def sided_colour():
+    """A colour field with normal inputs whose colour is the normal it reads: (n + 1) / 2."""
+    return ColorField(lambda x: (x[:, 3:] + 1.0) / 2.0, normal_inputs=True, name="sided")
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_colour_field_with_normal_inputs_reads_the_face_normal_at_the_sample_and_grad_f_on_the_surface(dtype):
+    mesh = sphere_mesh(radius=1.1 * R)
+    sdf = SdfField(lambda p: p.norm(dim=1) - R)
+    tex = ColorField(lambda x: ((x[:, 3:] + 1.0) / 2.0).to(dtype), normal_inputs=True)
+    baker = Baker(mesh, 32, padding=None)
+    on = baker.bake(sdf, tex)
+    at = baker.bake(sdf, tex, texture_at="point")
+    tx = baker.texels
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    radial = tx.points / np.linalg.norm(tx.points, axis=1, keepdims=True)
+    assert np.abs(on.colors - (radial + 1) / 2).max() < tol  # the sphere's ∇f at the sample
+    assert np.abs(at.colors - (mesh.face_normals[tx.face] + 1) / 2).max() < tol  # the coarse face's normal
+    # an SDF facing the other way (an open mesh's may): the colour of the coarse face's side, not the other's
+    inward = baker.bake(SdfField(lambda p: R - p.norm(dim=1)), tex)
+    assert np.abs(inward.colors - (mesh.face_normals[tx.face] + 1) / 2).max() < tol
+    vertex = bake_vertices(mesh, sdf, tex, texture_at="point")["colors"]
+    from neural_bake.geometry import vertex_normals
+
+    assert np.abs(vertex - (vertex_normals(mesh) + 1) / 2).max() < tol
+
+
+def test_an_adaptive_bake_gives_a_colour_field_with_normal_inputs_the_normal_of_every_evaluation():
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    baker = Baker(plane_mesh(), 64, padding=None)
+    res = baker.bake(SdfField(lambda p: p[:, 2]), sided_colour(), texture_at="point", adaptive=AdaptiveOptions())
+    assert res.stats["adaptive"]["interpolated"] > 0 and res.stats["adaptive"]["face_nodes"] > 0  # both passes
+    assert np.abs(res.colors - [0.5, 0.5, 1.0]).max() < 1e-12  # the plane's normal, evaluated or interpolated
+
+
+def test_a_colour_field_with_normal_inputs_needs_normals():
+    from neural_bake.bake.baker import _evaluate
+    from neural_bake.types import Frame
+
+    with pytest.raises(NeuralBakeError, match=r"^sided: this colour field reads the surface normal at each point; "
+                                              r"pass normals of shape \(4, 3\), got none$"):
+        sided_colour().color(torch.zeros(4, 3))
+    with pytest.raises(NeuralBakeError, match=r"^sided: the colour field reads surface normals, and this bake gave "
+                                              r"none"):
+        _evaluate(np.zeros((4, 3)), Frame(), None, sided_colour(), 16)
+    assert ColorField(radial_colour()).color(torch.ones(2, 3), torch.zeros(2, 3)).shape == (2, 3)  # ignored
+
+
 def test_bake_texels_wrapper_and_siren_field():
     from neural_bake.nets.siren import Siren
 

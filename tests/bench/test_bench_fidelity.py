@@ -181,18 +181,22 @@ def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
 
 
 def test_texture_network_constructions():
-    from neural_bake.bench.fidelity import texture_network_settings
+    from neural_bake.bench.fidelity import GRID_TEXTURE, own_texture_network, texture_network_settings
 
     assert texture_network_settings("siren", "quick") == {"network": "siren"}
     assert texture_network_settings("siren-wide", "quick") == {"network": "siren", "width": 128, "depth": 2}
     assert texture_network_settings("siren-wide", "default") == {"network": "siren", "width": 384, "depth": 4}
     assert texture_network_settings("grid", "high")["network"] == "grid"
-    assert texture_network_settings("grid", "quick") == {}  # the quick preset's own network
+    assert texture_network_settings("grid-auto", "quick") == {}  # the quick preset's own network
+    assert texture_network_settings("grid", "quick") == {**GRID_TEXTURE, "normal_inputs": "off"}
+    assert own_texture_network("default") == "grid-auto" and own_texture_network("high") == "siren"
     assert texture_network_settings("grid-uniform", "quick") == {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2,
-                                                                 "edge_share": 0.0}
+                                                                 "edge_share": 0.0, "normal_inputs": "off"}
     assert texture_network_settings("grid-uniform", "high")["edge_share"] == 0.0
+    assert texture_network_settings("grid-normals", "high") == {"network": "grid", "width": 64, "depth": 1,
+                                                                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "on"}
     with pytest.raises(NeuralBakeError, match=r"texture_networks must be distinct names among siren, siren-wide, "
-                                              r"grid, grid-uniform, got siren, siren"):
+                                              r"grid, grid-uniform, grid-normals, grid-auto, got siren, siren"):
         run(quick=True, meshes=["x.obj"], texture_networks=["siren", "siren"])
     with pytest.raises(NeuralBakeError, match=r"texture_minutes must be a positive number, got 0"):
         run(quick=True, meshes=["x.obj"], texture_minutes=0)

@@ -147,6 +147,17 @@ def test_a_kind_fixes_the_networks_inputs(tmp_path):
         load_field(save_model(_net(in_dim=5), tmp_path / "five.sdf", kind="sdf", frame=FRAME.to_dict()))
 
 
+def test_a_texture_reads_points_or_a_grid_networks_points_and_normals(tmp_path):
+    from neural_bake.nets.grid import GridNet
+
+    with pytest.raises(ModelFileError, match=r"six\.tex: a texture maps R\^3 \(or a grid network's points and "
+                                             r"normals, R\^6\) to RGB\(A\), this network maps R\^6 to R\^3$"):
+        load_field(save_model(_net(in_dim=6, out=3), tmp_path / "six.tex", kind="texture", frame=FRAME.to_dict()))
+    grid = GridNet(levels=2, log2_table=6, base_resolution=2, max_resolution=8, width=8, in_dim=6)
+    tex = load_field(save_model(grid, tmp_path / "sided.tex", kind="texture", frame=FRAME.to_dict()))
+    assert tex.normal_inputs and "normal inputs" in repr(tex)
+
+
 def test_a_nested_sequence_of_space_time_levels_needs_its_time_mapping(tmp_path):
     from neural_bake.fields import NestedSequence, time_mapping
 

@@ -131,6 +131,11 @@ def test_siren_stays_the_default_network():
     ({"grid_base_resolution": 2048}, r"^grid_base_resolution: must be an integer in 1\.\.1024, got 2048$"),
     ({"grid_max_resolution": 0}, r"^grid_max_resolution: must be an integer in 1\.\.65536, got 0$"),
     ({"grid_activation": "tanh"}, r"^grid_activation: must be one of relu, sine, got 'tanh'$"),
+    ({"normal_inputs": "on", "network": "siren"}, r'^normal_inputs: needs network "grid" \(a SIREN colour network '
+                                                  r"reads points only\), got network 'siren'$"),
+    ({"normal_inputs": True}, r"^normal_inputs: must be one of off, on, auto, got True$"),
+    ({"normal_jitter_deg": 91}, r"^normal_jitter_deg: must be a number of degrees in \[0, 90\], got 91$"),
+    ({"normal_jitter_deg": float("nan")}, r"^normal_jitter_deg: must be a number of degrees in \[0, 90\], got nan$"),
 ])
 def test_bad_network_settings_are_one_line_errors(over, message):
     with pytest.raises(FitError, match=message) as err:
@@ -142,16 +147,19 @@ def test_quick_and_default_presets_are_grids_and_network_siren_gives_their_siren
     from neural_bake.fit.texture import PRESET_SIRENS, _resolve_config
 
     quick = _resolve_config(None, {"preset": "quick"})
-    assert (quick.network, quick.width, quick.depth, quick.lr, quick.edge_share) == ("grid", 64, 1, 1e-2, 0.5)
+    assert (quick.network, quick.width, quick.depth, quick.lr, quick.edge_share, quick.normal_inputs) == (
+        "grid", 64, 1, 1e-2, 0.5, "auto")
     siren = _resolve_config(None, {"preset": "quick", "network": "siren"})
-    assert (siren.network, siren.width, siren.depth, siren.lr, siren.edge_share) == ("siren", 64, 1, 5e-4, 0.0) == (
-        "siren", *PRESET_SIRENS["quick"].values())
+    assert (siren.network, siren.width, siren.depth, siren.lr, siren.edge_share, siren.normal_inputs) == (
+        "siren", 64, 1, 5e-4, 0.0, "off") == ("siren", *PRESET_SIRENS["quick"].values())
     wide = _resolve_config(None, {"preset": "quick", "network": "siren", "width": 128})
     assert (wide.width, wide.lr) == (128, 5e-4)
     default = _resolve_config(None, {"preset": "default"})
-    assert (default.network, default.width, default.batch, default.lr, default.edge_share) == ("grid", 64, 4096, 1e-2, 0.5)
+    assert (default.network, default.width, default.batch, default.lr, default.edge_share, default.normal_inputs) == (
+        "grid", 64, 4096, 1e-2, 0.5, "auto")
     siren = _resolve_config(None, {"preset": "default", "network": "siren"})
-    assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr) == ("siren", 192, 3, 60.0, 5e-4)
+    assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr, siren.normal_inputs) == (
+        "siren", 192, 3, 60.0, 5e-4, "off")
     assert _resolve_config(None, {"preset": "high"}).network == "siren"
 
 
@@ -204,3 +212,85 @@ def test_edge_share_draws_that_part_of_the_samples_at_the_texture_edges():
 def test_edge_share_out_of_range_is_a_one_line_error(value):
     with pytest.raises(FitError, match=r"edge_share: must be in \[0, 1\]"):
         fit_texture(disc_square(), plane_sdf, steps=1, minutes=None, edge_share=value, **GRID)
+
+
+# ------------------------------------------------------------------------------------------ normal inputs
+# The two-sided oracle: a board 1e-4 thick (unit frame), its top face mapped onto the red half of the texture and
+# its bottom face onto the blue half. The grid's finest cell (1/8) is far wider than the board: read by the point
+# alone, both faces get one colour; with the normal beside it each keeps its own.
+THICK = 1e-4
+RED, BLUE = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+SMALL_GRID = dict(network="grid", grid_levels=4, grid_features=2, grid_log2_table=12, grid_base_resolution=2,
+                  grid_max_resolution=16, width=16, depth=1)
+
+
+def two_sided_board() -> Mesh:
+    h = THICK / 2
+    V = np.array([[x, y, z] for z in (-h, h) for y in (-0.5, 0.5) for x in (-0.5, 0.5)], dtype=np.float64)
+    quads = [(4, 5, 7, 6), (0, 2, 3, 1), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]  # top, bottom, sides
+    F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+
+    def uv(p, face):  # top: u in [0.05, 0.45] (red); bottom and sides: u in [0.55, 0.95] (blue) or a red strip
+        u0 = 0.05 if face < 2 else (0.55 if face < 4 else 0.1)
+        return [u0 + 0.4 * (p[0] + 0.5), 0.05 + 0.9 * (p[1] + 0.5)]
+
+    uvs = np.array([[uv(V[i], f) for i in tri] for f, tri in enumerate(F)])
+    tex = np.zeros((32, 32, 3), dtype=np.float32)
+    tex[:, :16], tex[:, 16:] = RED, BLUE
+    mesh = Mesh(vertices=V, faces=F, uv=uvs, texture=tex, watertight=True)
+    top = mesh.face_normals[0]
+    assert top[2] > 0.99 and mesh.face_normals[2][2] < -0.99  # outward: the top faces up, the bottom down
+    return mesh
+
+
+def board_sdf(x: torch.Tensor):
+    return x[:, 2].abs() - THICK / 2, torch.stack([0 * x[:, 0], 0 * x[:, 0], torch.sign(x[:, 2])], dim=1)
+
+
+@pytest.mark.parametrize("setting,sided", [("off", False), ("on", True), ("auto", False)])
+def test_normal_inputs_keep_the_two_sides_of_a_thin_board_apart(tmp_path, setting, sided):
+    # "auto" reads normals on an open mesh only: the board is closed
+    torch.set_num_threads(1)
+    fit = fit_texture(two_sided_board(), board_sdf, steps=300, minutes=None, batch=1024, pool=20000, lr=1e-2,
+                      seed=2, normal_inputs=setting, **SMALL_GRID)
+    field = load_field(fit.save(tmp_path / "t.safetensors"))
+    assert field.normal_inputs == sided == fit.model.normal_inputs
+    xy = np.random.default_rng(3).uniform(-0.4, 0.4, (200, 2))
+    errors = []
+    for z, n, want in ((THICK / 2, 1.0, RED), (-THICK / 2, -1.0, BLUE)):
+        pts = torch.as_tensor(np.column_stack([xy, np.full(200, z)]), dtype=torch.float32)
+        normals = torch.tensor([[0.0, 0.0, n]]).expand(200, 3)
+        got = field.color(pts, normals).double().numpy()
+        errors.append(np.abs(got - want).max())
+    if sided:
+        assert max(errors) < 0.05  # each face its own colour
+    else:
+        assert min(errors) > 0.3  # one colour for both: each face is far from its own
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_tilted_normals_stay_unit_within_the_angle_and_spread_over_it(dtype):
+    from neural_bake.fit.texture import tilt_normals
+
+    n = torch.nn.functional.normalize(torch.randn(4000, 3, generator=torch.Generator().manual_seed(0)), dim=1)
+    n = torch.cat([n, torch.zeros(1, 3)]).to(dtype)
+    out = tilt_normals(n, np.radians(15.0), torch.Generator().manual_seed(1))
+    assert out.dtype == dtype and torch.equal(out[-1], torch.zeros(3, dtype=dtype))  # a zero row stays zero
+    angle = torch.rad2deg(torch.acos((out[:-1] * n[:-1]).sum(dim=1).clamp(-1, 1))).double()
+    tol = 1e-3 if dtype == torch.float32 else 1e-9
+    assert torch.allclose(out[:-1].norm(dim=1).double(), torch.ones(4000, dtype=torch.float64), atol=tol)
+    assert angle.max() <= 15.0 + 0.05 and 6.5 < angle.mean() < 8.5  # uniform in [0, 15]: mean 7.5
+    assert tilt_normals(n, 0.0) is n
+
+
+def test_auto_normal_inputs_follow_whether_the_mesh_is_open():
+    from neural_bake.fit.texture import reads_normals
+
+    for setting, closed, opened in (("off", 3, 3), ("on", 6, 6), ("auto", 3, 6)):
+        config = TextureFitConfig(**GRID, normal_inputs=setting)
+        assert make_texture_network(config, open_mesh=False).in_dim == closed
+        assert make_texture_network(config, open_mesh=True).in_dim == opened
+        assert reads_normals(config, True) == (opened == 6)
+    fit = fit_texture(disc_square(2), plane_sdf, steps=2, minutes=None, batch=64, pool=500, normal_inputs="auto",
+                      **GRID)
+    assert fit.model.normal_inputs  # the disc's square is open

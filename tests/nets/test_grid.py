@@ -30,7 +30,8 @@ def reference(net: GridNet, points: torch.Tensor) -> torch.Tensor:
     table = net.table.detach().double()
     offsets = [sum(net.sizes[:level]) for level in range(net.levels)]
     out = []
-    for p in points.double().tolist():
+    for row in points.double().tolist():
+        p, normal = row[:3], row[3:]  # with normal inputs: the point, then its normal
         feats = []
         for level, (res, size) in enumerate(zip(net.resolutions, net.sizes)):
             u = [(min(max(c, -1.0), 1.0) + 1.0) / 2.0 * res for c in p]
@@ -48,6 +49,8 @@ def reference(net: GridNet, points: torch.Tensor) -> torch.Tensor:
                 acc += w * table[offsets[level] + index]
             feats.append(acc)
         h = torch.cat(feats)
+        if net.normal_scale is not None:
+            h = torch.cat([h, net.normal_scale * torch.tensor(normal, dtype=torch.float64)])
         for i, layer in enumerate(net.layers):
             h = layer.weight.detach().double() @ h + layer.bias.detach().double()
             if i < len(net.layers) - 1:
@@ -174,3 +177,52 @@ def test_prefix_and_error_class():
 def test_bad_points_shape():
     with pytest.raises(NeuralBakeError, match=r"GridNet: expected points of shape \(N, 3\), got \(5, 2\)"):
         small()(torch.zeros(5, 2))
+    with pytest.raises(NeuralBakeError, match=r"GridNet: expected points and surface normals of shape \(N, 6\), "
+                                              r"got \(5, 3\)"):
+        small(in_dim=6)(torch.zeros(5, 3))
+
+
+def with_normals(x: torch.Tensor, seed: int) -> torch.Tensor:
+    """Points (N, 3) and random unit normals beside them: (N, 6)."""
+    n = torch.nn.functional.normalize(torch.randn(len(x), 3, generator=torch.Generator().manual_seed(seed),
+                                                  dtype=torch.float64), dim=1)
+    return torch.cat([x, n.to(x.dtype)], dim=1)
+
+
+@pytest.mark.parametrize("activation", ["relu", "sine"])
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 2e-5)])
+def test_normal_inputs_match_the_slow_reference(activation, dtype, tol):
+    net = small(activation=activation, omega=3.0, in_dim=6, normal_scale=0.5).to(dtype)
+    x = with_normals(points(60, seed=3, dtype=dtype), seed=4)
+    assert net.normal_inputs and net.architecture["normal_scale"] == 0.5 and net.layers[0].in_features == 8 + 3
+    want = reference(net, x)
+    torch.testing.assert_close(net(x).double(), want, rtol=0, atol=tol * max(1.0, want.abs().max().item()))
+    flipped = x.clone()
+    flipped[:, 3:] *= -1
+    assert (net(flipped) - net(x)).abs().max().item() > 1e-3  # the two sides of a surface differ
+    assert GridNet(in_dim=6, log2_table=8, max_resolution=32).normal_scale == 0.2  # the default scale
+
+
+def test_normal_inputs_directional_derivative_holds_the_normal_fixed():
+    net = small(activation="sine", omega=2.0, in_dim=6).double()
+    x = with_normals(points(40, seed=5)[:40] * 0.9, seed=8)
+    v = torch.randn(40, 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+    eps = 1e-7
+    step = torch.cat([eps * v, torch.zeros_like(v)], dim=1)  # the point moves, its normal does not
+    fd = (net(x + step) - net(x - step)) / (2 * eps)
+    values, jv = net.directional(x, v)
+    torch.testing.assert_close(values, net(x), rtol=0, atol=1e-12)
+    torch.testing.assert_close(jv, fd, rtol=1e-5, atol=1e-5 * fd.abs().max().item())
+
+
+@pytest.mark.parametrize("kw,message", [
+    ({"in_dim": 3, "normal_scale": 0.2}, r"^GridNet: normal_scale needs in_dim 6 \(normal inputs\)$"),
+    ({"in_dim": 6, "normal_scale": 0.0}, r"^GridNet: normal_scale must be a number in \(0, 100\], got 0\.0$"),
+    ({"in_dim": 6, "normal_scale": float("nan")}, r"^GridNet: normal_scale must be a number in \(0, 100\], got nan$"),
+    ({"in_dim": True}, r"^GridNet: in_dim must be 3 \(points of the unit frame\) or 6"),
+])
+def test_bad_normal_inputs_are_one_line_errors(kw, message):
+    with pytest.raises(NeuralBakeError, match=message) as err:
+        GridNet(**kw)
+    assert "\n" not in str(err.value) and err.value.parameter == ("in_dim" if "in_dim must" in message else
+                                                                  "normal_scale")

@@ -257,6 +257,17 @@ def test_grid_round_trip_exact_as_version_2(tmp_path, activation):
     assert loaded64.table.dtype == torch.float64 and torch.equal(loaded64.table, model.table.double())
 
 
+def test_grid_with_normal_inputs_round_trips_with_its_scale(tmp_path):
+    model = _grid(in_dim=6, normal_scale=0.3)
+    path = save_model(model, tmp_path / "g.safetensors", kind="texture")
+    loaded, _ = load_model(path)
+    assert loaded.architecture == model.architecture and loaded.normal_scale == 0.3 and loaded.normal_inputs
+    assert read_model_metadata(path)["architecture"]["in_dim"] == 6
+    x = torch.cat([torch.rand(50, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(50, 3), dim=1)], dim=1)
+    with torch.no_grad():
+        assert torch.equal(model(x), loaded(x))
+
+
 @pytest.mark.parametrize("change,message", [
     ({"network": "octree"}, r"network = 'octree' is not one of siren, grid"),
     ({"levels": 0}, r"corrupt model header \(levels: must be an integer in 1\.\.32, got 0\)"),
@@ -264,7 +275,12 @@ def test_grid_round_trip_exact_as_version_2(tmp_path, activation):
     ({"activation": "gelu"}, r"corrupt model header \(activation: must be one of relu, sine"),
     ({"width": 10**9}, r"corrupt model header \(width: must be an integer in 1\.\.4096"),
     ({"levels": True}, r"corrupt model header \(levels = True is not an integer\)"),
-    ({"in_dim": 4}, r"a grid network maps R\^3 to R\^1\.\.R\^16, this one R\^4 to R\^3"),
+    ({"in_dim": 4}, r"a grid network maps R\^3 \(or R\^6 with surface normals\) to R\^1\.\.R\^16, this one R\^4 "
+                    r"to R\^3"),
+    ({"in_dim": 6}, r"normal_scale = None with in_dim 6: a number in \(0, 100\] with in_dim 6, absent with 3"),
+    ({"normal_scale": 0.2}, r"normal_scale = 0\.2 with in_dim 3"),
+    ({"in_dim": 6, "normal_scale": float("nan")}, r"normal_scale = nan with in_dim 6"),
+    ({"in_dim": 6, "normal_scale": True}, r"normal_scale = True with in_dim 6"),
     ({"extra": 1}, r"corrupt model header \(architecture"),
 ])
 def test_bad_grid_architectures(tmp_path, change, message):

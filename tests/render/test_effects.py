@@ -116,6 +116,18 @@ def test_a_texture_network_of_srgb_colours_renders_linear_ones(dtype):
         np.testing.assert_allclose(r["color"][r["hit"]], np.tile(expected, (int(r["hit"].sum()), 1)), atol=1e-5)
 
 
+def test_a_texture_with_normal_inputs_reads_the_hits_normals():
+    # a colour field whose colour is the normal it reads, (n + 1) / 2: the colour channel shows the normal channel
+    from neural_bake.fields import TextureField
+
+    field = TextureField(lambda x: (x[:, 3:] + 1.0) / 2.0, normal_inputs=True, name="sided")
+    scene = Scene(effects=("texture",), channels=("color", "normal", "hit"))
+    r = render(as_render_asset(nested_sphere_asset(), texture=field), scene, camera=CAM)
+    hit = r["hit"]
+    assert hit.sum() > 100 and r.counter.total(network="sided") == int(hit.sum())
+    np.testing.assert_allclose(r["color"][hit], (r["normal"][hit] + 1.0) / 2.0, atol=1e-5)
+
+
 def test_shading_follows_the_analytic_normal():
     light = DirectionalLight(direction=(0.0, 0.0, -1.0))
     mat = Material(ambient=0.0, specular=0.0)
