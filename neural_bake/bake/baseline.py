@@ -72,14 +72,15 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     - ``scene``: a :func:`raycasting_scene` of ``fine`` to reuse (e.g. over the bands of a streamed bake);
       default: built here (its time is ``seconds["setup"]``).
 
+    When ``coarse`` is ``fine`` itself (same faces, vertices and frame: a bake onto the source, ``--coarse
+    keep``), each sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or
+    coincident face (boards back to back) can take its place.
+
     Returns ``{"normals": (M, 3) unit object-space normals of the fine mesh, "colors": (M, C) linear or
     None, "points": (M, 3) the chosen points on the fine mesh (its unit frame), "hit": (M,) bool (a ray hit
     within the cage), "fallback": misses resolved by the closest point, "distance": (M,) distance to the
     chosen point, "cage", "seconds": {"setup", "rays", "closest", "shade", "total"}}``.
     """
-    from ..io.colour import sample_texture
-    from ..geometry import vertex_normals
-
     if cage is None:
         cage = DEFAULT_CAGE
     if not (np.isfinite(cage) and cage > 0):
@@ -89,6 +90,11 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     o3d = import_open3d()
 
     t_all = time.perf_counter()
+    if same_surface(coarse, fine):
+        bary = np.asarray(texels.bary, dtype=np.float64)
+        m = len(bary)
+        return _shade(fine, np.asarray(texels.face, dtype=np.int64), bary[:, 1:3], np.ones(m, dtype=bool),
+                      np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0})
     pts = np.asarray(texels.points, dtype=np.float64)
     nrm = np.asarray(texels.normal, dtype=np.float64)
     if coarse.frame != fine.frame:
@@ -122,6 +128,23 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         uvs[~hit] = res["primitive_uvs"].numpy()
         dist[~hit] = np.linalg.norm(res["points"].numpy() - pts[~hit], axis=1)
     t_closest = time.perf_counter() - t0
+    return _shade(fine, prim, uvs, hit, dist, cage, t_all, {"setup": t_setup, "rays": t_rays, "closest": t_closest})
+
+
+def same_surface(coarse: Mesh, fine: Mesh) -> bool:
+    """Whether ``coarse`` is ``fine`` itself: the same object, or the same faces, vertices and frame."""
+    if coarse is fine:
+        return True
+    return (coarse.frame == fine.frame and np.shape(coarse.faces) == np.shape(fine.faces)
+            and np.shape(coarse.vertices) == np.shape(fine.vertices)
+            and np.array_equal(coarse.faces, fine.faces) and np.array_equal(coarse.vertices, fine.vertices))
+
+
+def _shade(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, hit: np.ndarray, dist: np.ndarray, cage: float,
+           t_all: float, seconds: dict) -> dict:
+    """:func:`baseline_bake`'s result from each sample's face ``prim`` and barycentrics ``uvs`` (open3d's)."""
+    from ..geometry import vertex_normals
+    from ..io.colour import sample_texture
 
     t0 = time.perf_counter()
     normals = _interp(fine, prim, uvs, vertex_normals(fine)[fine.faces])
@@ -131,7 +154,6 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     if fine.uv is not None and fine.texture is not None:
         uv = _interp(fine, prim, uvs, np.asarray(fine.uv, dtype=np.float64))
         colors = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
-    t_shade = time.perf_counter() - t0
     return {
         "normals": normals,
         "colors": colors,
@@ -140,11 +162,5 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         "fallback": int((~hit).sum()),
         "distance": dist,
         "cage": float(cage),
-        "seconds": {
-            "setup": t_setup,
-            "rays": t_rays,
-            "closest": t_closest,
-            "shade": t_shade,
-            "total": time.perf_counter() - t_all,
-        },
+        "seconds": {**seconds, "shade": time.perf_counter() - t0, "total": time.perf_counter() - t_all},
     }

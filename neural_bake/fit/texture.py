@@ -561,8 +561,9 @@ NORMAL_INPUTS = ("off", "on", "auto")
 
 def reads_normals(config: TextureFitConfig, open_mesh: bool) -> bool:
     """Whether ``config``'s colour network reads surface normals, for a mesh that is open (``open_mesh``) or
-    closed: ``normal_inputs`` "on", or "auto" on an open mesh."""
-    return config.normal_inputs == "on" or config.normal_inputs == "auto" and bool(open_mesh)
+    closed: ``normal_inputs`` "on", or "auto" for a grid network on an open mesh."""
+    return config.normal_inputs == "on" or (config.normal_inputs == "auto" and bool(open_mesh)
+                                            and config.network == "grid")
 
 
 def make_texture_network(config: TextureFitConfig, generator: torch.Generator | None = None, *,

@@ -32,7 +32,8 @@ from ..constants import (MAX_GRID_FEATURES, MAX_GRID_LEVELS, MAX_GRID_LOG2_TABLE
                          MAX_NET_WIDTH)
 from ..errors import NeuralBakeError
 
-__all__ = ["GridNet", "ACTIVATIONS", "IN_DIMS", "NORMAL_SCALE", "grid_resolutions", "grid_table_sizes", "grid_layer_dims", "check_grid_settings"]
+__all__ = ["GridNet", "ACTIVATIONS", "IN_DIMS", "NORMAL_SCALE", "grid_resolutions", "grid_table_sizes",
+           "grid_layer_dims", "check_grid_settings"]
 
 #: The MLP's hidden activations: ReLU (Instant-NGP's) or sine (sin(ω·(W x + b)), SIREN's initialisation).
 ACTIVATIONS = ("relu", "sine")

@@ -98,3 +98,31 @@ def test_errors(coarse_texels):
     empty = Mesh(vertices=np.zeros((3, 3)), faces=np.zeros((0, 3), dtype=np.int64), source="empty.obj")
     with pytest.raises(MeshError, match="empty.obj: baseline: the fine mesh has no faces"):
         baseline_bake(coarse, empty, tx)
+
+
+def back_to_back_boards() -> Mesh:
+    """Two coincident squares at z = 0 facing opposite ways (a board of no thickness), the upper one mapped onto
+    the red half of a texture and the lower one onto the blue half."""
+    sq = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+    v = np.concatenate([sq, sq])
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6]], dtype=np.int64)
+    uv_up = 0.05 + 0.4 * (sq[:, :2] + 0.5)
+    uv_down = uv_up + [0.5, 0.0]
+    uv = np.concatenate([uv_up[f[:2]], (uv_down[f[2:] - 4])])
+    tex = np.zeros((16, 16, 3), dtype=np.float32)
+    tex[:, :8], tex[:, 8:] = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+    return Mesh(vertices=v, faces=f, uv=uv, texture=tex, watertight=False)
+
+
+def test_a_bake_onto_the_source_itself_reads_each_samples_own_face():
+    mesh = back_to_back_boards()
+    tx = rasterize_texels(mesh, 32)
+    want = np.where((tx.face < 2)[:, None], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+    for coarse in (mesh, Mesh(vertices=mesh.vertices.copy(), faces=mesh.faces.copy(), uv=mesh.uv, watertight=False)):
+        out = baseline_bake(coarse, mesh, tx)
+        assert np.abs(out["colors"] - want).max() < 1e-6  # every texel its own board's colour
+        assert out["hit"].all() and out["distance"].max() == 0.0 and out["seconds"]["rays"] == 0.0
+        assert np.allclose(out["points"], tx.points)
+    # a coarse mesh that is not the source is baked by rays, whose hits on coincident faces are either board's
+    moved = Mesh(vertices=mesh.vertices + [0.0, 0.0, 1e-4], faces=mesh.faces, uv=mesh.uv, watertight=False)
+    assert baseline_bake(moved, mesh, tx)["seconds"]["rays"] > 0.0

@@ -264,6 +264,10 @@ def test_normal_inputs_keep_the_two_sides_of_a_thin_board_apart(tmp_path, settin
         errors.append(np.abs(got - want).max())
     if sided:
         assert max(errors) < 0.05  # each face its own colour
+        from neural_bake.fit.texture import texture_metrics
+
+        metrics = texture_metrics(field, two_sided_board(), board_sdf, n=2000, n_views=2, resolution=32)
+        assert metrics["texel_psnr"] > 20 and metrics["render_mse"] is not None
     else:
         assert min(errors) > 0.3  # one colour for both: each face is far from its own
 
@@ -294,3 +298,5 @@ def test_auto_normal_inputs_follow_whether_the_mesh_is_open():
     fit = fit_texture(disc_square(2), plane_sdf, steps=2, minutes=None, batch=64, pool=500, normal_inputs="auto",
                       **GRID)
     assert fit.model.normal_inputs  # the disc's square is open
+    siren = TextureFitConfig(width=8, depth=1, normal_inputs="auto")  # "auto" leaves a SIREN reading points
+    assert not reads_normals(siren, True) and make_texture_network(siren, open_mesh=True).in_dim == 3
