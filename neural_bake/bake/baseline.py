@@ -66,14 +66,14 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     - ``coarse``: the mesh ``texels`` were rasterised on (``Baker.mesh``); its frame maps the texel points
       into ``fine``'s unit frame if the two differ.
     - ``fine``: the high-resolution mesh (with ``uv`` and ``texture`` for colours).
-    - ``texels``: a :class:`~neural_bake.mesh.texels.TexelSet` (``points``, ``normal`` (M, 3)).
+    - ``texels``: a :class:`~neural_bake.mesh.texels.TexelSet` (``points``, ``normal`` (M, 3); ``face`` and
+      ``bary`` where ``coarse`` is ``fine``).
     - ``cage``: ray length on each side of the coarse surface, unit frame of ``fine``
       (default :data:`DEFAULT_CAGE`).
     - ``scene``: a :func:`raycasting_scene` of ``fine`` to reuse (e.g. over the bands of a streamed bake);
       default: built here (its time is ``seconds["setup"]``).
 
-    When ``coarse`` is ``fine`` itself (same faces, vertices and frame: a bake onto the source, ``--coarse
-    keep``), each sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or
+    When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or
     coincident face (boards back to back) can take its place.
 
     Returns ``{"normals": (M, 3) unit object-space normals of the fine mesh, "colors": (M, C) linear or
@@ -90,7 +90,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     o3d = import_open3d()
 
     t_all = time.perf_counter()
-    if same_surface(coarse, fine):
+    if getattr(texels, "face", None) is not None and getattr(texels, "bary", None) is not None \
+            and same_surface(coarse, fine):
         bary = np.asarray(texels.bary, dtype=np.float64)
         m = len(bary)
         return _shade(fine, np.asarray(texels.face, dtype=np.int64), bary[:, 1:3], np.ones(m, dtype=bool),
@@ -132,12 +133,12 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
 
 
 def same_surface(coarse: Mesh, fine: Mesh) -> bool:
-    """Whether ``coarse`` is ``fine`` itself: the same object, or the same faces, vertices and frame."""
+    """Whether ``coarse`` is ``fine`` itself: the same object, or the same frame and the same triangles in the same
+    order (its vertices may be split where its UVs are, as a bake's layout splits them)."""
     if coarse is fine:
         return True
     return (coarse.frame == fine.frame and np.shape(coarse.faces) == np.shape(fine.faces)
-            and np.shape(coarse.vertices) == np.shape(fine.vertices)
-            and np.array_equal(coarse.faces, fine.faces) and np.array_equal(coarse.vertices, fine.vertices))
+            and np.array_equal(coarse.triangles, fine.triangles))
 
 
 def _shade(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, hit: np.ndarray, dist: np.ndarray, cage: float,

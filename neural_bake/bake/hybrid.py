@@ -276,7 +276,8 @@ class HybridFallback:
         from .baseline import baseline_bake
 
         if base is None:
-            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx])
+            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
+                                  face=np.asarray(texels.face)[idx], bary=np.asarray(texels.bary)[idx])
             b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}

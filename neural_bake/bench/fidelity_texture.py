@@ -82,16 +82,14 @@ def feature_ssim(a: np.ndarray, b: np.ndarray, windows: list[tuple[slice, slice]
 def _closest_source_colours(baker, reference, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(linear colours (M, C) of ``reference``'s texture at the closest point of every texel sample of
     ``baker``, the samples' (M, 2) texel rows and columns). With ``keep`` (the baked mesh is ``reference``
-    itself, same faces) each sample is its own closest point, on its own face: where two faces coincide (boards
+    itself: :func:`~neural_bake.bake.baseline.same_surface`) each sample is its own closest point, on its own face: where two faces coincide (boards
     back to back) a closest-point search would pick either."""
-    from ..bake.baseline import closest_surface
+    from ..bake.baseline import closest_surface, same_surface
     from ..geometry import interpolate_corners
     from ..io.colour import sample_texture
 
     tx = baker.texels
-    same = keep and np.array_equal(np.asarray(baker.mesh.faces), np.asarray(reference.faces)) and np.allclose(
-        baker.mesh.vertices, reference.vertices)
-    if same:
+    if keep and same_surface(baker.mesh, reference):
         uv = interpolate_corners(reference.uv, np.asarray(tx.face, dtype=np.int64), np.asarray(tx.bary))
         return sample_texture(reference.texture, uv, reference.uv_policy).astype(np.float64), np.asarray(tx.pixel)
     pts = np.asarray(tx.points, dtype=np.float64)
