@@ -481,16 +481,15 @@ def bake_vertices(
     "valid": (V,) bool, "sdf": (V,) f at the vertices, "invalid": count}``. Vertices with an unusable
     gradient (|∇f| ≈ 0) keep the mesh's own vertex normal.
     """
-    from ..geometry import vertex_normals as mesh_vertex_normals
-
-    surface = mesh_vertex_normals(mesh) if getattr(texture, "normal_inputs", False) else None
-    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size), _check_texture_at(texture_at),
-                   surface)
-    normals = ev["normals"]
-    valid = ev["valid"]
     from ..mesh.tangents import vertex_normals
 
-    normals[~valid] = vertex_normals(mesh)[~valid]
+    own = vertex_normals(mesh) if getattr(texture, "normal_inputs", False) else None  # a colour field reads them
+    ev = _evaluate(mesh.vertices, mesh.frame, sdf, texture, _check_chunk(chunk_size), _check_texture_at(texture_at),
+                   own)
+    normals = ev["normals"]
+    valid = ev["valid"]
+    if (~valid).any():
+        normals[~valid] = (vertex_normals(mesh) if own is None else own)[~valid]
     return {
         "normals": normals,
         "colors": ev.get("colors"),

@@ -73,8 +73,9 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     - ``scene``: a :func:`raycasting_scene` of ``fine`` to reuse (e.g. over the bands of a streamed bake);
       default: built here (its time is ``seconds["setup"]``).
 
-    When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or
-    coincident face (boards back to back) can take its place.
+    When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each
+    sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or coincident face
+    (boards back to back) can take its place.
 
     Returns ``{"normals": (M, 3) unit object-space normals of the fine mesh, "colors": (M, C) linear or
     None, "points": (M, 3) the chosen points on the fine mesh (its unit frame), "hit": (M,) bool (a ray hit
@@ -87,8 +88,6 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         raise NeuralBakeError(f"baseline cage must be a positive distance, got {cage!r}")
     if fine.n_faces == 0:
         raise MeshError(f"{fine.name}: baseline: the fine mesh has no faces")
-    o3d = import_open3d()
-
     t_all = time.perf_counter()
     if getattr(texels, "face", None) is not None and getattr(texels, "bary", None) is not None \
             and same_surface(coarse, fine):
@@ -96,6 +95,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         m = len(bary)
         return _shade(fine, np.asarray(texels.face, dtype=np.int64), bary[:, 1:3], np.ones(m, dtype=bool),
                       np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0})
+    o3d = import_open3d()
     pts = np.asarray(texels.points, dtype=np.float64)
     nrm = np.asarray(texels.normal, dtype=np.float64)
     if coarse.frame != fine.frame:

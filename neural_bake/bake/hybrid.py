@@ -73,12 +73,16 @@ def unfaithful(f_surface: np.ndarray, neural: np.ndarray, source: np.ndarray, va
     Returns ``{"mask": (M,) bool (any reason), "sdf": |f| > sdf_tol, "angle": angle > angle_deg,
     "invalid": ~valid}``; a non-finite f counts as above the tolerance.
     """
-    f = np.asarray(f_surface, dtype=np.float64)
-    far = ~(np.abs(f) <= sdf_tol)  # NaN counts as far
+    far = far_from_surface(f_surface, sdf_tol)
     cos = np.einsum("ij,ij->i", np.asarray(neural, dtype=np.float64), np.asarray(source, dtype=np.float64))
     off = ~(cos >= np.cos(np.radians(angle_deg)))
     invalid = ~np.asarray(valid, dtype=bool)
     return {"mask": far | off | invalid, "sdf": far, "angle": off & ~invalid, "invalid": invalid}
+
+
+def far_from_surface(f_surface: np.ndarray, sdf_tol: float) -> np.ndarray:
+    """(M,) bool: |f| at the source-surface points above ``sdf_tol`` (a non-finite f counts as above)."""
+    return ~(np.abs(np.asarray(f_surface, dtype=np.float64)) <= sdf_tol)
 
 
 def colour_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -289,7 +293,7 @@ class HybridFallback:
             if len(tested) else np.zeros(0)
         self.f_abs.append(np.abs(f_surf))
         far = np.zeros(len(idx), dtype=bool)
-        far[tested] = ~(np.abs(f_surf) <= self.sdf_tol)  # NaN counts as far
+        far[tested] = far_from_surface(f_surf, self.sdf_tol)
         why["sdf"], why["mask"] = far, why["mask"] | far
         if colors is not None:
             bad = np.zeros(len(idx), dtype=bool)

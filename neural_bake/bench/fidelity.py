@@ -61,6 +61,9 @@ TEXTURE_NETWORKS = ("siren", "siren-wide", "grid", "grid-uniform", "grid-normals
 #: The fit settings of the "grid" construction beside the preset's.
 GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "off"}
 
+#: The grid constructions that differ by their ``normal_inputs`` alone.
+_GRID_NORMALS = {"grid": "off", "grid-normals": "on", "grid-auto": "auto"}
+
 
 def texture_network_settings(name: str, preset: str) -> dict:
     """The texture-fit overrides of construction ``name`` (:data:`TEXTURE_NETWORKS`) at texture ``preset``:
@@ -75,14 +78,10 @@ def texture_network_settings(name: str, preset: str) -> dict:
         over = {"network": "siren"}
     elif name == "siren-wide":
         over = {"network": "siren", "width": 2 * int(siren["width"]), "depth": int(siren["depth"]) + 1}
-    elif name == "grid":
-        over = dict(GRID_TEXTURE)
+    elif name in _GRID_NORMALS:
+        over = {**GRID_TEXTURE, "normal_inputs": _GRID_NORMALS[name]}
     elif name == "grid-uniform":
         over = {**GRID_TEXTURE, "edge_share": 0.0}
-    elif name == "grid-normals":
-        over = {**GRID_TEXTURE, "normal_inputs": "on"}
-    elif name == "grid-auto":
-        over = {**GRID_TEXTURE, "normal_inputs": "auto"}
     else:
         raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
     return {} if all(own.get(k) == v for k, v in over.items()) else over
@@ -99,7 +98,7 @@ def own_texture_network(preset: str) -> str:
     network = str(own.get("network", "siren"))
     if network != "grid":
         return network
-    return {"on": "grid-normals", "auto": "grid-auto"}.get(str(own.get("normal_inputs", "off")), "grid")
+    return {v: k for k, v in _GRID_NORMALS.items()}[str(own.get("normal_inputs", "off"))]
 
 
 def network_label(model) -> str:

@@ -82,21 +82,22 @@ def feature_ssim(a: np.ndarray, b: np.ndarray, windows: list[tuple[slice, slice]
 def _closest_source_colours(baker, reference, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(linear colours (M, C) of ``reference``'s texture at the closest point of every texel sample of
     ``baker``, the samples' (M, 2) texel rows and columns). With ``keep`` (the baked mesh is ``reference``
-    itself: :func:`~neural_bake.bake.baseline.same_surface`) each sample is its own closest point, on its own face: where two faces coincide (boards
-    back to back) a closest-point search would pick either."""
+    itself: :func:`~neural_bake.bake.baseline.same_surface`) each sample is its own closest point, on its own
+    face: where two faces coincide (boards back to back) a closest-point search would pick either."""
     from ..bake.baseline import closest_surface, same_surface
     from ..geometry import interpolate_corners
     from ..io.colour import sample_texture
 
     tx = baker.texels
     if keep and same_surface(baker.mesh, reference):
-        uv = interpolate_corners(reference.uv, np.asarray(tx.face, dtype=np.int64), np.asarray(tx.bary))
-        return sample_texture(reference.texture, uv, reference.uv_policy).astype(np.float64), np.asarray(tx.pixel)
-    pts = np.asarray(tx.points, dtype=np.float64)
-    if reference.frame != baker.mesh.frame:
-        pts = reference.frame.to_unit(baker.mesh.frame.to_source(pts))
-    close = closest_surface(reference, pts)
-    uv = interpolate_corners(reference.uv, close["face"], close["bary"])
+        face, bary = np.asarray(tx.face, dtype=np.int64), np.asarray(tx.bary)
+    else:
+        pts = np.asarray(tx.points, dtype=np.float64)
+        if reference.frame != baker.mesh.frame:
+            pts = reference.frame.to_unit(baker.mesh.frame.to_source(pts))
+        close = closest_surface(reference, pts)
+        face, bary = close["face"], close["bary"]
+    uv = interpolate_corners(reference.uv, face, bary)
     return sample_texture(reference.texture, uv, reference.uv_policy).astype(np.float64), np.asarray(tx.pixel)
 
 

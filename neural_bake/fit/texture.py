@@ -776,12 +776,12 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
 
     # a network with normal inputs reads each sample's face normal (tilted at random) beside its point
     sided = bool(getattr(model, "normal_inputs", False))
-    face_normals = nrm.to(device, dtype)
+    face_normals = nrm.to(device, dtype) if sided else None
     jitter = math.radians(float(config.normal_jitter_deg))
 
     def step_fn(step: int, gen: torch.Generator) -> dict:
         i = torch.randint(0, pts.shape[0], (config.batch,), generator=gen, device=device)
-        x = torch.cat([pts[i], tilt_normals(face_normals[i], jitter, gen)], dim=1) if sided else pts[i]
+        x = pts[i] if face_normals is None else torch.cat([pts[i], tilt_normals(face_normals[i], jitter, gen)], dim=1)
         colour = ((model(x) - col[i]) ** 2).mean()
         if lam == 0:
             return {"loss": colour, "colour": colour}

@@ -252,15 +252,16 @@ def siren_texture(model: Siren, *, name: str | None = None, time: float | None =
     return TextureSource(name or f"texture {_arch_name(model)}", color, model, delta)
 
 
-def analytic_texture(fn: Values, *, name: str = "texture") -> TextureSource:
-    """A texture from a torch callable points (N, 3) → linear RGB (N, 3)."""
+def analytic_texture(fn: Values, *, name: str = "texture", normal_inputs: bool = False) -> TextureSource:
+    """A texture from a torch callable points (N, 3) → linear RGB (N, 3); with ``normal_inputs`` the callable
+    is ``fn(points, normals)``."""
 
-    def color(points):
+    def color(points, *normals):
         with torch.no_grad():
-            out = fn(points).reshape(points.shape[0], -1)[:, :3]
+            out = fn(points, *normals).reshape(points.shape[0], -1)[:, :3]
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
 
-    return TextureSource(name, color, None)
+    return TextureSource(name, color, None, normal_inputs=bool(normal_inputs))
 
 
 # ------------------------------------------------------------------------------------------- adaptation
@@ -334,12 +335,7 @@ def as_texture(tex, precision: str = "fp32") -> TextureSource:
     delta = getattr(tex, "delta", None)
     if isinstance(model, Siren) and int(model.out_dim) in (3, 4):
         return siren_texture(model, precision=precision, delta=delta, encoding=getattr(tex, "encoding", "linear"))
-    if getattr(tex, "normal_inputs", False):
-        def color(points, normals):
-            out = tex.color(points, normals).reshape(points.shape[0], -1)[:, :3]
-            return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-
-        return TextureSource(str(getattr(tex, "name", "texture")), color, None, delta, normal_inputs=True)
     if hasattr(tex, "color"):
-        return replace(analytic_texture(tex.color, name=str(getattr(tex, "name", "texture"))), delta=delta)
+        return replace(analytic_texture(tex.color, name=str(getattr(tex, "name", "texture")),
+                                        normal_inputs=bool(getattr(tex, "normal_inputs", False))), delta=delta)
     raise RenderError(f"texture: cannot use a {type(tex).__name__} (expected a texture field or a Siren)")
