@@ -3,8 +3,10 @@
 One table, ``coarse meshes``, measured in the same run on the bundled bumpy sphere (and Keenan Crane's Spot
 from ``DATA_DIR/spot`` in the full run, when present):
 
-- ``decimate``: pymeshlab quadric edge collapse of the fine mesh to several face counts (what a user would
-  otherwise pick; it needs the fine mesh);
+- ``decimate``: quadric edge collapse of the fine mesh to several face counts (what a user would otherwise pick;
+  it needs the fine mesh); on the data folder's large scans (decimation rows only; the ogre in the quick run)
+  the default, a fast first pass then pymeshlab, beside ``decimate pymeshlab alone`` of the same mesh, with
+  the time as a ratio to it (``÷ pymeshlab alone``);
 - ``march dense`` / ``march pruned`` / ``march auto``: marching cubes of an SDF network at several grid
   resolutions, every grid point evaluated, range-pruned octree (``pruned=True``), and the cost-aware octree
   (``pruned="auto"``, what ``--coarse march:N`` uses), each followed by the clean-up of ``coarse_mesh``.
@@ -31,7 +33,7 @@ from .common import load_note, machine_info
 __all__ = ["run"]
 
 #: Table columns, in order.
-COLUMNS = ["mesh", "method", "setting", "faces", "seconds", "time ÷ dense", "evaluations", "fewer evals ×",
+COLUMNS = ["mesh", "method", "setting", "faces", "seconds", "÷ pymeshlab alone", "time ÷ dense", "evaluations", "fewer evals ×",
            "bound s", "eval s", "levels bounded", "chamfer-L1", "hausdorff", "watertight", "note"]
 
 
@@ -48,6 +50,48 @@ def _meshes(quick: bool, notes: list) -> list:
         else:
             notes.append(f"spot: {spot} not found; skipped")
     return out
+
+
+#: Large meshes of the data folder decimated (no marching: no SDF is fitted for them), in the full run; the quick
+#: run takes the first.
+SCANS = ("scans/ogre.obj", "scans/nefertiti.obj", "bunny/bunny_closed.obj")
+
+
+def _scans(scans, quick: bool, notes: list) -> list:
+    from ..io.mesh_io import load_mesh
+    from .fit import DATA_DIR
+
+    out = []
+    for rel in (SCANS[:1] if quick else SCANS) if scans is None else scans:
+        path = DATA_DIR / rel  # an absolute path stays itself
+        if path.is_file():
+            out.append((path.stem, load_mesh(path)))
+        else:
+            notes.append(f"{rel}: {path} not found; skipped")
+    return out
+
+
+def _decimation_rows(name, fine, faces, samples, seed) -> list:
+    """Rows of ``fine`` decimated to every count of ``faces``; where the first pass runs, pymeshlab alone beside."""
+    from ..mesh.decimate import decimate, first_pass_faces
+
+    rows = []
+    for nf in faces:
+        both = [True, False] if first_pass_faces(fine.n_faces, nf) is not None else [True]
+        alone_s = None
+        for first in reversed(both):  # pymeshlab alone first, for the ratio
+            t0 = time.perf_counter()
+            cm = decimate(fine, faces=nf, first_pass=first)
+            dt = time.perf_counter() - t0
+            row = {"mesh": name, "method": "decimate" if first else "decimate pymeshlab alone",
+                   "setting": f"{nf} faces", "faces": cm.n_faces, "seconds": dt,
+                   **_errors(cm, fine, samples, seed), "watertight": bool(cm.watertight)}
+            if first and alone_s:
+                row["÷ pymeshlab alone"] = dt / alone_s
+                row["note"] = f"a first pass to {first_pass_faces(fine.n_faces, nf)} faces"
+            alone_s = dt if not first else alone_s
+            rows.append(row)
+    return rows
 
 
 def _network(spec: str) -> tuple[int, int]:
@@ -101,13 +145,15 @@ def run(
     fit_overrides: dict | None = None,
     samples: int | None = None,
     modes=("dense", "pruned", "auto"),
+    scans=None,
     seed: int = 0,
 ) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
     Args:
-        quick: bumpy sphere only; 500 and 2,000 faces; grids 32 and 64; a (64, 1) fit of 30 s; 20,000
-            distance samples (about a minute and a half on an idle 2-core CPU).
+        quick: the bumpy sphere (and the ogre scan, decimated to 2,000 faces); 500 and 2,000 faces; grids 32
+            and 64; a (64, 1) fit of 30 s; 20,000 distance samples (about a minute and a half on an idle 2-core
+            CPU).
         sdf_model: an SDF model file of the bumpy sphere sample to march (else one is trained).
         faces: decimation face counts (default 500, 2000, 8000).
         resolutions: marching-cubes grid resolutions (default 32, 64, 128).
@@ -117,10 +163,10 @@ def run(
         fit_overrides: more :class:`~neural_bake.fit.sdf.SdfFitConfig` fields for that fit (e.g. pool sizes).
         samples: surface samples per mesh for the distances (default 20,000 quick, 100,000 full).
         modes: marching modes among "dense", "pruned", "auto" ("dense" is always run: the ratios need it).
+        scans: mesh paths decimated only (relative to the data folder, or absolute; default :data:`SCANS`).
         seed: seeds the fit and the distance samples.
     """
     from ..mesh.cleanup import clean_mesh
-    from ..mesh.decimate import decimate
     from ..mesh.marching import march
 
     faces = list(faces or ([500, 2000] if quick else [500, 2000, 8000]))
@@ -136,12 +182,7 @@ def run(
     notes = ["timings: one run per row, no repetition"]
     rows = []
     for name, fine in _meshes(quick, notes):
-        for nf in faces:
-            t0 = time.perf_counter()
-            cm = decimate(fine, faces=nf)
-            dt = time.perf_counter() - t0
-            rows.append({"mesh": name, "method": "decimate", "setting": f"{nf} faces", "faces": cm.n_faces,
-                         "seconds": dt, **_errors(cm, fine, samples, seed), "watertight": bool(cm.watertight)})
+        rows += _decimation_rows(name, fine, faces, samples, seed)
         model = _sdf_for(name, fine, sdf_model, network, minutes, steps, fit_overrides, seed, notes)
         for res in resolutions:
             dense_s = None
@@ -173,6 +214,8 @@ def run(
                 row["note"] = "; ".join(note)
                 row["_levels"] = st["levels"]
                 rows.append(row)
+    for name, fine in _scans(scans, quick, notes):
+        rows += _decimation_rows(name, fine, [2000] if quick else faces, samples, seed)
     notes.append("errors: Chamfer-L1 and Hausdorff of the coarse mesh against the fine mesh, unit frame "
                  f"({samples} samples per surface); seconds include the clean-up of coarse_mesh")
     notes.append("march pruned / auto give the same triangles as dense; 'time ÷ dense' and 'fewer evals ×' are "

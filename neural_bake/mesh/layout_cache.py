@@ -4,7 +4,7 @@ A bake that repeats with the same source mesh and coarse spec (another map size,
 the same mesh) need not decimate again, and one onto the same coarse mesh at the same map size need not unwrap
 again (:meth:`LayoutCache.unwrap`, which a :class:`~neural_bake.bake.baker.Baker` given the cache uses). Entries are ``.npz`` files (:mod:`neural_bake.io.mesh_npz`) in ``machine_cache_dir()/layouts``, named
 by a BLAKE2 digest of every input array's bytes and shape, the settings, the versions of the library that
-made them (pymeshlab, xatlas) and :data:`LAYOUT_CACHE_VERSION`, so a changed input, setting or library makes
+made them (pymeshlab, fast-simplification, xatlas) and :data:`LAYOUT_CACHE_VERSION`, so a changed input, setting or library makes
 a new entry instead of reading an old one. Written atomically; an unreadable entry is made again and
 replaced; the least recently used entries beyond :data:`LAYOUT_CACHE_ENTRIES` are deleted. What is cached is
 only what the maker would have returned: a hit gives the same arrays.
@@ -27,7 +27,7 @@ from ..types import Mesh
 __all__ = ["LayoutCache", "mesh_digest", "LAYOUT_CACHE_VERSION", "LAYOUT_CACHE_ENTRIES"]
 
 #: Part of every key: raised when what an entry holds (or how it is made) changes.
-LAYOUT_CACHE_VERSION = 2
+LAYOUT_CACHE_VERSION = 3
 
 #: Entries kept (least recently used deleted beyond it); a 2,000-face layout is about 150 KB.
 LAYOUT_CACHE_ENTRIES = 64
@@ -75,7 +75,7 @@ class LayoutCache:
 
     def key(self, kind: str, *parts: str) -> str:
         """The entry name of ``kind`` ("coarse", "unwrap") made from ``parts`` (digests and settings)."""
-        libs = ",".join(f"{n}={_library_version(n)}" for n in ("pymeshlab", "xatlas"))
+        libs = ",".join(f"{n}={_library_version(n)}" for n in ("pymeshlab", "fast-simplification", "xatlas"))
         h = hashlib.blake2b(f"v{LAYOUT_CACHE_VERSION};{kind};{libs};".encode(), digest_size=20)
         for p in parts:
             h.update(f"{p};".encode())

@@ -13,7 +13,7 @@ SMALL_FIT = dict(pool_surface=4000, pool_near=4000, pool_uniform=1000, batch=512
 
 def test_shrunken_run():
     res = run(quick=True, network="16x1", minutes=None, steps=30, fit_overrides=SMALL_FIT, faces=[300],
-              resolutions=[16, 48], samples=2000)
+              resolutions=[16, 48], samples=2000, scans=[])
     assert res["name"] == "coarse" and res["quick"] is True and "cores" in res["machine"]
     rows = res["tables"]["coarse meshes"]
     assert all(set(r) <= set(COLUMNS) for r in rows)
@@ -42,6 +42,24 @@ def test_shrunken_run():
     assert "grid too small" in by[("march auto", "16³")]["note"]
     assert any("trained a (16, 1) SIREN" in n for n in res["notes"])
     assert {(e["method"], e["setting"]) for e in res["levels"]} >= {("march pruned", "16³"), ("march auto", "48³")}
+
+
+def test_a_large_mesh_decimated_beside_pymeshlab_alone(tmp_path):
+    import trimesh
+
+    path = tmp_path / "big.obj"
+    trimesh.creation.icosphere(6).export(path)  # 81,920 faces: the first pass runs
+    res = run(quick=True, faces=[300], resolutions=[], samples=2000, scans=[str(path), str(tmp_path / "no.obj")],
+              sdf_model=None, network="16x1", steps=5, fit_overrides=SMALL_FIT)
+    big = [r for r in res["tables"]["coarse meshes"] if r["mesh"] == "big"]
+    assert [r["method"] for r in big] == ["decimate pymeshlab alone", "decimate"]
+    alone, first = big
+    assert alone["setting"] == first["setting"] == "2000 faces"  # the quick run's one count
+    assert abs(first["faces"] - 2000) <= 4 and first["watertight"] and alone["watertight"]
+    assert first["÷ pymeshlab alone"] == pytest.approx(first["seconds"] / alone["seconds"])
+    assert "first pass to 16000 faces" in first["note"]
+    assert first["hausdorff"] < 0.05 and alone["hausdorff"] < 0.05
+    assert any("no.obj" in n and "not found" in n for n in res["notes"])
 
 
 def test_errors():

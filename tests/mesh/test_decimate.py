@@ -124,3 +124,43 @@ def test_watertight_flag_is_recomputed():
     s = trimesh.creation.icosphere(2)
     closed = Mesh(vertices=s.vertices, faces=s.faces.astype(np.int64), watertight=False)
     assert decimate(closed, faces=100).watertight
+
+
+def test_first_pass_rule():
+    from neural_bake.mesh.decimate import FIRST_PASS_MIN, first_pass_faces
+
+    assert first_pass_faces(20_088, 2000) is None  # not twice the first pass: pymeshlab alone
+    assert first_pass_faces(124_008, 2000) == FIRST_PASS_MIN
+    assert first_pass_faces(124_008, 5000) == 40_000
+    assert first_pass_faces(79_999, 5000) is None
+
+
+def test_large_open_mesh_through_the_first_pass_keeps_its_border():
+    m = bumpy_grid(130)  # 33,800 faces: a first pass to 16,000 before pymeshlab
+    assert m.n_faces >= 32_000
+    d = decimate(m, faces=2000)  # (its 520 border edges are kept: fewer faces cannot be reached)
+    plain = decimate(m, faces=2000, first_pass=False)
+    assert not np.array_equal(d.vertices, plain.vertices)  # the first pass ran
+    assert abs(d.n_faces - 2000) <= 4
+    b = boundary_vertices(d.faces)
+    assert np.isclose(np.abs(d.vertices[b, :2]), 1.0).any(axis=1).all()
+    for c in ([-1, -1], [1, -1], [1, 1], [-1, 1]):
+        assert (np.abs(d.vertices[b, :2] - c).max(axis=1) < 1e-12).any()
+    # as close to the surface z = 0.15 sin 2x cos 3y as pymeshlab alone
+    def off(mesh):
+        x, y, z = mesh.vertices.T
+        return np.abs(z - 0.15 * np.sin(2 * x) * np.cos(3 * y)).mean()
+
+    assert off(d) <= 1.5 * off(plain) + 1e-4
+
+
+@pytest.mark.parametrize("first_pass", [True, False])
+def test_large_closed_sphere_stays_closed_round_and_outward(first_pass):
+    s = trimesh.creation.icosphere(6)  # 81,920 faces
+    m = Mesh(vertices=s.vertices * 0.8, faces=s.faces.astype(np.int64))
+    d = decimate(m, faces=2000, first_pass=first_pass)
+    assert abs(d.n_faces - 2000) <= 4
+    t = trimesh.Trimesh(d.vertices, d.faces, process=False)
+    assert t.is_watertight and t.volume > 0
+    assert np.abs(np.linalg.norm(d.vertices, axis=1) - 0.8).max() < 0.01
+    assert not d.degenerate.any()
