@@ -19,7 +19,8 @@ Without ``differentiable`` the work runs under ``torch.no_grad()``, chunk by chu
 reused across layers and chunks (``addmm``/``mm`` with ``out=``, ``sin``/``cos`` written in place by the
 fused kernel of :mod:`neural_bake.nets.fastmath` where it is available), so the
 memory stays bounded whatever N and no fresh (page-faulting) allocation happens per layer; the chunk size
-(:func:`default_chunk_size`) was chosen by measurement. With ``differentiable=True`` the same formulas keep
+(:func:`default_chunk_size`) was chosen by measurement; on the CPU a network of independent hidden blocks (a
+residual SDF, :mod:`neural_bake.nets.blocks`) runs block by block, its zero blocks skipped. With ``differentiable=True`` the same formulas keep
 the graph to the weights (no chunking), so a loss on the gradients (eikonal, orthogonality) backpropagates
 to the weights with one ordinary backward pass — no double-backward. For a scalar field in reverse mode
 (the SDF training losses) the whole pass is one autograd node with a hand-written backward
@@ -36,6 +37,7 @@ from torch.autograd.function import once_differentiable
 
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
+from .blocks import hidden_blocks, split_layers
 from .cpu_gemm import gemm_route, model_width
 from .fastmath import sincos, sincos_
 
@@ -116,16 +118,23 @@ def gemm_gradient(
         layers = model.affine_layers(dtype=dtype, device=device)
         values, grads = (_reverse_graph if mode == "reverse" else _forward_graph)(layers, points)
     else:
-        # float32 CPU GEMMs on the route that runs them fastest here (nets.cpu_gemm)
-        with torch.no_grad(), gemm_route(model_width(model), device):
+        with torch.no_grad():
             layers = model.affine_layers(dtype=dtype, device=device)
-            chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
-                mode, layers[0][0].shape[0], in_dim, out_dim
-            )
-            if mode == "reverse":
-                values, grads = _reverse_chunked(layers, points, chunk, gemm_dtype)
-            else:
-                values, grads = _forward_chunked(layers, points, chunk)
+            # on the CPU, a network of independent blocks (a residual SDF) block by block (nets.blocks)
+            parts = split_layers(layers, hidden_blocks(layers)) if device.type == "cpu" else [layers]
+            values = grads = None
+            for part in parts:
+                width = int(part[0][0].shape[0]) if len(parts) > 1 else model_width(model)
+                chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
+                    mode, part[0][0].shape[0], in_dim, out_dim
+                )
+                # float32 CPU GEMMs on the route that runs them fastest here (nets.cpu_gemm)
+                with gemm_route(width, device):
+                    if mode == "reverse":
+                        v, g = _reverse_chunked(part, points, chunk, gemm_dtype)
+                    else:
+                        v, g = _forward_chunked(part, points, chunk)
+                values, grads = (v, g) if values is None else (values.add_(v), grads.add_(g))
     if out_dim == 1:
         grads = grads.reshape(points.shape[0], in_dim)
     return values, grads

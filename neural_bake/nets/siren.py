@@ -9,6 +9,7 @@ from torch import nn
 
 from ..constants import DEFAULT_OMEGA_0
 from ..errors import NeuralBakeError
+from .blocks import hidden_blocks, split_layers
 from .cpu_gemm import gemm_route
 from .fastmath import sin_
 
@@ -157,16 +158,23 @@ def siren_forward_inference(
     activation buffers: ``addmm`` into a buffer, then the sine in place (:func:`~neural_bake.nets.fastmath.sin_`:
     the C kernel where it measured faster than ``torch.sin``), so no temporary is allocated per layer. Call
     under ``torch.no_grad()``. ``gemm_dtype`` (e.g. ``torch.bfloat16``): the hidden W×W products on operands
-    of that dtype, added to the biases in ``x``'s dtype (as :func:`~neural_bake.nets.gemm.gemm_gradient`).
+    of that dtype, added to the biases in ``x``'s dtype (as :func:`~neural_bake.nets.gemm.gemm_gradient`). On
+    the CPU a network of independent blocks (:mod:`neural_bake.nets.blocks`) runs block by block.
     """
     n = x.shape[0]
     w_last, b_last = layers[-1]
     out = x.new_empty((n, w_last.shape[0]))
     if n == 0:
         return out
-    width = layers[0][0].shape[0]
-    with gemm_route(width, x.device):  # float32 CPU GEMMs where they run fastest (nets.cpu_gemm)
-        _forward_chunks(layers, x, out, max(1, int(chunk_size or forward_chunk_size(width))), gemm_dtype)
+    # on the CPU, a network of independent blocks (a residual SDF) block by block (nets.blocks)
+    parts = split_layers(layers, hidden_blocks(layers)) if x.device.type == "cpu" else [layers]
+    for k, part in enumerate(parts):
+        width = part[0][0].shape[0]
+        dest = out if k == 0 else torch.empty_like(out)
+        with gemm_route(width, x.device):  # float32 CPU GEMMs where they run fastest (nets.cpu_gemm)
+            _forward_chunks(part, x, dest, max(1, int(chunk_size or forward_chunk_size(width))), gemm_dtype)
+        if k:
+            out.add_(dest)
     return out
 
 

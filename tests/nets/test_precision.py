@@ -12,13 +12,18 @@ from neural_bake.nets.precision import gemm_dtype, resolve_precision
 from neural_bake.nets.siren import Siren, siren_forward_inference
 
 
-def slow_reference(model, x, low):
+def slow_reference(model, x, low, chunk=None):
     """Values and gradients with the hidden W×W products rounded through ``low`` exactly as the fast path
-    does, written plainly (no chunks, no buffers, torch.sin/cos)."""
+    does, written plainly (no buffers, torch.sin/cos). ``chunk``: the rows of each product, as the fast path's
+    chunks, and its operands laid out as there (a bfloat16 product may round a sum differently at another row
+    count or layout, by one bfloat16 step)."""
+    if chunk is not None:
+        parts = [slow_reference(model, x[s:s + chunk], low) for s in range(0, x.shape[0], chunk)]
+        return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
     layers = model.affine_layers(dtype=x.dtype)
     h, coss = x, []
     for i, (w, b) in enumerate(layers[:-1]):
-        a = h @ w.t() + b if i == 0 else torch.mm(h.to(low), w.t().to(low)).to(x.dtype) + b
+        a = h @ w.t() + b if i == 0 else torch.mm(h.to(low), w.t().to(low).contiguous()).to(x.dtype) + b
         h = torch.sin(a)
         coss.append(torch.cos(a))
     w_n, b_n = layers[-1]
@@ -26,7 +31,7 @@ def slow_reference(model, x, low):
     mats = _backward_mats(layers)
     g = coss[-1]
     for i in range(len(coss) - 1, 0, -1):
-        g = torch.mm(g.to(low), mats[i].to(low)).to(x.dtype) * coss[i - 1]
+        g = torch.mm(g.to(low), mats[i].to(low).contiguous()).to(x.dtype) * coss[i - 1]
     return values, g @ mats[0]
 
 
@@ -35,7 +40,7 @@ def test_bf16_gemm_gradient_matches_the_slow_reference(dtype):
     model = Siren(64, 2, generator=torch.Generator().manual_seed(0))
     x = (torch.rand(700, 3, generator=torch.Generator().manual_seed(1), dtype=dtype) * 2 - 1) * 0.8
     v, g = gemm_gradient(model, x, gemm_dtype=torch.bfloat16, chunk_size=256)  # several chunks, a short last one
-    rv, rg = slow_reference(model, x, torch.bfloat16)
+    rv, rg = slow_reference(model, x, torch.bfloat16, chunk=256)
     assert v.dtype == g.dtype == dtype
     tol = 1e-5 if dtype == torch.float32 else 1e-9
     torch.testing.assert_close(v, rv, atol=tol * 10, rtol=tol)
@@ -54,7 +59,8 @@ def test_bf16_forward_inference_matches_the_slow_reference(dtype):
         out = siren_forward_inference(layers, x, chunk_size=128, gemm_dtype=torch.bfloat16)
     h = x
     for i, (w, b) in enumerate(layers[:-1]):
-        h = torch.sin(h @ w.t() + b if i == 0 else torch.mm(h.to(torch.bfloat16), w.t().to(torch.bfloat16)).to(dtype) + b)
+        h = torch.sin(h @ w.t() + b if i == 0 else
+                      torch.mm(h.to(torch.bfloat16), w.t().to(torch.bfloat16).contiguous()).to(dtype) + b)
     ref = h @ layers[-1][0].t() + layers[-1][1]
     torch.testing.assert_close(out, ref, atol=1e-5 if dtype == torch.float32 else 1e-9, rtol=1e-5)
 
