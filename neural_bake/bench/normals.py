@@ -16,7 +16,10 @@ points. The roofline of a (network, points) group is probed once per round insid
 rounds (best of its readings): on a VM whose sgemm rate drifts by 2x over minutes, a peak read at another
 moment than the timings would misstate their fractions. The notes also give the worst forward-pass fraction
 against the best peak seen anywhere in the run, a stricter reading.
-A second table sweeps the chunk size of the no-grad paths (how :data:`neural_bake.nets.gemm.GEMM_CHUNK_ELEMENTS`
+A second table, ``residual networks``, times a residual SDF's sum of levels (a (64, 3) coarse level and a
+(128, 3) fine one kept as one (192, 3) network, as the presets save it) block by block (the default,
+:mod:`neural_bake.nets.blocks`) against its merged matrices, and gives the largest angle between the two.
+A third table sweeps the chunk size of the no-grad paths (how :data:`neural_bake.nets.gemm.GEMM_CHUNK_ELEMENTS`
 and :data:`neural_bake.nets.siren.FORWARD_CHUNK_ELEMENTS` were chosen).
 """
 
@@ -78,6 +81,7 @@ def run(
         model = Siren(width, depth, generator=torch.Generator().manual_seed(seed))
         for n in points:
             rows.extend(_compare(model, n, rounds(n), seed))
+    block_rows = _blocks(max(points), rounds(max(points)), seed)
     sweep_rows = _chunk_sweep(quick, rounds(max(points)), seed) if sweep else []
     roof_after = measure_roofline(quick=quick)
     # the peak over the whole run: the best of the measurements before and after and of every row's probes
@@ -118,7 +122,7 @@ def run(
         "roofline_before": roof_before,
         "roofline_after": roof_after,
         "targets": targets,
-        "tables": {"gradients": rows, "chunk sweep (seconds)": sweep_rows},
+        "tables": {"gradients": rows, "residual networks": block_rows, "chunk sweep (seconds)": sweep_rows},
         "notes": notes,
     }
 
@@ -219,6 +223,38 @@ def _max_angle_deg(g, ref) -> float:
     g = g.double()
     cos = (g * ref).sum(-1) / (g.norm(dim=-1) * ref.norm(dim=-1)).clamp_min(1e-300)
     return math.degrees(torch.arccos(cos.clamp(-1, 1)).max().item())
+
+
+def _blocks(n: int, repeat: int, seed: int) -> list[dict]:
+    """A (64 + 128, 3) residual SDF as one network: GEMM normals and the forward pass block by block against the
+    merged matrices (interleaved, best of ``repeat``), at ``n`` points."""
+    from ..nets.siren_sum import siren_sum
+
+    coarse = Siren(64, 3, generator=torch.Generator().manual_seed(seed))
+    fine = Siren(128, 3, generator=torch.Generator().manual_seed(seed + 1))
+    model = siren_sum(coarse, fine).eval()
+    x = torch.rand(n, 3, generator=torch.Generator().manual_seed(seed)) * 1.8 - 0.9
+    layers = [(w.detach(), b.detach()) for w, b in model.affine_layers()]
+    fns = {
+        "gemm reverse, merged": lambda: gemm_gradient(model, x, blocks=False),
+        "gemm reverse, by block": lambda: gemm_gradient(model, x),
+        "forward pass, merged": lambda: siren_mod.siren_forward_inference(layers, x, blocks=False),
+        "forward pass, by block": lambda: siren_mod.siren_forward_inference(layers, x),
+    }
+    with torch.no_grad():
+        for fn in fns.values():  # warm-up: each width's GEMM route is decided at its first product
+            fn()
+        best = timeit_interleaved(fns, repeat=repeat)
+        _, merged = gemm_gradient(model, x[:REFERENCE_POINTS], blocks=False)
+        _, split = gemm_gradient(model, x[:REFERENCE_POINTS])
+    angle = _max_angle_deg(split, merged)
+    rows = []
+    for path in ("gemm reverse", "forward pass"):
+        m, b = best[f"{path}, merged"], best[f"{path}, by block"]
+        rows.append({"network": "(64 + 128, 3) as (192, 3)", "path": path, "points": n, "merged s": m,
+                     "by block s": b, "by block ÷ merged": b / m,
+                     "max angle °": angle if path == "gemm reverse" else None})
+    return rows
 
 
 def _chunk_sweep(quick: bool, repeat: int, seed: int) -> list[dict]:

@@ -68,6 +68,7 @@ def gemm_gradient(
     differentiable: bool = False,
     chunk_size: int | None = None,
     gemm_dtype: torch.dtype | None = None,
+    blocks: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Values and gradients of a SIREN at a batch of points, by GEMMs (no autograd).
 
@@ -88,6 +89,8 @@ def gemm_gradient(
             float32 biases and streams; the first (3 → W) and last layers and sin/cos stay in the points'
             dtype (:mod:`neural_bake.nets.precision` decides where it pays). Ignored when ``differentiable``
             and in forward mode.
+        blocks: on the CPU, run a network of independent hidden blocks (:mod:`neural_bake.nets.blocks`) block
+            by block (default); False: its merged matrices, zero blocks and all (for comparison).
 
     Returns:
         ``(values, grads)``: values (N, out_dim); grads (N, in_dim) if ``out_dim == 1`` else
@@ -121,7 +124,7 @@ def gemm_gradient(
         with torch.no_grad():
             layers = model.affine_layers(dtype=dtype, device=device)
             # on the CPU, a network of independent blocks (a residual SDF) block by block (nets.blocks)
-            parts = split_layers(layers, hidden_blocks(layers)) if device.type == "cpu" else [layers]
+            parts = split_layers(layers, hidden_blocks(layers)) if blocks and device.type == "cpu" else [layers]
             values = grads = None
             for part in parts:
                 width = int(part[0][0].shape[0]) if len(parts) > 1 else model_width(model)

@@ -149,7 +149,7 @@ def _is_functorch_wrapped(x: torch.Tensor) -> bool:
 
 def siren_forward_inference(
     layers: list[tuple[torch.Tensor, torch.Tensor]], x: torch.Tensor, chunk_size: int | None = None,
-    gemm_dtype: torch.dtype | None = None,
+    gemm_dtype: torch.dtype | None = None, blocks: bool = True,
 ) -> torch.Tensor:
     """A SIREN's values without autograd: ``layers`` from :meth:`Siren.affine_layers` (ω folded in).
 
@@ -159,7 +159,8 @@ def siren_forward_inference(
     the C kernel where it measured faster than ``torch.sin``), so no temporary is allocated per layer. Call
     under ``torch.no_grad()``. ``gemm_dtype`` (e.g. ``torch.bfloat16``): the hidden W×W products on operands
     of that dtype, added to the biases in ``x``'s dtype (as :func:`~neural_bake.nets.gemm.gemm_gradient`). On
-    the CPU a network of independent blocks (:mod:`neural_bake.nets.blocks`) runs block by block.
+    the CPU a network of independent blocks (:mod:`neural_bake.nets.blocks`) runs block by block (``blocks``
+    False: its merged matrices).
     """
     n = x.shape[0]
     w_last, b_last = layers[-1]
@@ -167,7 +168,7 @@ def siren_forward_inference(
     if n == 0:
         return out
     # on the CPU, a network of independent blocks (a residual SDF) block by block (nets.blocks)
-    parts = split_layers(layers, hidden_blocks(layers)) if x.device.type == "cpu" else [layers]
+    parts = split_layers(layers, hidden_blocks(layers)) if blocks and x.device.type == "cpu" else [layers]
     for k, part in enumerate(parts):
         width = part[0][0].shape[0]
         dest = out if k == 0 else torch.empty_like(out)

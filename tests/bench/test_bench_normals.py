@@ -55,6 +55,13 @@ def test_shrunken_run():
     t = res["targets"]
     assert t["forward_roofline_fraction_worst_w256_run_peak"] <= t["forward_roofline_fraction_worst_w256"] + 1e-12
     assert t["forward_roofline_fraction_worst_w256"] == pytest.approx(by["forward pass"]["roofline"])
+    # the residual network by block against its merged matrices: the same normals
+    blocks = res["tables"]["residual networks"]
+    assert [r["path"] for r in blocks] == ["gemm reverse", "forward pass"]
+    for r in blocks:
+        assert r["points"] == 256 and r["merged s"] > 0 and r["by block s"] > 0
+        assert r["by block ÷ merged"] == pytest.approx(r["by block s"] / r["merged s"])
+    assert blocks[0]["max angle °"] < 0.05  # float32 rounding in another order
 
 
 def test_best_rates_take_the_best_reading_of_each_rate():
