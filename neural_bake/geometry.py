@@ -178,7 +178,9 @@ def edge_report(faces: np.ndarray) -> dict:
     if len(faces) == 0:
         return {"edges": 0, "boundary_edges": 0, "non_manifold_edges": 0, "inconsistent_edges": 0, "watertight": False}
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    und, inv, cnt = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
+    lo, hi = e.min(axis=1), e.max(axis=1)
+    base = int(hi.max()) + 1  # one int64 key per undirected edge: a 1-D unique, several times faster than rows
+    und, inv, cnt = np.unique(lo * base + hi, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     forward = (e[:, 0] < e[:, 1]).astype(np.int64)
     n_forward = np.bincount(inv, weights=forward, minlength=len(und))

@@ -70,6 +70,25 @@ def test_edge_report_cases():
     assert edge_report(np.zeros((0, 3), np.int64))["watertight"] is False
 
 
+def test_edge_report_agrees_with_counting_edges_one_by_one():
+    from collections import Counter
+
+    rng = np.random.default_rng(0)
+    faces = rng.integers(0, 40, size=(300, 3))  # repeated, flipped, non-manifold and degenerate faces
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    count: Counter = Counter()
+    forward: Counter = Counter()
+    for f in faces.tolist():
+        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            count[(min(a, b), max(a, b))] += 1
+            forward[(min(a, b), max(a, b))] += a < b
+    rep = edge_report(faces)
+    assert rep["edges"] == len(count)
+    assert rep["boundary_edges"] == sum(c == 1 for c in count.values())
+    assert rep["non_manifold_edges"] == sum(c > 2 for c in count.values())
+    assert rep["inconsistent_edges"] == sum(c == 2 and forward[k] != 1 for k, c in count.items())
+
+
 def test_scene_is_built_once_per_triangle_set_and_answers_correctly():
     import open3d as o3d
 

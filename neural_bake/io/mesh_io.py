@@ -428,10 +428,11 @@ def _assemble(vertices, faces, uv, texture, *, name, uv_policy, normalise, notes
 # --------------------------------------------------------------------------------------------------------------
 
 
-def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True):
+def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True, simple: bool = True):
     """Parse an OBJ file: (vertices, faces, uv or None, texture array or None, texture path or None).
 
-    ``want_texture=False`` (a texture is given by the caller) skips the MTL files and their warnings."""
+    ``want_texture=False`` (a texture is given by the caller) skips the MTL files and their warnings. A plain
+    file is read by :func:`_read_simple_obj` (``simple=False``: always by the line parser)."""
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -439,6 +440,11 @@ def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True):
     if b"\x00" in data[:65536]:
         raise MeshError(f"{name}: unreadable OBJ file (binary data, not OBJ text)")
     text = data.decode("utf-8-sig", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
+    fast = _read_simple_obj(text) if simple else None
+    if fast is not None:  # a plain file (most scans and exports): parsed by numpy, no line loop
+        vertices, faces, uv, mtllibs, used = fast
+        tex_path = _obj_texture(p, name, mtllibs, used, notes) if want_texture else None
+        return vertices, faces, uv, None, tex_path
     verts: list[tuple[float, float, float]] = []
     vert_line: list[int] = []
     tcs: list[tuple[float, float]] = []
@@ -525,6 +531,84 @@ def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True):
     if want_texture:
         tex_path = _obj_texture(p, name, mtllibs, [m for m in dict.fromkeys(tri_mat) if m is not None], notes)
     return vertices, faces, uv, None, tex_path
+
+
+#: Line heads a plain OBJ may hold (:func:`_read_simple_obj`); any other line sends the file to the line parser.
+_SIMPLE_HEADS = ("v ", "vt ", "vn ", "f ", "o ", "g ", "s ", "mtllib ", "usemtl ")
+
+
+def _numbers(text: str, dtype, count: int) -> np.ndarray | None:
+    """``count`` numbers of ``dtype`` from whitespace-separated ``text``, or None when it holds another count
+    or something that is not a number."""
+    if count == 0:
+        return np.zeros(0, dtype=dtype)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy warns where it stops early: the count then tells
+        try:
+            out = np.fromstring(text, dtype=dtype, sep=" ")
+        except ValueError:
+            return None
+    return out if out.size == count else None
+
+
+def _read_simple_obj(text: str):
+    """A plain OBJ parsed without a line loop: ``(vertices, faces, uv or None, mtllibs, used materials)``, or
+    None when the file is not plain, so that the line parser reads it (and names the line of any error).
+
+    Plain: every line empty, a whole-line comment or one of :data:`_SIMPLE_HEADS` at its start; ``v`` lines of
+    three numbers, ``vt`` lines of two; triangles only, every corner written alike (``a``, ``a/b``, ``a/b/c`` or
+    ``a//c``) with positive indices in range; finite positions; at most one ``usemtl``."""
+    lines = text.splitlines()
+    v, vt, f, libs, mats = [], [], [], [], []
+    comments = 0
+    for line in lines:
+        if line.startswith("v "):
+            v.append(line[2:])
+        elif line.startswith("f "):
+            f.append(line[2:])
+        elif line.startswith("vt "):
+            vt.append(line[3:])
+        elif line.startswith("#"):
+            comments += 1
+        elif line.startswith("mtllib "):
+            libs.append(line[7:].strip())
+        elif line.startswith("usemtl "):
+            mats.append(line[7:].strip())
+        elif line.strip() and not line.startswith(_SIMPLE_HEADS):
+            return None
+    if not f or not v or len(mats) > 1 or "\t" in text or text.count("#") != comments:
+        return None
+    vertices = _numbers(" ".join(v), np.float64, 3 * len(v))
+    if vertices is None or not np.isfinite(vertices).all():
+        return None
+    first = f[0].split()
+    if len(first) != 3:
+        return None
+    corner = first[0]
+    slashes, normal_only = corner.count("/"), "//" in corner
+    per = 2 if normal_only else slashes + 1  # numbers a corner holds
+    face_text = " ".join(f)
+    if face_text.count("/") != 3 * slashes * len(f):
+        return None
+    if normal_only:
+        face_text = face_text.replace("//", " ")
+    elif slashes:
+        face_text = face_text.replace("/", " ")
+    idx = _numbers(face_text, np.int64, 3 * per * len(f))
+    if idx is None:
+        return None
+    idx = idx.reshape(len(f), 3, per) - 1
+    faces = np.ascontiguousarray(idx[:, :, 0])
+    if (faces < 0).any() or (faces >= len(v)).any():
+        return None
+    uv = None
+    if slashes and not normal_only:
+        tcs = _numbers(" ".join(vt), np.float64, 2 * len(vt))
+        t = idx[:, :, 1]
+        if tcs is None or (t < 0).any() or (t >= len(vt)).any():
+            return None
+        uv = tcs.reshape(-1, 2)[t]
+    return vertices.reshape(-1, 3), faces, uv, libs, mats
 
 
 _MAP_OPTIONS_ONE = {"-blendu", "-blendv", "-cc", "-clamp", "-imfchan", "-type"}

@@ -315,6 +315,59 @@ def test_obj_face_formats(tmp_path, face, has_uv):
         np.testing.assert_array_equal(m.uv[0], [[0.3, 0.4], [0.1, 0.2], [0.5, 0.6]])
 
 
+SIMPLE_OBJS = {
+    "plain": TRI + "v 1 1 0\nf 1 2 3\nf 2 4 3\n",
+    "comments, groups, normals": "# c\no a\ng b\ns 1\n" + TRI + "vn 0 0 1\nf 1//1 2//1 3//1\n",
+    "uv": TRI + "vt 0.1 0.2\nvt 0.3 0.4\nvt 0.5 0.6\nf 1/2 2/1 3/3\n",
+    "uv and normals, crlf": (TRI + "vt 0.1 0.2\nvt 0.3 0.4\nvt 0.5 0.6\nvn 0 0 1\nf 1/2/1 2/1/1 3/3/1\n")
+    .replace("\n", "\r\n"),
+    "material": "mtllib m.mtl\nusemtl a\n" + TRI + "vt 0.75 0.25\nf 1/1 2/1 3/1\n",
+    # not plain: the line parser reads these
+    "quad": TRI + "v 1 1 0\nf 1 2 4 3\n",
+    "negative": TRI + "f -3 -2 -1\n",
+    "inline comment": TRI + "f 1 2 3 # c\n",
+    "mixed corners": TRI + "vt 0 0\nf 1/1 2 3\n",
+    "vertex colours": "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 1 0 0\nf 1 2 3\n",
+    "tabs": "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "two materials": "usemtl a\n" + TRI + "f 1 2 3\nusemtl b\nf 1 3 2\n",
+}
+
+
+@pytest.mark.parametrize("name", list(SIMPLE_OBJS))
+def test_plain_obj_reader_agrees_with_the_line_parser(tmp_path, name):
+    from neural_bake.io.mesh_io import _read_obj, _read_simple_obj
+
+    text = SIMPLE_OBJS[name]
+    write(tmp_path, "m.mtl", "newmtl a\nmap_Kd t.png\n")
+    write_image(tmp_path / "t.png", quadrant_texture())
+    p = tmp_path / "m.obj"
+    p.write_bytes(text.encode())
+    plain = name in ("plain", "comments, groups, normals", "uv", "uv and normals, crlf", "material")
+    assert (_read_simple_obj(text.replace("\r\n", "\n")) is not None) == plain
+    fast, slow = _read_obj(p, "m.obj", []), _read_obj(p, "m.obj", [], simple=False)
+    for a, b in zip(fast[:3], slow[:3]):
+        if a is None or b is None:
+            assert a is None and b is None
+        else:
+            np.testing.assert_array_equal(a, b)
+    assert fast[4] == slow[4]  # the same texture file
+
+
+@pytest.mark.parametrize("rel", ["scans/ogre.obj", "spot/spot_triangulated.obj", "cad/fandisk.obj"])
+def test_plain_obj_reader_on_the_data_folder(rel):
+    from neural_bake.io.mesh_io import _read_obj
+
+    p = data_file(rel)
+    if not p.is_file():
+        pytest.skip("shared data absent")
+    fast, slow = _read_obj(p, p.name, []), _read_obj(p, p.name, [], simple=False)
+    for a, b in zip(fast[:3], slow[:3]):
+        if a is None or b is None:
+            assert a is None and b is None
+        else:
+            np.testing.assert_array_equal(a, b)
+
+
 def test_obj_texture_convention(tmp_path):
     """Hand-written OBJ: a face whose UVs sit in the top-left quadrant (v up) reads the top-left texels."""
     write_image(tmp_path / "tex.png", quadrant_texture())
