@@ -442,8 +442,8 @@ def _read_obj(p: Path, name: str, notes: list[str], want_texture: bool = True, s
     text = data.decode("utf-8-sig", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
     fast = _read_simple_obj(text) if simple else None
     if fast is not None:  # a plain file (most scans and exports): parsed by numpy, no line loop
-        vertices, faces, uv, mtllibs, used = fast
-        tex_path = _obj_texture(p, name, mtllibs, used, notes) if want_texture else None
+        vertices, faces, uv, libs, used = fast
+        tex_path = _obj_texture(p, name, libs, used, notes) if want_texture else None
         return vertices, faces, uv, None, tex_path
     verts: list[tuple[float, float, float]] = []
     vert_line: list[int] = []
