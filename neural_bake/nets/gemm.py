@@ -17,15 +17,16 @@ Two evaluation orders, both batched over points so that every product is one GEM
 
 Without ``differentiable`` the work runs under ``torch.no_grad()``, chunk by chunk of points with buffers
 reused across layers and chunks (``addmm``/``mm`` with ``out=``, ``sin``/``cos`` written in place by the
-fused kernel of :mod:`neural_bake.nets.fastmath` where it is available), so the
-memory stays bounded whatever N and no fresh (page-faulting) allocation happens per layer; the chunk size
-(:func:`default_chunk_size`) was chosen by measurement; on the CPU a network of independent hidden blocks (a
-residual SDF, :mod:`neural_bake.nets.blocks`) runs block by block, its zero blocks skipped. With ``differentiable=True`` the same formulas keep
-the graph to the weights (no chunking), so a loss on the gradients (eikonal, orthogonality) backpropagates
-to the weights with one ordinary backward pass — no double-backward. For a scalar field in reverse mode
-(the SDF training losses) the whole pass is one autograd node with a hand-written backward
-(:class:`_ReverseScalar`: the same GEMMs, half the element-wise passes, differentiable once); otherwise it
-is torch's graph of the formulas, with :func:`sin_cos` as the one node per layer.
+fused kernel of :mod:`neural_bake.nets.fastmath` where it is available), so the memory stays bounded
+whatever N and no fresh (page-faulting) allocation happens per layer; the chunk size
+(:func:`default_chunk_size`) was chosen by measurement. On the CPU a network of independent hidden blocks (a
+residual SDF, :mod:`neural_bake.nets.blocks`) runs block by block, its zero blocks skipped. With
+``differentiable=True`` the same formulas keep the graph to the weights (no chunking), so a loss on the
+gradients (eikonal, orthogonality) backpropagates to the weights with one ordinary backward pass — no
+double-backward. For a scalar field in reverse mode (the SDF training losses) the whole pass is one autograd
+node with a hand-written backward (:class:`_ReverseScalar`: the same GEMMs, half the element-wise passes,
+differentiable once); otherwise it is torch's graph of the formulas, with :func:`sin_cos` as the one node per
+layer.
 """
 
 from __future__ import annotations
