@@ -7,7 +7,9 @@ stream's element-wise work stay float32) or ``"auto"``: bf16 only where it is su
 check on this device says a (4096, W) × (W, W) product with the conversion runs at least
 :data:`~neural_bake.constants.BF16_MIN_SPEEDUP` times faster than in float32; otherwise fp32.
 
-:func:`resolve_precision` makes the decision (cached per device and width; the check's timer can be injected),
+:func:`resolve_precision` makes the decision (cached per device and width; the check's timer can be injected;
+on the CPU a measured decision is kept in ``bf16-speedup.json`` of the machine's cache folder, as the float32
+GEMM route is (:mod:`neural_bake.nets.cpu_gemm`), so a later process reads it instead of measuring again),
 :func:`gemm_dtype` turns a resolved precision into the ``gemm_dtype`` argument of
 :func:`~neural_bake.nets.gemm.gemm_gradient` and :func:`~neural_bake.nets.siren.siren_forward_inference`,
 the one inference path that the baker (through the fields) and the preview renderer share.
@@ -24,6 +26,7 @@ import torch
 from ..constants import BF16_MIN_SPEEDUP
 from ..errors import NeuralBakeError
 from .cpu_gemm import gemm_route
+from .machine import cpu_model, read_facts, write_fact
 
 __all__ = ["PRECISIONS", "resolve_precision", "gemm_dtype", "measure_bf16_speedup", "bf16_supported", "reduced_copy"]
 
@@ -49,10 +52,17 @@ def bf16_supported(device: torch.device | str = "cpu") -> tuple[bool, str]:
     return True, "bfloat16 GEMMs available"
 
 
-def measure_bf16_speedup(width: int, device: torch.device | str = "cpu", repeats: int = 5) -> float:
+#: The file (in :func:`~neural_bake.nets.machine.machine_cache_dir`) the measured CPU decisions are kept in.
+_DISK_FILE = "bf16-speedup.json"
+
+
+def measure_bf16_speedup(width: int, device: torch.device | str = "cpu", repeats: int = 5,
+                         clock: Callable[[], float] = time.perf_counter) -> float:
     """Seconds of a float32 (4096, width) × (width, width) product (on the CPU, on the route
     :mod:`neural_bake.nets.cpu_gemm` picks) ÷ seconds of the same with the operand converted to bfloat16 and
-    the result back to float32 (best of ``repeats`` each, interleaved)."""
+    the result back to float32 (best of ``repeats`` each, interleaved). A bfloat16 product slower than the
+    float32 one by more than 2× ends the measurement (a CPU without bfloat16 units emulates them: each such
+    product then costs a hundred float32 ones, and more rounds would not change the answer)."""
     device = torch.device(device)
     gen = torch.Generator().manual_seed(0)
     a = torch.rand(4096, int(width), generator=gen).to(device)
@@ -63,9 +73,11 @@ def measure_bf16_speedup(width: int, device: torch.device | str = "cpu", repeats
         for _ in range(int(repeats)):
             for name, fn in (("fp32", lambda: torch.mm(a, w)),
                              ("bf16", lambda: torch.mm(a.to(torch.bfloat16), wb).float())):
-                t0 = time.perf_counter()
+                t0 = clock()
                 fn().sum().item()  # .item(): waits for an asynchronous device
-                best[name] = min(best[name], time.perf_counter() - t0)
+                best[name] = min(best[name], clock() - t0)
+            if best["bf16"] > 2.0 * best["fp32"]:
+                break
     return best["fp32"] / max(best["bf16"], 1e-12)
 
 
@@ -116,6 +128,12 @@ def resolve_precision(precision: str, model=None, *, device: torch.device | str 
     key = (str(device), width)
     if measure is None and key in _decided:
         return _decided[key]
+    disk = _disk_key(device, width) if measure is None and device.type == "cpu" else None
+    if disk is not None:
+        kept = read_facts(_DISK_FILE).get(disk)
+        if isinstance(kept, list) and len(kept) == 2 and kept[0] in ("fp32", "bf16"):
+            _decided[key] = (kept[0], f"{kept[1]} (measured on this machine before: {_DISK_FILE})")
+            return _decided[key]
     speedup = float((measure or measure_bf16_speedup)(width, device))
     if speedup >= BF16_MIN_SPEEDUP:
         out = ("bf16", f"bfloat16 GEMMs measured {speedup:.2f}× faster here (width {width})")
@@ -123,7 +141,16 @@ def resolve_precision(precision: str, model=None, *, device: torch.device | str 
         out = ("fp32", f"bfloat16 GEMMs measured {speedup:.2f}× (< {BF16_MIN_SPEEDUP}×) here (width {width})")
     if measure is None:
         _decided[key] = out
+    if disk is not None:
+        write_fact(_DISK_FILE, disk, list(out))
     return out
+
+
+def _disk_key(device: torch.device, width: int) -> str:
+    """The key of a CPU decision in :data:`_DISK_FILE`: CPU model, torch version, width and thread count (the
+    measurement runs on the threads in force)."""
+    return f"{cpu_model()} | torch {torch.__version__} | {device.type} | width {width} | " \
+           f"{torch.get_num_threads()} threads"
 
 
 def gemm_dtype(precision: str) -> torch.dtype | None:

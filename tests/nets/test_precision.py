@@ -80,6 +80,40 @@ def test_auto_picks_bf16_only_where_the_measured_check_says_faster():
     assert resolve_precision("bf16", model)[0] == "bf16"
 
 
+def test_a_measured_cpu_decision_is_kept_for_the_next_process(monkeypatch, tmp_path):
+    import json
+
+    model = Siren(48, 2, generator=torch.Generator().manual_seed(0))
+    monkeypatch.setenv("NEURAL_BAKE_CACHE_DIR", str(tmp_path / "neural_bake"))
+    monkeypatch.setattr(prec, "_decided", {})
+    monkeypatch.setattr(prec, "bf16_supported", lambda device: (True, "bfloat16 GEMMs available"))
+    monkeypatch.setattr(prec, "measure_bf16_speedup", lambda w, d: 1.1)  # the measurement (default path)
+    out, why = resolve_precision("auto", model)
+    kept = json.loads((tmp_path / "neural_bake" / "bf16-speedup.json").read_text())
+    (key, value), = kept.items()
+    assert value == [out, why] == ["fp32", why] and "width 48" in key and torch.__version__ in key
+    monkeypatch.setattr(prec, "_decided", {})  # a new process: read, not measured
+    monkeypatch.setattr(prec, "measure_bf16_speedup", lambda w, d: pytest.fail("measured again"))
+    again, why_again = resolve_precision("auto", model)
+    assert again == "fp32" and why_again.startswith(why) and "measured on this machine before" in why_again
+    # an injected measurement is neither read from nor written to the file
+    assert resolve_precision("auto", model, measure=lambda w, d: 3.0)[0] == "bf16"
+    assert json.loads((tmp_path / "neural_bake" / "bf16-speedup.json").read_text()) == kept
+
+
+def test_the_measurement_stops_when_bf16_is_far_slower():
+    # each round reads the clock four times: float32 products take 1 s, bfloat16 ones 10 s
+    readings = [t for r in range(5) for t in (100.0 * r, 100.0 * r + 1, 100.0 * r + 1, 100.0 * r + 11)]
+    calls = []
+
+    def clock():
+        calls.append(1)
+        return readings[len(calls) - 1]
+
+    assert prec.measure_bf16_speedup(16, repeats=5, clock=clock) == pytest.approx(0.1)
+    assert len(calls) == 4  # one round of each, then stopped
+
+
 def test_auto_falls_back_where_bf16_is_not_supported(monkeypatch):
     model = Siren(128, 2, generator=torch.Generator().manual_seed(0))
     calls = []
