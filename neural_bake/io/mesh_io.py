@@ -560,7 +560,7 @@ def _read_simple_obj(text: str):
     ``a//c``) with positive indices in range; finite positions; at most one ``usemtl``."""
     lines = text.splitlines()
     v, vt, f, libs, mats = [], [], [], [], []
-    comments = 0
+    hashes = 0  # of whole-line comments: any other "#" is a comment after data, for the line parser
     for line in lines:
         if line.startswith("v "):
             v.append(line[2:])
@@ -569,14 +569,14 @@ def _read_simple_obj(text: str):
         elif line.startswith("vt "):
             vt.append(line[3:])
         elif line.startswith("#"):
-            comments += 1
+            hashes += line.count("#")
         elif line.startswith("mtllib "):
             libs.append(line[7:].strip())
         elif line.startswith("usemtl "):
             mats.append(line[7:].strip())
         elif line.strip() and not line.startswith(_SIMPLE_HEADS):
             return None
-    if not f or not v or len(mats) > 1 or "\t" in text or text.count("#") != comments:
+    if not f or not v or len(mats) > 1 or "\t" in text or text.count("#") != hashes:
         return None
     vertices = _numbers(" ".join(v), np.float64, 3 * len(v))
     if vertices is None or not np.isfinite(vertices).all():

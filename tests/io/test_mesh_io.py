@@ -317,7 +317,7 @@ def test_obj_face_formats(tmp_path, face, has_uv):
 
 SIMPLE_OBJS = {
     "plain": TRI + "v 1 1 0\nf 1 2 3\nf 2 4 3\n",
-    "comments, groups, normals": "# c\no a\ng b\ns 1\n" + TRI + "vn 0 0 1\nf 1//1 2//1 3//1\n",
+    "comments, groups, normals": "####\n# c # d\no a\ng b\ns 1\n" + TRI + "vn 0 0 1\nf 1//1 2//1 3//1\n",
     "uv": TRI + "vt 0.1 0.2\nvt 0.3 0.4\nvt 0.5 0.6\nf 1/2 2/1 3/3\n",
     "uv and normals, crlf": (TRI + "vt 0.1 0.2\nvt 0.3 0.4\nvt 0.5 0.6\nvn 0 0 1\nf 1/2/1 2/1/1 3/3/1\n")
     .replace("\n", "\r\n"),
@@ -353,13 +353,15 @@ def test_plain_obj_reader_agrees_with_the_line_parser(tmp_path, name):
     assert fast[4] == slow[4]  # the same texture file
 
 
-@pytest.mark.parametrize("rel", ["scans/ogre.obj", "spot/spot_triangulated.obj", "cad/fandisk.obj"])
+@pytest.mark.parametrize("rel", ["scans/ogre.obj", "bunny/bunny_closed.obj", "spot/spot_triangulated.obj",
+                                 "cad/fandisk.obj"])
 def test_plain_obj_reader_on_the_data_folder(rel):
-    from neural_bake.io.mesh_io import _read_obj
+    from neural_bake.io.mesh_io import _read_obj, _read_simple_obj
 
     p = data_file(rel)
     if not p.is_file():
         pytest.skip("shared data absent")
+    assert _read_simple_obj(p.read_text()) is not None  # each is plain: no line loop
     fast, slow = _read_obj(p, p.name, []), _read_obj(p, p.name, [], simple=False)
     for a, b in zip(fast[:3], slow[:3]):
         if a is None or b is None:
