@@ -16,9 +16,9 @@ from ..types import Mesh
 __all__ = ["decimate", "first_pass_faces", "merge_duplicate_vertices"]
 
 #: A large mesh is first brought to ``max(FIRST_PASS_FACTOR × target, FIRST_PASS_MIN)`` faces by
-#: fast-simplification's quadric collapse (no optimal placement), when that is at most half its faces; pymeshlab's
-#: careful collapse then makes the target from there. On the data folder's 70k–124k-face scans, to 2,000 faces:
-#: 4–6× faster, and as close to the fine mesh (BENCHMARKS.md, "coarse").
+#: fast-simplification's quadric collapse, when that is at most half its faces; pymeshlab's careful collapse then
+#: makes the target from there. On the data folder's 70k–124k-face scans, to 2,000 faces: 3.6–5× faster, and as
+#: close to the fine mesh (BENCHMARKS.md, "coarse").
 FIRST_PASS_FACTOR = 8
 FIRST_PASS_MIN = 16_000
 
