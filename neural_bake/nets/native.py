@@ -21,6 +21,7 @@ import ctypes
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -29,7 +30,7 @@ from pathlib import Path
 
 from .compiled import env_switch
 
-__all__ = ["Kernel", "build", "cache_dir", "compiler", "torch_openmp", "threads", "FLAGS"]
+__all__ = ["Kernel", "build", "cache_dir", "compiler", "torch_openmp", "openmp_runtimes", "threads", "FLAGS"]
 
 #: Optimised, position independent, no errno from libm; no contraction into FMAs, so a kernel's arithmetic
 #: is the same, operation by operation, as the numpy reference it replaces.
@@ -64,10 +65,22 @@ def compiler() -> str | None:
 _openmp: dict = {}
 
 
+def openmp_runtimes(names) -> list[str]:
+    """The OpenMP runtimes among mapped library file ``names`` that a kernel built with ``-fopenmp`` could bind
+    to. A runtime a wheel vendors under a hashed name (``libgomp-e985bcbb.so.1.0.0``: auditwheel renames it and
+    its soname) is that wheel's own, and is left out."""
+    return sorted(n for n in names if n.startswith(("libgomp", "libiomp", "libomp")) and not _VENDORED.match(n))
+
+
+#: A runtime renamed by auditwheel: its name, a dash, eight hex digits.
+_VENDORED = re.compile(r"^lib(gomp|iomp5?|omp)-[0-9a-f]{8}\.so")
+
+
 def torch_openmp() -> tuple[bool, str]:
     """``(usable, why)``: whether a kernel compiled with ``-fopenmp`` shares torch's OpenMP runtime here (torch's
     parallel backend is OpenMP and the process maps a ``libgomp.so.1``, the soname ``-fopenmp`` links to, and
-    no other OpenMP runtime). Checked once per process, after importing torch."""
+    no other OpenMP runtime but those wheels vendor under their own names: :func:`openmp_runtimes`). Checked once
+    per process, after importing torch."""
     if "state" not in _openmp:
         import torch
 
@@ -77,7 +90,7 @@ def torch_openmp() -> tuple[bool, str]:
                 names = {Path(line.split()[-1]).name for line in fh if "/" in line}
         except OSError:
             names = set()
-        runtimes = sorted(n for n in names if n.startswith(("libgomp", "libiomp", "libomp")))
+        runtimes = openmp_runtimes(names)
         if "ATen parallel backend: OpenMP" not in info:
             state = (False, "torch's parallel backend is not OpenMP")
         elif runtimes != ["libgomp.so.1"]:

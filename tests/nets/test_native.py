@@ -37,8 +37,17 @@ def _declare(lib) -> None:
 
 
 def _runtimes() -> list[str]:
+    """The OpenMP runtimes mapped here a kernel could bind to (not those a wheel vendors under its own name, as
+    fast-simplification's, which its library alone uses)."""
     with open("/proc/self/maps") as fh:
-        return sorted({Path(line.split()[-1]).name for line in fh if "/" in line and "gomp" in line.split()[-1]})
+        return native.openmp_runtimes({Path(line.split()[-1]).name for line in fh if "/" in line})
+
+
+def test_vendored_runtimes_are_their_wheels_own():
+    names = {"libgomp.so.1", "libgomp-e985bcbb.so.1.0.0", "libiomp5-0123abcd.so", "libtorch_cpu.so"}
+    assert native.openmp_runtimes(names) == ["libgomp.so.1"]
+    assert native.openmp_runtimes({"libgomp.so.1", "libiomp5.so"}) == ["libgomp.so.1", "libiomp5.so"]
+    assert native.openmp_runtimes({"libomp.so"}) == ["libomp.so"]
 
 
 @pytest.fixture
