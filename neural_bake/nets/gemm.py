@@ -39,7 +39,7 @@ from torch.autograd.function import once_differentiable
 from ..constants import GRAD_EPS
 from ..errors import NeuralBakeError
 from .blocks import hidden_blocks, split_layers
-from .cpu_gemm import gemm_route, model_width
+from .cpu_gemm import gemm_route
 from .fastmath import sincos, sincos_
 
 __all__ = ["gemm_gradient", "normalized_gradient", "autograd_graph_only", "default_chunk_size", "sin_cos",
@@ -128,10 +128,9 @@ def gemm_gradient(
             parts = split_layers(layers, hidden_blocks(layers)) if blocks and device.type == "cpu" else [layers]
             values = grads = None
             for part in parts:
-                width = int(part[0][0].shape[0]) if len(parts) > 1 else model_width(model)
-                chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(
-                    mode, part[0][0].shape[0], in_dim, out_dim
-                )
+                width = int(part[0][0].shape[0])
+                chunk = int(chunk_size) if chunk_size is not None else default_chunk_size(mode, width, in_dim,
+                                                                                          out_dim)
                 # float32 CPU GEMMs on the route that runs them fastest here (nets.cpu_gemm)
                 with gemm_route(width, device):
                     if mode == "reverse":

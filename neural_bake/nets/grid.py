@@ -33,7 +33,7 @@ from ..constants import (MAX_GRID_FEATURES, MAX_GRID_LEVELS, MAX_GRID_LOG2_TABLE
 from ..errors import NeuralBakeError
 
 __all__ = ["GridNet", "ACTIVATIONS", "IN_DIMS", "NORMAL_SCALE", "grid_resolutions", "grid_table_sizes",
-           "grid_layer_dims", "check_grid_settings"]
+           "grid_layer_dims", "check_grid_settings", "valid_normal_scale"]
 
 #: The MLP's hidden activations: ReLU (Instant-NGP's) or sine (sin(ω·(W x + b)), SIREN's initialisation).
 ACTIVATIONS = ("relu", "sine")
@@ -67,6 +67,12 @@ IN_DIMS = (3, 6)
 #: The default scale of the normal inputs: small beside the grid's features, so the MLP leans on them only where
 #: the colour changes with the side (a normal off by 10° costs 1.4 dB on the cabinet, against 3.7 dB at scale 1).
 NORMAL_SCALE = 0.2
+
+
+def valid_normal_scale(value) -> bool:
+    """Whether ``value`` is a usable ``normal_scale``: a number in (0, 100]."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+            and 0 < value <= 100)
 
 
 def grid_layer_dims(levels: int, features: int, width: int, depth: int, out_dim: int, in_dim: int = 3) -> list[int]:
@@ -133,8 +139,7 @@ class GridNet(nn.Module):
         if in_dim == 3 and normal_scale is not None:
             raise NeuralBakeError("GridNet: normal_scale needs in_dim 6 (normal inputs)", parameter="normal_scale")
         scale = NORMAL_SCALE if normal_scale is None else normal_scale
-        if (isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale)
-                or not 0 < scale <= 100):
+        if not valid_normal_scale(scale):
             raise NeuralBakeError(f"GridNet: normal_scale must be a number in (0, 100], got {normal_scale!r}",
                                   parameter="normal_scale")
         if isinstance(out_dim, bool) or int(out_dim) != out_dim or not 1 <= out_dim <= 16:

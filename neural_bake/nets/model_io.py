@@ -38,7 +38,7 @@ import torch
 from .. import __version__
 from ..constants import MAX_HEADER_DEPTH, MAX_NET_DEPTH, MAX_NET_IN_DIM, MAX_NET_OUT_DIM, MAX_NET_WIDTH
 from ..errors import ModelFileError
-from .grid import IN_DIMS, GridNet, check_grid_settings
+from .grid import IN_DIMS, GridNet, check_grid_settings, valid_normal_scale
 from .siren import Siren
 
 __all__ = ["encode_model", "encode_file", "load_model", "read_model_metadata", "read_raw_metadata",
@@ -268,8 +268,7 @@ def check_network_architecture(arch, path, where: str = "") -> dict:
                              f"normals) to R^1..R^{MAX_NET_OUT_DIM}, this one R^{arch['in_dim']} to "
                              f"R^{arch['out_dim']})")
     scale = arch.get("normal_scale")
-    if (arch["in_dim"] == 6) != (scale is not None) or scale is not None and (
-            isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 100):
+    if (arch["in_dim"] == 6) != (scale is not None) or scale is not None and not valid_normal_scale(scale):
         raise ModelFileError(f"{path}: corrupt model header ({where}normal_scale = {scale!r:.40} with in_dim "
                              f"{arch['in_dim']}: a number in (0, 100] with in_dim 6, absent with 3)")
     try:
