@@ -10,11 +10,11 @@ values lie within ``ADAPTIVE_SAFETY`` times the tolerances of what the corners p
 surplus: an estimate of the interpolation error, larger than the error left when interpolating from the 3×3
 nodes in a smooth field). Its other samples are then interpolated from those 3×3 nodes, each from the four
 of its quarter, with weights from its position in space (:func:`_weights`; normals renormalised, f
-extrapolated to first order from each node). A pure cell of side 8 or more that fails is tested once more
-for quadratic interpolation: the fields are evaluated at its quarters' centres (nodes of the next level, so a
-failure costs nothing) and compared with the quadratic through its 3×3 nodes in the same spatial coordinates
-(:func:`_quadratic_weights`), at half the tolerances; when they pass, its samples are interpolated from all
-nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no
+extrapolated to first order from each node). A pure cell that fails is tested once more for quadratic
+interpolation: the fields are evaluated at its quarters' centres (nodes of the next level; at side 4, samples
+the failed cell evaluates anyway: a failure costs nothing) and compared with the quadratic through its 3×3
+nodes in the same spatial coordinates (:func:`_quadratic_weights`), at half the tolerances; when they pass,
+its other samples are interpolated from all nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no
 accepted cell covers is evaluated: chart borders, seams, islands smaller than
 the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
 nodes and samples of an accepted cell all belong to one chart. With the coarse mesh's faces
@@ -38,12 +38,11 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..constants import (ADAPTIVE_COLOR_TOL, ADAPTIVE_GRID_SNAP, ADAPTIVE_LATTICE, ADAPTIVE_SAFETY, ADAPTIVE_TOLERANCE_DEG,
-                         ADAPTIVE_VALUE_TOL, ADAPTIVE_VERTEX_SIDE, ADAPTIVE_EDGE_DEG, DIRECTION_EPS)
-from ..errors import NeuralBakeError
+from ..constants import ADAPTIVE_GRID_SNAP, ADAPTIVE_SAFETY, ADAPTIVE_EDGE_DEG, DIRECTION_EPS
 from ..nets.native import Kernel, threads
 from ..types import Mesh
 from .adaptive_faces import FaceGeometry, face_pass
+from .adaptive_options import AdaptiveOptions
 
 __all__ = ["AdaptiveOptions", "chart_labels", "grid_positions", "vertex_positions", "adaptive_evaluate",
            "kernel_status", "ENV_SWITCH"]
@@ -74,35 +73,6 @@ def kernel_status() -> str:
 
 #: Interpolated samples handled at once (bounds the (7 + C, 4, n) gathered corner arrays; small enough for the cache).
 _INTERP_CHUNK = 1 << 16
-
-
-@dataclass(frozen=True)
-class AdaptiveOptions:
-    """Settings of adaptive texel evaluation (:func:`adaptive_evaluate`)."""
-
-    tolerance_deg: float = ADAPTIVE_TOLERANCE_DEG
-    """Largest angle (degrees) between a cell's evaluated midpoint normals and their interpolation from its corners."""
-    lattice: int = ADAPTIVE_LATTICE
-    """Side of the coarsest cells in sample-grid positions (a power of two ≥ 2)."""
-    color_tol: float = ADAPTIVE_COLOR_TOL
-    """Largest colour difference (linear RGB(A)) between a midpoint and its interpolation."""
-    value_tol: float = ADAPTIVE_VALUE_TOL
-    """Largest |f| difference (unit frame) between a midpoint and its interpolation."""
-    vertex_side: int = ADAPTIVE_VERTEX_SIDE
-    """Largest side of a cell that may hold a feature of the mesh (:func:`vertex_positions`: its bent edges)."""
-
-    def __post_init__(self):
-        t = self.tolerance_deg
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not (np.isfinite(t) and 0 < t < 90):
-            raise NeuralBakeError(f"tolerance_deg must be a number of degrees in (0, 90), got {t!r}",
-                                  parameter="tolerance_deg")
-        k = self.lattice
-        if isinstance(k, bool) or int(k) != k or k < 2 or int(k) & (int(k) - 1):
-            raise NeuralBakeError(f"lattice must be a power of two >= 2, got {k!r}", parameter="lattice")
-        for name in ("color_tol", "value_tol"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise NeuralBakeError(f"{name} must be a positive number, got {v!r}", parameter=name)
 
 
 def chart_labels(mesh: Mesh) -> np.ndarray:
@@ -363,7 +333,7 @@ def adaptive_evaluate(
                 run(nodes.reshape(-1))
                 acc[p] = _surplus_ok(store, points, nodes, opt, dtype)
                 fail = ~acc[p]
-                if k >= _QUADRATIC_SIDE and fail.any():  # the quarters' centres: the next level's nodes anyway
+                if k >= _QUADRATIC_SIDE and fail.any():  # the quarters' centres: evaluated anyway when it fails
                     f = p[fail]
                     tests = index[r0[f, None] + (k // 4) * _QUARTERS[:, 0], c0[f, None] + (k // 4) * _QUARTERS[:, 1]]
                     run(tests.reshape(-1))
@@ -589,8 +559,9 @@ def _interpolate_native(lib, store: _Store, points: np.ndarray, index: np.ndarra
 
 
 #: Smallest side of a cell that may be accepted with quadratic interpolation (:func:`_quadratic_ok`): its test
-#: points, the quarters' centres, are the next level's nodes, so a cell that fails costs no evaluation.
-_QUADRATIC_SIDE = 8
+#: points, the quarters' centres, are the next level's nodes (side 8 and more) or samples a side-4 cell that
+#: fails evaluates anyway, so a cell that fails costs no evaluation.
+_QUADRATIC_SIDE = 4
 
 #: The quadratic test's tolerances as a share of the bilinear test's: it checks four points, not five, so it
 #: asks for more (on a fitted (256,3) Spot SDF at 2048², half kept the interpolation's largest error against a

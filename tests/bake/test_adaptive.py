@@ -248,6 +248,40 @@ def test_quadratic_pass_accepts_curved_fields_with_fewer_evaluations_within_tole
         assert np.abs(res["colors"] - truth["colors"]).max() <= opt.color_tol
 
 
+def test_side_four_cells_that_fail_bilinear_pass_quadratic_at_no_extra_cost(monkeypatch):
+    """At side 4 the quadratic test's points (the quarters' centres) are samples: a side-4 cell that fails the
+    bilinear test is accepted quadratically where the field is smooth enough, and its test points are the
+    evaluations a failed cell would make anyway. A curved field over a lattice of side 4: fewer samples are
+    evaluated with the side-4 quadratic pass than without it, never more, and every interpolated normal is
+    within the tolerance of the true one."""
+    from neural_bake.bake import adaptive
+
+    r, c = np.meshgrid(np.arange(65), np.arange(65), indexing="ij")
+    rows, cols = r.reshape(-1), c.reshape(-1)
+    tx = grid_texels(rows, cols, (65, 65))
+    labels = np.zeros(len(rows), dtype=np.int64)
+    centre = np.array([0.32, 0.32, -0.3])
+
+    def evaluate(idx):
+        d = tx.points[idx] - centre
+        return {"values": np.zeros(len(idx)), "normals": d / np.linalg.norm(d, axis=1, keepdims=True),
+                "valid": np.ones(len(idx), bool)}
+
+    opt = AdaptiveOptions(lattice=4, tolerance_deg=0.1)
+    with_quad = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
+    monkeypatch.setattr(adaptive, "_QUADRATIC_SIDE", 8)
+    without = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
+    assert with_quad["stats"]["cells_quadratic"].get("4", 0) > 0 and not without["stats"]["cells_quadratic"]
+    assert with_quad["stats"]["evaluated"] < 0.9 * without["stats"]["evaluated"]
+    truth = evaluate(np.arange(len(rows)))
+    for res in (with_quad, without):
+        assert (res["evaluated"] | res["interpolated"]).all()
+        assert angle_deg(res["normals"], truth["normals"]).max() <= opt.tolerance_deg
+    # the evaluated samples keep their own values: interpolation never overwrites them
+    ev = with_quad["evaluated"]
+    assert np.array_equal(with_quad["normals"][ev], truth["normals"][ev] / np.linalg.norm(truth["normals"][ev],
+                                                                                     axis=1, keepdims=True))
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_spatial_weights_match_the_bilinear_reference(dtype, rng):
     # on a flat parallelogram the spatial coordinates are the parameters themselves: bilinear weights
