@@ -143,7 +143,7 @@ def check_config(cfg: BakeAssetConfig) -> None:
     if p is not None and not (isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < float("inf")):
         raise NeuralBakeError(f"hybrid_color_psnr {p!r}: must be a positive number of dB", parameter="hybrid_color_psnr")
     if cfg.adaptive:
-        from neural_bake.bake.adaptive import AdaptiveOptions
+        from neural_bake.bake.adaptive_options import AdaptiveOptions
 
         AdaptiveOptions(tolerance_deg=cfg.tolerance_deg)  # names tolerance_deg
     truth = cfg.truth
@@ -207,16 +207,28 @@ def bake_asset(mesh, sdf_path, out, config: BakeAssetConfig | None = None, *, te
             log(f"no source mesh: the coarse mesh is the model marched ({MODEL_ONLY_COARSE}), not {coarse}")
             coarse = MODEL_ONLY_COARSE
     keep = kind == "keep"
+    from neural_bake.bake import preload as preloading
     from neural_bake.geometry import raycasting_prefetched
 
-    # rays will be cast: their library loads while the bake loads, coarsens and rasterises
-    with raycasting_prefetched() if mesh is not None and (cfg.hybrid or cfg.baseline) else contextlib.nullcontext():
-        return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model, coarse_mesh,
-                               t_start, log)
+    # the source mesh is read, decimated and unwrapped in a forked process while torch is imported here
+    # (before any thread starts); None where that is not safe, and the bake does it itself
+    pre = None if mesh is None or coarse_mesh is not None else preloading.start(
+        str(mesh), texture_image=cfg.texture, coarse=coarse,
+        layout_size=cfg.size if any(m in maps for m in ("normal", "albedo")) else None,
+        layout_cache=bool(cfg.layout_cache))
+    try:
+        # rays will be cast: their library loads while the bake loads, coarsens and rasterises
+        with raycasting_prefetched() if mesh is not None and (cfg.hybrid or cfg.baseline) \
+                else contextlib.nullcontext():
+            return _bake_in_folder(mesh, sdf_path, out, cfg, maps, formats, coarse, keep, texture_model,
+                                   coarse_mesh, t_start, log, pre)
+    finally:
+        if pre is not None:
+            pre.close()
 
 
 def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, coarse: str, keep: bool,
-                    texture_model, coarse_mesh, t_start: float, log) -> dict:
+                    texture_model, coarse_mesh, t_start: float, log, pre=None) -> dict:
     """:func:`bake_asset`'s steps in its output folder (its settings checked)."""
     from neural_bake.bake import job
     from neural_bake.io.atomic import atomic_write_text
@@ -231,7 +243,8 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         if texel_maps:  # its pages fault in on another core while it loads
             job.reserve_heap(cfg.size, cfg.supersample)
         inputs = job.load_inputs(mesh, sdf_path, texture_model, coarse=coarse, texture_image=cfg.texture,
-                                 truth=truth, delta=cfg.delta, device=cfg.device, force=cfg.force, log=log)
+                                 truth=truth, delta=cfg.delta, device=cfg.device, force=cfg.force, log=log,
+                                 preload=pre)
         timings: dict[str, float] = {"load": inputs.seconds}
         layouts = None
         if cfg.layout_cache:
@@ -247,7 +260,8 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
         written: list[str] = []
         report: dict = {"mesh": None if mesh is None else str(mesh), "sdf": folder.shown(sdf_path),
                         "texture_model": texture_model and folder.shown(texture_model), "coarse": coarse_info,
-                        "maps": maps, "sdf_check": inputs.sdf_check}
+                        "maps": maps, "sdf_check": inputs.sdf_check,
+                        "preload": None if pre is None else pre.summary()}
         if texel_maps:
             baked = _bake_texels(inputs, coarse_m, cfg, maps=maps, keep=keep, log=log, layouts=layouts)
             timings["prepare"] = baked.seconds
@@ -296,7 +310,7 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     """The texel maps (:func:`neural_bake.bake.job.bake_maps`) with the config's settings, and what they did
     said in ``log``."""
     from neural_bake.bake import job
-    from neural_bake.bake.adaptive import AdaptiveOptions
+    from neural_bake.bake.adaptive_options import AdaptiveOptions
 
     hybrid_tol, hybrid_angle, hybrid_color_tol, hybrid_color_within = _hybrid_tolerances(cfg)
     baked = job.bake_maps(

@@ -461,3 +461,38 @@ def test_a_marched_coarse_mesh_is_cached_by_its_model_file(files, tmp_path, caps
     code, _, err = run([*args, "-o", str(tmp_path / "o2")], capsys)
     assert code == 0, err
     assert json.loads((tmp_path / "o2" / "report.json").read_text())["coarse"]["cached"] is False
+
+
+def test_the_command_preloads_the_mesh_in_a_fork_and_bakes_the_same_map(files, tmp_path):
+    """As a user runs it (its own process, torch not yet imported): the source mesh is read, decimated and
+    unwrapped in a forked process while torch is imported, and the maps and the report's figures are those of the
+    same bake without the preload (``NEURAL_BAKE_PRELOAD=0``). A mesh the loader refuses gives the same one-line
+    error either way."""
+    import os
+    import sys
+
+    from neural_bake.bake.preload import ENV_SWITCH
+
+    def bake(out, switch, mesh=files["obj"]):
+        env = {k: v for k, v in os.environ.items() if k != ENV_SWITCH}
+        if switch is not None:
+            env[ENV_SWITCH] = switch
+        return subprocess.run([sys.executable, "-m", "neural_bake.cli.main", "bake", str(mesh), "--sdf", files["sdf"],
+                               "--force", "--coarse", "decimate:200", "--size", "64", "--no-layout-cache",
+                               "-o", str(out)], capture_output=True, text=True, timeout=600, env=env)
+
+    runs = {switch: bake(tmp_path / f"out-{switch}", switch) for switch in (None, "0")}
+    for r in runs.values():
+        assert r.returncode == 0, r.stderr
+    with_pre, without = (json.loads((tmp_path / f"out-{s}" / "report.json").read_text()) for s in (None, "0"))
+    assert with_pre["preload"]["failure"] is None and set(with_pre["preload"]["seconds"]) == {"load", "coarse", "unwrap"}
+    assert without["preload"] is None
+    assert (tmp_path / "out-None" / "normal.png").read_bytes() == (tmp_path / "out-0" / "normal.png").read_bytes()
+    assert with_pre["vs_truth_deg"] == without["vs_truth_deg"] and with_pre["coarse"]["faces"] == without["coarse"]["faces"]
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
+    errors = {switch: bake(tmp_path / f"bad-{switch}", switch, bad) for switch in (None, "0")}
+    assert errors[None].returncode == errors["0"].returncode == 2
+    assert errors[None].stderr == errors["0"].stderr and errors[None].stderr.count("\n") == 1
+    assert errors[None].stderr.startswith(f"neural-bake: error: {bad}")
+    assert not (tmp_path / "bad-None").exists()

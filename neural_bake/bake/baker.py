@@ -514,6 +514,8 @@ class Baker:
     - ``unwrap_options``: keyword arguments for ``unwrap`` when the mesh has no UVs.
     - ``layout_cache``: a :class:`~neural_bake.mesh.layout_cache.LayoutCache` the unwrap is read from (and kept
       in) when an earlier run unwrapped the same mesh with the same options.
+    - ``layout``: ``mesh`` unwrapped already with the same options (e.g. by :mod:`.preload`'s process), taken
+      instead of unwrapping it here.
     - ``cache_texels``: keep the rasterised texels between bakes (``self.texels``); None = only when there
       are at most ``2**23`` samples (2048² with supersample 2). Without the cache every bake streams the
       layout band by band (:func:`neural_bake.mesh.texels.iter_texels`), so 4k maps fit in memory.
@@ -535,6 +537,7 @@ class Baker:
         cache_texels: bool | None = None,
         band_samples: int = BAND_SAMPLES,
         layout_cache: LayoutCache | None = None,
+        layout: Mesh | None = None,
     ):
         if isinstance(size, bool) or int(size) != size or size < 1:
             raise NeuralBakeError(f"map size must be a positive integer, got {size!r}")
@@ -568,7 +571,12 @@ class Baker:
             from ..mesh.unwrap import unwrap
 
             options = {"resolution": self.size, **(unwrap_options or {})}
-            mesh = layout_cache.unwrap(mesh, **options)[0] if layout_cache is not None else unwrap(mesh, **options)
+            if layout is not None:
+                mesh = layout
+            elif layout_cache is not None:
+                mesh = layout_cache.unwrap(mesh, **options)[0]
+            else:
+                mesh = unwrap(mesh, **options)
         from ..mesh.unwrap import split_uv_seams
 
         had_normals = mesh.vertex_normals is not None

@@ -33,8 +33,9 @@ if TYPE_CHECKING:
     from ..mesh.layout_cache import LayoutCache
     from .baker import Baker, BakeResult
     from .hybrid import HybridFallback
+    from .preload import Preload, PreloadedSource
 
-__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "bake_maps", "bake_vertex_colours",
+__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "coarse_of_source", "bake_maps", "bake_vertex_colours",
            "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
 
 #: The maps a bake makes: the texel maps (normal, albedo) and the per-vertex bake.
@@ -67,6 +68,8 @@ class BakeInputs:
     """The source's asset (maps, factors, corner normals), or None."""
     sdf_check: dict = field(default_factory=dict)
     seconds: float = 0.0
+    preloaded: PreloadedSource | None = None
+    """What a preloading process made of the source mesh (:mod:`.preload`), or None."""
 
 
 @dataclass
@@ -113,10 +116,13 @@ def sdf_for(sdf_file, coarse: str):
 
 def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, *, coarse: str,
                 texture_image: str | None = None, truth: str = "auto", delta: float | None = None,
-                device=None, force: bool = False, log: Callable[[str], None] = print) -> BakeInputs:
+                device=None, force: bool = False, log: Callable[[str], None] = print,
+                preload: Preload | None = None) -> BakeInputs:
     """Read what a bake needs (:class:`BakeInputs`): the model files, the source mesh and its asset, and
     check that the SDF describes the mesh and the texture the SDF (``force``: bake anyway, said in ``log``).
-    ``truth`` "sample:NAME" refuses a mesh that is not that sample."""
+    ``truth`` "sample:NAME" refuses a mesh that is not that sample. ``preload``: a process reading the source mesh
+    (:mod:`.preload`), waited for once the model files are read; what it made is kept in ``inputs.preloaded``
+    (the mesh is read here when it failed)."""
     from .agreement import check_sdf_describes_mesh
     from ..io.asset import read_asset, shading_mesh
     from ..io.mesh_io import load_mesh
@@ -130,13 +136,23 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
         log(f"nesting band δ = {delta:g} (unit frame) from {Path(texture_path).name}")
     inputs = BakeInputs(mesh_path=mesh_path, sdf_path=sdf_path, sdf_file=sdf_file, sdf=sdf, texture=tex, delta=delta,
                         sdf_check={"passed": None, "note": "no source mesh to check the SDF against"})
-    if mesh_path is not None:
+    preloaded = preload.result() if preload is not None and mesh_path is not None else None
+    inputs.preloaded = preloaded
+    if mesh_path is not None and preloaded is not None:
+        from .preload import reissue_warnings
+
+        fine, asset, reference = preloaded.fine, preloaded.asset, preloaded.reference
+        reissue_warnings(fine)
+        if truth.startswith("sample:"):
+            sample_truth(mesh_path, fine, truth)
+    elif mesh_path is not None:
         fine = load_mesh(mesh_path, texture_image)
         if truth.startswith("sample:"):
             sample_truth(mesh_path, fine, truth)  # a mesh that is not the sample is refused before the bake
         asset = read_asset(mesh_path, fine)
         # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
         reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+    if mesh_path is not None:
         inputs.fine, inputs.reference, inputs.asset = fine, reference, asset
         inputs.sdf_check = check_sdf_describes_mesh(fine, sdf, force=force, option="--force")
         if not inputs.sdf_check["passed"]:
@@ -155,25 +171,38 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
 def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None = None,
                 cache: LayoutCache | None = None) -> tuple[Mesh, dict]:
     """The coarse mesh of the bake and its info: ``made`` (a pair made earlier, e.g. by a batch's coarse
-    stage) or :func:`~neural_bake.mesh.coarse.coarse_mesh` of the source (``keep``: its shading reference) or
-    of the model (no source mesh). ``cache``: a decimated or marched mesh is read from it when an earlier run
-    made it from the same source mesh (and, to march, model file) and spec, else made and stored
-    (``info["cached"]`` says which; ``info["seconds"]`` is this run's)."""
-    from ..mesh.coarse import coarse_mesh, parse_coarse
-    from ..mesh.layout_cache import mesh_digest
+    stage), the decimation a preloading process made (``inputs.preloaded``, :mod:`.preload`: the same call
+    there, with the same spec and cache), or
+    :func:`coarse_of_source` of the source (``keep``: its shading reference) or of the model (no source mesh)."""
+    from ..mesh.coarse import parse_coarse
 
     if made is not None:
         return made
+    if inputs.preloaded is not None and inputs.preloaded.coarse is not None:
+        return inputs.preloaded.coarse
+    source = inputs.reference if parse_coarse(coarse)[0] == "keep" else inputs.fine
+    return coarse_of_source(source, coarse, cache=cache, sdf_file=inputs.sdf_file, sdf_path=inputs.sdf_path,
+                            mesh_path=inputs.mesh_path)
+
+
+def coarse_of_source(source: Mesh | None, coarse: str, *, cache: LayoutCache | None = None, sdf_file=None,
+                     sdf_path: str | None = None, mesh_path: str | None = None) -> tuple[Mesh, dict]:
+    """:func:`~neural_bake.mesh.coarse.coarse_mesh` of ``source`` (None: of the model ``sdf_file``, read from
+    ``sdf_path``; ``mesh_path`` None says there is no source mesh). ``cache``: a decimated or marched mesh is
+    read from it when an earlier run made it from the same source mesh (and, to march, model file) and spec,
+    else made and stored (``info["cached"]`` says which; ``info["seconds"]`` is this run's)."""
+    from ..mesh.coarse import coarse_mesh, parse_coarse
+    from ..mesh.layout_cache import mesh_digest
+
     kind = parse_coarse(coarse)[0]
-    source = inputs.reference if kind == "keep" else inputs.fine
 
     def make() -> tuple[Mesh, dict]:
         try:
-            return coarse_mesh(source, coarse, inputs.sdf_file)
+            return coarse_mesh(source, coarse, sdf_file)
         except NeuralBakeError as exc:
-            if inputs.mesh_path is not None:
+            if mesh_path is not None:
                 raise
-            raise NeuralBakeError(f"{inputs.sdf_path}: no surface to bake from the model alone ({exc})") from None
+            raise NeuralBakeError(f"{sdf_path}: no surface to bake from the model alone ({exc})") from None
 
     if cache is None or kind == "keep" or (kind == "decimate" and source is None):
         return make()
@@ -181,7 +210,7 @@ def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None 
     # march and level: the model file, and the source mesh whose frame a model without one is marched in
     made_from = [mesh_digest(source) if source is not None else "no source"]
     if kind != "decimate":
-        made_from.append(_file_digest(inputs.sdf_path))
+        made_from.append(_file_digest(sdf_path))
     mesh, info, hit = cache.get_or_make(cache.key("coarse", coarse, *made_from), make)
     info = dict(info, cached=hit)
     if hit:
@@ -229,10 +258,13 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
     from .report import lattice_step
 
     t0 = time.perf_counter()
+    pre = inputs.preloaded  # its unwrap of this coarse mesh for this size, made while torch was imported
+    layout = pre.layout if pre is not None and pre.coarse is not None and coarse_m is pre.coarse[0] \
+        and pre.layout_size == size else None
     baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
                   y_convention="directx" if directx else "opengl",
                   padding=None if padding == "none" else padding, cache_texels=cache_texels,
-                  layout_cache=layout_cache)
+                  layout_cache=layout_cache, layout=layout)
     prepare = time.perf_counter() - t0
     tex, reference = inputs.texture, inputs.reference
     # colours follow the hybrid rule where a texture is baked and the source has one to take colours from
