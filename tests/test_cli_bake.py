@@ -374,6 +374,8 @@ def test_bench_bake_anchor_table_shrunken():
     c = cmd[0]
     assert c["wall s"] > c["bake s"] > 0 and c["prepare s"] > 0 and c["load s"] > 0 and 0 < c["evaluated"] <= 1.0
     assert c["vs source med°"] is not None and "the user's command:" in notes
+    # its own process forks the preloading one: the mesh read, decimated and unwrapped there, none of it here
+    assert c["preload s"] > 0 and c["coarse s"] == 0.0 and "preload s:" in notes
     # two rounds: the wall and the bake stage are each the best of them, their ranges beside
     assert c["rounds"] == 2 and "best of the rounds" in notes
     for key in ("wall", "bake"):

@@ -1,8 +1,8 @@
 """The source mesh read, decimated and unwrapped in a forked process while the bake imports torch.
 
-A bake's first seconds go to importing torch (about 2 s on a 2 GHz core) and to the source mesh: reading it,
-decimating it and unwrapping the coarse mesh (1–1.5 s for a 100k-face scan), none of which needs torch. With a
-second usable core, :func:`start` forks a process that does the mesh work while this one imports torch and reads
+A bake's first seconds go to importing torch and to the source mesh: reading it, decimating it and unwrapping
+the coarse mesh, none of which needs torch (their seconds: BENCHMARKS.md, the bake command). With a second
+usable core, :func:`start` forks a process that does the mesh work while this one imports torch and reads
 the model files; :meth:`Preload.result` waits for it and returns what the same calls make here
 (:func:`load_source`, the same functions in the same order).
 

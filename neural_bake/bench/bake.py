@@ -489,6 +489,7 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
                 bakes = [b for b in bakes if b is not None]
                 row = {"map": f"{size}²", "method": method, "wall s": wall,
                        **{f"{k} s": sec.get(k) for k in _COMMAND_STAGES},
+                       "preload s": sum(((rep.get("preload") or {}).get("seconds") or {}).values()) or None,
                        "hybrid s": (bake.get("seconds") or {}).get("hybrid"),
                        "evaluated": bake.get("evaluated_fraction"),
                        "vs source med°": (rep.get("vs_truth_deg") or {}).get("median"),
@@ -526,10 +527,12 @@ def _command(sizes, model_path, seed: int, notes: list, anchor_rows: list[dict],
                  "as its own process (start-up and imports in its wall), stages from its report.json; a first bake "
                  "(--no-layout-cache: the coarse mesh decimated and unwrapped) and the same bake again (both from "
                  "the layout cache); rounds: our two commands and Blender's script in turn, wall and bake the best "
-                 "of the rounds (range beside), the other stages the fastest round's")
+                 "of the rounds (range beside), the other stages the fastest round's; preload s: the source mesh "
+                 "read, decimated and unwrapped in a forked process beside torch's import (load s holds any wait "
+                 "for it; coarse s is then this process's own, none)")
     notes.append(bytecode_note())
     for r in rows:
-        for k in ("wall s", *(f"{k} s" for k in _COMMAND_STAGES), "hybrid s", "evaluated", "vs source med°",
+        for k in ("wall s", *(f"{k} s" for k in _COMMAND_STAGES), "preload s", "hybrid s", "evaluated", "vs source med°",
                   "vs source p95°", "rounds", "wall range s", "bake range s"):
             r.setdefault(k, None)
     return rows

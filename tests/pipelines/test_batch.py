@@ -494,5 +494,8 @@ def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_
     assert b["steps"] == in_file["steps"] == levels["coarse"]["steps"] + levels["fine"]["steps"]
     assert b["expected_steps"] == in_file["expected_steps"] == (levels["coarse"]["expected_steps"]
                                                                 + levels["fine"]["expected_steps"])
-    assert "quick/coarse: made" in b["warning"] and "quick/fine: made" in b["warning"]
+    # each level with steps to expect warns (a level whose own work a step outlasted its share of the 9 s, on a
+    # loaded machine, expects none and has nothing to warn about); the coarse level, with most of it, always does
+    assert levels["coarse"]["expected_steps"] > 0 and "quick/coarse: made" in b["warning"]
+    assert ("quick/fine: made" in b["warning"]) == bool(levels["fine"]["expected_steps"])
     assert not list((out / "ball").glob(".sdf-*.ckpt"))
