@@ -14,9 +14,9 @@ extrapolated to first order from each node). A pure cell that fails is tested on
 interpolation: the fields are evaluated at its quarters' centres (nodes of the next level; at side 4, samples
 the failed cell evaluates anyway: a failure costs nothing) and compared with the quadratic through its 3×3
 nodes in the same spatial coordinates (:func:`_quadratic_weights`), at half the tolerances; when they pass,
-its other samples are interpolated from all nine nodes. Otherwise, and for impure cells, the cell splits into four of side k/2. Every sample that no
-accepted cell covers is evaluated: chart borders, seams, islands smaller than
-the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
+its other samples are interpolated from all nine nodes. Otherwise, and for impure cells, the cell splits into
+four of side k/2. Every sample that no accepted cell covers is evaluated: chart borders, seams, islands smaller
+than the lattice, border samples, and every cell refined below side 4. Interpolation never crosses a seam: the
 nodes and samples of an accepted cell all belong to one chart. With the coarse mesh's faces
 (``faces``), the samples no cell could hold (chart borders, seams, off-grid samples, around vertices; not those
 of side-4 cells that failed, where the fields vary too fast) are interpolated inside their own faces where that

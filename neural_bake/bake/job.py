@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from .hybrid import HybridFallback
     from .preload import Preload, PreloadedSource
 
-__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "coarse_of_source", "bake_maps", "bake_vertex_colours",
-           "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
+__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "coarse_of_source", "bake_maps",
+           "bake_vertex_colours", "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
 
 #: The maps a bake makes: the texel maps (normal, albedo) and the per-vertex bake.
 MAPS = ("normal", "albedo", "vertex")
@@ -172,8 +172,8 @@ def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None 
                 cache: LayoutCache | None = None) -> tuple[Mesh, dict]:
     """The coarse mesh of the bake and its info: ``made`` (a pair made earlier, e.g. by a batch's coarse
     stage), the decimation a preloading process made (``inputs.preloaded``, :mod:`.preload`: the same call
-    there, with the same spec and cache), or
-    :func:`coarse_of_source` of the source (``keep``: its shading reference) or of the model (no source mesh)."""
+    there, with the same spec and cache), or :func:`coarse_of_source` of the source (``keep``: its shading
+    reference) or of the model (no source mesh)."""
     from ..mesh.coarse import parse_coarse
 
     if made is not None:

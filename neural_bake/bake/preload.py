@@ -12,8 +12,9 @@ errors and messages are the ones it gives without the preload. The child's own w
 mesh's load warnings (``Mesh.warnings``) are issued again here (:func:`reissue_warnings`).
 
 Forking is safe only while the process runs no other thread and has not started torch (its OpenMP team) or
-any OpenMP kernel: :func:`start` returns None when torch is imported or another thread runs, where ``fork``
-does not exist, with one usable core, or when ``NEURAL_BAKE_PRELOAD`` is ``0`` (the bake then does the work
+any OpenMP kernel: :func:`start` returns None when torch is imported or another thread runs, in a daemonic
+process (a pool's worker), where ``fork`` does not exist or fails, with one usable core, or when
+``NEURAL_BAKE_PRELOAD`` is ``0`` (the bake then does the work
 itself, as a library caller that imported torch already does).
 """
 
@@ -170,6 +171,10 @@ def can_fork() -> str | None:
         return "torch is imported (its OpenMP team would not survive a fork)"
     if threading.active_count() > 1:
         return "another thread runs"
+    import multiprocessing as mp
+
+    if mp.current_process().daemon:
+        return "a daemonic process (a pool's worker) cannot have children"
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -190,6 +195,11 @@ def start(mesh_path: str, **kwargs) -> Preload | None:
     receive, send = ctx.Pipe(duplex=False)
     process = ctx.Process(target=_child, args=(send, {"mesh_path": str(mesh_path), **kwargs}),
                           name="neural-bake-preload", daemon=True)
-    process.start()
-    send.close()
+    try:
+        process.start()
+    except (OSError, AssertionError):  # no process to be had (limits, memory): the bake does the work itself
+        receive.close()
+        return None
+    finally:
+        send.close()
     return Preload(process, receive)

@@ -81,6 +81,16 @@ dead = preload.start(obj, coarse="decimate:200")
 dead._process.kill()
 out["dead"] = [dead.result() is None, dead.failure]
 out["torch"] = "torch" in sys.modules
+# a pool's worker (a daemonic process) may not have children: it does the work itself
+import multiprocessing as mp
+def probe(conn):
+    conn.send([preload.can_fork(), preload.start(obj) is None])
+    conn.close()
+here, there = mp.get_context("fork").Pipe(duplex=False)
+worker = mp.get_context("fork").Process(target=probe, args=(there,), daemon=True)
+worker.start()
+out["daemon"] = here.recv()
+worker.join()
 stop = threading.Event()
 t = threading.Thread(target=stop.wait)
 t.start()
@@ -106,6 +116,7 @@ def test_a_forked_child_makes_the_same_meshes_and_its_failures_fall_back(obj, tm
     assert str(bad) in out["failed"][1]
     assert out["dead"] == [True, "the preloading process died"]
     assert out["thread"] == ["another thread runs", True]
+    assert out["daemon"] == ["a daemonic process (a pool's worker) cannot have children", True]
 
 
 def test_the_load_warnings_the_child_did_not_show_are_issued_here(obj, tmp_path):
