@@ -494,8 +494,13 @@ def test_the_quick_sdf_stage_fits_its_construction_and_accounts_both_levels(tmp_
     assert b["steps"] == in_file["steps"] == levels["coarse"]["steps"] + levels["fine"]["steps"]
     assert b["expected_steps"] == in_file["expected_steps"] == (levels["coarse"]["expected_steps"]
                                                                 + levels["fine"]["expected_steps"])
-    # each level with steps to expect warns (a level whose own work a step outlasted its share of the 9 s, on a
-    # loaded machine, expects none and has nothing to warn about); the coarse level, with most of it, always does
-    assert levels["coarse"]["expected_steps"] > 0 and "quick/coarse: made" in b["warning"]
-    assert ("quick/fine: made" in b["warning"]) == bool(levels["fine"]["expected_steps"])
+    # each level warns below half its expected steps, and the stage's warning holds each level's; the coarse level,
+    # with most of the 9 s, always falls short of the injected rate (on a loaded machine the fine level's share
+    # can expect no step or only a couple, and make them)
+    from neural_bake.constants import BUDGET_WARN_FRACTION
+
+    for name, level in levels.items():
+        short = bool(level["expected_steps"]) and level["steps"] / level["expected_steps"] < BUDGET_WARN_FRACTION
+        assert bool(level.get("warning")) == short and (f"quick/{name}: made" in b["warning"]) == short
+    assert "quick/coarse: made" in b["warning"]
     assert not list((out / "ball").glob(".sdf-*.ckpt"))
