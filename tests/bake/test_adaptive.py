@@ -217,24 +217,33 @@ def test_quadratic_weights_reproduce_quadratic_fields(dtype, atol, rng):
     assert not good[0] and good[1:].all()
 
 
+def _sphere_over_grid(n: int, centre, colours: bool = False):
+    """An n × n grid band of one chart whose normals point away from ``centre`` (a radial field, bending
+    smoothly across the band), optionally with smooth colours: (texels, rows, cols, charts, evaluate)."""
+    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    rows, cols = r.reshape(-1), c.reshape(-1)
+    tx = grid_texels(rows, cols, (n, n))
+    centre = np.asarray(centre, dtype=np.float64)
+
+    def evaluate(idx):
+        d = tx.points[idx] - centre
+        out = {"values": np.zeros(len(idx)), "normals": d / np.linalg.norm(d, axis=1, keepdims=True),
+               "valid": np.ones(len(idx), bool)}
+        if colours:
+            p = tx.points[idx]
+            out["colors"] = 0.5 + 0.1 * np.stack([np.sin(p[:, 0]), p[:, 1] ** 2, p[:, 0]], 1)
+        return out
+
+    return tx, rows, cols, np.zeros(len(rows), dtype=np.int64), evaluate
+
+
 def test_quadratic_pass_accepts_curved_fields_with_fewer_evaluations_within_tolerance(monkeypatch):
     """A field whose normals bend quadratically across the band (a large sphere over the plane, 2.5° over 16
     samples): bilinear cells fail at side 16 and 8 where quadratic ones pass. With the quadratic pass fewer
     samples are evaluated, and every interpolated normal is within the tolerance of the true one."""
     from neural_bake.bake import adaptive
 
-    r, c = np.meshgrid(np.arange(129), np.arange(129), indexing="ij")
-    rows, cols = r.reshape(-1), c.reshape(-1)
-    tx = grid_texels(rows, cols, (129, 129))
-    labels = np.zeros(len(rows), dtype=np.int64)
-    centre = np.array([0.64, 0.64, -3.0])
-
-    def evaluate(idx):
-        d = tx.points[idx] - centre
-        n = d / np.linalg.norm(d, axis=1, keepdims=True)
-        colours = 0.5 + 0.1 * np.stack([np.sin(tx.points[idx, 0]), tx.points[idx, 1] ** 2, tx.points[idx, 0]], 1)
-        return {"values": np.zeros(len(idx)), "normals": n, "valid": np.ones(len(idx), bool), "colors": colours}
-
+    tx, rows, cols, labels, evaluate = _sphere_over_grid(129, [0.64, 0.64, -3.0], colours=True)
     opt = AdaptiveOptions(lattice=16, tolerance_deg=0.05)
     with_quad = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
     monkeypatch.setattr(adaptive, "_QUADRATIC_SIDE", 1 << 30)
@@ -256,17 +265,7 @@ def test_side_four_cells_that_fail_bilinear_pass_quadratic_at_no_extra_cost(monk
     within the tolerance of the true one."""
     from neural_bake.bake import adaptive
 
-    r, c = np.meshgrid(np.arange(65), np.arange(65), indexing="ij")
-    rows, cols = r.reshape(-1), c.reshape(-1)
-    tx = grid_texels(rows, cols, (65, 65))
-    labels = np.zeros(len(rows), dtype=np.int64)
-    centre = np.array([0.32, 0.32, -0.3])
-
-    def evaluate(idx):
-        d = tx.points[idx] - centre
-        return {"values": np.zeros(len(idx)), "normals": d / np.linalg.norm(d, axis=1, keepdims=True),
-                "valid": np.ones(len(idx), bool)}
-
+    tx, rows, cols, labels, evaluate = _sphere_over_grid(65, [0.32, 0.32, -0.3])
     opt = AdaptiveOptions(lattice=4, tolerance_deg=0.1)
     with_quad = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
     monkeypatch.setattr(adaptive, "_QUADRATIC_SIDE", 8)
