@@ -21,6 +21,7 @@ itself, as a library caller that imported torch already does).
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 import time
@@ -35,6 +36,9 @@ __all__ = ["Preload", "PreloadedSource", "start", "load_source", "reissue_warnin
 
 #: 0/off/false: no preloading process (A/B checks, or a machine where forking is unwelcome).
 ENV_SWITCH = "NEURAL_BAKE_PRELOAD"
+
+#: The signals blocked across the fork (the child sets its own handlers before it takes them).
+_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
 
 
 @dataclass
@@ -147,6 +151,11 @@ class Preload:
 
 def _child(connection, kwargs: dict) -> None:
     """The child's work: :func:`load_source`, its result or its failure sent to the parent."""
+    # Ctrl-C reaches the whole process group: the parent handles it (and ends this process); a termination
+    # ends this one quietly, without the parent's handler. Both were blocked across the fork (start).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
     warnings.simplefilter("ignore")  # shown by the parent (reissue_warnings), or by its own run on a failure
     try:
         payload: tuple[str, Any] = ("ok", load_source(**kwargs))
@@ -195,11 +204,15 @@ def start(mesh_path: str, **kwargs) -> Preload | None:
     receive, send = ctx.Pipe(duplex=False)
     process = ctx.Process(target=_child, args=(send, {"mesh_path": str(mesh_path), **kwargs}),
                           name="neural-bake-preload", daemon=True)
+    # the child starts with Ctrl-C and termination blocked, until it has set its own handlers; here they are
+    # delivered once the fork is done
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     try:
         process.start()
     except (OSError, AssertionError):  # no process to be had (limits, memory): the bake does the work itself
         receive.close()
         return None
     finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         send.close()
     return Preload(process, receive)

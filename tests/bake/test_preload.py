@@ -80,6 +80,14 @@ out["failed"] = [failed.result() is None, failed.failure]
 dead = preload.start(obj, coarse="decimate:200")
 dead._process.kill()
 out["dead"] = [dead.result() is None, dead.failure]
+# Ctrl-C reaches the child too: it goes on (the parent handles it); a termination ends it quietly
+import signal
+calm = preload.start(obj, coarse="decimate:200")
+os.kill(calm._process.pid, signal.SIGINT)
+out["sigint"] = calm.result() is not None
+ended = preload.start(obj, coarse="decimate:200")
+os.kill(ended._process.pid, signal.SIGTERM)
+out["sigterm"] = [ended.result() is None, ended.failure]
 out["torch"] = "torch" in sys.modules
 # a pool's worker (a daemonic process) may not have children: it does the work itself
 import multiprocessing as mp
@@ -115,6 +123,8 @@ def test_a_forked_child_makes_the_same_meshes_and_its_failures_fall_back(obj, tm
     assert out["failed"][0] and out["failed"][1].startswith("the preloading process failed: MeshError: ")
     assert str(bad) in out["failed"][1]
     assert out["dead"] == [True, "the preloading process died"]
+    assert out["sigint"] and out["sigterm"] == [True, "the preloading process died"]
+    assert "Traceback" not in r.stderr and "KeyboardInterrupt" not in r.stderr
     assert out["thread"] == ["another thread runs", True]
     assert out["daemon"] == ["a daemonic process (a pool's worker) cannot have children", True]
 
