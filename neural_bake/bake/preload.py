@@ -20,6 +20,7 @@ itself, as a library caller that imported torch already does).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -149,8 +150,9 @@ class Preload:
         self._conn.close()
 
 
-def _child(connection, kwargs: dict) -> None:
+def _child(connection, parents_end, kwargs: dict) -> None:
     """The child's work: :func:`load_source`, its result or its failure sent to the parent."""
+    parents_end.close()  # this copy open, a parent that has gone would leave a long send blocked, not failed
     # Ctrl-C reaches the whole process group: the parent handles it (and ends this process); a termination
     # ends this one quietly, without the parent's handler. Both were blocked across the fork (start).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -163,8 +165,11 @@ def _child(connection, kwargs: dict) -> None:
         payload = ("failed", f"{type(exc).__name__}: {exc}")
     try:
         connection.send(payload)
+    except (OSError, EOFError):  # the parent has gone or closed the pipe: no one to tell
+        pass
     except Exception as exc:  # noqa: BLE001 - an unpicklable result: the parent does the work
-        connection.send(("failed", f"its result could not be sent ({type(exc).__name__})"))
+        with contextlib.suppress(OSError, EOFError):
+            connection.send(("failed", f"its result could not be sent ({type(exc).__name__})"))
     finally:
         connection.close()
 
@@ -202,7 +207,7 @@ def start(mesh_path: str, **kwargs) -> Preload | None:
 
     ctx = mp.get_context("fork")
     receive, send = ctx.Pipe(duplex=False)
-    process = ctx.Process(target=_child, args=(send, {"mesh_path": str(mesh_path), **kwargs}),
+    process = ctx.Process(target=_child, args=(send, receive, {"mesh_path": str(mesh_path), **kwargs}),
                           name="neural-bake-preload", daemon=True)
     # the child starts with Ctrl-C and termination blocked, until it has set its own handlers; here they are
     # delivered once the fork is done

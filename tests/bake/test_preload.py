@@ -63,7 +63,7 @@ import json, os, sys, threading, time
 import numpy as np
 from neural_bake.bake import preload
 
-obj, bad = sys.argv[1], sys.argv[2]
+obj, bad, big = sys.argv[1], sys.argv[2], sys.argv[3]
 out = {}
 pre = preload.start(obj, coarse="decimate:200", layout_size=64)
 got = pre.result()
@@ -88,6 +88,11 @@ out["sigint"] = calm.result() is not None
 ended = preload.start(obj, coarse="decimate:200")
 os.kill(ended._process.pid, signal.SIGTERM)
 out["sigterm"] = [ended.result() is None, ended.failure]
+# a parent that stops listening: the child ends without a word, even with more to send than a pipe holds
+gone = preload.start(big, coarse="decimate:200", layout_size=64)
+gone._conn.close()
+gone._process.join(timeout=120)
+out["gone"] = gone._process.exitcode
 out["torch"] = "torch" in sys.modules
 # a pool's worker (a daemonic process) may not have children: it does the work itself
 import multiprocessing as mp
@@ -113,8 +118,11 @@ def test_a_forked_child_makes_the_same_meshes_and_its_failures_fall_back(obj, tm
     bad = tmp_path / "bad.obj"
     bad.write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
     env = {k: v for k, v in __import__("os").environ.items() if k != preload.ENV_SWITCH}
-    r = subprocess.run([sys.executable, "-c", _SCRIPT, obj, str(bad)], capture_output=True, text=True, timeout=300,
-                       env=env)
+    from neural_bake.samples.generate import write_sample
+
+    big = write_sample(get_sample("sphere").mesh(resolution=20000), tmp_path, "big")
+    r = subprocess.run([sys.executable, "-c", _SCRIPT, obj, str(bad), str(big)], capture_output=True, text=True,
+                       timeout=300, env=env)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["same"] and out["again"] and not out["torch"]  # the whole preload is torch-free
@@ -123,7 +131,7 @@ def test_a_forked_child_makes_the_same_meshes_and_its_failures_fall_back(obj, tm
     assert out["failed"][0] and out["failed"][1].startswith("the preloading process failed: MeshError: ")
     assert str(bad) in out["failed"][1]
     assert out["dead"] == [True, "the preloading process died"]
-    assert out["sigint"] and out["sigterm"] == [True, "the preloading process died"]
+    assert out["sigint"] and out["sigterm"] == [True, "the preloading process died"] and out["gone"] == 0
     assert "Traceback" not in r.stderr and "KeyboardInterrupt" not in r.stderr
     assert out["thread"] == ["another thread runs", True]
     assert out["daemon"] == ["a daemonic process (a pool's worker) cannot have children", True]
