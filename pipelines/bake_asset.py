@@ -253,7 +253,7 @@ def _bake_in_folder(mesh, sdf_path, out, cfg: BakeAssetConfig, maps, formats, co
             layouts = LayoutCache()
         coarse_m, coarse_info = job.make_coarse(inputs, coarse, coarse_mesh, cache=layouts)
         # a decimation the preloading process made cost this process nothing (its seconds: report["preload"])
-        preloaded = coarse_mesh is None and inputs.preloaded is not None and inputs.preloaded.coarse is not None
+        preloaded = inputs.preloaded is not None and inputs.preloaded.made(coarse_m)
         timings["coarse"] = 0.0 if preloaded else coarse_info["seconds"]
         log(f"coarse mesh ({coarse}): {coarse_info['faces']} faces, {coarse_info['vertices']} vertices"
             + (" (from the layout cache)" if coarse_info.get("cached") else ""))

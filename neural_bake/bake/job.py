@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from .hybrid import HybridFallback
     from .preload import Preload, PreloadedSource
 
-__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "coarse_of_source", "bake_maps",
+__all__ = ["BakeInputs", "TexelBake", "load_inputs", "make_coarse", "coarse_of_source", "read_source", "bake_maps",
            "bake_vertex_colours", "write_maps", "report_maps", "sample_truth", "FORMATS", "MAPS", "MODEL_ONLY_COARSE"]
 
 #: The maps a bake makes: the texel maps (normal, albedo) and the per-vertex bake.
@@ -124,8 +124,6 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
     (:mod:`.preload`), waited for once the model files are read; what it made is kept in ``inputs.preloaded``
     (the mesh is read here when it failed)."""
     from .agreement import check_sdf_describes_mesh
-    from ..io.asset import read_asset, shading_mesh
-    from ..io.mesh_io import load_mesh
 
     t0 = time.perf_counter()
     sdf_file = load_field(sdf_path, "sdf", "sdf", device)
@@ -138,21 +136,16 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
                         sdf_check={"passed": None, "note": "no source mesh to check the SDF against"})
     preloaded = preload.result() if preload is not None and mesh_path is not None else None
     inputs.preloaded = preloaded
-    if mesh_path is not None and preloaded is not None:
-        from .preload import reissue_warnings
+    if mesh_path is not None:
+        if preloaded is not None:
+            from .preload import reissue_warnings
 
-        fine, asset, reference = preloaded.fine, preloaded.asset, preloaded.reference
-        reissue_warnings(fine)
-        if truth.startswith("sample:"):
-            sample_truth(mesh_path, fine, truth)
-    elif mesh_path is not None:
-        fine = load_mesh(mesh_path, texture_image)
+            fine, asset, reference = preloaded.fine, preloaded.asset, preloaded.reference
+            reissue_warnings(fine)
+        else:
+            fine, asset, reference = read_source(mesh_path, texture_image)
         if truth.startswith("sample:"):
             sample_truth(mesh_path, fine, truth)  # a mesh that is not the sample is refused before the bake
-        asset = read_asset(mesh_path, fine)
-        # the asset's own shading (its vertex normals, split at hard edges) is the normals' reference, when it has one
-        reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
-    if mesh_path is not None:
         inputs.fine, inputs.reference, inputs.asset = fine, reference, asset
         inputs.sdf_check = check_sdf_describes_mesh(fine, sdf, force=force, option="--force")
         if not inputs.sdf_check["passed"]:
@@ -166,6 +159,17 @@ def load_inputs(mesh_path: str | None, sdf_path: str, texture_path: str | None, 
         inputs.sdf_check["texture"] = check_texture_matches_sdf(tex, sdf_file, force=force, option="--force",
                                                                 sdf_name=Path(sdf_path).name)
     return inputs
+
+
+def read_source(mesh_path: str, texture_image: str | None = None) -> tuple[Mesh, Any, Mesh]:
+    """(the source mesh, its asset, the normals' reference): the mesh with its own shading normals (split at hard
+    edges) when its asset has them, else the mesh itself. Torch-free (:mod:`.preload` runs it too)."""
+    from ..io.asset import read_asset, shading_mesh
+    from ..io.mesh_io import load_mesh
+
+    fine = load_mesh(mesh_path, texture_image)
+    asset = read_asset(mesh_path, fine)
+    return fine, asset, fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
 
 
 def make_coarse(inputs: BakeInputs, coarse: str, made: tuple[Mesh, dict] | None = None,
@@ -259,8 +263,7 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
 
     t0 = time.perf_counter()
     pre = inputs.preloaded  # its unwrap of this coarse mesh for this size, made while torch was imported
-    layout = pre.layout if pre is not None and pre.coarse is not None and coarse_m is pre.coarse[0] \
-        and pre.layout_size == size else None
+    layout = pre.layout if pre is not None and pre.made(coarse_m) and pre.layout_size == size else None
     baker = Baker(coarse_m, size, supersample=supersample, normal_space=normal_space,
                   y_convention="directx" if directx else "opengl",
                   padding=None if padding == "none" else padding, cache_texels=cache_texels,

@@ -56,6 +56,10 @@ class PreloadedSource:
     """The map side the layout was unwrapped for (its xatlas resolution)."""
     seconds: dict = field(default_factory=dict)
 
+    def made(self, mesh: Mesh) -> bool:
+        """Whether ``mesh`` is the coarse mesh this made (this very object)."""
+        return self.coarse is not None and mesh is self.coarse[0]
+
 
 def load_source(mesh_path: str, *, texture_image: str | None = None, coarse: str | None = None,
                 layout_size: int | None = None, layout_cache: bool = False) -> PreloadedSource:
@@ -63,15 +67,12 @@ def load_source(mesh_path: str, *, texture_image: str | None = None, coarse: str
     result for a ``layout_size``² map (None: no unwrap), with the layout cache when ``layout_cache``: the calls
     :func:`neural_bake.bake.job.load_inputs`, :func:`~neural_bake.bake.job.make_coarse` and the
     :class:`~neural_bake.bake.baker.Baker` make, in their order. Runs in the preloading child; torch-free."""
-    from ..io.asset import read_asset, shading_mesh
-    from ..io.mesh_io import load_mesh
     from ..mesh.coarse import parse_coarse
+    from .job import read_source
 
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
-    fine = load_mesh(mesh_path, texture_image)
-    asset = read_asset(mesh_path, fine)
-    reference = fine if asset.corner_normals is None else shading_mesh(fine, asset.corner_normals)
+    fine, asset, reference = read_source(mesh_path, texture_image)
     seconds["load"] = time.perf_counter() - t0
     out = PreloadedSource(fine=fine, asset=asset, reference=reference, seconds=seconds)
     if coarse is None or parse_coarse(coarse)[0] != "decimate":

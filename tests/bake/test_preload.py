@@ -43,6 +43,7 @@ def test_load_source_makes_what_the_bake_makes_itself(obj):
     assert got.coarse[1]["faces"] == info["faces"] and got.coarse[0].uv is None
     _same_mesh(got.layout, unwrap(coarse, resolution=64))
     assert got.layout_size == 64 and set(got.seconds) == {"load", "coarse", "unwrap"}
+    assert got.made(got.coarse[0]) and not got.made(coarse)
     # no decimation asked (keep, or a march that needs the model): the mesh only
     for spec in ("keep", "march:32", None):
         only = preload.load_source(obj, coarse=spec, layout_size=64)
