@@ -19,11 +19,18 @@ piecewise smooth: the derivative jumps across cell faces.
 
 Works on any device and dtype (``.to(...)``); the tensors a model file holds are its ``state_dict``:
 ``table`` (Σ_l size_l, F) and ``layers.<i>.weight`` / ``layers.<i>.bias``.
+
+On the CPU, in float32 and float64, the encoding and its gradient with respect to the table run in a C kernel
+(``grid.c``: cells, hashing, gathering and weighting in one pass per point, the gradient scattered level by
+level, on torch's OpenMP team) where it builds, for points that need no gradient themselves; elsewhere, and with
+``NEURAL_BAKE_NATIVE_GRID=0``, in torch (:func:`kernel_status` says which).
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
+from pathlib import Path
 
 import torch
 from torch import nn
@@ -31,9 +38,64 @@ from torch import nn
 from ..constants import (MAX_GRID_FEATURES, MAX_GRID_LEVELS, MAX_GRID_LOG2_TABLE, MAX_GRID_RESOLUTION, MAX_NET_DEPTH,
                          MAX_NET_WIDTH)
 from ..errors import NeuralBakeError
+from .native import Kernel, threads
 
 __all__ = ["GridNet", "ACTIVATIONS", "IN_DIMS", "NORMAL_SCALE", "grid_resolutions", "grid_table_sizes",
-           "grid_layer_dims", "check_grid_settings", "valid_normal_scale"]
+           "grid_layer_dims", "check_grid_settings", "valid_normal_scale", "kernel_status", "ENV_SWITCH"]
+
+#: 0/off/false: the torch encoding even where the C kernel (grid.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_GRID"
+
+
+def _declare(lib) -> None:
+    p, i64 = ctypes.c_void_p, ctypes.c_int64
+    for name in ("nb_grid_encode_f32", "nb_grid_encode_f64", "nb_grid_backward_f32", "nb_grid_backward_f64"):
+        fn = getattr(lib, name)
+        fn.argtypes = [p, i64, p, i64, i64, p, p, p, p, p, i64]
+        fn.restype = None
+
+
+#: The C kernel (grid.c, :class:`neural_bake.nets.native.Kernel`; on torch's OpenMP team where it shares it);
+#: torch where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("grid.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
+
+
+def kernel_status() -> str:
+    """Which grid encoding runs here on the CPU: the C kernel (and its file), or why torch's does."""
+    return KERNEL.status().replace("numpy (", "torch (", 1)
+
+
+_SUFFIX = {torch.float32: "f32", torch.float64: "f64"}
+
+
+class _NativeEncode(torch.autograd.Function):
+    """The encoding by the C kernel; differentiable with respect to the table (not the points)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, table: torch.Tensor, net: "GridNet") -> torch.Tensor:  # type: ignore[override]
+        lib = KERNEL.lib()
+        assert lib is not None
+        x, table = x.contiguous(), table.contiguous()
+        out = x.new_empty(x.shape[0], net.levels * net.features)
+        getattr(lib, f"nb_grid_encode_{_SUFFIX[x.dtype]}")(
+            x.data_ptr(), x.shape[0], table.data_ptr(), net.levels, net.features, *net._kernel_args(),
+            out.data_ptr(), threads())
+        ctx.save_for_backward(x)
+        ctx.net, ctx.table_shape = net, table.shape
+        return out
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
+        (x,) = ctx.saved_tensors
+        net = ctx.net
+        grad = grad.to(x.dtype).contiguous()
+        grad_table = grad.new_zeros(ctx.table_shape)
+        lib = KERNEL.lib()
+        assert lib is not None
+        getattr(lib, f"nb_grid_backward_{_SUFFIX[x.dtype]}")(
+            x.data_ptr(), x.shape[0], grad.data_ptr(), net.levels, net.features, *net._kernel_args(),
+            grad_table.data_ptr(), threads())
+        return None, grad_table, None
 
 #: The MLP's hidden activations: ReLU (Instant-NGP's) or sine (sin(ω·(W x + b)), SIREN's initialisation).
 ACTIVATIONS = ("relu", "sine")
@@ -169,6 +231,10 @@ class GridNet(nn.Module):
         self.register_buffer("_dense", torch.tensor([(r + 1) ** 3 <= s for r, s in zip(self.resolutions, self.sizes)]),
                              persistent=False)
         self.register_buffer("_step", torch.tensor([[0], [1]], dtype=torch.int64), persistent=False)
+        # the same per-level constants for the C kernel: CPU int64 arrays whatever the module's device
+        self._kernel_arrays = [torch.tensor(v, dtype=torch.int64) for v in
+                               (self.resolutions, self.sizes, offsets[:-1],
+                                [int((r + 1) ** 3 <= s) for r, s in zip(self.resolutions, self.sizes)])]
         self.reset_parameters(generator)
 
     @property
@@ -239,8 +305,23 @@ class GridNet(nn.Module):
         """Features (N, L, 8, F) of the table rows ``idx`` (N, L, 8)."""
         return self.table.to(dtype).index_select(0, idx.reshape(-1)).reshape(*idx.shape, self.features)
 
+    def _kernel_args(self) -> tuple[int, ...]:
+        """The per-level arrays the C kernel reads (pointers; the arrays are kept on the module)."""
+        return tuple(a.data_ptr() for a in self._kernel_arrays)
+
+    def _native(self, x: torch.Tensor) -> bool:
+        """Whether the C kernel encodes ``x``: CPU, float32 or float64, no gradient with respect to the points."""
+        return (x.device.type == "cpu" and self.table.device.type == "cpu" and x.dtype in _SUFFIX
+                and not x.requires_grad and KERNEL.lib() is not None)
+
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """The concatenated interpolated features (N, L·F) at points ``x`` (N, 3)."""
+        if self._native(x):
+            return _NativeEncode.apply(x, self.table.to(x.dtype), self)
+        return self._encode_torch(x)
+
+    def _encode_torch(self, x: torch.Tensor) -> torch.Tensor:
+        """:meth:`encode` in torch (any device and dtype; differentiable with respect to the points too)."""
         idx, w, _, _ = self._cells(x)
         feats = self._gather(idx, x.dtype)
         return (feats * self._trilinear(w).unsqueeze(-1)).sum(2).reshape(x.shape[0], -1)

@@ -306,3 +306,23 @@ def test_time_budgeted_progress_bar_shows_seconds_against_the_budget(capsys):
     assert res.stopped_reason == "time budget"
     assert "/1 s of the budget" in err and "step=" in err
     assert "100000" not in err
+
+
+def test_adam_is_fused_for_many_parameters_only():
+    """A feature grid's table (many parameters) takes torch's fused Adam update, a small network the default, a
+    parameter in a dtype the fused update lacks the default; the fused step follows the default one."""
+    from neural_bake.fit.training import FUSED_ADAM_PARAMETERS, _adam_kind
+
+    big = [torch.nn.Parameter(torch.zeros(FUSED_ADAM_PARAMETERS))]
+    assert _adam_kind(big) == {"fused": True}
+    assert _adam_kind([torch.nn.Parameter(torch.zeros(100))]) == {}
+    assert _adam_kind([torch.nn.Parameter(torch.zeros(FUSED_ADAM_PARAMETERS, dtype=torch.bfloat16))]) == {}
+    a = torch.nn.Parameter(torch.linspace(-1, 1, FUSED_ADAM_PARAMETERS))
+    b = torch.nn.Parameter(a.detach().clone())
+    opts = [torch.optim.Adam([a], lr=1e-2, **_adam_kind([a])), torch.optim.Adam([b], lr=1e-2)]
+    for _ in range(3):
+        for p, opt in zip((a, b), opts):
+            opt.zero_grad()
+            (p ** 2).sum().backward()
+            opt.step()
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)

@@ -226,3 +226,71 @@ def test_bad_normal_inputs_are_one_line_errors(kw, message):
         GridNet(**kw)
     assert "\n" not in str(err.value) and err.value.parameter == ("in_dim" if "in_dim must" in message else
                                                                   "normal_scale")
+
+
+# ------------------------------------------------------------------------------------------- the C kernel
+def _needs_kernel():
+    from neural_bake.nets import grid
+
+    if grid.KERNEL.lib() is None:
+        pytest.skip(f"the grid's C kernel does not run here: {grid.kernel_status()}")
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-15), (torch.float32, 5e-7)])
+@pytest.mark.parametrize("features", [1, 2, 3])
+def test_kernel_encoding_and_table_gradient_match_torch(dtype, tol, features):
+    """The C kernel's features and its gradient with respect to the table equal torch's, on points inside and
+    outside the cube, on its faces and corners, at dense and hashed levels, in float32 and float64."""
+    _needs_kernel()
+    net = small(features=features).to(dtype)
+    x = points(400, seed=5, dtype=dtype)
+    got = net.encode(x)
+    want = net._encode_torch(x)
+    assert got.dtype == dtype and got.shape == want.shape == (len(x), net.levels * features)
+    torch.testing.assert_close(got, want, rtol=0, atol=tol * want.abs().max().item())
+    g = torch.randn(got.shape, generator=torch.Generator().manual_seed(6), dtype=dtype)
+    net.zero_grad()
+    (net.encode(x) * g).sum().backward()
+    native = net.table.grad.clone()
+    net.zero_grad()
+    (net._encode_torch(x) * g).sum().backward()
+    assert native.abs().max() > 0.1
+    torch.testing.assert_close(native, net.table.grad, rtol=0, atol=4 * tol * net.table.grad.abs().max().item())
+
+
+def test_kernel_gives_the_same_bits_on_any_thread_count():
+    _needs_kernel()
+    net = small(log2_table=10, max_resolution=200)
+    x = points(5000, seed=7, dtype=torch.float32)
+    g = torch.randn(len(x), net.levels * net.features, generator=torch.Generator().manual_seed(8))
+    before = torch.get_num_threads()
+    out = {}
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            net.zero_grad()
+            f = net.encode(x)
+            (f * g).sum().backward()
+            out[n] = (f.detach().clone(), net.table.grad.clone())
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(out[1][0], out[2][0]) and torch.equal(out[1][1], out[2][1])
+
+
+def test_points_that_need_a_gradient_and_a_switched_off_kernel_take_torch(monkeypatch):
+    """Points with requires_grad are encoded in torch (the kernel has no gradient for them); with the switch off
+    the status says torch runs and the values are torch's."""
+    from neural_bake.nets import grid
+    from neural_bake.nets.native import Kernel
+
+    net = small()
+    x = points(50, seed=9).requires_grad_(True)
+    net.encode(x).sum().backward()
+    assert x.grad is not None and x.grad.abs().max() > 0
+    monkeypatch.setenv(grid.ENV_SWITCH, "0")
+    monkeypatch.setattr(grid, "KERNEL", Kernel(grid.KERNEL.source, switch=grid.ENV_SWITCH, declare=grid._declare,
+                                               openmp=True))
+    assert grid.kernel_status().startswith("torch (off")
+    y = points(50, seed=9)
+    assert not net._native(y)
+    torch.testing.assert_close(net(y), reference(net, y), rtol=0, atol=1e-12)
