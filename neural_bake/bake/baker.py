@@ -23,6 +23,8 @@ from ..geometry import angular_error, area_weighted_normals
 from ..types import Frame, Mesh
 from ..mesh.layout_cache import LayoutCache
 from ..mesh.texels import TexelSet, kernel_status
+from ..nets.grid import GridNet
+from ..nets.grid import kernel_status as grid_kernel_status
 from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_positions, vertex_positions
 from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
@@ -757,7 +759,9 @@ class Baker:
             "heap": self.heap,
             "kernels": {"rasteriser": kernel_status(), "tangent_encoding": encoding_kernel_status(),
                         "padding": padding_kernel_status(),
-                        **({"interpolation": adaptive_kernel_status()} if adaptive is not None else {})},
+                        **({"interpolation": adaptive_kernel_status()} if adaptive is not None else {}),
+                        **({"grid_encoding": grid_kernel_status()} if texture is not None
+                           and isinstance(getattr(texture, "model", None), GridNet) else {})},
             "field": sdf.name,
             "texture_field": None if texture is None else texture.name,
             "texture_at": None if texture is None else texture_at,

@@ -6,7 +6,8 @@
    vertices' rows: cx + (R + 1)(cy + (R + 1) cz) for a dense level, else (cx · 1 ^ cy · 2654435761 ^
    cz · 805459861) mod size[l], plus offset[l]. Corner i + 2j + 4k is vertex (i, j, k); its weight is
    wz[k] · wy[j] · wx[i]. The point's features at the level are the weighted sum of those rows (F each),
-   written to out[n, l·F + f]: what GridNet._cells, _trilinear and encode compute in torch.
+   written to out[n, l·F + f]: what GridNet._cells, _trilinear and encode compute in torch. A NaN coordinate
+   reads a valid cell with NaN weights: its point's features are NaN (an infinite one is clamped like any other).
 
    nb_grid_encode_{f32,f64}(x, n, table, levels, F, res, size, offset, dense, out, threads): the features,
    split over an OpenMP team of `threads` by whole points.
@@ -30,6 +31,7 @@
             T u = ((v + (T)1) * (T)0.5) * rf;                                                                   \
             T cell = (T)floor((double)u);                                                                       \
             if (cell > rf - (T)1) cell = rf - (T)1;                                                             \
+            if (!(cell >= (T)0)) cell = (T)0; /* NaN: a valid cell, NaN weights, so NaN features */             \
             T frac = u - cell;                                                                                  \
             wlo[a] = (T)1 - frac;                                                                               \
             whi[a] = frac;                                                                                      \

@@ -502,3 +502,25 @@ def test_coarse_mesh_march_is_cleaned_and_reports_it():
     assert info["march"]["mode"] == "auto" and info["march"]["faces"] == raw.n_faces
     json.dumps(info)  # reaches report.json as is
 
+
+
+def test_a_grid_colour_field_bakes_through_the_grid_kernel_as_through_torch(monkeypatch):
+    """A feature-grid colour network bakes the same albedo through the grid's C kernel (where it runs) as through
+    torch's encoding, and the bake's stats say which encoding ran."""
+    from neural_bake.fields import TextureField
+    from neural_bake.nets import grid
+    from neural_bake.nets.native import Kernel
+
+    net = grid.GridNet(4, 2, 9, 3, 40, 8, 1, generator=torch.Generator().manual_seed(1)).double()
+    with torch.no_grad():
+        net.table.normal_(generator=torch.Generator().manual_seed(2))
+    tex = TextureField.from_model(net)
+    baker = Baker(plane_mesh(), 32, padding=None)
+    res = baker.bake(SdfField(lambda p: p[:, 2]), tex)
+    assert res.stats["kernels"]["grid_encoding"] == grid.kernel_status()
+    monkeypatch.setenv(grid.ENV_SWITCH, "0")
+    monkeypatch.setattr(grid, "KERNEL", Kernel(grid.KERNEL.source, switch=grid.ENV_SWITCH, declare=grid._declare))
+    off = Baker(plane_mesh(), 32, padding=None).bake(SdfField(lambda p: p[:, 2]), tex)
+    assert off.stats["kernels"]["grid_encoding"].startswith("torch (off")
+    assert np.abs(res.albedo).max() > 0.05
+    np.testing.assert_allclose(res.albedo, off.albedo, rtol=0, atol=1e-6)

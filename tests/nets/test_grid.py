@@ -294,3 +294,13 @@ def test_points_that_need_a_gradient_and_a_switched_off_kernel_take_torch(monkey
     y = points(50, seed=9)
     assert not net._native(y)
     torch.testing.assert_close(net(y), reference(net, y), rtol=0, atol=1e-12)
+
+
+def test_kernel_gives_nan_features_for_nan_points_and_clamps_infinite_ones():
+    _needs_kernel()
+    net = small()
+    x = torch.tensor([[float("nan"), 0.0, 0.0], [float("inf"), -float("inf"), 0.5], [1.0, -1.0, 0.5]],
+                     dtype=torch.float64)
+    f = net.encode(x)
+    assert torch.isnan(f[0]).all() and torch.isfinite(f[1:]).all()
+    torch.testing.assert_close(f[1], f[2], rtol=0, atol=0)
