@@ -168,6 +168,53 @@ def _step_times(quick: bool) -> list[dict]:
     return rows
 
 
+def _grid_times(quick: bool) -> list[dict]:
+    """The `default` preset's feature grid (with normal inputs): seconds to encode and evaluate points, and a
+    training step, with the grid's C kernel and with torch's encoding (the baseline), Adam fused and torch's
+    default; "kernel" says which encoding the first ran."""
+    from dataclasses import replace
+
+    from ..fit.texture import PRESETS, TextureFitConfig, make_texture_network
+    from ..fit.training import adam_options
+    from ..nets import grid
+
+    cfg = replace(TextureFitConfig(), **PRESETS["default"])
+    net = make_texture_network(cfg, torch.Generator().manual_seed(0), open_mesh=True)
+    gen = torch.Generator().manual_seed(1)
+    n_eval, n_step = (8192, 1024) if quick else (65536, int(cfg.batch))
+    x = torch.rand(n_eval, 6, generator=gen) * 2 - 1
+    x[:, 3:] = torch.nn.functional.normalize(x[:, 3:], dim=1)
+    xb, yb = x[:n_step], torch.rand(n_step, 3, generator=gen)
+
+    def evaluate(native):
+        def fn():
+            with torch.no_grad():
+                feats = net.encode(x[:, :3]) if native else net._encode_torch(x[:, :3])
+                net._mlp(net._mlp_input(feats, x))
+        return fn
+
+    def step(native, opt):
+        def fn():
+            opt.zero_grad()
+            feats = net.encode(xb[:, :3]) if native else net._encode_torch(xb[:, :3])
+            ((net._mlp(net._mlp_input(feats, xb)) - yb) ** 2).mean().backward()
+            opt.step()
+        return fn
+
+    params = list(net.parameters())
+    fused = torch.optim.Adam(params, lr=1e-3, **adam_options(params))
+    plain = torch.optim.Adam(params, lr=1e-3)
+    kernel = grid.KERNEL.lib() is not None
+    ev_k, ev_t = timeit(evaluate(kernel), repeat=3), timeit(evaluate(False), repeat=3)
+    st_k, st_t = timeit(step(kernel, fused), repeat=5), timeit(step(False, plain), repeat=5)
+    return [{"grid": f"{cfg.grid_levels}x{cfg.grid_features} 2^{cfg.grid_log2_table} "
+                     f"{cfg.grid_base_resolution}–{cfg.grid_max_resolution}, ({cfg.width},{cfg.depth}), normals",
+             "kernel": grid.kernel_status(), "adam": "fused" if adam_options(params) else "default",
+             "eval_points": n_eval, "eval_s": ev_k, "eval_torch_s": ev_t, "eval_torch/kernel": ev_t / ev_k,
+             "step_points": n_step, "step_s": st_k, "step_torch_s": st_t, "step_torch/kernel": st_t / st_k,
+             "threads": torch.get_num_threads()}]
+
+
 def _row(name, label, fit, m, total_s, baseline):
     return {"case": name, "setting": label, "net": f"({fit.config.width},{fit.config.depth})", "lam": fit.lam,
             "baseline": baseline, "steps": fit.steps, "train_s": round(fit.seconds, 1),
@@ -270,5 +317,6 @@ def run(quick: bool = False, *, cases=None, settings=None, presets=None, seed: i
     ]
     return {"name": "texture", "title": "Gradient-orthogonal neural texture: accuracy vs training time",
             "machine": machine_info(), "quick": quick, "delta": delta,
-            "tables": {"accuracy": rows, "orthogonality term cost per step": _step_times(quick)},
+            "tables": {"accuracy": rows, "orthogonality term cost per step": _step_times(quick),
+                       "feature grid: C kernel against torch's encoding": _grid_times(quick)},
             "notes": notes}

@@ -55,7 +55,8 @@ from ..nets.cpu_gemm import gemm_route, model_width, reroute
 from ..nets.threads import ThreadTuner
 from ..nets.heap import keep_freed_memory
 
-__all__ = ["LoopSettings", "CheckpointSettings", "PresetLoopSettings", "LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT"]
+__all__ = ["LoopSettings", "CheckpointSettings", "PresetLoopSettings", "LoopConfig", "LoopResult", "train", "step_generator", "load_checkpoint", "CHECKPOINT_FORMAT",
+           "adam_options", "FUSED_ADAM_PARAMETERS"]
 
 #: The ``format`` entry of a checkpoint's metadata.
 CHECKPOINT_FORMAT = "neural_bake.checkpoint.v1"
@@ -322,7 +323,7 @@ def _forward_slice(model, device):
 FUSED_ADAM_PARAMETERS = 1 << 18
 
 
-def _adam_kind(params) -> dict:
+def adam_options(params) -> dict:
     """Adam's implementation: the fused update (one pass over each parameter) where the parameters are many and
     torch has it for their device and dtype; there the update's memory traffic is what a step pays for (a
     feature grid's 1.8M: 26 against 40–49 ms a step, BENCHMARKS.md); torch's default elsewhere (a SIREN's step
@@ -339,7 +340,7 @@ def _train(model, step_fn, config, *, evaluate, fingerprint, metadata, on_log, c
     if not params:
         raise FitError(f"{cfg.desc}: the model has no trainable parameters")
     device = params[0].device
-    opt = torch.optim.Adam(params, lr=cfg.lr, **_adam_kind(params))
+    opt = torch.optim.Adam(params, lr=cfg.lr, **adam_options(params))
     result = LoopResult(lr=cfg.lr)
     base_lr = cfg.lr
     step, spent = 0, 0.0

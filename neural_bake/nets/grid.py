@@ -359,10 +359,13 @@ class GridNet(nn.Module):
         """Values (N, out_dim) at ``x`` (N, in_dim): points, and with normal inputs their unit surface normals;
         in the dtype and device of ``x``."""
         self._check(x)
-        h = self._mlp_input(self.encode(x[:, :3]), x)
+        return self._mlp(self._mlp_input(self.encode(x[:, :3]), x))
+
+    def _mlp(self, h: torch.Tensor) -> torch.Tensor:
+        """The MLP on its input ``h`` (:meth:`_mlp_input`), in ``h``'s dtype."""
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
-            h = torch.addmm(layer.bias.to(x.dtype), h, layer.weight.to(x.dtype).t())
+            h = torch.addmm(layer.bias.to(h.dtype), h, layer.weight.to(h.dtype).t())
             if i != last:
                 h = torch.relu(h) if self.activation == "relu" else torch.sin(self.omega * h)
         return h

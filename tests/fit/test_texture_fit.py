@@ -564,6 +564,11 @@ def test_bench_run_with_tiny_settings_reports_the_lam0_baselines():
         assert main_row["steps"] == base["steps"] == 30 and base["lam"] == 0.0
         assert main_row["band_ratio"] == pytest.approx(base["band_change"] / main_row["band_change"])
     assert res["name"] == "texture" and res["machine"]["cores"] and res["tables"]["orthogonality term cost per step"]
+    from neural_bake.nets import grid
+
+    (g,) = res["tables"]["feature grid: C kernel against torch's encoding"]
+    assert g["kernel"] == grid.kernel_status() and g["adam"] == "fused" and g["eval_points"] == 8192
+    assert g["eval_s"] > 0 and g["step_s"] > 0 and g["eval_torch/kernel"] == pytest.approx(g["eval_torch_s"] / g["eval_s"])
 
 
 def test_bench_default_settings_by_preset():

@@ -311,15 +311,15 @@ def test_time_budgeted_progress_bar_shows_seconds_against_the_budget(capsys):
 def test_adam_is_fused_for_many_parameters_only():
     """A feature grid's table (many parameters) takes torch's fused Adam update, a small network the default, a
     parameter in a dtype the fused update lacks the default; the fused step follows the default one."""
-    from neural_bake.fit.training import FUSED_ADAM_PARAMETERS, _adam_kind
+    from neural_bake.fit.training import FUSED_ADAM_PARAMETERS, adam_options
 
     big = [torch.nn.Parameter(torch.zeros(FUSED_ADAM_PARAMETERS))]
-    assert _adam_kind(big) == {"fused": True}
-    assert _adam_kind([torch.nn.Parameter(torch.zeros(100))]) == {}
-    assert _adam_kind([torch.nn.Parameter(torch.zeros(FUSED_ADAM_PARAMETERS, dtype=torch.bfloat16))]) == {}
+    assert adam_options(big) == {"fused": True}
+    assert adam_options([torch.nn.Parameter(torch.zeros(100))]) == {}
+    assert adam_options([torch.nn.Parameter(torch.zeros(FUSED_ADAM_PARAMETERS, dtype=torch.bfloat16))]) == {}
     a = torch.nn.Parameter(torch.linspace(-1, 1, FUSED_ADAM_PARAMETERS))
     b = torch.nn.Parameter(a.detach().clone())
-    opts = [torch.optim.Adam([a], lr=1e-2, **_adam_kind([a])), torch.optim.Adam([b], lr=1e-2)]
+    opts = [torch.optim.Adam([a], lr=1e-2, **adam_options([a])), torch.optim.Adam([b], lr=1e-2)]
     for _ in range(3):
         for p, opt in zip((a, b), opts):
             opt.zero_grad()
