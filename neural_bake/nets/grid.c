@@ -64,11 +64,11 @@
     void NAME(const T *x, int64_t n, const T *table, int64_t levels, int64_t F, const int64_t *res,             \
               const int64_t *size, const int64_t *offset, const int64_t *dense, T *out, int64_t threads) {     \
         (void)threads;                                                                                          \
-        _Pragma("omp parallel for num_threads(threads) schedule(static) if(threads > 1 && n > 1024)")          \
-        for (int64_t q = 0; q < n; q++) {                                                                       \
-            int64_t row[8];                                                                                     \
-            T w[8];                                                                                             \
-            for (int64_t l = 0; l < levels; l++) {                                                              \
+        for (int64_t l = 0; l < levels; l++) { /* level by level: one level's rows stay in the cache */      \
+            _Pragma("omp parallel for num_threads(threads) schedule(static) if(threads > 1 && n > 1024)")      \
+            for (int64_t q = 0; q < n; q++) {                                                                   \
+                int64_t row[8];                                                                                 \
+                T w[8];                                                                                         \
                 nb_corners_##T(x + 3 * q, res[l], size[l], offset[l], (int)dense[l], row, w);                  \
                 T *o = out + q * levels * F + l * F;                                                            \
                 for (int64_t f = 0; f < F; f++) {                                                               \
