@@ -10,7 +10,8 @@
    reads a valid cell with NaN weights: its point's features are NaN (an infinite one is clamped like any other).
 
    nb_grid_encode_{f32,f64}(x, n, table, levels, F, res, size, offset, dense, out, threads): the features,
-   split over an OpenMP team of `threads` by whole points.
+   level by level (one level's rows stay in the cache), each level's points split over an OpenMP team of
+   `threads`.
    nb_grid_backward_{f32,f64}(x, n, grad_out, levels, F, res, size, offset, dense, grad_table, threads): adds
    each point's weighted output gradient into the rows it read (grad_table holds the table's shape, zeroed by
    the caller), split by whole levels (each level owns its rows, so no two threads write one row), points in
