@@ -48,10 +48,10 @@ REFERENCE_STEP = (128, 2, 4096)
 #: more steps than its cost predicts); quick (192x3,
 #: loss not compiled: nefertiti, the tea set and Spot in 2 minutes, plainly), default (192x3, compiled: the
 #: tea set and Spot in 5 minutes), high (256x4, compiled: nefertiti in 10 minutes), texture:quick and
-#: texture:default (their feature grids, in ``neural-bake bench budget``; since scaled by the step time the grid's C
-#: kernel and the fused Adam update saved, 1.94× and 2.20×, measured old against new on one machine). 64x1, 128x2, 256x3 and 256x2 keep
-#: ratios to quick and default measured elsewhere; texture:high its ratio to texture:default in
-#: ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
+#: texture:default (their feature grids, in ``neural-bake bench budget``; since scaled by the step time the
+#: grid's C kernel and the fused Adam update saved, 1.94× and 2.20×, old against new on one machine). 64x1,
+#: 128x2, 256x3 and 256x2 keep ratios to quick and default measured elsewhere; texture:high its ratio to
+#: texture:default in ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
 STEP_COST: dict[str, float] = {
     "quick": 5.15,
     "quick/coarse": 1.46,

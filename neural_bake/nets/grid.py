@@ -231,10 +231,8 @@ class GridNet(nn.Module):
         self.register_buffer("_dense", torch.tensor([(r + 1) ** 3 <= s for r, s in zip(self.resolutions, self.sizes)]),
                              persistent=False)
         self.register_buffer("_step", torch.tensor([[0], [1]], dtype=torch.int64), persistent=False)
-        # the same per-level constants for the C kernel: CPU int64 arrays whatever the module's device
-        self._kernel_arrays = [torch.tensor(v, dtype=torch.int64) for v in
-                               (self.resolutions, self.sizes, offsets[:-1],
-                                [int((r + 1) ** 3 <= s) for r, s in zip(self.resolutions, self.sizes)])]
+        # the same per-level constants for the C kernel, kept on the CPU whatever the module's device
+        self._kernel_arrays = [self._res, self._size, self._offset, self._dense.to(torch.int64)]
         self.reset_parameters(generator)
 
     @property
