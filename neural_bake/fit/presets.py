@@ -37,8 +37,8 @@ REFERENCE_STEPS: dict[str, int] = {
     "128x2": 19315,
     "256x2": 11480,
     "256x3": 11486,
-    "texture:quick": 6000,
-    "texture:default": 22787,
+    "texture:quick": 8952,
+    "texture:default": 34707,
     "texture:high": 40000,
 }
 

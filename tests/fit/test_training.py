@@ -326,3 +326,56 @@ def test_adam_is_fused_for_many_parameters_only():
             (p ** 2).sum().backward()
             opt.step()
     torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_all_finite_finds_one_bad_element_anywhere(dtype, bad):
+    """The loop's check (one sum a tensor) against the elementwise one, with the bad value at the first, a
+    middle and the last place of one of several tensors; None is skipped; finite values summing far from zero
+    stay finite."""
+    from neural_bake.fit.training import _all_finite
+
+    tensors = [torch.linspace(-1e30, 1e30, 1001, dtype=dtype), None, torch.full((300, 7), 3e4, dtype=dtype)]
+    assert _all_finite(tensors) and _all_finite([]) and _all_finite([None])
+    for which in (0, 2):
+        for at in (0, tensors[which].numel() // 2, tensors[which].numel() - 1):
+            t = [x.clone() if x is not None else None for x in tensors]
+            t[which].view(-1)[at] = bad
+            assert not _all_finite(t)
+            assert not all(bool(torch.isfinite(x).all()) for x in t if x is not None)
+
+
+class _PoisonGradient(torch.autograd.Function):
+    """The identity, whose gradient has a NaN in its last entry."""
+
+    @staticmethod
+    def forward(ctx, x):
+        return x.view_as(x)
+
+    @staticmethod
+    def backward(ctx, g):
+        g = g.clone()
+        g.view(-1)[-1] = float("nan")
+        return g
+
+
+def test_a_non_finite_gradient_under_a_finite_loss_restores_and_halves_lr():
+    """A step whose loss is finite but one gradient entry NaN is caught before the update (the weights stay
+    finite) and restarted from the last snapshot."""
+    m, f = _problem()
+    state = {"fired": False}
+    w = next(m.parameters())
+
+    def poisoned(step, gen):
+        out = f(step, gen)
+        if step == 12 and not state["fired"]:
+            state["fired"] = True
+            return {"loss": out["loss"] + (_PoisonGradient.apply(w) * 0.0).sum(), "mse": out["mse"]}
+        return out
+
+    with pytest.warns(NeuralBakeWarning, match=r"diverged at step 12 \(non-finite gradient\); restored step 10"):
+        res = train(m, poisoned, LoopConfig(steps=20, lr=1e-2, progress=False, snapshot_every=10,
+                                            lr_schedule="constant"))
+    assert res.restarts == 1 and res.steps == 20
+    assert torch.isfinite(_weights(m)).all()
