@@ -58,7 +58,8 @@ SAMPLE_MESHES: dict[str, dict] = {"dots": {"sample": "dots", "coarse": "keep", "
 #: surface normal (``normal_inputs`` "on"); "grid-auto", reading it on open meshes only ("auto").
 TEXTURE_NETWORKS = ("siren", "siren-wide", "grid", "grid-uniform", "grid-normals", "grid-auto")
 
-#: The fit settings of the "grid" construction beside the preset's.
+#: The fit settings of the "grid" construction at a preset whose own network is a SIREN (a grid preset's
+#: constructions keep its own).
 GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "off"}
 
 #: The grid constructions that differ by their ``normal_inputs`` alone.
@@ -74,14 +75,17 @@ def texture_network_settings(name: str, preset: str) -> dict:
     key = resolve_preset(preset, TEXTURE_ALIASES, PRESETS)
     own = {**vars(TextureFitConfig()), **(PRESETS[key] if key is not None else {})}
     siren = {**own, **PRESET_SIRENS.get(key, {})} if own["network"] != "siren" else own
+    # a grid preset's grid constructions keep its MLP and settings; a SIREN preset's take GRID_TEXTURE's
+    grid = {**GRID_TEXTURE, **({k: own[k] for k in ("width", "depth", "lr", "edge_share")}
+                               if own["network"] == "grid" else {})}
     if name == "siren":
         over = {"network": "siren"}
     elif name == "siren-wide":
         over = {"network": "siren", "width": 2 * int(siren["width"]), "depth": int(siren["depth"]) + 1}
     elif name in _GRID_NORMALS:
-        over = {**GRID_TEXTURE, "normal_inputs": _GRID_NORMALS[name]}
+        over = {**grid, "normal_inputs": _GRID_NORMALS[name]}
     elif name == "grid-uniform":
-        over = {**GRID_TEXTURE, "edge_share": 0.0}
+        over = {**grid, "edge_share": 0.0}
     else:
         raise NeuralBakeError(f"fidelity: texture_networks must be among {', '.join(TEXTURE_NETWORKS)}, got {name!r}")
     return {} if all(own.get(k) == v for k, v in over.items()) else over

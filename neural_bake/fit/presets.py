@@ -38,7 +38,7 @@ REFERENCE_STEPS: dict[str, int] = {
     "256x2": 11480,
     "256x3": 11486,
     "texture:quick": 8952,
-    "texture:default": 34707,
+    "texture:default": 30080,
     "texture:high": 40000,
 }
 

@@ -175,7 +175,7 @@ GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_res
 PRESETS: dict[str, dict] = {
     "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
               "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
-    "default": {"network": "grid", "width": 64, "depth": 1, "minutes": 4.0, "steps": 200_000, "batch": 4096,
+    "default": {"network": "grid", "width": 64, "depth": 2, "minutes": 4.0, "steps": 200_000, "batch": 4096,
                 "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }

@@ -188,6 +188,9 @@ def test_texture_network_constructions():
     assert texture_network_settings("siren-wide", "default") == {"network": "siren", "width": 384, "depth": 4}
     assert texture_network_settings("grid", "high")["network"] == "grid"
     assert texture_network_settings("grid-auto", "quick") == {}  # the quick preset's own network
+    assert texture_network_settings("grid-auto", "default") == {}  # the default preset's own, with its 64x2 MLP
+    assert texture_network_settings("grid", "default") == {"network": "grid", "width": 64, "depth": 2, "lr": 1e-2,
+                                                           "edge_share": 0.5, "normal_inputs": "off"}
     assert texture_network_settings("grid", "quick") == {**GRID_TEXTURE, "normal_inputs": "off"}
     assert own_texture_network("default") == "grid-auto" and own_texture_network("high") == "siren"
     assert texture_network_settings("grid-uniform", "quick") == {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2,
