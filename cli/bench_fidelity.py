@@ -39,8 +39,9 @@ from .bench import bench_options, report
                    "(the preset's SIREN), siren-wide (twice as wide, one matrix deeper), grid (the preset's feature "
                    "grid and MLP, at a SIREN preset a grid + 64x1 MLP; half the samples at the texture's edges), "
                    "grid-uniform (the grid, no edge samples), grid-normals (the grid's MLP also reading the surface "
-                   "normal), grid-auto (reading it on open meshes); default: the preset's own network. Anything but that alone runs every texture fit at "
-                   "the preset's time budget (equal time) unless --texture-steps or --texture-minutes is given.")
+                   "normal), grid-auto (reading it on open meshes); default: the preset's own network. Anything but "
+                   "that alone runs every texture fit at the preset's time budget (equal time) unless "
+                   "--texture-steps or --texture-minutes is given.")
 @click.option("--texture-minutes", type=float, default=None,
               help="Time budget of every texture fit (equal time; the steps made follow the machine).")
 @click.option("--only-textures", is_flag=True,
