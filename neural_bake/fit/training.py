@@ -191,8 +191,8 @@ def _all_finite(tensors) -> bool:
     makes its sum non-finite, and one read of the tensor costs a tenth of ``isfinite(t).all()``'s mask (a
     feature grid's millions of entries, checked twice a step). A sum that overflows, of values near 1e38 in
     float32, also reads as non-finite: weights or gradients that large have diverged."""
-    sums = [t.sum().to(torch.float64) for t in tensors if t is not None]  # scalars: one stack, any dtype
-    return not sums or bool(torch.isfinite(torch.stack(sums)).all())
+    finite = [torch.isfinite(t.sum()) for t in tensors if t is not None]  # booleans: one stack whatever the dtypes
+    return not finite or bool(torch.stack(finite).all())
 
 
 def _snapshot(model, opt) -> dict:
