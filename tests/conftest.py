@@ -1,6 +1,6 @@
 """Shared test set-up: one torch thread per test process (pytest-xdist runs one process per core), no
-hypothesis example database in the working directory (tests write only under tmp_path), and Ctrl-C live in
-the CLI processes the tests start."""
+hypothesis example database in the working directory (tests write only under tmp_path), Ctrl-C live in
+the CLI processes the tests start, and the long runs first."""
 
 import os
 import signal
@@ -28,6 +28,12 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
 
 settings.register_profile("neural_bake", database=None, deadline=None)
 settings.load_profile("neural_bake")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long end-to-end runs (marked ``slow``) first: pytest-xdist hands tests out in collection order, and
+    one started last would keep a worker busy after the rest have finished."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture

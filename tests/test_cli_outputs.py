@@ -374,6 +374,7 @@ BATCH = ["--set", "sdf.width=16", "--set", "sdf.depth=1", "--set", "sdf.steps=3"
          "--set", "bake.force=true", "--workers", "1", "-q"]
 
 
+@pytest.mark.slow
 def test_concurrent_batches_into_one_folder(files, tmp_path):
     """A batch held at its lock: a second batch into the same folder fails at once naming it and changes
     nothing; the first killed there, the next batch takes the folder and keeps the earlier batch's asset."""

@@ -38,6 +38,7 @@ def test_unknown_workload_is_refused():
         run(workloads=("nosuch",))
 
 
+@pytest.mark.slow
 def test_shrunken_fit_run_measures_steps_quiet_and_busy(tmp_path):
     """The real fit command, quiet and beside the competitor, with both thread settings: four real runs
     whose step counts fill the table (no timing is asserted)."""

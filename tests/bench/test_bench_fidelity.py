@@ -38,6 +38,7 @@ def test_missing_data_is_skipped_saying_so(tmp_path):
     assert res["rows"] == [] and any(n.startswith("fandisk: skipped,") and "not found" in n for n in res["notes"])
 
 
+@pytest.mark.slow
 def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     path = tmp_path / "cup.obj"
     m = open_sphere(sub=3)
@@ -69,6 +70,7 @@ def test_gltf_source_size_counts_its_buffers(tmp_path):
     assert bins and _source_bytes(tmp_path / "box.gltf") == sum(p.stat().st_size for p in tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_sampling_variants_at_equal_steps_get_ratios_against_uniform(tmp_path):
     path = tmp_path / "block.obj"
     box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
@@ -237,6 +239,7 @@ def test_dot_windows_and_their_scores():
     assert feature_ssim(tex, tex, dot_windows(256)) is None  # 4-texel windows: too small for 7x7 SSIM
 
 
+@pytest.mark.slow
 def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     path = tmp_path / "block.obj"
     box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))

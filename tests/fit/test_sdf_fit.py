@@ -815,6 +815,7 @@ def test_polish_time_comes_out_of_the_budget(ticker):
     assert fit.seconds - fit.polish["seconds"] < 0.15 * 60 - 31 * 0.05 + 0.1
 
 
+@pytest.mark.slow
 def test_polish_share_sets_aside_part_of_the_budget_and_the_polish_runs_to_its_end(ticker):
     # 30 % of 6 s for the polish: Adam stops near 4.2 s and the polish, with far more evaluations allowed than
     # fit, runs until the budget's end instead of stopping at an estimate of its cost

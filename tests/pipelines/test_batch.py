@@ -33,6 +33,7 @@ def statuses(summary, name):
     return {s: r["status"] for s, r in summary["assets"][name]["stages"].items()}
 
 
+@pytest.mark.slow
 def test_batch_resumes_rebakes_alone_and_isolates_failures(tmp_path, samples, tiny):
     manifest = tmp_path / "assets.csv"
     manifest.write_text("mesh,name,sdf.steps,bake.size\n"
@@ -149,6 +150,7 @@ def _cli(args, **kwargs):
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 
+@pytest.mark.slow
 def test_ctrl_c_then_rerun(tmp_path, samples, cli_tiny):
     manifest = tmp_path / "m.txt"
     manifest.write_text(f"{samples['sphere']}\n{samples['torus']}\n")
@@ -178,6 +180,7 @@ def test_ctrl_c_then_rerun(tmp_path, samples, cli_tiny):
     assert "batch: 2 ok, 0 failed" in text
 
 
+@pytest.mark.slow
 def test_two_batches_into_one_folder_one_writer_then_merged_summary(tmp_path, samples, cli_tiny):
     """A second batch into a folder a batch is writing fails at once naming it (exit 1, nothing written); run
     after it, it keeps the first's asset in the summary; the first's manifest again fits nothing."""

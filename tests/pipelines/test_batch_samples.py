@@ -16,8 +16,8 @@ def test_bundled_samples_at_the_quick_preset(tmp_path, capsys):
     # the quick preset's networks for fixed step counts (a fraction of what its budgets make: the samples are
     # simple, and the floors below are loose), so the figures do not depend on the machine's load
     code = main(["batch", str(manifest), "-o", str(tmp_path / "out"), "--preset", "quick", "--workers", "2",
-                 "--set", "sdf.steps=200", "--set", "sdf.minutes=30", "--set", "sdf.polish_evals=0",
-                 "--set", "sdf.compile=off", "--set", "texture.steps=100", "--set", "texture.minutes=30"])
+                 "--set", "sdf.steps=100", "--set", "sdf.minutes=30", "--set", "sdf.polish_evals=0",
+                 "--set", "sdf.compile=off", "--set", "texture.steps=50", "--set", "texture.minutes=30"])
     out = capsys.readouterr().out
     assert code == 0, out
     summary = json.loads((tmp_path / "out" / "batch.json").read_text())

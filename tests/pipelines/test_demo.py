@@ -9,6 +9,7 @@ from neural_bake.errors import NeuralBakeError
 from neural_bake.pipelines.demo import DemoConfig, run_demo
 
 
+@pytest.mark.slow
 def test_demo_shrunken_end_to_end(tmp_path):
     out = tmp_path / "demo"
     lines = []
