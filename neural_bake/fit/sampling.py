@@ -117,7 +117,7 @@ def _check_count(n, what: str) -> int:
 
 
 def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
-                   face_weights: np.ndarray | None = None) -> SurfaceSamples:
+                   face_weights: np.ndarray | None = None, colors: bool = True) -> SurfaceSamples:
     """``n`` points uniform by area on the non-degenerate faces of ``mesh`` (unit frame).
 
     A face is drawn with probability proportional to its area (degenerate faces — ``mesh.degenerate`` or
@@ -131,7 +131,8 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
       ``"vertex"``: the interpolated area-weighted vertex normals, renormalised (a smooth-surface estimate;
       falls back to the face normal where the interpolation vanishes).
     - UVs are the barycentric interpolation of the face's corner UVs; colours the bilinear lookup of the
-      texture there (``sample_texture`` with ``mesh.uv_policy``), in linear RGB(A).
+      texture there (``sample_texture`` with ``mesh.uv_policy``), in linear RGB(A); ``colors=False`` skips the
+      lookup (``colors`` None), for callers that need the places only or look the colours up themselves.
 
     Raises :class:`MeshError` when the mesh has no non-degenerate face.
     """
@@ -165,13 +166,13 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     else:
         nrm = fn
 
-    uv = colors = None
+    uv = rgb = None
     if mesh.uv is not None:
         uv = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.uv, dtype=np.float64)[face])
-        if mesh.texture is not None:
-            colors = sample_texture(mesh.texture, uv, mesh.uv_policy).astype(np.float32)
+        if colors and mesh.texture is not None:
+            rgb = sample_texture(mesh.texture, uv, mesh.uv_policy).astype(np.float32)
         uv = uv.astype(np.float32)
-    return SurfaceSamples(points.astype(np.float32), nrm.astype(np.float32), uv, colors, face)
+    return SurfaceSamples(points.astype(np.float32), nrm.astype(np.float32), uv, rgb, face)
 
 
 def curvature_face_weights(mesh: Mesh, uniform_share: float = 0.5) -> np.ndarray:

@@ -87,7 +87,8 @@ class _Pools:
             if cfg.curvature_sampling > 0 and self.face_weights is None:
                 self.face_weights = curvature_face_weights(mesh, 1.0 - cfg.curvature_sampling)
             w = self.face_weights
-            surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals)
+            surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
+                                  colors=False)
             near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w)
                     if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None

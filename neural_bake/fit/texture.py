@@ -79,6 +79,9 @@ __all__ = [
     "PRESET_SIRENS",
 ]
 
+#: Most surface samples the band pool (λ > 0) offsets, and its uniform candidates: each costs f and ∇f.
+BAND_POOL = 1_000_000
+
 #: δ (unit frame) used when neither the config nor the SDF model file gives one: 1/60 of the unit-frame
 #: extent (1.8), about the band half-width of the paper's coarse levels.
 DEFAULT_DELTA = 0.03
@@ -140,7 +143,8 @@ class TextureFitConfig(PresetLoopSettings):
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 1_000_000
-    """Surface samples drawn once and batched from (and the band pool's); fewer overfit a detailed texture."""
+    """Surface samples drawn once and batched from (and the band pool's, up to a million); a grid network
+    passing over a few million many times learns the samples, not the texture between them (BENCHMARKS.md)."""
     texel_share: float = 0.5
     """Part of the surface samples drawn by UV area (as densely as the texture's texels lie on the surface)
     instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
@@ -421,7 +425,7 @@ def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator)
     if len(face) == 0:  # no texel centre on a face (UVs of no area): anywhere on the surface
         from .sampling import sample_surface
 
-        s = sample_surface(mesh, n, seed=int(rng.integers(1 << 31)))
+        s = sample_surface(mesh, n, seed=int(rng.integers(1 << 31)), colors=False)
         return np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64), np.asarray(s.face_index)
     strength = edge_strength(rgb)[rows, cols].astype(np.float64)
     total = strength.sum()
@@ -448,7 +452,8 @@ def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | 
     from .sampling import sample_surface
 
     n_edge = int(round(int(n) * float(edge_share)))
-    s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=texel_face_weights(mesh, texel_share))
+    s = sample_surface(mesh, int(n) - n_edge, seed=seed, face_weights=texel_face_weights(mesh, texel_share),
+                       colors=False)  # looked up below, in the texture given
     parts = [(np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64),
               np.asarray(s.face_index))]
     if n_edge > 0:
@@ -753,14 +758,18 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
 
     samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share,
                               edge_share=config.edge_share)
-    pts = torch.as_tensor(samples["points"], dtype=torch.float64)
-    nrm = torch.as_tensor(samples["normals"], dtype=torch.float64)
+    pts = torch.as_tensor(samples["points"])
+    nrm = torch.as_tensor(samples["normals"])
     encoding = _resolve_encoding(config.encoding, rgb)
     colors = samples["colors"] if encoding == "linear" else linear_to_srgb(samples["colors"])
     col = torch.as_tensor(colors).to(device, dtype)
     pool_gen = torch.Generator().manual_seed(int(config.seed) + 1)
     if config.lam > 0:
-        band_off, band_off_n, band_uni, band_uni_n = _band_pool(pts, nrm, sdf, delta, config.pool, pool_gen)
+        band: slice | torch.Tensor = slice(None)
+        if pts.shape[0] > BAND_POOL:  # a seeded subset of a large pool: each band point costs f and ∇f
+            band = torch.randperm(pts.shape[0], generator=pool_gen)[:BAND_POOL]
+        band_off, band_off_n, band_uni, band_uni_n = _band_pool(pts[band].double(), nrm[band].double(), sdf, delta,
+                                                                min(config.pool, BAND_POOL), pool_gen)
     else:  # no orthogonality term: no band samples to draw
         band_off = band_off_n = band_uni = band_uni_n = pts.new_zeros(0, 3)
     if config.lam > 0 and band_off.shape[0] == 0:

@@ -135,6 +135,15 @@ def test_colours_and_uv_match_the_analytic_texture(textured_sphere):
     np.testing.assert_allclose(s.uv[:, 1], v, atol=5e-3)
 
 
+def test_colours_can_be_skipped_and_the_places_stay_the_same(textured_sphere):
+    _, mesh = textured_sphere
+    full, bare = sample_surface(mesh, 500, seed=4), sample_surface(mesh, 500, seed=4, colors=False)
+    assert bare.colors is None and full.colors is not None
+    np.testing.assert_array_equal(bare.points, full.points)
+    np.testing.assert_array_equal(bare.uv, full.uv)
+    np.testing.assert_array_equal(bare.face_index, full.face_index)
+
+
 def test_no_uv_gives_none(sphere):
     s = sample_surface(sphere, 10)
     assert s.uv is None and s.colors is None

@@ -591,3 +591,26 @@ def test_bench_unknown_case_is_a_one_line_cli_error(capsys):
     assert "'checkerx' needs a positive cell count" in capsys.readouterr().err
     assert main(["bench", "texture", "--quick", "--preset", "huge"]) == 2
     assert "neural-bake: error: --preset: unknown preset 'huge' (choose quick, default, high)" in capsys.readouterr().err
+
+
+def test_a_large_pool_offsets_a_seeded_subset_of_it_into_the_band(sphere, monkeypatch):
+    """The band pool (λ > 0) takes at most BAND_POOL of the surface samples and as many uniform candidates:
+    each costs f and ∇f, while the colour loss reads the whole pool."""
+    import neural_bake.fit.texture as texture
+
+    calls = []
+    real = texture._band_pool
+
+    def spy(points, normals, sdf, delta, n_uniform, gen):
+        calls.append((points.shape[0], points.dtype, n_uniform))
+        out = real(points, normals, sdf, delta, n_uniform, gen)
+        # each offset point is within δ of a sample on the tessellated sphere (its faces lie a little inside)
+        assert (out[0].norm(dim=1) - R).abs().max() <= 0.03 + 0.005
+        return out
+
+    monkeypatch.setattr(texture, "_band_pool", spy)
+    monkeypatch.setattr(texture, "BAND_POOL", 1500)
+    small = dict(TINY, steps=3, batch=64, lam=1e-3, delta=0.03)
+    fit_texture(sphere, sphere_sdf, **dict(small, pool=6000))
+    fit_texture(sphere, sphere_sdf, **dict(small, pool=1000))
+    assert calls == [(1500, torch.float64, 1500), (1000, torch.float64, 1000)]
