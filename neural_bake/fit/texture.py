@@ -382,38 +382,47 @@ EDGE_JITTER = 0.5
 EDGE_TRIES = 4
 
 
-def _jittered(mesh: Mesh, shape: tuple[int, int], points, normals, uv, faces, rng: np.random.Generator) -> tuple:
-    """Samples moved to a uniform random point within :data:`EDGE_JITTER` texels (in UV) of where they are,
-    on their own face (up to :data:`EDGE_TRIES` draws; a sample whose every draw falls off its face keeps its
-    place): fresh places along the same edges, not repeats. Face normals stay."""
+def _jittered(mesh: Mesh, shape: tuple[int, int], bary: np.ndarray, uv: np.ndarray, faces: np.ndarray,
+              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Samples (barycentrics ``bary`` (n, 3) on ``faces``, texture coordinates ``uv`` (n, 2)) moved to a uniform
+    random point within :data:`EDGE_JITTER` texels (in UV) of where they are, on their own face (up to
+    :data:`EDGE_TRIES` draws; a sample whose every draw falls off its face keeps its place): fresh places along
+    the same edges, not repeats. Returns the new (bary, uv), float64."""
     h, w = shape
-    tuv = np.asarray(mesh.uv, dtype=np.float64)[faces]  # (n, 3, 2)
-    e1, e2 = tuv[:, 1] - tuv[:, 0], tuv[:, 2] - tuv[:, 0]
+    fuv = np.asarray(mesh.uv, dtype=np.float64)  # (F, 3, 2), per face: a draw gathers from these
+    o, e1, e2 = fuv[:, 0], fuv[:, 1] - fuv[:, 0], fuv[:, 2] - fuv[:, 0]
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    points, uv = np.array(points, dtype=np.float64), np.array(uv, dtype=np.float64)
-    todo = np.flatnonzero(np.abs(det) > 1e-12)  # a face of no UV area has no place to move to
+    bary, uv = np.array(bary, dtype=np.float64), np.array(uv, dtype=np.float64)
+    todo = np.flatnonzero(np.abs(det[faces]) > 1e-12)  # a face of no UV area has no place to move to
     for _ in range(EDGE_TRIES):
         if todo.size == 0:
             break
         target = uv[todo] + rng.uniform(-EDGE_JITTER, EDGE_JITTER, size=(todo.size, 2)) / np.array([w, h])
-        d = target - tuv[todo, 0]
-        b1 = (d[:, 0] * e2[todo, 1] - d[:, 1] * e2[todo, 0]) / det[todo]
-        b2 = (e1[todo, 0] * d[:, 1] - e1[todo, 1] * d[:, 0]) / det[todo]
-        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
-        ok = (bary >= 0).all(axis=1)
+        f = faces[todo]
+        d = target - o[f]
+        b1 = (d[:, 0] * e2[f, 1] - d[:, 1] * e2[f, 0]) / det[f]
+        b2 = (e1[f, 0] * d[:, 1] - e1[f, 1] * d[:, 0]) / det[f]
+        b0 = 1.0 - b1 - b2
+        ok = (b0 >= 0) & (b1 >= 0) & (b2 >= 0)
         at = todo[ok]
-        tri = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces[faces[at]]]
-        points[at] = np.einsum("nk,nkd->nd", bary[ok], tri)
+        bary[at] = np.stack([b0[ok], b1[ok], b2[ok]], axis=1)
         uv[at] = target[ok]
         todo = todo[~ok]
-    return points, normals, uv, faces
+    return bary, uv
+
+
+def _on_faces(mesh: Mesh, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 points at barycentrics ``bary`` (n, 3) of ``faces`` (n,)."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    corners = np.asarray(mesh.faces)[faces]
+    return sum(bary[:, k, None] * v[corners[:, k]] for k in range(3))
 
 
 def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator) -> tuple:
     """``n`` surface samples (points, normals, uv, faces) at the texture's edges: texels drawn with probability
     proportional to :func:`edge_strength` among those a face covers (:func:`~neural_bake.mesh.texels.
-    texel_centres`), each sample at a uniform random place in its texel on that face (:func:`_jittered`);
-    texels drawn uniformly where the texture has no edge."""
+    texel_centres`; a multinomial draw, so the samples come grouped by texel), each sample at a uniform random
+    place in its texel on that face (:func:`_jittered`); texels drawn uniformly where the texture has no edge."""
     import warnings
 
     from ..errors import NeuralBakeWarning
@@ -429,12 +438,12 @@ def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator)
         return np.asarray(s.points), np.asarray(s.normals), np.asarray(s.uv, dtype=np.float64), np.asarray(s.face_index)
     strength = edge_strength(rgb)[rows, cols].astype(np.float64)
     total = strength.sum()
-    pick = rng.choice(len(face), size=n, p=strength / total) if total > 0 and np.isfinite(total) else \
-        rng.integers(0, len(face), size=n)
-    face, bary = face[pick], bary[pick]
-    points = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces[face]])
+    p = strength / total if total > 0 and np.isfinite(total) else np.full(len(face), 1.0 / len(face))
+    pick = np.repeat(np.arange(len(face)), rng.multinomial(n, p))
+    face, bary = face[pick], np.asarray(bary, dtype=np.float64)[pick]
     uv = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.uv, dtype=np.float64)[face])
-    return _jittered(mesh, rgb.shape[:2], points, np.asarray(mesh.face_normals)[face], uv, face, rng)
+    bary, uv = _jittered(mesh, rgb.shape[:2], bary, uv, face, rng)
+    return _on_faces(mesh, face, bary), np.asarray(mesh.face_normals)[face], uv, face
 
 
 def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None,

@@ -55,25 +55,49 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, policy: str = "wrap") ->
     uv = np.asarray(uv, dtype=np.float64)
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise ValueError(f"sample_texture: uv must be (N, 2), got shape {uv.shape}")
-    h, w, _ = tex.shape
+    h, w, c = tex.shape
     finite = np.isfinite(uv).all(axis=1)
     uv = np.where(finite[:, None], uv, 0.0)
+    out_dtype = tex.dtype if np.issubdtype(tex.dtype, np.floating) else np.float64
     # continuous pixel coordinates, (0, 0) at the centre of the top-left texel
     x = uv[:, 0] * w - 0.5
     y = (1.0 - uv[:, 1]) * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    x1, y1 = x0 + 1, y0 + 1
+    fx, fy = (x - x0).astype(out_dtype)[:, None], (y - y0).astype(out_dtype)[:, None]
+    # the four texels as rows of the flattened image (wrapped or clamped while still floats: a UV far outside
+    # [0, 1] must not overflow the integers), in int32 where the image allows
+    itype = np.int32 if h * w < 2**31 else np.int64
     if policy == "wrap":
-        x0, x1, y0, y1 = x0 % w, x1 % w, y0 % h, y1 % h
+        x0, x1 = _wrapped(x0, w, itype)
+        y0, y1 = _wrapped(y0, h, itype)
     else:
-        x0, x1 = np.clip(x0, 0, w - 1), np.clip(x1, 0, w - 1)
-        y0, y1 = np.clip(y0, 0, h - 1), np.clip(y1, 0, h - 1)
-    out_dtype = tex.dtype if np.issubdtype(tex.dtype, np.floating) else np.float64
-    t = tex.astype(out_dtype, copy=False)
-    top = t[y0, x0] * (1 - fx) + t[y0, x1] * fx
-    bot = t[y1, x0] * (1 - fx) + t[y1, x1] * fx
-    out = (top * (1 - fy) + bot * fy).astype(out_dtype)
-    out[~finite] = 0
-    return out
+        x0, x1 = np.clip(x0, 0, w - 1).astype(itype), np.clip(x0 + 1, 0, w - 1).astype(itype)
+        y0, y1 = np.clip(y0, 0, h - 1).astype(itype), np.clip(y0 + 1, 0, h - 1).astype(itype)
+    y0 *= w
+    y1 *= w
+    t = tex.reshape(h * w, c).astype(out_dtype, copy=False)
+    top, right = t[y0 + x0], t[y0 + x1]
+    right -= top
+    right *= fx
+    top += right  # t00 + (t01 − t00)·fx
+    bot, right = t[y1 + x0], t[y1 + x1]
+    right -= bot
+    right *= fx
+    bot += right
+    bot -= top
+    bot *= fy
+    top += bot
+    top[~finite] = 0
+    return top
+
+
+def _wrapped(i0: np.ndarray, n: int, itype) -> tuple[np.ndarray, np.ndarray]:
+    """Whole-number floats ``i0`` and ``i0 + 1`` repeated into [0, n), as ``itype`` (the modulo only where
+    ``i0`` is outside)."""
+    out = (i0 < 0) | (i0 >= n)
+    if out.any():
+        i0[out] = np.mod(i0[out], n)
+    j0 = i0.astype(itype)
+    j1 = j0 + 1
+    j1[j1 == n] = 0
+    return j0, j1

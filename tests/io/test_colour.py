@@ -72,6 +72,17 @@ def test_wrap_and_clamp():
     np.testing.assert_allclose(sample_texture(tex, [[5.0, 0.5]], "clamp"), sample_texture(tex, [[0.999, 0.5]], "clamp"))
 
 
+@pytest.mark.parametrize("policy", ["wrap", "clamp"])
+def test_uv_far_outside_reads_a_texel_of_the_texture(policy):
+    tex = np.random.default_rng(1).random((6, 5, 3)).astype(np.float32)
+    uv = np.array([[1e30, -1e30], [-1e18, 0.5], [0.5, 3e9], [2.0**40 + 0.25, -7.75]])
+    out = sample_texture(tex, uv, policy)
+    assert np.isfinite(out).all() and (out >= tex.min() - 1e-6).all() and (out <= tex.max() + 1e-6).all()
+    # within the exact integers of float64, wrapping still reads the texture repeated
+    np.testing.assert_allclose(out[3], sample_texture(tex, [[0.25, 0.25]], policy)[0] if policy == "wrap" else
+                               sample_texture(tex, [[1.0, 0.0]], policy)[0], atol=1e-6)
+
+
 def test_non_finite_uv_gives_zeros_and_int_texture_gives_float64():
     tex = np.full((2, 2, 3), 7, np.uint8)
     out = sample_texture(tex, [[np.nan, 0.5], [0.5, np.inf], [0.5, 0.5]])
