@@ -70,6 +70,7 @@ __all__ = [
     "PRESETS",
     "DEFAULT_DELTA",
     "fit_texture",
+    "pool_size",
     "texture_metrics",
     "texture_targets",
     "texel_face_weights",
@@ -143,8 +144,9 @@ class TextureFitConfig(PresetLoopSettings):
     band_uniform_fraction: float = 0.25
     """Share of each band batch drawn from uniform points with |f| ≤ δ (the rest: offset surface points)."""
     pool: int = 1_000_000
-    """Surface samples drawn once and batched from (and the band pool's, up to a million); a grid network
-    passing over a few million many times learns the samples, not the texture between them (BENCHMARKS.md)."""
+    """Surface samples drawn once and batched from (at most steps × batch; and the band pool's, up to a
+    million); a grid network passing over one million many times learns the samples, not the texture between
+    them (BENCHMARKS.md)."""
     texel_share: float = 0.5
     """Part of the surface samples drawn by UV area (as densely as the texture's texels lie on the surface)
     instead of surface area: a bake is scored per texel, and small parts with detailed texture (hardware,
@@ -178,9 +180,9 @@ GRID_FIELDS = ("grid_levels", "grid_features", "grid_log2_table", "grid_base_res
 #: and high).
 PRESETS: dict[str, dict] = {
     "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
-              "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
+              "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto", "pool": 4_000_000},
     "default": {"network": "grid", "width": 64, "depth": 2, "minutes": 4.0, "steps": 200_000, "batch": 4096,
-                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto"},
+                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto", "pool": 4_000_000},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 
@@ -380,6 +382,20 @@ EDGE_JITTER = 0.5
 
 #: Draws of a moved edge sample's place before it keeps its own (a draw can fall off its face).
 EDGE_TRIES = 4
+
+
+def pool_size(config: TextureFitConfig, preset: str | None = None) -> int:
+    """The surface samples a fit draws: ``config.pool``, or the samples its steps can read (steps × batch)
+    where they are fewer, so a short fit does not pay for a pool it never reads. ``preset``: the preset whose
+    step cost the config has (:data:`PRESETS`' key); a time-budgeted fit of it counts the steps its minutes
+    make on the reference machine (:data:`~neural_bake.fit.presets.REFERENCE_STEPS`, in proportion)."""
+    from .budget import reference_steps
+
+    steps = int(config.steps)
+    ref = reference_steps(f"texture:{preset}") if preset is not None else None
+    if ref and config.budget == "time" and config.minutes:
+        steps = min(steps, math.ceil(ref * float(config.minutes) / float(PRESETS[preset]["minutes"])))
+    return max(1, min(int(config.pool), steps * int(config.batch)))
 
 
 def _jittered(mesh: Mesh, shape: tuple[int, int], bary: np.ndarray, uv: np.ndarray, faces: np.ndarray,
@@ -765,7 +781,8 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     init_gen = torch.Generator().manual_seed(int(config.seed))
     model = make_texture_network(config, init_gen, open_mesh=not mesh.watertight).to(device, dtype)
 
-    samples = texture_targets(mesh, config.pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share,
+    n_pool = pool_size(config, key if cost_key is not None else None)
+    samples = texture_targets(mesh, n_pool, seed=int(config.seed), texture=rgb, texel_share=config.texel_share,
                               edge_share=config.edge_share)
     pts = torch.as_tensor(samples["points"])
     nrm = torch.as_tensor(samples["normals"])
@@ -778,7 +795,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
         if pts.shape[0] > BAND_POOL:  # a seeded subset of a large pool: each band point costs f and ∇f
             band = torch.randperm(pts.shape[0], generator=pool_gen)[:BAND_POOL]
         band_off, band_off_n, band_uni, band_uni_n = _band_pool(pts[band].double(), nrm[band].double(), sdf, delta,
-                                                                min(config.pool, BAND_POOL), pool_gen)
+                                                                min(n_pool, BAND_POOL), pool_gen)
     else:  # no orthogonality term: no band samples to draw
         band_off = band_off_n = band_uni = band_uni_n = pts.new_zeros(0, 3)
     if config.lam > 0 and band_off.shape[0] == 0:
@@ -814,7 +831,7 @@ def fit_texture(mesh: Mesh, sdf_model, config: TextureFitConfig | None = None, *
     loop = config.loop_config(f"fit texture {mesh.name}", max_restarts=int(config.max_restarts))
     fingerprint = json.dumps({"kind": "texture", "mesh": mesh.name, "faces": mesh.n_faces,
                               "arch": model.architecture, "delta": delta, "lam": lam, "batch": config.batch,
-                              "pool": config.pool, "seed": config.seed, "encoding": encoding,
+                              "pool": n_pool, "seed": config.seed, "encoding": encoding,
                               "texel_share": config.texel_share}, sort_keys=True)
     result = train(model, step_fn, loop, fingerprint=fingerprint,
                    metadata=_metadata(mesh.frame, delta, lam, config, 0, encoding=encoding), on_log=callback,

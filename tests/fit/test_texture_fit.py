@@ -20,10 +20,12 @@ from neural_bake.fit.texture import (
     TextureFitConfig,
     band_orthogonality,
     fit_texture,
+    pool_size,
     texel_face_weights,
     texture_metrics,
     texture_targets,
 )
+from neural_bake.fit.presets import REFERENCE_STEPS
 from neural_bake.io.colour import linear_to_srgb
 from neural_bake.fields import load_field, save_model
 from neural_bake.nets.model_io import load_model
@@ -610,7 +612,16 @@ def test_a_large_pool_offsets_a_seeded_subset_of_it_into_the_band(sphere, monkey
 
     monkeypatch.setattr(texture, "_band_pool", spy)
     monkeypatch.setattr(texture, "BAND_POOL", 1500)
-    small = dict(TINY, steps=3, batch=64, lam=1e-3, delta=0.03)
+    small = dict(TINY, steps=100, batch=64, lam=1e-3, delta=0.03, minutes=None)
     fit_texture(sphere, sphere_sdf, **dict(small, pool=6000))
     fit_texture(sphere, sphere_sdf, **dict(small, pool=1000))
     assert calls == [(1500, torch.float64, 1500), (1000, torch.float64, 1000)]
+    # a pool is never larger than the samples the steps read
+    assert pool_size(TextureFitConfig(steps=10, batch=64, pool=6000)) == 640
+    assert pool_size(TextureFitConfig(steps=1000, batch=64, pool=6000)) == 6000
+    # a time-budgeted preset fit: the steps its minutes make on the reference machine
+    quick = TextureFitConfig(**PRESETS["quick"])
+    assert pool_size(quick, "quick") == PRESETS["quick"]["pool"]
+    short = replace(quick, minutes=PRESETS["quick"]["minutes"] / 100)
+    assert pool_size(short, "quick") == math.ceil(REFERENCE_STEPS["texture:quick"] / 100) * quick.batch
+    assert pool_size(short) == quick.pool  # no preset: no step count to go by but the cap

@@ -147,16 +147,16 @@ def test_quick_and_default_presets_are_grids_and_network_siren_gives_their_siren
     from neural_bake.fit.texture import PRESET_SIRENS, _resolve_config
 
     quick = _resolve_config(None, {"preset": "quick"})
-    assert (quick.network, quick.width, quick.depth, quick.lr, quick.edge_share, quick.normal_inputs) == (
-        "grid", 64, 1, 1e-2, 0.5, "auto")
+    assert (quick.network, quick.width, quick.depth, quick.lr, quick.edge_share, quick.normal_inputs, quick.pool) == (
+        "grid", 64, 1, 1e-2, 0.5, "auto", 4_000_000)
     siren = _resolve_config(None, {"preset": "quick", "network": "siren"})
     assert (siren.network, siren.width, siren.depth, siren.lr, siren.edge_share, siren.normal_inputs) == (
         "siren", 64, 1, 5e-4, 0.0, "off") == ("siren", *PRESET_SIRENS["quick"].values())
     wide = _resolve_config(None, {"preset": "quick", "network": "siren", "width": 128})
     assert (wide.width, wide.lr) == (128, 5e-4)
     default = _resolve_config(None, {"preset": "default"})
-    assert (default.network, default.width, default.batch, default.lr, default.edge_share, default.normal_inputs) == (
-        "grid", 64, 4096, 1e-2, 0.5, "auto")
+    assert (default.network, default.width, default.batch, default.lr, default.edge_share, default.normal_inputs,
+            default.pool) == ("grid", 64, 4096, 1e-2, 0.5, "auto", 4_000_000)
     siren = _resolve_config(None, {"preset": "default", "network": "siren"})
     assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr, siren.normal_inputs) == (
         "siren", 192, 3, 60.0, 5e-4, "off")
