@@ -182,7 +182,7 @@ PRESETS: dict[str, dict] = {
     "quick": {"network": "grid", "width": 64, "depth": 1, "minutes": 1.0, "steps": 200_000, "batch": 2048,
               "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto", "pool": 4_000_000},
     "default": {"network": "grid", "width": 64, "depth": 2, "minutes": 4.0, "steps": 200_000, "batch": 4096,
-                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto", "pool": 4_000_000},
+                "lr": 1e-2, "edge_share": 0.5, "normal_inputs": "auto", "pool": 8_000_000},
     "high": {"width": 256, "depth": 3, "minutes": 10.0, "steps": 200_000, "batch": 2048, "lr": 2e-4},
 }
 

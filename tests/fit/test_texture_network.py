@@ -156,7 +156,7 @@ def test_quick_and_default_presets_are_grids_and_network_siren_gives_their_siren
     assert (wide.width, wide.lr) == (128, 5e-4)
     default = _resolve_config(None, {"preset": "default"})
     assert (default.network, default.width, default.batch, default.lr, default.edge_share, default.normal_inputs,
-            default.pool) == ("grid", 64, 4096, 1e-2, 0.5, "auto", 4_000_000)
+            default.pool) == ("grid", 64, 4096, 1e-2, 0.5, "auto", 8_000_000)
     siren = _resolve_config(None, {"preset": "default", "network": "siren"})
     assert (siren.network, siren.width, siren.depth, siren.omega_0, siren.lr, siren.normal_inputs) == (
         "siren", 192, 3, 60.0, 5e-4, "off")
