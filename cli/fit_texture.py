@@ -23,8 +23,8 @@ def _resolve(preset, values):
 
 
 SPEC = ConfigSpec(load=_config_class, resolve=_resolve, presets=("quick", "default", "high", "fast", "medium", "fine"),
-                  described=("quick", "default", "high"), costs={"quick": "feature grid + 64x1, 1 min",
-                                                                      "default": "feature grid + 64x2, 4 min"},
+                  described=("quick", "default", "high"), costs={"quick": "feature grid + 64x1, 4M samples, 1 min",
+                                                                      "default": "feature grid + 64x2, 8M samples, 4 min"},
                   preset_help="Network size and time budget (fast, medium and fine are older names of quick, "
                               "default and high; none: 256x3 for --steps)",
                   required=("mesh", "sdf_path", "output"), pass_preset=True)
