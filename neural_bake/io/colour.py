@@ -59,11 +59,12 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, policy: str = "wrap") ->
     finite = np.isfinite(uv).all(axis=1)
     uv = np.where(finite[:, None], uv, 0.0)
     out_dtype = tex.dtype if np.issubdtype(tex.dtype, np.floating) else np.float64
+    work = np.promote_types(out_dtype, np.float32)  # a half-float texture is blended in float32
     # continuous pixel coordinates, (0, 0) at the centre of the top-left texel
     x = uv[:, 0] * w - 0.5
     y = (1.0 - uv[:, 1]) * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0).astype(out_dtype)[:, None], (y - y0).astype(out_dtype)[:, None]
+    fx, fy = (x - x0).astype(work)[:, None], (y - y0).astype(work)[:, None]
     # the four texels as rows of the flattened image (wrapped or clamped while still floats: a UV far outside
     # [0, 1] must not overflow the integers), in int32 where the image allows
     itype = np.int32 if h * w < 2**31 else np.int64
@@ -75,7 +76,7 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, policy: str = "wrap") ->
         y0, y1 = np.clip(y0, 0, h - 1).astype(itype), np.clip(y0 + 1, 0, h - 1).astype(itype)
     y0 *= w
     y1 *= w
-    t = tex.reshape(h * w, c).astype(out_dtype, copy=False)
+    t = tex.reshape(h * w, c).astype(work, copy=False)
     top, right = t[y0 + x0], t[y0 + x1]
     right -= top
     right *= fx
@@ -88,7 +89,7 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, policy: str = "wrap") ->
     bot *= fy
     top += bot
     top[~finite] = 0
-    return top
+    return top.astype(out_dtype, copy=False)
 
 
 def _wrapped(i0: np.ndarray, n: int, itype) -> tuple[np.ndarray, np.ndarray]:

@@ -83,6 +83,15 @@ def test_uv_far_outside_reads_a_texel_of_the_texture(policy):
                                sample_texture(tex, [[1.0, 0.0]], policy)[0], atol=1e-6)
 
 
+def test_half_float_texture_is_blended_in_float32_and_returned_as_half():
+    tex = np.random.default_rng(2).random((4, 6, 3)).astype(np.float16)
+    uv = np.random.default_rng(3).uniform(-0.5, 1.5, (50, 2))
+    got = sample_texture(tex, uv)
+    assert got.dtype == np.float16
+    want = sample_texture(tex.astype(np.float32), uv).astype(np.float16)
+    np.testing.assert_array_equal(got, want)
+
+
 def test_non_finite_uv_gives_zeros_and_int_texture_gives_float64():
     tex = np.full((2, 2, 3), 7, np.uint8)
     out = sample_texture(tex, [[np.nan, 0.5], [0.5, np.inf], [0.5, 0.5]])
