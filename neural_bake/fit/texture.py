@@ -54,7 +54,7 @@ from ..constants import FRAME_MISMATCH_TOL
 from ..errors import FitError, ImageError, MeshError, NeuralBakeWarning
 from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest_surface_points, load_sdf_field,
                       save_model, to_sdf_field, unit_normals)
-from ..geometry import frame_mismatch
+from ..geometry import frame_mismatch, interpolate_corners
 from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
 from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
@@ -427,13 +427,6 @@ def _jittered(mesh: Mesh, shape: tuple[int, int], bary: np.ndarray, uv: np.ndarr
     return bary, uv
 
 
-def _on_faces(mesh: Mesh, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """(n, 3) float64 points at barycentrics ``bary`` (n, 3) of ``faces`` (n,)."""
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    corners = np.asarray(mesh.faces)[faces]
-    return sum(bary[:, k, None] * v[corners[:, k]] for k in range(3))
-
-
 def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator) -> tuple:
     """``n`` surface samples (points, normals, uv, faces) at the texture's edges: texels drawn with probability
     proportional to :func:`edge_strength` among those a face covers (:func:`~neural_bake.mesh.texels.
@@ -457,9 +450,9 @@ def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator)
     p = strength / total if total > 0 and np.isfinite(total) else np.full(len(face), 1.0 / len(face))
     pick = np.repeat(np.arange(len(face)), rng.multinomial(n, p))
     face, bary = face[pick], np.asarray(bary, dtype=np.float64)[pick]
-    uv = np.einsum("nk,nkd->nd", bary, np.asarray(mesh.uv, dtype=np.float64)[face])
-    bary, uv = _jittered(mesh, rgb.shape[:2], bary, uv, face, rng)
-    return _on_faces(mesh, face, bary), np.asarray(mesh.face_normals)[face], uv, face
+    bary, uv = _jittered(mesh, rgb.shape[:2], bary, interpolate_corners(mesh.uv, face, bary), face, rng)
+    points = interpolate_corners(np.asarray(mesh.vertices)[mesh.faces], face, bary)
+    return points, np.asarray(mesh.face_normals)[face], uv, face
 
 
 def texture_targets(mesh: Mesh, n: int, *, seed: int = 0, texture: np.ndarray | None = None,
