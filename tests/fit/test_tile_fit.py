@@ -1,0 +1,88 @@
+"""Tile levels fitted on a coarse SDF: the sphere's oracle (its normals are its unit positions), the band, the
+grid, the time budget on an injected clock, and the settings' errors."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neural_bake.errors import FitError
+from neural_bake.fit.sdf_config import SdfFitConfig
+from neural_bake.fit.tiles import TileFitConfig, fit_tiles, tile_grid_for
+from neural_bake.io.mesh_io import mesh_from_arrays
+from neural_bake.nets.gemm import gemm_gradient
+
+R = 0.7
+POOLS = SdfFitConfig(pool_surface=6000, pool_near=6000, pool_uniform=1500, progress=False)
+SMALL = dict(grid=3, width=16, depth=1, omega_0=10.0, hidden_omega=30.0, surface_points=64, volume_points=64,
+             lr=1e-3)
+
+
+def sphere(r=R, sub=3):
+    m = trimesh.creation.icosphere(subdivisions=sub, radius=r)
+    return mesh_from_arrays(np.asarray(m.vertices), np.asarray(m.faces), normalise=False)
+
+
+def sphere_points(n, seed):
+    return torch.nn.functional.normalize(torch.randn(n, 3, generator=torch.Generator().manual_seed(seed)), dim=1) * R
+
+
+def normal_error_deg(grads, points):
+    cos = (torch.nn.functional.normalize(grads, dim=1) * torch.nn.functional.normalize(points, dim=1)).sum(1)
+    return torch.rad2deg(torch.arccos(cos.clamp(-1, 1)))
+
+
+def test_tiles_take_a_rough_coarse_level_closer_to_the_sphere(fit_sphere_siren):
+    h = fit_sphere_siren(r=R, steps=60, width=16)  # a rough coarse level
+    fit = fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=250, **SMALL))
+    assert fit.steps == 250 and fit.history[0]["step"] == 1
+    x = sphere_points(3000, 1)
+    hv, hg = gemm_gradient(h, x)
+    rv, rg = fit.model.value_and_gradient(x)
+    before, after = normal_error_deg(hg, x), normal_error_deg(hg + rg, x)
+    assert float(after.median()) < 0.5 * float(before.median())
+    assert float((hv[:, 0] + rv).abs().mean()) < 0.5 * float(hv[:, 0].abs().mean())
+    assert not any(p.requires_grad for p in fit.model.parameters())
+
+
+def test_the_grid_covers_the_surface_and_only_its_cells_hold_networks():
+    x = sphere_points(5000, 2)
+    grid = tile_grid_for(x, 4, 0.1)
+    tiles, w, _ = grid.covering(x)
+    torch.testing.assert_close(w.sum(1), torch.ones(len(x)), rtol=0, atol=1e-6)  # every cell around a point active
+    # counting cells by their own points alone would leave points in seams towards cells without a network
+    sparse = tile_grid_for(x, 4, 0.1, 200)
+    assert float(sparse.covering(x)[1].sum(1).min()) < 1.0
+    inner = ((x - grid.origin.float()) / grid.cell)  # in cells: a seam clear of the grid's outer faces
+    assert float(inner.min()) >= grid.margin and float(inner.max()) <= grid.grid - grid.margin
+    assert 8 < grid.active.numel() < 64  # the sphere's shell, not the cube's centre
+    centre_cell = grid.slot[(2 * 4 + 2) * 4 + 2]
+    assert int(centre_cell) == -1 or grid.active.numel() == 64
+
+
+def test_a_time_budget_stops_on_the_injected_clock(fit_sphere_siren):
+    h = fit_sphere_siren(r=R, steps=60, width=16)
+    ticks = iter(range(10_000))
+    fit = fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=1000, minutes=3 / 60, **SMALL),
+                    clock=lambda: float(next(ticks)))
+    # one reading at the start and one before each step: steps at 1 s and 2 s, the third reading (3 s) stops
+    # the fit, and one reading at the end gives its seconds
+    assert fit.steps == 2 and fit.seconds == pytest.approx(4.0)
+
+
+@pytest.mark.parametrize("change,word", [({"grid": 0}, "grid"), ({"width": 1.5}, "width"), ({"depth": -1}, "depth"),
+                                         ({"margin": 0.5}, "margin"), ({"lr": 0.0}, "lr"), ({"minutes": -1.0}, "minutes"),
+                                         ({"steps": 0}, "steps"), ({"surface_points": 0}, "surface_points")])
+def test_bad_settings_are_one_line_errors(fit_sphere_siren, change, word):
+    h = fit_sphere_siren(r=R, steps=10, width=16)
+    with pytest.raises(FitError, match=word):
+        fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(**{**SMALL, **change}))
+
+
+def test_a_band_without_surface_points_or_of_no_width_is_refused(fit_sphere_siren):
+    h = fit_sphere_siren(r=R, steps=10, width=16)
+    with pytest.raises(FitError, match="band"):
+        fit_tiles(sphere(), h, 0.0, POOLS, TileFitConfig(**SMALL))
+    far = sphere(r=0.2)  # the coarse level's zero set (|x| = 0.7) is nowhere near this mesh's surface
+    with pytest.raises(FitError, match="band"):
+        fit_tiles(far, h, 0.01, POOLS, TileFitConfig(**SMALL))
