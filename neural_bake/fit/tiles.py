@@ -1,11 +1,12 @@
 """Fitting a residual level of tiles (:class:`~neural_bake.nets.tiles.TiledSiren`) on a frozen coarse SDF.
 
-The fine level of a residual construction (nested-neighbourhoods §3), split in space: the mesh's bounding cube
-is cut into ``grid``³ cells, every cell holding at least ``min_surface`` of the first pool's surface samples
-gets a small SIREN, and each network is trained on the pool points inside its own cell and seams, as a residual
-r_t on the coarse level h: every loss term of :func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` (the SDF config's
-weights) is taken of h + r_t, on the points inside h's band |h| < ``band``
-(:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step together: each step draws the same number of
+The fine level of a residual construction (nested-neighbourhoods §3), split in space: a grid of ``grid``³
+cells around the mesh's bounding cube (:func:`tile_grid_for`), a small SIREN on every cell with at least
+``min_surface`` of the first pool's surface samples in its cell or seams, each network trained on the pool
+points inside its own cell and seams as a residual r_t on the coarse level h. The loss terms are those of
+:func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` (surface, normal, angle, eikonal and SDF, with the SDF
+config's weights; no focus, no mined batches), taken of h + r_t on the pool points inside h's band
+|h| < ``band`` (:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step together: each step draws the same number of
 points for every tile and runs them as one batched product (:meth:`TiledSiren.tile_values_and_gradients`).
 The learning rate follows a cosine to ``lr_min_factor`` over the steps, or over the time budget when
 ``minutes`` is set (measured by ``clock``, so tests drive it).
