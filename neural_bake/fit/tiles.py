@@ -199,7 +199,8 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
                 + w.w_sdf * terms["sdf"])
         if w.w_angle > 0:
             loss = loss + w.w_angle * (use_s * smooth_angle(miss)).sum() / (k * s)
-        if not math.isfinite(float(loss)):  # before the step: the weights are never left non-finite
+        value = float(loss.detach())
+        if not math.isfinite(value):  # before the step: the weights are never left non-finite
             raise FitError(f"fit_tiles: the loss became non-finite at step {step + 1}")
         # a tile's loss reaches only its own network: the sum over tiles steps them all at once
         loss = loss * k
@@ -208,8 +209,8 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         opt.step()
         step += 1
         if step % log_every == 0 or step == 1:
-            history.append({"step": step, "lr": lr, "loss": float(loss) / k,
-                            **{name: float(v) for name, v in terms.items()}})
+            history.append({"step": step, "lr": lr, "loss": value,
+                            **{name: float(v.detach()) for name, v in terms.items()}})
     model.eval()
     for p in model.parameters():
         p.requires_grad_(False)
