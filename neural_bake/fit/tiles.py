@@ -21,9 +21,10 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..constants import LOSS_GRAD_FLOOR
 from ..errors import FitError
 from ..nets.siren import Siren
-from ..nets.tiles import TileGrid, TiledSiren
+from ..nets.tiles import TileGrid, TiledSiren, by_tile
 from ..types import Mesh
 from .sdf_config import SdfFitConfig
 from .sdf_loss import smooth_angle
@@ -115,13 +116,8 @@ def tile_grid_for(surface: torch.Tensor, grid: int, margin: float, min_surface: 
 
 def _by_tile(grid: TileGrid, points: torch.Tensor) -> list[torch.Tensor]:
     """For each active tile, the indices of ``points`` inside its cell and seams."""
-    tiles, _, _ = grid.covering(points)
-    flat = tiles.reshape(-1)
-    pairs = torch.nonzero(flat >= 0).reshape(-1)
-    owner = flat[pairs]
-    order = torch.argsort(owner, stable=True)
-    owner, rows = owner[order], pairs[order] // 8
-    bounds = torch.searchsorted(owner, torch.arange(grid.active.numel() + 1)).tolist()
+    pairs, bounds = by_tile(grid.covering(points)[0], grid.active.numel())
+    rows = pairs // 8
     return [rows[bounds[t]: bounds[t + 1]] for t in range(grid.active.numel())]
 
 
@@ -185,7 +181,7 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         s = cfg.surface_points
         use_s, use_v = s_has.to(dtype)[:, None], v_has.to(dtype)[:, None]
         gnorm = torch.linalg.vector_norm(g, dim=-1)
-        miss = 1.0 - (g[:, :s] * data["surf_n"][si]).sum(-1) / gnorm[:, :s].clamp_min(1e-6)
+        miss = 1.0 - (g[:, :s] * data["surf_n"][si]).sum(-1) / gnorm[:, :s].clamp_min(LOSS_GRAD_FLOOR)
         k = float(max(1, int(s_has.sum())))
         terms = {
             "surface": (use_s * f[:, :s] ** 2).sum() / (k * s),

@@ -24,7 +24,7 @@ from torch import nn
 from ..errors import NeuralBakeError
 from .gemm import gemm_gradient
 
-__all__ = ["TileGrid", "TiledSiren", "smoothstep"]
+__all__ = ["TileGrid", "TiledSiren", "smoothstep", "by_tile"]
 
 
 def smoothstep(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,6 +116,17 @@ class TileGrid:
             grads.append(torch.stack([dw[0] * w[1] * w[2], w[0] * dw[1] * w[2], w[0] * w[1] * dw[2]], dim=1)
                          * ok.unsqueeze(1))
         return torch.stack(tiles, 1), torch.stack(weights, 1), torch.stack(grads, 1)
+
+
+def by_tile(tiles: torch.Tensor, count: int) -> tuple[torch.Tensor, list[int]]:
+    """The (point, corner) pairs of :meth:`TileGrid.covering`'s ``tiles`` (N, 8) grouped by tile: ``pairs`` the
+    flat indices ``8 · point + corner`` sorted by tile, and ``bounds`` (count + 1) such that tile t's pairs are
+    ``pairs[bounds[t]:bounds[t + 1]]`` (the point is ``pair // 8``)."""
+    flat = tiles.reshape(-1)
+    pairs = torch.nonzero(flat >= 0).reshape(-1)
+    pairs = pairs[torch.argsort(flat[pairs], stable=True)]
+    bounds = torch.searchsorted(flat[pairs], torch.arange(count + 1, device=tiles.device)).tolist()
+    return pairs, bounds
 
 
 class _TileView:
@@ -216,12 +227,7 @@ class TiledSiren(nn.Module):
         dtype, device = points.dtype, points.device
         tiles, weights, wgrads = self.grid.covering(points)
         n = points.shape[0]
-        flat = tiles.reshape(-1)
-        pairs = torch.nonzero(flat >= 0).reshape(-1)
-        order = torch.argsort(flat[pairs], stable=True)
-        pairs = pairs[order]
-        owner = flat[pairs]
-        bounds = torch.searchsorted(owner, torch.arange(self.tiles + 1, device=device)).tolist()
+        pairs, bounds = by_tile(tiles, self.tiles)
         values = torch.zeros(n * 8, dtype=dtype, device=device)
         grads = torch.zeros(n * 8, 3, dtype=dtype, device=device)
         centres = self.grid.centres(dtype=dtype, device=device)
