@@ -27,7 +27,8 @@ from .bench import bench_options, report
               help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (one network "
                    "of the preset's width), residual (a coarse level 64 wide at ω0 15 for a quarter of the budget, then "
                    "the rest of the width fitted as a residual inside the coarse level's band; the quick, default and high presets' own), "
-                   "residual-warm (the whole width started from the coarse level). Default: the preset's own. Rows "
+                   "residual-warm (the whole width started from the coarse level), tiles (the same coarse level, "
+                   "then small SIRENs over a grid of tiles fitted as its residual). Default: the preset's own. Rows "
                    "get ratios against plain.")
 @click.option("--steps", default=None, metavar="LIST",
               help="Comma-separated step counts: fit each case for exactly that many steps, no time budget.")

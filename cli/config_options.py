@@ -91,7 +91,10 @@ def _cost(config) -> str:
     parts = []
     if hasattr(config, "width") and hasattr(config, "depth"):
         w, d = config.width, config.depth
-        if getattr(config, "construction", "plain") != "plain" and getattr(config, "coarse_width", 0):
+        if getattr(config, "construction", "plain") == "tiles":  # a coarse level and tiles fitted on it
+            parts.append(f"{config.coarse_width}x{d} + {config.tile_width}x{config.tile_depth} tiles on a "
+                         f"{config.tile_grid}³ grid")
+        elif getattr(config, "construction", "plain") != "plain" and getattr(config, "coarse_width", 0):
             c = config.coarse_width  # a coarse level and a fine one fitted on it, saved as their sum
             parts.append(f"{c}x{d} + {w - c}x{d} as one {w}x{d}")
         else:

@@ -63,6 +63,11 @@ MAX_NET_IN_DIM = 8
 #: Largest output dimension a model file may declare (1 for an SDF, 3 or 4 for colour).
 MAX_NET_OUT_DIM = 16
 
+#: Largest number of tiles (:class:`~neural_bake.nets.tiles.TiledSiren`) and cells per axis of their grid a
+#: model file may declare (a 64³ grid of 64-wide tiles would be 260,000 networks; fits use ~50–120 on 6³).
+MAX_TILES = 4096
+MAX_TILE_GRID = 64
+
 #: Most levels a feature-grid network may declare (:class:`~neural_bake.nets.grid.GridNet`).
 MAX_GRID_LEVELS = 32
 

@@ -144,8 +144,8 @@ def load_sdf_field(path: str | os.PathLike, *, band_level: int = 0, device=None,
 
 
 def save_model(model, path: str | os.PathLike, **metadata) -> Path:
-    """Write a :class:`~neural_bake.nets.siren.Siren` (or a texture's :class:`~neural_bake.nets.grid.GridNet`)
-    and JSON ``metadata`` to ``path`` atomically.
+    """Write a :class:`~neural_bake.nets.siren.Siren` (or a texture's :class:`~neural_bake.nets.grid.GridNet`, a
+    tiled SDF's :class:`~neural_bake.nets.tiles.TiledSdf`) and JSON ``metadata`` to ``path`` atomically.
 
     A file :func:`load_field` reads needs ``kind`` ("sdf" or "texture") and ``frame`` in ``metadata``;
     :func:`save_field` and the fits' ``save`` methods write them. The folder must exist; an existing file is
@@ -220,10 +220,12 @@ def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
     from ..nets.model_io import network_kind
 
     arch, meta = header["architecture"], header["metadata"]
-    if network_kind(arch) != "siren":
-        raise ModelFileError(f"{path}: kind 'sdf' is a SIREN (its normals are GEMM gradients), this file holds a "
-                             f"{network_kind(arch)} network")
-    if arch["in_dim"] != 3 or arch["out_dim"] != 1:
+    if network_kind(arch) not in ("siren", "tiles"):
+        raise ModelFileError(f"{path}: kind 'sdf' is a SIREN or a tiled SDF (their normals are GEMM gradients), "
+                             f"this file holds a {network_kind(arch)} network")
+    if network_kind(arch) == "tiles":  # a coarse SIREN and its tiles: R^3 to R (checked with the architecture)
+        pass
+    elif arch["in_dim"] != 3 or arch["out_dim"] != 1:
         st = " (a space-time SDF is kind 'spacetime_sdf', with its time range)" if arch["in_dim"] == 4 else ""
         raise ModelFileError(f"{path}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps "
                              f"R^{arch['in_dim']} to R^{arch['out_dim']}{st}")

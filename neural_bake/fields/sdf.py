@@ -7,7 +7,7 @@ evaluates in its own dtype: callers convert at the boundary). Normals of a netwo
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import torch
 
@@ -29,7 +29,8 @@ class SdfField:
       hold: a nested sequence's band, or a fitted SDF's sampled distance error to its mesh), or None.
     - ``name``: what messages and reports call it (the file name for a loaded field).
     - ``metadata``: provenance, the file's JSON metadata (kind, training config, how δ was obtained…).
-    - ``model``: the :class:`~neural_bake.nets.siren.Siren` of a fitted field, None for an analytic one.
+    - ``model``: the :class:`~neural_bake.nets.siren.Siren` of a fitted field (or the
+      :class:`~neural_bake.nets.tiles.TiledSdf` of a tiled one), None for an analytic one.
     - ``gemm_dtype``: None, or the reduced precision of the network's hidden GEMMs (:meth:`with_precision`).
     """
 
@@ -45,7 +46,7 @@ class SdfField:
     ):
         self.fn, self.gradient, self.frame, self.delta, self.name = fn, gradient, frame, delta, name
         self.metadata = dict(metadata or {})
-        self.model = None
+        self.model: Any = None
         self._pair: Callable | None = None
         self.gemm_dtype: torch.dtype | None = None
 
@@ -124,7 +125,9 @@ class SdfField:
         """f (N,) at ``points`` (N, 3) without the gradient (a network's forward pass alone, its hidden GEMMs
         at ``gemm_dtype``); a NaN value becomes +inf, as in :meth:`value_and_normal`."""
         with torch.no_grad():
-            if self.model is not None:
+            if getattr(self.model, "composite", False):  # several networks (nets.tiles.TiledSdf)
+                values = self.model.value(points, gemm_dtype=self.gemm_dtype)
+            elif self.model is not None:
                 from ..nets.siren import siren_forward_inference
 
                 layers = self.model.affine_layers(dtype=points.dtype, device=points.device)
@@ -144,7 +147,8 @@ class SdfField:
         return values, unit, valid
 
     def __repr__(self) -> str:
-        arch = f"{self.model.width}x{self.model.depth}" if self.model is not None else "analytic"
+        arch = "analytic" if self.model is None else getattr(self.model, "label", None) or \
+            f"{self.model.width}x{self.model.depth}"
         return f"SdfField({self.name!r}, {arch}, delta={self.delta})"
 
 

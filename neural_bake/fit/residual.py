@@ -22,6 +22,12 @@ preset's own or the caller's); :func:`~neural_bake.fit.sdf.fit_sdf` hands a cons
   mining), the audit's time taken from the fine level's share.
 - ``"residual-warm"``: the same coarse h, then a network of the config's width initialised as h beside fresh
   units whose output weights are zero (the same function as h) and fitted plainly (every point, no band).
+- ``"tiles"``: the same coarse h and band audit, then a tile level r (:func:`~neural_bake.fit.tiles.fit_tiles`:
+  ``tile_grid``³ cells over the mesh's bounding cube, a ``tile_width`` × ``tile_depth`` SIREN on every cell the
+  surface reaches, blended across seams of ``tile_margin`` cells) fitted inside h's band for the rest of the
+  budget. The ``model`` is a :class:`~neural_bake.nets.tiles.TiledSdf` (h and r in one file): it loads, bakes,
+  marches and renders through the field layer with GEMM normals and range bounds. The tile level is not
+  checkpointed: a resumed run continues the coarse level, then fits the tiles again.
 
 ``steps``, ``history`` and ``sampling_seconds`` of the result are the fine level's, ``seconds`` the whole
 construction's, ``budget`` the account of both levels (steps made and expected, summed, each level's own
@@ -53,7 +59,7 @@ from .sdf_pools import _Pools, band_audit
 __all__ = ["CONSTRUCTIONS", "ResidualSdfFit", "coarse_checkpoint", "fit_levels", "fit_sdf_construction", "level_keys"]
 
 #: The SDF constructions (:attr:`~neural_bake.fit.sdf_config.SdfFitConfig.construction`).
-CONSTRUCTIONS = ("plain", "residual", "residual-warm")
+CONSTRUCTIONS = ("plain", "residual", "residual-warm", "tiles")
 
 
 @dataclass
@@ -62,11 +68,14 @@ class ResidualSdfFit(SdfFit):
     ``steps``/``history`` the fine level's, ``budget`` both levels'; the coarse level's own record beside them."""
 
     construction: str = "residual"
-    """"residual" or "residual-warm" (:data:`CONSTRUCTIONS`)."""
+    """"residual", "residual-warm" or "tiles" (:data:`CONSTRUCTIONS`)."""
     coarse: SdfFit | None = None
     """The coarse level h's fit."""
     fine: Siren | None = None
-    """The residual network r alone ("residual"; None for "residual-warm", whose network is ``model``)."""
+    """The residual network r alone ("residual"; None for "residual-warm", whose network is ``model``, and for
+    "tiles", whose tile level is ``tiles``)."""
+    tiles: object | None = None
+    """The tile level's fit ("tiles": a :class:`~neural_bake.fit.tiles.TileFit`)."""
     band: float | None = None
     """δ: the residual level's training band |h| < δ (unit frame; None for "residual-warm")."""
     fine_seconds: float | None = None
@@ -84,6 +93,8 @@ class ResidualSdfFit(SdfFit):
     @property
     def label(self) -> str:
         """The networks in a row: "64x3+128x3" (residual: h + r) or "64x3→192x3" (warm start)."""
+        if self.construction == "tiles":
+            return str(self.model.label)
         c, f = self.coarse.config if self.coarse else None, self.fine_config or self.config
         head = f"{c.width}x{c.depth}" if c is not None else "?"
         return f"{head}{'+' if self.construction == 'residual' else '→'}{f.width}x{f.depth}"
@@ -197,7 +208,7 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
     h = coarse.model
     band = cfg.band_factor * float(coarse.distance_error or 0.0)
     audit, audit_record = None, None
-    if cfg.construction == "residual" and cfg.audit_candidates and band > 0:  # before the fine level's share
+    if cfg.construction in ("residual", "tiles") and cfg.audit_candidates and band > 0:  # before the fine level's share
         t_audit = now()
         audit = band_audit(h, mesh, band, float(coarse.distance_error or 0.0), cfg.audit_candidates,
                            seed=int(cfg.seed) * 7_919 + 5)
@@ -209,6 +220,9 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
         fine_cfg = replace(fine_cfg, minutes=max(left, 0.05 * 60.0 * cfg.minutes) / 60.0)
     elif cfg.budget != "steps":
         fine_cfg = replace(fine_cfg, steps=max(1, cfg.steps - coarse_budget["steps"]))
+    if cfg.construction == "tiles":
+        return _fit_tile_level(mesh, cfg, key, fine_cfg, coarse, band, audit, audit_record, clock, cache,
+                               lambda: now() - t0)
     if cfg.construction == "residual":
         if not band > 0:
             raise FitError(f"{mesh.name}: the coarse level's distance error is {coarse.distance_error!r}: no band")
@@ -235,6 +249,34 @@ def fit_levels(mesh: Mesh, cfg: SdfFitConfig, key: str | None = None, *,
         distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)), construction=cfg.construction,
         coarse=coarse, fine=fine, band=band if cfg.construction == "residual" else None, fine_config=fine_fit.config,
         audit=audit_record)
+
+
+def _fit_tile_level(mesh: Mesh, cfg: SdfFitConfig, key: str | None, fine_cfg: SdfFitConfig, coarse: SdfFit,
+                    band: float, audit, audit_record, clock, cache: dict, elapsed: Callable[[], float]
+                    ) -> "ResidualSdfFit":
+    """The "tiles" construction's second level on the fitted ``coarse`` one: :func:`~neural_bake.fit.tiles.fit_tiles`
+    for ``fine_cfg``'s budget (minutes, else steps), and the construction's record; ``elapsed()``: the
+    construction's seconds so far."""
+    from ..nets.tiles import TiledSdf
+    from .tiles import TileFitConfig, fit_tiles
+
+    if not band > 0:
+        raise FitError(f"{mesh.name}: the coarse level's distance error is {coarse.distance_error!r}: no band")
+    tile_cfg = TileFitConfig(grid=int(cfg.tile_grid), margin=float(cfg.tile_margin), width=int(cfg.tile_width),
+                             depth=int(cfg.tile_depth), seed=int(cfg.seed) + 1, steps=int(fine_cfg.steps),
+                             minutes=fine_cfg.minutes)
+    tiles = fit_tiles(mesh, coarse.model, band, fine_cfg, tile_cfg, clock=clock or time.perf_counter,
+                      pool_cache=cache, audit=audit)
+    h = coarse.model
+    model = TiledSdf(h, tiles.model.to(next(h.parameters()))).eval()
+    budget = _levels_budget(cfg, key, coarse, tiles)
+    history = [{"step": r["step"], "loss": r["loss"]} for r in tiles.history]
+    return ResidualSdfFit(
+        model=model, frame=mesh.frame, history=history, steps=tiles.steps, seconds=elapsed(),
+        config=cfg, stopped_reason=tiles.stopped_reason, restarts=coarse.restarts, budget=budget,
+        threads=coarse.threads, fine_seconds=tiles.seconds,
+        distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)), construction="tiles",
+        coarse=coarse, band=band, audit=audit_record, tiles=tiles)
 
 
 def fit_sdf_construction(mesh: Mesh, construction: str | None = None, *, preset: str | None = None,

@@ -165,7 +165,10 @@ class SdfFitConfig(PresetLoopSettings):
     only inside the coarse level's band (``band_factor`` × its sampled distance error): the fine level spends
     its capacity on detail (nested-neighbourhoods §3). The file holds the sum as one SIREN of ``width`` (its
     cost to bake is a plain fit's); "residual-warm", the coarse level grown to ``width`` by fresh units and
-    fitted plainly for the rest."""
+    fitted plainly for the rest; "tiles", the same coarse level, then small SIRENs over a grid of tiles
+    (``tile_grid``³ cells, ``tile_width`` × ``tile_depth`` each, blended across seams of ``tile_margin`` cells)
+    fitted as its residual inside its band (:mod:`neural_bake.fit.tiles`): capacity where the surface is; the
+    file holds both levels (a :class:`~neural_bake.nets.tiles.TiledSdf`)."""
     coarse_width: int = 64
     """Hidden width of a residual construction's coarse level (part of ``width``)."""
     coarse_share: float = 0.25
@@ -174,6 +177,14 @@ class SdfFitConfig(PresetLoopSettings):
     """ω0 of a residual construction's coarse level (a smooth approximation, as a nested sequence's)."""
     band_factor: float = 4.0
     """A residual level's band δ in multiples of the coarse level's sampled distance error."""
+    tile_grid: int = 6
+    """The "tiles" construction: cells per axis of the tile grid over the mesh's bounding cube."""
+    tile_width: int = 64
+    """The "tiles" construction: hidden units of each tile's SIREN."""
+    tile_depth: int = 2
+    """The "tiles" construction: hidden W×W matrices of each tile's SIREN."""
+    tile_margin: float = 0.08
+    """The "tiles" construction: half-width of the seams between tiles, in cells (0 < margin ≤ 0.25)."""
     device: str | None = None
     """torch device ("cpu", "cuda", …); None: CPU."""
     dtype: str = "float32"
@@ -186,6 +197,8 @@ class SdfFitConfig(PresetLoopSettings):
         if self.construction == "plain":  # a plain fit's trajectory does not depend on the residual settings
             skip |= {"construction", "coarse_width", "coarse_share", "coarse_omega_0", "band_factor",
                      "audit_candidates"}
+        if self.construction != "tiles":
+            skip |= {"tile_grid", "tile_width", "tile_depth", "tile_margin"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -333,5 +346,14 @@ def _check_config(cfg: SdfFitConfig) -> None:
             raise FitError(f"fit_sdf: band_factor must be positive, got {cfg.band_factor!r}")
         if not (math.isfinite(cfg.coarse_omega_0) and cfg.coarse_omega_0 > 0):
             raise FitError(f"fit_sdf: coarse_omega_0 must be positive, got {cfg.coarse_omega_0!r}")
+    if cfg.construction == "tiles":
+        for name in ("tile_grid", "tile_width"):
+            v = getattr(cfg, name)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise FitError(f"fit_sdf: {name} must be a positive integer, got {v!r}")
+        if isinstance(cfg.tile_depth, bool) or int(cfg.tile_depth) != cfg.tile_depth or cfg.tile_depth < 0:
+            raise FitError(f"fit_sdf: tile_depth must be a non-negative integer, got {cfg.tile_depth!r}")
+        if not (math.isfinite(cfg.tile_margin) and 0 < cfg.tile_margin <= 0.25):
+            raise FitError(f"fit_sdf: tile_margin must be in (0, 0.25] cells, got {cfg.tile_margin!r}")
     if cfg.dtype not in _DTYPES:
         raise FitError(f"fit_sdf: dtype must be one of {', '.join(_DTYPES)}, got {cfg.dtype!r}")

@@ -77,6 +77,21 @@ class TileFit:
     steps: int
     seconds: float
     history: list[dict] = field(default_factory=list)
+    stopped_reason: str = "steps"
+    """"steps" (all of ``config.steps`` made) or "time" (the budget ran out)."""
+    config: TileFitConfig | None = None
+    """The settings the level was fitted with."""
+
+    @property
+    def budget(self) -> dict | None:
+        """A time-budgeted level's account as a construction records it (steps made, no reference steps to
+        expect); None for a run of a number of steps."""
+        minutes = None if self.config is None else self.config.minutes
+        if not minutes:
+            return None
+        return {"budget": "time", "steps": self.steps, "expected_steps": None,
+                "ratio": None, "budget_seconds": 60.0 * minutes, "warning": None,
+                "note": None, "stopped": self.stopped_reason}
 
 
 def _check(cfg: TileFitConfig) -> None:
@@ -122,46 +137,57 @@ def _by_tile(grid: TileGrid, points: torch.Tensor) -> list[torch.Tensor]:
 
 
 def _draw(buckets: list[torch.Tensor], n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """(K, n) indices drawn uniformly with replacement from each tile's bucket, and (K,) whether it had any."""
+    """(K, n) indices drawn uniformly with replacement from each tile's bucket, and (K,) whether it had any, on
+    the buckets' device (the draws from the CPU generator ``gen``)."""
+    device = buckets[0].device
     idx, has = [], []
     for b in buckets:
         has.append(len(b) > 0)
-        idx.append(b[torch.randint(len(b), (n,), generator=gen)] if len(b) else torch.zeros(n, dtype=torch.long))
-    return torch.stack(idx), torch.tensor(has)
+        pick = torch.randint(max(len(b), 1), (n,), generator=gen).to(device)
+        idx.append(b[pick] if len(b) else torch.zeros(n, dtype=torch.long, device=device))
+    return torch.stack(idx), torch.tensor(has, device=device)
 
 
 def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, config: TileFitConfig | None = None,
-              *, clock: Callable[[], float] = time.perf_counter, log_every: int = 100) -> TileFit:
+              *, clock: Callable[[], float] = time.perf_counter, log_every: int = 100, pool_cache: dict | None = None,
+              audit: tuple | None = None) -> TileFit:
     """Fit a tile level r on the frozen coarse SDF ``base`` (unit frame) inside its band |base| < ``band``.
 
-    ``sdf_config`` gives the pools (sizes, refreshes, sampling) and the loss weights; ``config`` the tiles and
-    the schedule (:class:`TileFitConfig`). Returns a :class:`TileFit` whose ``model`` starts from zero output
-    layers (r = 0) and is in eval mode. Raises FitError for bad settings or a band without surface points.
+    ``sdf_config`` gives the pools (sizes, refreshes, sampling), the loss weights, the device and dtype;
+    ``config`` the tiles and the schedule (:class:`TileFitConfig`). ``pool_cache``: the pools a construction's
+    levels share (:class:`~neural_bake.fit.sdf_pools._Pools`); ``audit``: (points, true distances) of the
+    coarse level's band audit (:func:`~neural_bake.fit.sdf_pools.band_audit`), added to every pool's uniform
+    points. Returns a :class:`TileFit` whose ``model`` starts from zero output layers (r = 0) and is in eval
+    mode. Raises FitError for bad settings or a band without surface points.
     """
+    from .sdf_config import _DTYPES
+    start = clock()  # the budget counts the band's pool and the grid too
+
     cfg = config or TileFitConfig()
     _check(cfg)
     if not (math.isfinite(band) and band > 0):
         raise FitError(f"fit_tiles: band must be a positive distance, got {band!r}")
-    dtype = torch.float32
-    base = base.to(dtype).eval()
+    dtype, device = _DTYPES[sdf_config.dtype], torch.device(sdf_config.device or "cpu")
+    base = base.to(device=device, dtype=dtype).eval()
     for p in base.parameters():
         p.requires_grad_(False)
-    pools = _Pools(mesh, sdf_config, torch.device("cpu"), dtype, prepare=band_pools(base, band))
+    pools = _Pools(mesh, sdf_config, device, dtype, prepare=band_pools(base, band, audit=audit), cache=pool_cache)
     gen = torch.Generator().manual_seed(int(cfg.seed))
     data = pools.get(0)
     grid = tile_grid_for(data["surf_p"], cfg.grid, cfg.margin, cfg.min_surface)
-    model = TiledSiren(grid, cfg.width, cfg.depth, cfg.omega_0, cfg.hidden_omega, zero_output=True, generator=gen)
-    centres = grid.centres(dtype=dtype)
+    model = TiledSiren(grid, cfg.width, cfg.depth, cfg.omega_0, cfg.hidden_omega, zero_output=True,
+                       generator=gen).to(device=device, dtype=dtype)
+    centres = grid.centres(dtype=dtype, device=device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     w = sdf_config
     history: list[dict] = []
     index, buckets = None, None
-    start = clock()
     budget = None if cfg.minutes is None else 60.0 * cfg.minutes
-    step = 0
+    step, stopped = 0, "steps"
     while step < cfg.steps:
         elapsed = clock() - start
         if budget is not None and elapsed >= budget:
+            stopped = "time"
             break
         data = pools.get(step)
         if buckets is None or pools.index != index:  # a new pool: its points sorted by tile once
@@ -210,4 +236,5 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     model.eval()
     for p in model.parameters():
         p.requires_grad_(False)
-    return TileFit(model=model, steps=step, seconds=clock() - start, history=history)
+    return TileFit(model=model, steps=step, seconds=clock() - start, history=history, stopped_reason=stopped,
+                   config=cfg)

@@ -101,6 +101,9 @@ def gemm_gradient(
         NeuralBakeError: points not a floating (N, in_dim) tensor, an unknown mode, a chunk size < 1.
     """
     in_dim, out_dim = int(model.in_dim), int(model.out_dim)
+    if getattr(model, "composite", False):  # a field of several networks (nets.tiles.TiledSdf) adds its own
+        return model.gemm_gradient(points, mode=mode, differentiable=differentiable, chunk_size=chunk_size,
+                                   gemm_dtype=gemm_dtype)
     if not isinstance(points, torch.Tensor):
         raise NeuralBakeError(f"gemm_gradient: points must be a torch tensor, got {type(points).__name__}")
     if points.dim() != 2 or points.shape[1] != in_dim:

@@ -11,7 +11,10 @@ One file per network. The tensors are the module's ``state_dict`` (``layers.<i>.
 
 A network other than a SIREN says which in its architecture: ``"network": "grid"`` is a
 :class:`~neural_bake.nets.grid.GridNet` (its :attr:`~neural_bake.nets.grid.GridNet.architecture`; tensors
-``table`` and ``layers.<i>.*``), written as format version 2 so that readers that know only SIRENs refuse it
+``table`` and ``layers.<i>.*``); ``"network": "tiles"`` a :class:`~neural_bake.nets.tiles.TiledSdf` (``coarse``,
+a SIREN's architecture, and ``tiles``: the tiles' width, depth, ω and grid — origin, cell, cells per axis,
+margin, active cells; tensors ``coarse.layers.<i>.*`` and ``tiles.weights.<i>`` (K, out, in),
+``tiles.biases.<i>`` (K, out)). Both are written as format version 2 so that readers that know only SIRENs refuse it
 with "upgrade" instead of misreading it. An architecture without ``"network"`` is a SIREN (every file of
 version 1).
 
@@ -36,10 +39,12 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..constants import MAX_HEADER_DEPTH, MAX_NET_DEPTH, MAX_NET_IN_DIM, MAX_NET_OUT_DIM, MAX_NET_WIDTH
+from ..constants import (MAX_HEADER_DEPTH, MAX_NET_DEPTH, MAX_NET_IN_DIM, MAX_NET_OUT_DIM, MAX_NET_WIDTH, MAX_TILE_GRID,
+                         MAX_TILES)
 from ..errors import ModelFileError
 from .grid import IN_DIMS, GridNet, check_grid_settings, valid_normal_scale
 from .siren import Siren
+from .tiles import TiledSdf
 
 __all__ = ["encode_model", "encode_file", "load_model", "read_model_metadata", "read_raw_metadata",
            "parse_header", "check_architecture", "check_network_architecture", "expected_shapes",
@@ -54,7 +59,7 @@ MODEL_FORMAT_VERSION = 2
 #: The version a file holding a network other than a SIREN (``"network"`` in its architecture) is written as.
 NETWORK_FORMAT_VERSION = 2
 #: The networks a model file may hold besides SIRENs, by their architecture's ``"network"``.
-NETWORKS = ("grid",)
+NETWORKS = ("grid", "tiles")
 
 _ARCH_INT = ("width", "depth", "in_dim", "out_dim")
 _ARCH_FLOAT = ("omega_0", "hidden_omega")
@@ -67,7 +72,8 @@ def encode_model(model: Siren, path: str | os.PathLike = "<model>", **metadata) 
     """The bytes of a model file holding ``model`` and ``metadata`` (see the module docstring).
 
     Args:
-        model: a :class:`Siren` or :class:`~neural_bake.nets.grid.GridNet` on any device and dtype (tensors are
+        model: a :class:`Siren`, :class:`~neural_bake.nets.grid.GridNet` or :class:`~neural_bake.nets.tiles.TiledSdf`
+            on any device and dtype (tensors are
             stored as they are, moved to CPU).
         path: only named in error messages.
         **metadata: JSON-serialisable values (dicts, lists, str, numbers, bool, None); objects with a
@@ -78,8 +84,9 @@ def encode_model(model: Siren, path: str | os.PathLike = "<model>", **metadata) 
     Raises:
         ModelFileError: ``model`` is not a Siren or a metadata value is not serialisable.
     """
-    if not isinstance(model, (Siren, GridNet)):
-        raise ModelFileError(f"{path}: save_model expects a Siren or a GridNet, got {type(model).__name__}")
+    if not isinstance(model, (Siren, GridNet, TiledSdf)):
+        raise ModelFileError(f"{path}: save_model expects a Siren, a GridNet or a TiledSdf, got "
+                             f"{type(model).__name__}")
     header = {
         "format": MODEL_FORMAT,
         "format_version": 1 if isinstance(model, Siren) else NETWORK_FORMAT_VERSION,
@@ -111,7 +118,7 @@ def encode_file(tensors: dict[str, torch.Tensor], header: dict, fmt: str, path: 
 
 def load_model(
     path: str | os.PathLike, *, device: str | torch.device | None = None, dtype: torch.dtype | None = None
-) -> tuple[Siren | GridNet, dict]:
+) -> tuple[Siren | GridNet | TiledSdf, dict]:
     """Read a model file (see the module docstring).
 
     Args:
@@ -256,6 +263,8 @@ def check_network_architecture(arch, path, where: str = "") -> dict:
     if arch["network"] not in NETWORKS:
         raise ModelFileError(f"{path}: corrupt model header ({where}network = {arch['network']!r:.40} is not one of "
                              f"siren, {', '.join(NETWORKS)})")
+    if arch["network"] == "tiles":
+        return _check_tiles_architecture(arch, path, where)
     keys = {"network", "activation", "omega", *_GRID_INT}
     if set(arch) != keys and set(arch) != keys | {"normal_scale"}:
         raise ModelFileError(f"{path}: corrupt model header ({where}architecture {arch!r:.120})")
@@ -283,10 +292,62 @@ def check_network_architecture(arch, path, where: str = "") -> dict:
     return out
 
 
+def _check_tiles_architecture(arch: dict, path, where: str) -> dict:
+    """A tiled SDF's architecture (``network``, ``coarse``, ``tiles``) checked: the coarse level a scalar SIREN
+    of 3-D points, the tiles' sizes and ω within the caps, their grid's origin, cell, cells per axis (at most
+    ``MAX_TILE_GRID``), margin and active cells (distinct, inside the grid, at most ``MAX_TILES``)."""
+    def bad(what: str) -> ModelFileError:
+        return ModelFileError(f"{path}: corrupt model header ({where}{what})")
+
+    if set(arch) != {"network", "coarse", "tiles"}:
+        raise bad(f"architecture {arch!r:.120}")
+    coarse = check_architecture(arch["coarse"], path, f"{where}coarse ")
+    if (coarse["in_dim"], coarse["out_dim"]) != (3, 1):
+        raise bad(f"the coarse level maps R^{coarse['in_dim']} to R^{coarse['out_dim']}, a tiled SDF's R^3 to R")
+    t = arch["tiles"]
+    if not isinstance(t, dict) or set(t) != {"width", "depth", "omega_0", "hidden_omega", "grid"}:
+        raise bad(f"tiles {t!r:.120}")
+    checked = check_architecture({**{k: t[k] for k in ("width", "depth", "omega_0", "hidden_omega")},
+                                  "in_dim": 3, "out_dim": 1}, path, f"{where}tiles ")
+    g = t["grid"]
+    if not isinstance(g, dict) or set(g) != {"origin", "cell", "grid", "margin", "active"}:
+        raise bad(f"tiles grid {g!r:.120}")
+    n, active, origin = g["grid"], g["active"], g["origin"]
+    if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= MAX_TILE_GRID:
+        raise bad(f"tiles grid = {n!r:.40} is not a size in [1, {MAX_TILE_GRID}]")
+    if not (isinstance(origin, list) and len(origin) == 3 and all(_finite(v) for v in origin)):
+        raise bad(f"tiles origin = {origin!r:.60} is not 3 finite numbers")
+    if not (_finite(g["cell"]) and g["cell"] > 0):
+        raise bad(f"tiles cell = {g['cell']!r:.40} is not a positive length")
+    if not (_finite(g["margin"]) and 0 < g["margin"] <= 0.25):
+        raise bad(f"tiles margin = {g['margin']!r:.40} is not in (0, 0.25] cells")
+    if not (isinstance(active, list) and 1 <= len(active) <= MAX_TILES
+            and all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c < n ** 3 for c in active)
+            and len(set(active)) == len(active)):
+        raise bad(f"tiles active = {active!r:.60}: 1 to {MAX_TILES} distinct cells in [0, {n ** 3})")
+    tiles = {k: checked[k] for k in ("width", "depth", "omega_0", "hidden_omega")}
+    grid = {"origin": [float(v) for v in origin], "cell": float(g["cell"]), "grid": n,
+            "margin": float(g["margin"]), "active": list(active)}
+    return {"network": "tiles", "coarse": coarse, "tiles": {**tiles, "grid": grid}}
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def expected_network_shapes(arch: dict, prefix: str = "") -> dict[str, tuple[int, ...]]:
     """The state_dict names (with ``prefix``) and shapes of the network ``arch`` describes (any of them)."""
     if network_kind(arch) == "siren":
         return expected_shapes(arch, prefix)
+    if network_kind(arch) == "tiles":
+        shapes = expected_shapes(arch["coarse"], f"{prefix}coarse.")
+        t = arch["tiles"]
+        k = len(t["grid"]["active"])
+        dims = [3] + [t["width"]] * (t["depth"] + 1) + [1]
+        for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
+            shapes[f"{prefix}tiles.weights.{i}"] = (k, b, a)
+            shapes[f"{prefix}tiles.biases.{i}"] = (k, b)
+        return shapes
     from .grid import grid_layer_dims, grid_resolutions, grid_table_sizes
 
     rows = sum(grid_table_sizes(grid_resolutions(arch["levels"], arch["base_resolution"], arch["max_resolution"]),
@@ -367,11 +428,23 @@ def _holding(model, state: dict[str, torch.Tensor], prefix: str, dtype_key: str,
 
 
 def build_network(arch: dict, state: dict[str, torch.Tensor], path, *, prefix: str = "",
-                  device: str | torch.device | None = None, dtype: torch.dtype | None = None) -> Siren | GridNet:
+                  device: str | torch.device | None = None, dtype: torch.dtype | None = None
+                  ) -> Siren | GridNet | TiledSdf:
     """The network ``arch`` describes (a SIREN: :func:`build_siren`; a grid network) holding
     ``state[prefix + name]``, in eval mode on ``device``."""
     if network_kind(arch) == "siren":
         return build_siren(arch, state, path, prefix=prefix, device=device, dtype=dtype)
+    if network_kind(arch) == "tiles":
+        from .tiles import TileGrid, TiledSiren
+
+        t = arch["tiles"]
+        try:
+            tiled = TiledSdf(Siren(**arch["coarse"]),
+                             TiledSiren(TileGrid.from_dict(t["grid"]), t["width"], t["depth"], t["omega_0"],
+                                        t["hidden_omega"]))
+        except (TypeError, ValueError) as exc:
+            raise ModelFileError(f"{path}: invalid architecture ({_one_line(exc)})") from None
+        return _holding(tiled, state, prefix, "coarse.layers.0.weight", device, dtype)
     kwargs = {k: v for k, v in arch.items() if k != "network"}
     try:
         model = GridNet(**kwargs)

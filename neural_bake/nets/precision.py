@@ -106,6 +106,11 @@ def resolve_precision(precision: str, model=None, *, device: torch.device | str 
         if precision == "bf16":
             raise NeuralBakeError(f"precision bf16: {why}", parameter="precision")
         return "fp32", why
+    if getattr(model, "composite", False):  # nets.tiles.TiledSdf: many small networks, one precision
+        why = "a tiled SDF's networks run in float32"
+        if precision == "bf16":
+            raise NeuralBakeError(f"precision bf16: {why}", parameter="precision")
+        return "fp32", why
     p = next(model.parameters())
     device = torch.device(device) if device is not None else p.device
     dtype = dtype or p.dtype

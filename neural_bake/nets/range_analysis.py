@@ -411,6 +411,8 @@ def range_bound(
         an unknown method, a model with more than one output.
     """
     fn = "range_bound"
+    if getattr(model, "composite", False):  # a field of several networks (nets.tiles.TiledSdf) bounds its parts
+        return model.range_bound(torch.as_tensor(center), torch.as_tensor(axes), method)
     layers_list, center, axes, out_dtype, cdtype, u_in, n_in, chunk, e_rel = _prepare(
         fn, [model], center, axes, method, keep, chunk, compute_dtype)
     (layers,) = layers_list

@@ -12,6 +12,11 @@ weights of the cells around a point sum to 1 and are C¹. The blend is ``r(x) = 
 active tiles, with ``∇r = Σ_t (w_t ∇r_t + r_t ∇w_t)``; where a cell is not active its share is simply missing,
 so r fades to 0 across the seams at the edge of the active region and is exactly 0 beyond them. It is meant
 as a residual on a base field (f = h + r), which holds f everywhere the tiles do not reach.
+
+:class:`TiledSdf` is that field: a coarse :class:`~neural_bake.nets.siren.Siren` h and its tile level r, with
+the value, GEMM value-and-gradient and guaranteed range bounds of f = h + r that the field layer, the baker,
+marching cubes and the renderer take from a network (:func:`~neural_bake.nets.gemm.gemm_gradient` and
+:func:`~neural_bake.nets.range_analysis.range_bound` hand a TiledSdf to its own methods).
 """
 
 from __future__ import annotations
@@ -23,8 +28,9 @@ from torch import nn
 
 from ..errors import NeuralBakeError
 from .gemm import gemm_gradient
+from .siren import Siren, siren_forward_inference
 
-__all__ = ["TileGrid", "TiledSiren", "smoothstep", "by_tile"]
+__all__ = ["TileGrid", "TiledSiren", "TiledSdf", "smoothstep", "by_tile"]
 
 
 def smoothstep(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -247,6 +253,166 @@ class TiledSiren(nn.Module):
         grad = (weights.unsqueeze(2) * grads + values.unsqueeze(2) * wgrads).sum(dim=1)
         return r, grad
 
+    @torch.no_grad()
+    def value(self, points: torch.Tensor) -> torch.Tensor:
+        """The blend r (N,) at unit-frame ``points`` (N, 3) without its gradient (each tile's forward pass)."""
+        if points.dim() != 2 or points.shape[1] != 3 or not points.is_floating_point():
+            raise NeuralBakeError(f"TiledSiren: expected floating points of shape (N, 3), got {tuple(points.shape)}")
+        dtype, device = points.dtype, points.device
+        tiles, weights, _ = self.grid.covering(points)
+        n = points.shape[0]
+        pairs, bounds = by_tile(tiles, self.tiles)
+        values = torch.zeros(n * 8, dtype=dtype, device=device)
+        centres = self.grid.centres(dtype=dtype, device=device)
+        layers = self.affine_layers(dtype=dtype, device=device)
+        half = self.grid.half
+        for t in range(self.tiles):
+            lo, hi = bounds[t], bounds[t + 1]
+            if lo == hi:
+                continue
+            rows = pairs[lo:hi]
+            local = (points[rows // 8] - centres[t]) / half
+            values[rows] = siren_forward_inference([(w[t], b[t]) for w, b in layers], local)[:, 0] * half
+        return (weights * values.view(n, 8)).sum(dim=1)
+
+    def tile_view(self, t: int) -> "_TileView":
+        """Tile ``t``'s network alone (on its local coordinates; its output not yet scaled by ``grid.half``)."""
+        return _TileView([(w[t].detach(), b[t].detach()) for w, b in self.affine_layers()])
+
+    @torch.no_grad()
+    def range_bound(self, center: torch.Tensor, axes: torch.Tensor, method: str = "affine-fixed"
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Guaranteed (lo, hi) of r over boxes ``center + Σ_k t_k axes[:, k]``, t ∈ [−1, 1]^s (``center`` (B, 3),
+        ``axes`` (B, s, 3), unit frame), as :func:`~neural_bake.nets.range_analysis.range_bound`.
+
+        The weights are ≥ 0 and sum to at most 1, so r lies between 0 and the bounds of the tiles that reach
+        the box: each is bounded by range analysis over the box in its local coordinates. A box spanning
+        more than two cells along an axis takes the bound of every tile over its whole support instead."""
+        from .range_analysis import range_bound
+
+        dtype, device = center.dtype, center.device
+        b = center.shape[0]
+        lo_r = torch.zeros(b, dtype=dtype, device=device)
+        hi_r = torch.zeros(b, dtype=dtype, device=device)
+        if b == 0:
+            return lo_r, hi_r
+        g, m = self.grid.grid, self.grid.margin
+        ext = axes.abs().sum(dim=1)
+        u_lo = (center - ext - self.grid.origin.to(dtype=dtype, device=device)) / self.grid.cell - m
+        u_hi = (center + ext - self.grid.origin.to(dtype=dtype, device=device)) / self.grid.cell + m
+        c_lo, c_hi = torch.floor(u_lo).long(), torch.floor(u_hi).long()
+        wide = ((c_hi - c_lo) > 1).any(dim=1)
+        if bool(wide.any()):
+            s_lo, s_hi = self._support_bounds(method)
+            lo_r[wide], hi_r[wide] = min(0.0, s_lo), max(0.0, s_hi)
+        narrow = torch.nonzero(~wide).reshape(-1)
+        if narrow.numel() == 0:
+            return lo_r, hi_r
+        slot = self.grid.slot.to(device)
+        boxes, tiles = [], []
+        for corner in range(8):  # the ≤ 2 cells per axis a narrow box reaches (duplicates are harmless)
+            cells = torch.stack([c_hi[narrow, ax] if (corner >> ax) & 1 else c_lo[narrow, ax] for ax in range(3)], 1)
+            ok = ((cells >= 0) & (cells < g)).all(dim=1)
+            flat = (cells[:, 0] * g + cells[:, 1]) * g + cells[:, 2]
+            t = torch.where(ok, slot[flat.clamp(0, g ** 3 - 1)], torch.full_like(flat, -1))
+            boxes.append(narrow[t >= 0])
+            tiles.append(t[t >= 0])
+        box, tile = torch.cat(boxes), torch.cat(tiles)
+        centres = self.grid.centres(dtype=dtype, device=device)
+        half = self.grid.half
+        for t in torch.unique(tile).tolist():
+            sel = box[tile == t]
+            lo, hi = range_bound(self.tile_view(t), (center[sel] - centres[t]) / half, axes[sel] / half, method)
+            lo_r.scatter_reduce_(0, sel, lo * half, "amin")  # a box reached by several tiles: the widest
+            hi_r.scatter_reduce_(0, sel, hi * half, "amax")
+        return lo_r, hi_r
+
+    def _support_bounds(self, method: str) -> tuple[float, float]:
+        """(lo, hi) of every tile's r_t over its whole support, the least and the most."""
+        from .range_analysis import range_bound
+
+        key = (method, tuple(p._version for p in self.parameters()))  # recomputed when the weights change
+        if getattr(self, "_support", (None,))[0] != key:
+            los, his = [], []
+            c = torch.zeros(1, 3, dtype=torch.float64)
+            ax = torch.eye(3, dtype=torch.float64).unsqueeze(0)
+            for t in range(self.tiles):
+                lo, hi = range_bound(self.tile_view(t), c, ax, method)
+                los.append(float(lo[0]) * self.grid.half)
+                his.append(float(hi[0]) * self.grid.half)
+            self._support = (key, (min(los), max(his)))
+        return self._support[1]
+
     def extra_repr(self) -> str:
         g = self.grid
         return f"{self.tiles} tiles of (W, D) = ({self.width}, {self.depth}) on a {g.grid}³ grid, margin {g.margin:g}"
+
+
+class TiledSdf(nn.Module):
+    """The field f = h + r of a coarse SIREN ``coarse`` (R³ → R) and a tile level ``tiles`` on it, as one network:
+    ``forward`` gives f (N, 1); :meth:`gemm_gradient` f and ∇f (each part's GEMM normals, added);
+    :meth:`range_bound` guaranteed bounds over boxes (h's by range analysis plus r's). ``composite`` marks a
+    network that :func:`~neural_bake.nets.gemm.gemm_gradient` and
+    :func:`~neural_bake.nets.range_analysis.range_bound` hand to its own methods."""
+
+    composite = True
+    in_dim, out_dim = 3, 1
+
+    def __init__(self, coarse: Siren, tiles: TiledSiren):
+        super().__init__()
+        if int(coarse.in_dim) != 3 or int(coarse.out_dim) != 1:
+            raise NeuralBakeError(f"TiledSdf: the coarse level must map R^3 to R, got R^{coarse.in_dim} to "
+                                  f"R^{coarse.out_dim}")
+        self.coarse, self.tiles = coarse, tiles
+
+    @property
+    def architecture(self) -> dict:
+        """What a model file stores to rebuild this network (``"network": "tiles"``)."""
+        return {"network": "tiles", "coarse": self.coarse.architecture, "tiles": self.tiles.architecture}
+
+    @property
+    def label(self) -> str:
+        """"64x3+44x(64x2)": the coarse level's (W, D), the number of tiles and theirs."""
+        c, t = self.coarse, self.tiles
+        return f"{c.width}x{c.depth}+{t.tiles}x({t.width}x{t.depth})"
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """f (N, 1) at ``x`` (N, 3); no autograd graph through the tiles (inference)."""
+        with torch.no_grad():
+            return self.value(x).unsqueeze(1)
+
+    @torch.no_grad()
+    def value(self, points: torch.Tensor, *, gemm_dtype: torch.dtype | None = None) -> torch.Tensor:
+        """f (N,) at ``points`` (N, 3), in their dtype and device (``gemm_dtype`` for h's hidden GEMMs)."""
+        layers = self.coarse.affine_layers(dtype=points.dtype, device=points.device)
+        h = siren_forward_inference(layers, points, gemm_dtype=gemm_dtype)[:, 0]
+        return h + self.tiles.value(points)
+
+    @torch.no_grad()
+    def gemm_gradient(self, points: torch.Tensor, **kwargs) -> tuple[torch.Tensor, torch.Tensor]:
+        """f (N, 1) and ∇f (N, 3): h's by :func:`~neural_bake.nets.gemm.gemm_gradient` (``kwargs`` passed on;
+        ``differentiable`` is refused: a tiled SDF is trained by :func:`~neural_bake.fit.tiles.fit_tiles`) plus
+        the tile level's (:meth:`TiledSiren.value_and_gradient`)."""
+        if kwargs.pop("differentiable", False):
+            raise NeuralBakeError("gemm_gradient: a tiled SDF has no differentiable GEMM gradient")
+        kwargs.pop("blocks", None)
+        values, grads = gemm_gradient(self.coarse, points, **kwargs)
+        r, rg = self.tiles.value_and_gradient(points)
+        return values + r.unsqueeze(1), grads + rg
+
+    def affine_layers(self, *, dtype=None, device=None):
+        raise NeuralBakeError("a tiled SDF is not one SIREN: it has no single list of affine layers")
+
+    @torch.no_grad()
+    def range_bound(self, center: torch.Tensor, axes: torch.Tensor, method: str = "affine-fixed"
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Guaranteed (lo, hi) of f = h + r over boxes (as :func:`~neural_bake.nets.range_analysis.range_bound`)."""
+        from .range_analysis import range_bound
+
+        lo, hi = range_bound(self.coarse, center, axes, method)
+        r_lo, r_hi = self.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
+        inf = torch.tensor(math.inf, dtype=lo.dtype, device=lo.device)
+        return torch.nextafter(lo + r_lo, -inf), torch.nextafter(hi + r_hi, inf)  # the sum's rounding, outward
+
+    def extra_repr(self) -> str:
+        return f"f = h {self.coarse.width}x{self.coarse.depth} + {self.tiles.extra_repr()}"

@@ -55,7 +55,8 @@ class TraceLevel:
     - ``delta``: δ_j, half-width of the band [|h_j| ≤ δ_j] that holds the finer surfaces (0 for f).
     - ``bound``: optional ``(centers (B, 3), axes (B, s, 3)) → (lo (B,), hi (B,))`` guaranteed range over
       boxes (empty-space skipping and the guaranteed caster need it).
-    - ``model``: the network when there is one (a fingerprint keys the skipping cache), else None.
+    - ``model``: the network when there is one (a SIREN or a tiled SDF; a fingerprint keys the skipping
+      cache), else None.
     """
 
     name: str
@@ -63,7 +64,7 @@ class TraceLevel:
     value_and_gradient: ValuesGrads
     delta: float = 0.0
     bound: Bound | None = None
-    model: Siren | None = None
+    model: torch.nn.Module | None = None
 
     def __post_init__(self):
         d = float(self.delta)
@@ -75,7 +76,7 @@ class TraceLevel:
         """A digest of the network's weights (``id`` of the callables for analytic levels)."""
         if self.model is None:
             return f"analytic-{id(self.value)}"
-        h = hashlib.sha1()
+        h = hashlib.sha1(repr(getattr(self.model, "architecture", None)).encode())
         for t in self.model.state_dict().values():
             h.update(t.detach().to("cpu", torch.float64).contiguous().numpy().tobytes())
         return h.hexdigest()
@@ -280,7 +281,7 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
 
     - nested sequence (``levels`` list of Sirens, ``deltas``, ``frame``): one level per network, δ from
       ``deltas`` (argument) or the sequence's; the last level's δ is 0 (f is traced itself).
-    - SDF field (``value_and_gradient``; ``model`` a Siren or None): one level.
+    - SDF field (``value_and_gradient``; ``model`` a Siren, a tiled SDF or None): one level.
     - ``texture``: a TextureSource, a Siren, or a texture field (``color(points)``); ``frame`` overrides.
     - ``precision``: "fp32", "bf16" or "auto" for the networks' hidden GEMMs (:func:`siren_level`).
 
@@ -302,6 +303,10 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
         name = str(getattr(obj, "name", "f"))
         if isinstance(model, Siren):
             level = siren_level(model, 0.0, name=f"f {_arch_name(model)}", precision=precision)
+        elif getattr(model, "composite", False):  # several networks (nets.tiles.TiledSdf): their own bounds
+            level = TraceLevel(f"f {model.label}", lambda p: model.value(p).reshape(-1),
+                               lambda p: tuple(t for t in obj.value_and_gradient(p)), 0.0,
+                               lambda c, a: model.range_bound(c, a, "affine-fixed"), model)
         else:
             level = TraceLevel(name, lambda p: obj.value_and_gradient(p)[0].reshape(-1),
                                lambda p: tuple(t for t in obj.value_and_gradient(p)), 0.0, None, None)

@@ -63,6 +63,8 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
         from ..fields import check_texture_matches_sdf
 
         check_texture_matches_sdf(tex, field, force=force, option=force_option, sdf_name=Path(path).name)
+    if getattr(getattr(field, "model", None), "composite", False):  # a tiled SDF: one level of several networks
+        return as_render_asset(field, texture=tex, precision=precision)
     nets = _networks(field)
     frame = getattr(field, "frame", None)
     ds = list(deltas) if deltas is not None else list(getattr(field, "deltas", None) or [0.0] * len(nets))

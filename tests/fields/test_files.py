@@ -263,6 +263,6 @@ def test_grid_texture_round_trips_and_reads_colours(tmp_path):
 
 def test_grid_network_is_not_an_sdf(tmp_path):
     path = save_model(_grid_net(out=1), tmp_path / "g.sdf", kind="sdf", frame=FRAME.to_dict(), delta=0.01)
-    with pytest.raises(ModelFileError, match=r"g.sdf: kind 'sdf' is a SIREN \(its normals are GEMM gradients\), "
+    with pytest.raises(ModelFileError, match=r"g.sdf: kind 'sdf' is a SIREN or a tiled SDF \(their normals are GEMM gradients\), "
                                              r"this file holds a grid network"):
         load_field(path)

@@ -84,7 +84,7 @@ def test_save_replaces_atomically_and_keeps_good_file_on_failure(tmp_path):
 def test_save_errors(tmp_path):
     with pytest.raises(ModelFileError, match=r"x.safetensors: metadata is not JSON-serialisable \(a NaN or infinite"):
         save_model(_siren(), tmp_path / "x.safetensors", delta=float("nan"))
-    with pytest.raises(ModelFileError, match=r"x.safetensors: save_model expects a Siren or a GridNet, got Linear"):
+    with pytest.raises(ModelFileError, match=r"x.safetensors: save_model expects a Siren, a GridNet or a TiledSdf, got Linear"):
         save_model(torch.nn.Linear(3, 1), tmp_path / "x.safetensors")
     with pytest.raises(ModelFileError, match=r"nope/x.safetensors: folder .*nope does not exist"):
         save_model(_siren(), tmp_path / "nope" / "x.safetensors")
