@@ -498,3 +498,21 @@ def test_the_command_preloads_the_mesh_in_a_fork_and_bakes_the_same_map(files, t
     assert errors[None].stderr == errors["0"].stderr and errors[None].stderr.count("\n") == 1
     assert errors[None].stderr.startswith(f"neural-bake: error: {bad}")
     assert not (tmp_path / "bad-None").exists()
+
+
+def test_bake_takes_a_tiled_sdf(files, tmp_path, capsys):
+    from neural_bake.nets.tiles import TiledSdf, TileGrid, TiledSiren
+
+    gen = torch.Generator().manual_seed(4)
+    mesh = load_mesh(files["obj"])
+    tiles = TiledSiren(TileGrid([-1.0, -1.0, -1.0], 0.5, 4, 0.1, torch.arange(0, 64, 2)), 8, 1, zero_output=False,
+                       generator=gen)
+    sdf = save_model(TiledSdf(Siren(16, 1, generator=gen), tiles), tmp_path / "t.sdf", kind="sdf",
+                     frame=mesh.frame.to_dict())
+    out = tmp_path / "out"
+    code, stdout, err = run([files["obj"], "--sdf", str(sdf), "--coarse", "decimate:200", "--size", "64",
+                             "--maps", "normal", "--precision", "auto", "-o", str(out)], capsys)
+    assert code == 0, err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["vs_gradient_deg"]["max"] < 1.0  # the map holds ∇f of h + r, tiles and seams included
+    assert "a tiled SDF's networks run in float32" in stdout

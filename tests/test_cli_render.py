@@ -265,3 +265,42 @@ def test_a_space_time_model_with_a_feature_grid_texture_renders_its_colours(grow
     img = read_image(tmp_path / "g.png")
     hit = read_image(tmp_path / "g.hit.exr", colour="data")[..., 0] > 0.5
     assert hit.sum() > 0 and np.ptp(img[hit][:, :3], axis=0).max() < 1e-6  # one colour over the sphere
+
+
+def _tiled_sphere(fit_sphere_siren, scale):
+    """The fixture's sphere SIREN as the coarse level of a tiled SDF whose tiles (a 4³ grid over the sphere) add
+    ``scale`` × a random residual (0: the sphere itself)."""
+    from neural_bake.nets.tiles import TiledSdf, TileGrid, TiledSiren
+
+    gen = torch.Generator().manual_seed(3)
+    tiles = TiledSiren(TileGrid([-0.8, -0.8, -0.8], 0.4, 4, 0.1, torch.arange(64)), 8, 1, zero_output=False,
+                       generator=gen)
+    with torch.no_grad():
+        tiles.weights[-1].mul_(scale)
+        tiles.biases[-1].mul_(scale)
+    return TiledSdf(fit_sphere_siren(r=0.7, width=32, steps=300), tiles).eval()
+
+
+@pytest.mark.parametrize("mode", [[], ["--guaranteed"], ["--no-skip"]])
+def test_render_draws_a_tiled_sdf(models, fit_sphere_siren, tmp_path, capsys, mode):
+    frame = Frame((0.0, 0.0, 0.0), 0.5).to_dict()
+    same = save_model(_tiled_sphere(fit_sphere_siren, 0.0), tmp_path / "t0.sdf", kind="sdf", frame=frame)
+    view = ["--size", "32", "--camera", "0,0,6", "--look-at", "0,0,0", "--channels", "color,hit"]
+    code, _, err = run([models["sdf"], "-o", str(tmp_path / "s.png"), *view, *mode], capsys)
+    assert code == 0, err
+    code, _, err = run([str(same), "-o", str(tmp_path / "t0.png"), *view, "--stats", str(tmp_path / "st.json"),
+                        *mode], capsys)
+    assert code == 0, err
+    # a tile level of zeros: the sphere SIREN's image
+    hit_s = read_image(tmp_path / "s.hit.png", colour="data")[..., 0] > 0.5
+    hit_t = read_image(tmp_path / "t0.hit.png", colour="data")[..., 0] > 0.5
+    assert hit_s.sum() > 100 and (hit_s == hit_t).all()
+    assert np.abs(read_image(tmp_path / "s.png") - read_image(tmp_path / "t0.png")).max() < 2e-3
+    stats = json.loads((tmp_path / "st.json").read_text())
+    assert set(stats["evaluations"]["points"]) == {"f 32x1+64x(8x1)"}
+    # tiles that move the surface: still drawn, the silhouette moved a little
+    moved = save_model(_tiled_sphere(fit_sphere_siren, 0.05), tmp_path / "t1.sdf", kind="sdf", frame=frame)
+    code, _, err = run([str(moved), "-o", str(tmp_path / "t1.png"), *view, *mode], capsys)
+    assert code == 0, err
+    hit_m = read_image(tmp_path / "t1.hit.png", colour="data")[..., 0] > 0.5
+    assert 0 < (hit_m != hit_s).sum() < 0.2 * hit_s.sum()

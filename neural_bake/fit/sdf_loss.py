@@ -14,7 +14,7 @@ from ..nets.gemm import gemm_gradient, sin_cos
 from ..nets.siren import Siren
 from .sdf_config import SdfFitConfig
 
-__all__ = ["mixed_gradient", "sdf_loss_terms", "smooth_angle", "first_order_distance", "focused_squares",
+__all__ = ["mixed_gradient", "sdf_loss_terms", "loss_terms_of", "smooth_angle", "first_order_distance", "focused_squares",
            "sdf_step_backward", "FIRST_ORDER_MIN_SLOPE", "FOCUS_CAP"]
 
 
@@ -79,6 +79,18 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
     if base is not None:
         f = f + torch.cat([base[0], base[2]])
         grads = grads + torch.cat([base[1], base[3]])
+    return loss_terms_of(f, grads, surf_n, vol_d, cfg, totals=(n_s, n_v), power_weight=power_weight,
+                         power_scale=power_scale)
+
+
+def loss_terms_of(f: torch.Tensor, grads: torch.Tensor, surf_n: torch.Tensor, vol_d: torch.Tensor,
+                  cfg: SdfFitConfig, *, totals: tuple[int, int] | None = None, power_weight: float = 0.0,
+                  power_scale: float = 1.0) -> dict:
+    """The terms of :func:`sdf_loss_terms` from a field's values ``f`` (S + V,) and gradients (S + V, 3) at the
+    step's points, the S surface points first (``surf_n`` (S, 3) their normals, ``vol_d`` (V,) the others'
+    distances): for a network evaluated by other means (a tile level's batched product, :mod:`.tiles`)."""
+    s = surf_n.shape[0]
+    n_s, n_v = totals if totals is not None else (s, vol_d.shape[0])
     gnorm = torch.linalg.vector_norm(grads, dim=1)
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
@@ -88,7 +100,7 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         "normal": miss.sum() / max(n_s, 1),
         "eikonal": ((1.0 - gnorm) ** 2).sum() / max(n_s + n_v, 1),
     }
-    terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_p.shape[0] else f.new_zeros(())
+    terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_d.shape[0] else f.new_zeros(())
     terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
                      + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
     if cfg.w_angle > 0:

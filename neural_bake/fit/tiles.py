@@ -4,12 +4,13 @@ The fine level of a residual construction (nested-neighbourhoods §3), split in 
 cells around the mesh's bounding cube (:func:`tile_grid_for`), a small SIREN on every cell with at least
 ``min_surface`` of the first pool's surface samples in its cell or seams, each network trained on the pool
 points inside its own cell and seams as a residual r_t on the coarse level h. The loss terms are those of
-:func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` (surface, normal, angle, eikonal and SDF, with the SDF
-config's weights; no focus, no mined batches), taken of h + r_t on the pool points inside h's band
-|h| < ``band`` (:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step together: each step draws the same number of
-points for every tile and runs them as one batched product (:meth:`TiledSiren.tile_values_and_gradients`).
-The learning rate follows a cosine to ``lr_min_factor`` over the steps, or over the time budget when
-``minutes`` is set (measured by ``clock``, so tests drive it).
+:func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` (:func:`~neural_bake.fit.sdf_loss.loss_terms_of`: surface, normal,
+angle, eikonal and SDF, with the SDF config's weights and focus; no mined batches), taken of h + r_t on the pool
+points inside h's band |h| < ``band`` (:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step
+together: each step draws the same number of points for every tile and runs them as one batched product
+(:meth:`TiledSiren.tile_values_and_gradients`).
+The learning rate follows the fits' cosine (:func:`~neural_bake.fit.training.cosine_lr`) to ``lr_min_factor``
+over the steps, or over the time budget when ``minutes`` is set (measured by ``clock``, so tests drive it).
 """
 
 from __future__ import annotations
@@ -21,13 +22,13 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..constants import LOSS_GRAD_FLOOR
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..nets.tiles import TileGrid, TiledSiren, by_tile
 from ..types import Mesh
 from .sdf_config import SdfFitConfig
-from .sdf_loss import smooth_angle
+from .sdf_loss import loss_terms_of
+from .training import cosine_lr
 from .sdf_pools import _Pools, band_pools
 
 __all__ = ["TileFitConfig", "TileFit", "fit_tiles", "tile_grid_for"]
@@ -148,6 +149,19 @@ def _draw(buckets: list[torch.Tensor], n: int, gen: torch.Generator) -> tuple[to
     return torch.stack(idx), torch.tensor(has, device=device)
 
 
+def _progress(show: bool, cfg: TileFitConfig, tiles: int):
+    """A tqdm bar of the fit's steps, or of the seconds of its time budget; None when ``show`` is False."""
+    if not show:
+        return None
+    from tqdm.auto import tqdm
+
+    desc = f"fit sdf tiles {tiles}x({cfg.width}x{cfg.depth})"
+    if cfg.minutes is not None:
+        return tqdm(total=round(60.0 * cfg.minutes, 1), desc=desc, leave=False, dynamic_ncols=True, unit="s",
+                    bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s of the budget{postfix}")
+    return tqdm(total=cfg.steps, desc=desc, leave=False, dynamic_ncols=True)
+
+
 def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, config: TileFitConfig | None = None,
               *, clock: Callable[[], float] = time.perf_counter, log_every: int = 100, pool_cache: dict | None = None,
               audit: tuple | None = None) -> TileFit:
@@ -184,6 +198,7 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     index, buckets = None, None
     budget = None if cfg.minutes is None else 60.0 * cfg.minutes
     step, stopped = 0, "steps"
+    bar = _progress(sdf_config.progress, cfg, model.tiles)
     while step < cfg.steps:
         elapsed = clock() - start
         if budget is not None and elapsed >= budget:
@@ -193,8 +208,7 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         if buckets is None or pools.index != index:  # a new pool: its points sorted by tile once
             index = pools.index
             buckets = (_by_tile(grid, data["surf_p"]), _by_tile(grid, data["vol_p"]))
-        frac = elapsed / budget if budget is not None else step / cfg.steps
-        lr = cfg.lr * (cfg.lr_min_factor + (1.0 - cfg.lr_min_factor) * 0.5 * (1.0 + math.cos(math.pi * min(frac, 1.0))))
+        lr = cosine_lr(cfg.lr, cfg.lr_min_factor, step, cfg.steps, elapsed, cfg.minutes)
         for group in opt.param_groups:
             group["lr"] = lr
         si, s_has = _draw(buckets[0], cfg.surface_points, gen)
@@ -205,22 +219,14 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         r, rg = model.tile_values_and_gradients((x - centres[:, None, :]) / grid.half)
         f, g = h + r, hg + rg
         s = cfg.surface_points
-        use_s, use_v = s_has.to(dtype)[:, None], v_has.to(dtype)[:, None]
-        gnorm = torch.linalg.vector_norm(g, dim=-1)
-        miss = 1.0 - (g[:, :s] * data["surf_n"][si]).sum(-1) / gnorm[:, :s].clamp_min(LOSS_GRAD_FLOOR)
+        # the SDF loss's terms of the rows of the tiles that have points (surface rows first), each tile's
+        # share a mean over its own points: the means over all rows × the tiles with surface points
+        terms = loss_terms_of(torch.cat([f[s_has, :s].reshape(-1), f[v_has, s:].reshape(-1)]),
+                              torch.cat([g[s_has, :s].reshape(-1, 3), g[v_has, s:].reshape(-1, 3)]),
+                              data["surf_n"][si[s_has]].reshape(-1, 3), data["vol_d"][vi[v_has]].reshape(-1),
+                              sdf_config)
         k = float(max(1, int(s_has.sum())))
-        terms = {
-            "surface": (use_s * f[:, :s] ** 2).sum() / (k * s),
-            "normal": (use_s * miss).sum() / (k * s),
-            "eikonal": (torch.cat([use_s.expand(-1, s), use_v.expand(-1, cfg.volume_points)], 1)
-                        * (1.0 - gnorm) ** 2).sum() / (k * x.shape[1]),
-            "sdf": (use_v * (f[:, s:] - data["vol_d"][vi]) ** 2).sum() / (float(max(1, int(v_has.sum())))
-                                                                        * cfg.volume_points),
-        }
-        loss = (w.w_surface * terms["surface"] + w.w_normal * terms["normal"] + w.w_eikonal * terms["eikonal"]
-                + w.w_sdf * terms["sdf"])
-        if w.w_angle > 0:
-            loss = loss + w.w_angle * (use_s * smooth_angle(miss)).sum() / (k * s)
+        loss = terms.pop("loss")
         value = float(loss.detach())
         if not math.isfinite(value):  # before the step: the weights are never left non-finite
             raise FitError(f"fit_tiles: the loss became non-finite at step {step + 1}")
@@ -233,6 +239,12 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         if step % log_every == 0 or step == 1:
             history.append({"step": step, "lr": lr, "loss": value,
                             **{name: float(v.detach()) for name, v in terms.items()}})
+            if bar is not None:
+                bar.set_postfix({"step": step, "loss": f"{value:.3g}"}, refresh=False)
+        if bar is not None:  # a step, or the seconds since the last one
+            bar.update(1 if budget is None else max(0.0, round(min(elapsed, bar.total) - bar.n, 3)))
+    if bar is not None:
+        bar.close()
     model.eval()
     for p in model.parameters():
         p.requires_grad_(False)

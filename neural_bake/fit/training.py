@@ -175,15 +175,21 @@ def step_generator(seed: int, step: int, device: torch.device | str = "cpu") -> 
     return g
 
 
+def cosine_lr(base_lr: float, lr_min_factor: float, step: int, steps: int, elapsed: float = 0.0,
+              minutes: float | None = None) -> float:
+    """The cosine learning rate from ``base_lr`` down to ``lr_min_factor`` × it, at the fraction of the run done:
+    of its ``steps``, or of its time budget ``minutes`` (``elapsed`` seconds) when that is further along."""
+    frac = step / max(steps, 1)
+    if minutes:
+        frac = max(frac, elapsed / (60.0 * minutes))
+    frac = min(max(frac, 0.0), 1.0)
+    return base_lr * (lr_min_factor + (1 - lr_min_factor) * 0.5 * (1 + math.cos(math.pi * frac)))
+
+
 def _lr_at(cfg: LoopConfig, base_lr: float, step: int, elapsed: float) -> float:
     if cfg.lr_schedule == "constant":
         return base_lr
-    frac = step / max(cfg.steps, 1)
-    if cfg.minutes:
-        frac = max(frac, elapsed / (60.0 * cfg.minutes))
-    frac = min(max(frac, 0.0), 1.0)
-    lo = cfg.lr_min_factor
-    return base_lr * (lo + (1 - lo) * 0.5 * (1 + math.cos(math.pi * frac)))
+    return cosine_lr(base_lr, cfg.lr_min_factor, step, cfg.steps, elapsed, cfg.minutes)
 
 
 def _all_finite(tensors) -> bool:

@@ -250,7 +250,7 @@ def test_warm_start_begins_as_the_coarse_level():
 
 
 def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
-    assert CONSTRUCTIONS == ("plain", "residual", "residual-warm")
+    assert CONSTRUCTIONS == ("plain", "residual", "residual-warm", "tiles")
     with pytest.raises(FitError, match="unknown SDF construction 'nested'"):
         fit_sdf_construction(sphere(), "nested", steps=2, **TINY)
     with pytest.raises(FitError, match="coarse_share must be in"):

@@ -86,3 +86,42 @@ def test_a_band_without_surface_points_or_of_no_width_is_refused(fit_sphere_sire
     far = sphere(r=0.2)  # the coarse level's zero set (|x| = 0.7) is nowhere near this mesh's surface
     with pytest.raises(FitError, match="band"):
         fit_tiles(far, h, 0.01, POOLS, TileFitConfig(**SMALL))
+
+
+# ---------------------------------------------------------------------------------- the "tiles" construction
+TILES = dict(construction="tiles", width=32, coarse_width=16, depth=1, coarse_omega_0=10.0, tile_grid=3,
+             tile_width=16, tile_depth=1, pool_surface=6000, pool_near=6000, pool_uniform=1500, progress=False,
+             audit_candidates=2000, lr=1e-3)
+
+
+def test_the_tiles_construction_fits_saves_loads_and_beats_its_coarse_level(tmp_path):
+    from neural_bake.fit.sdf import fit_sdf, load_sdf
+    from neural_bake.nets.tiles import TiledSdf
+
+    fit = fit_sdf(sphere(), steps=320, **TILES)
+    assert isinstance(fit.model, TiledSdf) and fit.construction == "tiles"
+    assert fit.coarse.steps == 80 and fit.steps == 240  # coarse_share 0.25 of the steps, the tiles the rest
+    assert fit.label == f"16x1+{fit.model.tiles.tiles}x(16x1)" and 8 < fit.model.tiles.tiles <= 27
+    assert fit.band > 0 and fit.audit["candidates"] == 2000
+    x = sphere_points(3000, 5)
+    _, hg = gemm_gradient(fit.coarse.model, x)
+    v, g = gemm_gradient(fit.model, x)
+    # the sphere's oracle: its normals are its unit positions, its surface |x| = R
+    assert float(normal_error_deg(g, x).median()) < 0.6 * float(normal_error_deg(hg, x).median())
+    assert float(v.abs().max()) <= fit.distance_error * 1.5
+    path = fit.save(tmp_path / "t.sdf")
+    again = load_sdf(path)
+    assert isinstance(again.model, TiledSdf) and again.distance_error == pytest.approx(fit.distance_error)
+    assert again.config.construction == "tiles" and again.config.tile_grid == 3
+    assert torch.equal(again.model(x), fit.model(x))
+
+
+@pytest.mark.parametrize("change,word", [({"tile_grid": 0}, "tile_grid"), ({"tile_width": 0}, "tile_width"),
+                                         ({"tile_depth": -1}, "tile_depth"), ({"tile_margin": 0.3}, "tile_margin"),
+                                         ({"budget": "steps"}, "reference steps")])
+def test_bad_tiles_settings_are_one_line_errors(change, word):
+    from neural_bake.fit.sdf import fit_sdf
+
+    with pytest.raises(FitError, match=word) as err:
+        fit_sdf(sphere(), steps=10, **{**TILES, **change})
+    assert "\n" not in str(err.value)

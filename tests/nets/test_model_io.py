@@ -299,3 +299,60 @@ def test_grid_tensors_must_match_the_architecture(tmp_path):
     p = _write_raw(tmp_path / "g.safetensors", state, _header(model, format_version=2))
     with pytest.raises(ModelFileError, match=r"tensor table has shape \(5, 2\), the architecture needs \(\d+, 2\)"):
         load_model(p)
+
+
+# ------------------------------------------------------------------------------------------ tiled SDFs
+def _tiled(seed=0):
+    from neural_bake.nets.tiles import TiledSdf, TileGrid, TiledSiren
+
+    gen = torch.Generator().manual_seed(seed)
+    grid = TileGrid([-1.0, -1.0, -1.0], 0.5, 4, 0.1, [1, 5, 22, 63])
+    return TiledSdf(Siren(8, 1, generator=gen), TiledSiren(grid, 8, 1, zero_output=False, generator=gen)).eval()
+
+
+def test_tiled_sdf_round_trips_exactly_as_version_2(tmp_path):
+    from neural_bake.nets.tiles import TiledSdf
+
+    model = _tiled()
+    p = save_model(model, tmp_path / "t.safetensors", kind="sdf")
+    header = read_model_metadata(p)
+    assert header["format_version"] == 2 and header["architecture"]["network"] == "tiles"
+    assert header["architecture"]["tiles"]["grid"]["active"] == [1, 5, 22, 63]
+    loaded, meta = load_model(p)
+    assert isinstance(loaded, TiledSdf) and meta == {"kind": "sdf"}
+    assert loaded.tiles.grid.to_dict() == model.tiles.grid.to_dict()
+    x = torch.rand(300, 3, generator=torch.Generator().manual_seed(1)) * 2 - 1
+    assert torch.equal(model(x), loaded(x))
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda a: a["tiles"]["grid"].update(active=[1, 5, 22, 64]), r"tiles active = \[1, 5, 22, 64\]: 1 to 4096 "
+                                                                  r"distinct cells in \[0, 64\)"),
+    (lambda a: a["tiles"]["grid"].update(active=[1, 1, 5, 22]), r"tiles active"),
+    (lambda a: a["tiles"]["grid"].update(grid=65), r"tiles grid = 65 is not a size in \[1, 64\]"),
+    (lambda a: a["tiles"]["grid"].update(margin=0.5), r"tiles margin = 0\.5 is not in \(0, 0\.25\] cells"),
+    (lambda a: a["tiles"]["grid"].update(cell=-1.0), r"tiles cell = -1\.0 is not a positive length"),
+    (lambda a: a["tiles"]["grid"].update(origin=[0.0, float("nan"), 0.0]), r"tiles origin = .* is not 3 finite"),
+    (lambda a: a["tiles"].update(width=0), r"tiles width = 0 is not a size in \[1, 4096\]"),
+    (lambda a: a["coarse"].update(in_dim=4), r"the coarse level maps R\^4 to R\^1, a tiled SDF's R\^3 to R"),
+    (lambda a: a.pop("coarse"), r"corrupt model header \(architecture"),
+    (lambda a: a["tiles"].pop("grid"), r"corrupt model header \(tiles \{"),
+])
+def test_bad_tiled_architectures(tmp_path, change, message):
+    model = _tiled()
+    arch = json.loads(json.dumps(model.architecture))
+    change(arch)
+    p = _write_raw(tmp_path / "t.safetensors", model.state_dict(), _header(model, format_version=2, architecture=arch))
+    with pytest.raises(ModelFileError, match=rf"t\.safetensors: .*{message}") as err:
+        load_model(p)
+    assert "\n" not in str(err.value)
+
+
+def test_tiled_tensors_must_match_the_architecture(tmp_path):
+    model = _tiled()
+    state = dict(model.state_dict())
+    state["tiles.weights.0"] = torch.zeros(3, 8, 3)  # three tiles' weights for four active cells
+    p = _write_raw(tmp_path / "t.safetensors", state, _header(model, format_version=2))
+    with pytest.raises(ModelFileError, match=r"tensor tiles\.weights\.0 has shape \(3, 8, 3\), the architecture "
+                                             r"needs \(4, 8, 3\)"):
+        load_model(p)

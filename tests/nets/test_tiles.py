@@ -1,5 +1,6 @@
 """neural_bake.nets.tiles: the tiles' partition of unity, its gradients, and the blended residual's value and
-gradient against a slow reference (autograd of the blend written out tile by tile) in float32 and float64."""
+gradient against a slow reference (autograd of the blend written out tile by tile) in float32 and float64; the
+tiled SDF h + r: its values, GEMM gradients and range bounds (checked against dense samples of each box)."""
 
 import math
 
@@ -8,7 +9,9 @@ import torch
 
 from neural_bake.errors import NeuralBakeError
 from neural_bake.nets.siren import Siren
-from neural_bake.nets.tiles import TileGrid, TiledSiren, smoothstep
+from neural_bake.nets.gemm import gemm_gradient
+from neural_bake.nets.range_analysis import range_bound
+from neural_bake.nets.tiles import TiledSdf, TileGrid, TiledSiren, smoothstep
 
 
 def full_grid(g=3, margin=0.2):
@@ -163,3 +166,83 @@ def test_grid_round_trips_and_rejects_bad_settings():
         TiledSiren(grid, 8).value_and_gradient(torch.zeros(5, 2))
     with pytest.raises(NeuralBakeError, match="local points"):
         TiledSiren(grid, 8).tile_values_and_gradients(torch.zeros(2, 5, 3))
+
+
+def tiled_sdf(seed=7, dtype=torch.float64, g=4, n_active=40):
+    gen = torch.Generator().manual_seed(seed)
+    active = torch.randperm(g ** 3, generator=gen)[:n_active]
+    grid = TileGrid([-1.0, -0.9, -1.1], 2.0 / g, g, 0.12, active)
+    tiles = TiledSiren(grid, 16, 1, omega_0=15.0, zero_output=False, generator=gen)
+    with torch.no_grad():  # a residual's size: small beside the coarse level
+        tiles.weights[-1].mul_(0.2)
+        tiles.biases[-1].mul_(0.2)
+    return TiledSdf(Siren(24, 2, omega_0=10.0, generator=gen), tiles).to(dtype).eval()
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-10), (torch.float32, 2e-4)])
+def test_tiled_sdf_is_the_coarse_level_plus_the_blend(dtype, tol):
+    f = tiled_sdf()
+    p = points_in(f.tiles.grid, 2000, seed=8)
+    ref_r, ref_rg = slow_blend(f.tiles, p)
+    q = p.clone().requires_grad_(True)
+    h = f.coarse(q)[:, 0]
+    (hg,) = torch.autograd.grad(h.sum(), q)
+    ref_v, ref_g = h.detach() + ref_r, hg + ref_rg
+    f = f.to(dtype)
+    v, g = gemm_gradient(f, p.to(dtype))  # handed to TiledSdf.gemm_gradient
+    assert v.shape == (2000, 1) and g.shape == (2000, 3) and v.dtype == dtype
+    torch.testing.assert_close(v[:, 0].double(), ref_v, rtol=0, atol=tol * float(ref_v.abs().max()))
+    torch.testing.assert_close(g.double(), ref_g, rtol=0, atol=tol * float(ref_g.abs().max()))
+    torch.testing.assert_close(f(p.to(dtype))[:, 0], v[:, 0], rtol=0, atol=tol * float(ref_v.abs().max()))
+    assert f.label == "24x2+40x(16x1)"
+    with pytest.raises(NeuralBakeError, match="differentiable"):
+        gemm_gradient(f, p.to(dtype), differentiable=True)
+
+
+@pytest.mark.parametrize("half_side", [0.02, 0.15, 0.9])  # inside a cell, across seams, many cells wide
+def test_tiled_sdf_range_bounds_hold_over_their_boxes(half_side):
+    f = tiled_sdf(seed=9)
+    gen = torch.Generator().manual_seed(10)
+    b = 60
+    centers = (torch.rand(b, 3, generator=gen, dtype=torch.float64) * 2 - 1) * 0.9
+    axes = torch.diag_embed(torch.full((b, 3), half_side, dtype=torch.float64))
+    lo, hi = range_bound(f, centers, axes)  # handed to TiledSdf.range_bound
+    assert bool((lo <= hi).all())
+    t = torch.rand(b, 400, 3, generator=gen, dtype=torch.float64) * 2 - 1
+    corners = torch.tensor([[a, c, d] for a in (-1.0, 1.0) for c in (-1.0, 1.0) for d in (-1.0, 1.0)],
+                           dtype=torch.float64).expand(b, 8, 3)
+    t = torch.cat([t, corners], dim=1)
+    pts = centers[:, None, :] + t * half_side
+    v = f(pts.reshape(-1, 3))[:, 0].reshape(b, -1)
+    assert bool((v >= lo[:, None]).all() and (v <= hi[:, None]).all())
+    # a ray segment (one axis) too
+    seg = torch.nn.functional.normalize(torch.randn(b, 1, 3, generator=gen, dtype=torch.float64), dim=2) * half_side
+    lo, hi = range_bound(f, centers, seg)
+    s = torch.linspace(-1, 1, 101, dtype=torch.float64)
+    v = f((centers[:, None, :] + s[None, :, None] * seg).reshape(-1, 3))[:, 0].reshape(b, -1)
+    assert bool((v >= lo[:, None]).all() and (v <= hi[:, None]).all())
+
+
+def test_tiled_sdf_far_from_its_tiles_is_the_coarse_level():
+    f = tiled_sdf(seed=11)
+    far = torch.tensor([[5.0, 5.0, 5.0], [-4.0, 0.0, 0.0]], dtype=torch.float64)
+    v, g = gemm_gradient(f, far)
+    hv, hg = gemm_gradient(f.coarse, far)
+    assert torch.equal(v, hv) and torch.equal(g, hg)
+    axes = torch.diag_embed(torch.full((2, 3), 0.1, dtype=torch.float64))
+    lo, hi = range_bound(f, far, axes)
+    clo, chi = range_bound(f.coarse, far, axes)
+    assert bool((lo <= clo).all() and (hi >= chi).all()) and float((hi - lo - (chi - clo)).abs().max()) < 1e-9
+
+
+def test_a_tiled_sdf_has_no_reduced_precision_and_no_single_layer_list():
+    from neural_bake.nets.precision import resolve_precision
+
+    f = tiled_sdf(dtype=torch.float32)
+    assert resolve_precision("auto", f)[0] == "fp32"
+    with pytest.raises(NeuralBakeError, match="bf16"):
+        resolve_precision("bf16", f)
+    with pytest.raises(NeuralBakeError, match="not one SIREN"):
+        f.affine_layers()
+    with pytest.raises(NeuralBakeError, match="R\\^3 to R"):
+        TiledSdf(Siren(8, 1, in_dim=4), f.tiles)
