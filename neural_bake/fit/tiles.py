@@ -193,7 +193,6 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
                        generator=gen).to(device=device, dtype=dtype)
     centres = grid.centres(dtype=dtype, device=device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    w = sdf_config
     history: list[dict] = []
     index, buckets = None, None
     budget = None if cfg.minutes is None else 60.0 * cfg.minutes
