@@ -17,7 +17,6 @@ import torch
 from .. import __version__
 from ..constants import MAX_NESTED_LEVELS
 from ..errors import ModelFileError
-from ..nets.siren import Siren
 from ..types import Frame
 from .header import check_delta, check_frame, check_number
 from .sdf import SdfField
@@ -26,7 +25,9 @@ __all__ = ["NestedSequence", "NESTED_FORMAT", "NESTED_FORMAT_VERSION"]
 
 #: The ``format`` value of a nested-sequence file.
 NESTED_FORMAT = "neural_bake.nested"
-NESTED_FORMAT_VERSION = 1
+#: Version of the layout; a sequence whose fine level is a tiled SDF (an architecture with ``"network": "tiles"``)
+#: is written as version 2, so that readers that know only SIRENs refuse it with "upgrade"; others as version 1.
+NESTED_FORMAT_VERSION = 2
 
 
 @dataclass
@@ -41,8 +42,9 @@ class NestedSequence:
     so level i's zero set lies in f's band |f| ≤ δ_i: ``deltas[0]`` is the widest band.
     """
 
-    levels: list[Siren]
-    """Networks coarse to fine; the last one is the fine SDF f."""
+    levels: list
+    """Networks coarse to fine (SIRENs); the last one is the fine SDF f (a SIREN or a
+    :class:`~neural_bake.nets.tiles.TiledSdf`)."""
     frame: Frame = field(default_factory=Frame)
     """Source ↔ unit frame transform."""
     levels_info: list[dict] = field(default_factory=list)
@@ -116,7 +118,8 @@ class NestedSequence:
     def header(self) -> dict:
         """The JSON header of the file (see the module docstring)."""
         return {
-            "format": NESTED_FORMAT, "format_version": NESTED_FORMAT_VERSION, "package_version": __version__,
+            "format": NESTED_FORMAT, "package_version": __version__,
+            "format_version": 2 if any(getattr(m, "composite", False) for m in self.levels) else 1,
             "kind": "nested", "architectures": [m.architecture for m in self.levels], "frame": self.frame.to_dict(),
             "levels_info": self.levels_info, "band": self.band, "eps": self.eps, "stability": self.stability,
             "metadata": self.metadata,
@@ -142,15 +145,20 @@ class NestedSequence:
 def read_nested(path: Path, header: dict, *, device=None, dtype=None) -> NestedSequence:
     """A :class:`NestedSequence` from a file whose JSON ``header`` was parsed (depth-checked, version
     checked); every value is checked here before any network is built."""
-    from ..nets.model_io import build_siren, check_architecture, expected_shapes, read_state
+    from ..nets.model_io import (build_network, check_architecture, check_network_architecture,
+                                 expected_network_shapes, read_state)
 
     archs = header.get("architectures")
     if not isinstance(archs, list) or not 1 <= len(archs) <= MAX_NESTED_LEVELS:
         raise ModelFileError(f"{path}: architectures is not a list of 1 to {MAX_NESTED_LEVELS} levels")
-    archs = [check_architecture(a, path, f"level {i} ") for i, a in enumerate(archs)]
-    for i, a in enumerate(archs):
-        if a["out_dim"] != 1 or a["in_dim"] != archs[-1]["in_dim"]:
-            raise ModelFileError(f"{path}: level {i} maps R^{a['in_dim']} to R^{a['out_dim']}; every level of a "
+    # every level a SIREN; the fine one may be a tiled SDF (a coarse SIREN and its tiles, R^3 to R)
+    archs = [check_architecture(a, path, f"level {i} ") if i < len(archs) - 1 or not isinstance(a, dict)
+             or a.get("network") != "tiles" else check_network_architecture(a, path, f"level {i} ")
+             for i, a in enumerate(archs)]
+    dims = [(3, 1) if a.get("network") == "tiles" else (a["in_dim"], a["out_dim"]) for a in archs]
+    for i, (d_in, d_out) in enumerate(dims):
+        if d_out != 1 or d_in != dims[-1][0]:
+            raise ModelFileError(f"{path}: level {i} maps R^{d_in} to R^{d_out}; every level of a "
                                  f"nested sequence is an SDF of the same input")
     frame = check_frame(header.get("frame"), path, required=True)
     infos = header.get("levels_info")
@@ -167,7 +175,7 @@ def read_nested(path: Path, header: dict, *, device=None, dtype=None) -> NestedS
     metadata = header.get("metadata", {})
     if not isinstance(stability, list) or not isinstance(metadata, dict):
         raise ModelFileError(f"{path}: stability must be a list and metadata an object")
-    if archs[-1]["in_dim"] == 4:  # space-time levels: the file must say how t maps onto their time input
+    if dims[-1][0] == 4:  # space-time levels: the file must say how t maps onto their time input
         from .spacetime import check_time_mapping
 
         st = metadata.get("spacetime")
@@ -175,14 +183,14 @@ def read_nested(path: Path, header: dict, *, device=None, dtype=None) -> NestedS
             raise ModelFileError(f"{path}: levels of 4 inputs (x, y, z, t) but no time mapping "
                                  f"(metadata.spacetime with time_range and time_extent)")
         check_time_mapping(st, f"{path}: metadata.spacetime")
-    elif archs[-1]["in_dim"] != 3:
-        raise ModelFileError(f"{path}: levels of {archs[-1]['in_dim']} inputs; a nested sequence's levels take "
+    elif dims[-1][0] != 3:
+        raise ModelFileError(f"{path}: levels of {dims[-1][0]} inputs; a nested sequence's levels take "
                              f"3 (x, y, z) or 4 (x, y, z, t)")
     expected = {}
     for i, a in enumerate(archs):
-        expected.update(expected_shapes(a, f"levels.{i}."))
+        expected.update(expected_network_shapes(a, f"levels.{i}."))
     state = read_state(path, expected)
-    levels = [build_siren(a, state, path, prefix=f"levels.{i}.", device=device, dtype=dtype)
+    levels = [build_network(a, state, path, prefix=f"levels.{i}.", device=device, dtype=dtype)
               for i, a in enumerate(archs)]
     return NestedSequence(levels=levels, frame=frame, levels_info=infos, band=band, eps=eps, stability=stability,
                           metadata=metadata, name=Path(path).name)

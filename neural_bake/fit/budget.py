@@ -32,7 +32,8 @@ import torch
 from ..constants import BUDGET_SAMPLING_SHARE, BUDGET_WARN_FRACTION, MIN_SECONDS
 from ..nets.machine import cpu_model, machine_cache_dir, read_facts, write_fact
 
-__all__ = ["STEP_COST", "REFERENCE_STEP", "ReferenceStep", "probe_rate", "expected_steps", "step_cost",
+__all__ = ["STEP_COST", "REFERENCE_STEP", "TILE_STEP", "TILE_STEP_COST", "ReferenceStep", "probe_rate", "expected_steps",
+           "tile_level_cost", "step_cost",
            "budget_record", "fit_budget", "steps_budget", "reference_steps", "stop_note", "cache_file"]
 
 #: The reference step's network and batch: a (width, depth) Siren, points per step (half on the surface).
@@ -53,6 +54,14 @@ REFERENCE_STEP = (128, 2, 4096)
 #: 1.50× and 1.53×, old against new on one machine; texture:default's 64x2 MLP, 1.15× its 64x1's). 64x1,
 #: 128x2, 256x3 and 256x2 keep ratios to quick and default measured elsewhere; texture:high its ratio to
 #: texture:default in ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
+#: The tiles :data:`TILE_STEP_COST` was measured with: (width, depth, points a tile a step).
+TILE_STEP = (64, 2, 576)
+
+#: Reference steps in one step of a tile level (:mod:`~neural_bake.fit.tiles`), per tile, for the tiles of
+#: :data:`TILE_STEP`: the ogre's 44-tile level's step, 0.127 s at 30.9 reference steps a second, ÷ 44 (the
+#: 2 GHz Zen 1 EPYC, quiet, two threads; BENCHMARKS.md, "budget").
+TILE_STEP_COST = 0.090
+
 STEP_COST: dict[str, float] = {
     "quick": 5.15,
     "quick/coarse": 1.46,
@@ -168,15 +177,26 @@ def step_cost(step: Callable[[], None], repeat: int = 5, *, clock: Callable[[], 
 
 
 def expected_steps(preset: str | None, seconds: float | None, rate: float | None = None,
-                   asset_seconds: float | None = None) -> int | None:
+                   asset_seconds: float | None = None, *, cost: float | None = None) -> int | None:
     """Adam steps ``preset`` (a :data:`STEP_COST` key) makes in ``seconds`` on a machine making ``rate``
     reference steps a second (default: :func:`probe_rate`) when each step also pays ``asset_seconds`` of the
     asset's own work (its sampling; None: none); None for a preset without a reference or a run without a
-    budget."""
-    if preset not in STEP_COST or not seconds or seconds <= 0:
+    budget. ``cost``: the step's reference steps instead of the preset's (a tile level's, which grows with
+    its number of tiles: :func:`tile_level_cost`)."""
+    cost = STEP_COST.get(preset) if cost is None and preset is not None else cost
+    if cost is None or not seconds or seconds <= 0:
         return None
     rate = probe_rate() if rate is None else float(rate)
-    return int(seconds / (STEP_COST[preset] / rate + max(0.0, float(asset_seconds or 0.0))))
+    return int(seconds / (cost / rate + max(0.0, float(asset_seconds or 0.0))))
+
+
+def tile_level_cost(tiles: int, width: int, depth: int, points: int) -> float | None:
+    """Reference steps in one step of a tile level of ``tiles`` networks (:mod:`~neural_bake.fit.tiles`): the
+    number of tiles × :data:`TILE_STEP_COST` for the tiles it was measured with (:data:`TILE_STEP`); None for
+    other tiles (no reference)."""
+    if (int(width), int(depth), int(points)) != TILE_STEP or tiles < 1:
+        return None
+    return int(tiles) * TILE_STEP_COST
 
 
 def reference_steps(preset: str | None) -> int | None:
@@ -255,13 +275,16 @@ def _full_rate() -> float:
 def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float | None, step_cap: int,
                stopped_reason: str, budget_seconds: float | None = None,
                sampling_share: float | None = None, asset_seconds: float | None = None,
-               compute_seconds: float | None = None) -> dict | None:
+               compute_seconds: float | None = None, cost: float | None = None, what: str | None = None
+               ) -> dict | None:
     """The budget account of a finished fit (:func:`budget_record` plus ``stopped``: :func:`stop_note`), and
     its warning issued as a :class:`~neural_bake.errors.NeuralBakeWarning`; None for a fit without a time
     budget. ``budget_seconds``: the part of the budget the counted steps had (default: all of it);
     ``sampling_share``: the part of the steps' time spent drawing training samples; ``asset_seconds``: the
     seconds a step spent on the asset's own work (sampling that grows with the mesh), counted in the expected
-    steps; ``compute_seconds``: the seconds a step spent on its own work, the rest (each None: not measured)."""
+    steps; ``compute_seconds``: the seconds a step spent on its own work, the rest (each None: not measured);
+    ``cost``: the step's reference steps instead of the preset's (:func:`tile_level_cost`); ``what``: the fit
+    the warning names."""
     if not minutes:
         return None
     import warnings
@@ -269,12 +292,14 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
     from ..errors import NeuralBakeWarning
 
     span = 60.0 * minutes if budget_seconds is None else budget_seconds
-    rate = _full_rate() if preset in STEP_COST else None
-    step_seconds = None if rate is None or preset is None else STEP_COST[preset] / rate
-    rec = budget_record(steps, expected_steps(preset, span, rate, asset_seconds), preset=preset, seconds=span,
-                        rate=rate, stopped_reason=stopped_reason, sampling_share=sampling_share,
+    cost = STEP_COST.get(preset) if cost is None and preset is not None else cost
+    rate = _full_rate() if cost is not None else None
+    step_seconds = None if rate is None or cost is None else cost / rate
+    rec = budget_record(steps, expected_steps(preset, span, rate, asset_seconds, cost=cost), preset=preset,
+                        seconds=span, rate=rate, stopped_reason=stopped_reason, sampling_share=sampling_share,
                         step_seconds=step_seconds, asset_seconds=asset_seconds, compute_seconds=compute_seconds,
-                        preset_steps=expected_steps(preset, span, rate) if asset_seconds is not None else None)
+                        preset_steps=expected_steps(preset, span, rate, cost=cost) if asset_seconds is not None
+                        else None, what=what)
     rec["stopped"] = stop_note(stopped_reason, steps, seconds, minutes, step_cap)
     if rec["warning"]:
         warnings.warn(rec["warning"], NeuralBakeWarning, stacklevel=3)

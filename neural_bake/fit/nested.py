@@ -356,8 +356,9 @@ def fit_nested(fine_model, config: NestedFitConfig | None = None, *, mesh: Mesh 
     """Distil coarser Sirens from ``fine_model`` and set their nesting thresholds δ (module docstring).
 
     Args:
-        fine_model: the fine SDF f — a :class:`Siren` or an :class:`~neural_bake.fit.sdf.SdfFit` (its frame
-            is then used).
+        fine_model: the fine SDF f — a :class:`Siren`, a :class:`~neural_bake.nets.tiles.TiledSdf` (coarse levels
+            then take its coarse SIREN's ω0 unless ``omega_0`` is set) or an :class:`~neural_bake.fit.sdf.SdfFit`
+            (its frame is then used).
         config: the settings (default :class:`NestedFitConfig`): the coarse ``levels`` (W, D), coarse to fine,
             steps or a time budget (``minutes``) per level — a budgeted level's info holds its account
             (``budget``: steps made beside the steps this machine makes in the budget, and a warning below half
@@ -390,8 +391,10 @@ def fit_nested(fine_model, config: NestedFitConfig | None = None, *, mesh: Mesh 
         fine_training = {"steps": int(fine_model.steps), "seconds": round(float(fine_model.seconds), 3),
                          "history": _thin(fine_model.history), "budget": fine_model.budget}
         fine_model = fine_model.model
-    if not isinstance(fine_model, Siren):
-        raise FitError(f"fit_nested: fine_model must be a Siren or an SdfFit, got {type(fine_model).__name__}")
+    tiled = getattr(fine_model, "composite", False)  # a tiled SDF (nets.tiles.TiledSdf): distilled like a SIREN
+    if not isinstance(fine_model, Siren) and not tiled:
+        raise FitError(f"fit_nested: fine_model must be a Siren, a TiledSdf or an SdfFit, got "
+                       f"{type(fine_model).__name__}")
     if fine_model.in_dim not in (3, 4) or fine_model.out_dim != 1:
         raise FitError(f"fit_nested: the fine model must map R^3 (or space-time R^4) to R (got "
                        f"R^{fine_model.in_dim} -> R^{fine_model.out_dim})")
@@ -433,7 +436,8 @@ def fit_nested(fine_model, config: NestedFitConfig | None = None, *, mesh: Mesh 
     for i in range(len(levels) - 1, -1, -1):
         w, d = levels[i]
         gen = torch.Generator().manual_seed(int(cfg.seed) * 101 + i)
-        student = Siren(int(w), int(d), in_dim=fine_model.in_dim, omega_0=cfg.omega_0 or fine_model.omega_0,
+        omega_0 = cfg.omega_0 or (fine_model.coarse.omega_0 if tiled else fine_model.omega_0)
+        student = Siren(int(w), int(d), in_dim=fine_model.in_dim, omega_0=omega_0,
                         generator=gen).to(p.device, p.dtype)
         info, _ = _distill(student, teacher, steps=int(cfg.steps), minutes=cfg.minutes, lr=cfg.lr,
                            seed=int(cfg.seed) * 101 + i,
@@ -487,10 +491,13 @@ def fit_nested(fine_model, config: NestedFitConfig | None = None, *, mesh: Mesh 
                         NeuralBakeWarning, stacklevel=2)
 
     # thresholds, fine to coarse (Prop. 1)
-    fine_info = {"width": fine_model.width, "depth": fine_model.depth, "steps": 0, "delta_estimated": cfg.eps,
+    arch = fine_model.coarse if tiled else fine_model  # a tiled f: its coarse SIREN's size, and its label
+    fine_info = {"width": arch.width, "depth": arch.depth, "steps": 0, "delta_estimated": cfg.eps,
                  "delta_certified": (cfg.eps if cfg.certify and all(i["sup_certified"] is not None for i in infos)
                                      else None)}
     fine_info.update(delta=cfg.eps, delta_source="eps")
+    if tiled:
+        fine_info["network"] = str(fine_model.label)
     d_est, d_cert, d_used = cfg.eps, fine_info["delta_certified"], cfg.eps
     for i in range(len(levels) - 1, -1, -1):
         d_est = infos[i]["sup_estimated"] + d_est

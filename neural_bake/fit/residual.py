@@ -265,16 +265,20 @@ def _fit_tile_level(mesh: Mesh, cfg: SdfFitConfig, key: str | None, fine_cfg: Sd
     tile_cfg = TileFitConfig(grid=int(cfg.tile_grid), margin=float(cfg.tile_margin), width=int(cfg.tile_width),
                              depth=int(cfg.tile_depth), seed=int(cfg.seed) + 1, steps=int(fine_cfg.steps),
                              minutes=fine_cfg.minutes)
+    work, fine_key = None, level_keys(key, cfg)[1]
+    if cfg.budget == "steps":  # the work the preset's fine level has on the reference machine, in tile steps
+        from .budget import STEP_COST, reference_steps
+
+        work = float(reference_steps(fine_key) or 0) * STEP_COST[str(fine_key)]
     tiles = fit_tiles(mesh, coarse.model, band, fine_cfg, tile_cfg, clock=clock or time.perf_counter,
-                      pool_cache=cache, audit=audit)
+                      pool_cache=cache, audit=audit, reference_work=work, budget_key=fine_key)
     h = coarse.model
     model = TiledSdf(h, tiles.model.to(next(h.parameters()))).eval()
     budget = _levels_budget(cfg, key, coarse, tiles)
-    history = [{"step": r["step"], "loss": r["loss"]} for r in tiles.history]
     return ResidualSdfFit(
-        model=model, frame=mesh.frame, history=history, steps=tiles.steps, seconds=elapsed(),
-        config=cfg, stopped_reason=tiles.stopped_reason, restarts=coarse.restarts, budget=budget,
-        threads=coarse.threads, fine_seconds=tiles.seconds,
+        model=model, frame=mesh.frame, history=tiles.history, steps=tiles.steps, seconds=elapsed(),
+        config=cfg, stopped_reason=tiles.stopped_reason, restarts=coarse.restarts + tiles.restarts, budget=budget,
+        threads=tiles.threads, fine_seconds=tiles.seconds,
         distance_error=sampled_distance_error(model, mesh, seed=int(cfg.seed)), construction="tiles",
         coarse=coarse, band=band, audit=audit_record, tiles=tiles)
 

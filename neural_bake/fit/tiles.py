@@ -9,8 +9,9 @@ angle, eikonal and SDF, with the SDF config's weights and focus; no mined batche
 points inside h's band |h| < ``band`` (:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step
 together: each step draws the same number of points for every tile and runs them as one batched product
 (:meth:`TiledSiren.tile_values_and_gradients`).
-The learning rate follows the fits' cosine (:func:`~neural_bake.fit.training.cosine_lr`) to ``lr_min_factor``
-over the steps, or over the time budget when ``minutes`` is set (measured by ``clock``, so tests drive it).
+The steps run in the fits' loop (:func:`~neural_bake.fit.training.train`): Adam with its cosine learning rate to
+``lr_min_factor`` over the steps, or over the time budget when ``minutes`` is set (measured by ``clock``, so
+tests drive it), divergence recovery, checkpoints and resume, the CPU threads chosen by measurement.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -28,7 +29,6 @@ from ..nets.tiles import TileGrid, TiledSiren, by_tile
 from ..types import Mesh
 from .sdf_config import SdfFitConfig
 from .sdf_loss import loss_terms_of
-from .training import cosine_lr
 from .sdf_pools import _Pools, band_pools
 
 __all__ = ["TileFitConfig", "TileFit", "fit_tiles", "tile_grid_for"]
@@ -79,20 +79,18 @@ class TileFit:
     seconds: float
     history: list[dict] = field(default_factory=list)
     stopped_reason: str = "steps"
-    """"steps" (all of ``config.steps`` made) or "time" (the budget ran out)."""
+    """"steps" (all of ``config.steps`` made), "time budget" or "resumed finished run"."""
     config: TileFitConfig | None = None
     """The settings the level was fitted with."""
-
-    @property
-    def budget(self) -> dict | None:
-        """A time-budgeted level's account as a construction records it (steps made, no reference steps to
-        expect); None for a run of a number of steps."""
-        minutes = None if self.config is None else self.config.minutes
-        if not minutes:
-            return None
-        return {"budget": "time", "steps": self.steps, "expected_steps": None,
-                "ratio": None, "budget_seconds": 60.0 * minutes, "warning": None,
-                "note": None, "stopped": self.stopped_reason}
+    budget: dict | None = None
+    """The level's account (:func:`~neural_bake.fit.budget.fit_budget` for a time budget: the steps made beside
+    those this machine makes for this many tiles and this mesh's new pools, timed on the fit's clock; a
+    ``reference_work`` run's steps and their estimated seconds);
+    None for a run of a number of steps."""
+    restarts: int = 0
+    """Divergence recoveries (each halved the learning rate)."""
+    threads: dict = field(default_factory=dict)
+    """The CPU threads the steps ran with (:meth:`~neural_bake.nets.threads.ThreadTuner.summary`)."""
 
 
 def _check(cfg: TileFitConfig) -> None:
@@ -139,44 +137,43 @@ def _by_tile(grid: TileGrid, points: torch.Tensor) -> list[torch.Tensor]:
 
 def _draw(buckets: list[torch.Tensor], n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """(K, n) indices drawn uniformly with replacement from each tile's bucket, and (K,) whether it had any, on
-    the buckets' device (the draws from the CPU generator ``gen``)."""
+    the buckets' device."""
     device = buckets[0].device
     idx, has = [], []
     for b in buckets:
         has.append(len(b) > 0)
-        pick = torch.randint(max(len(b), 1), (n,), generator=gen).to(device)
+        pick = torch.randint(max(len(b), 1), (n,), generator=gen, device=gen.device).to(device)
         idx.append(b[pick] if len(b) else torch.zeros(n, dtype=torch.long, device=device))
     return torch.stack(idx), torch.tensor(has, device=device)
 
 
-def _progress(show: bool, cfg: TileFitConfig, tiles: int):
-    """A tqdm bar of the fit's steps, or of the seconds of its time budget; None when ``show`` is False."""
-    if not show:
-        return None
-    from tqdm.auto import tqdm
-
-    desc = f"fit sdf tiles {tiles}x({cfg.width}x{cfg.depth})"
-    if cfg.minutes is not None:
-        return tqdm(total=round(60.0 * cfg.minutes, 1), desc=desc, leave=False, dynamic_ncols=True, unit="s",
-                    bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s of the budget{postfix}")
-    return tqdm(total=cfg.steps, desc=desc, leave=False, dynamic_ncols=True)
-
-
 def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, config: TileFitConfig | None = None,
               *, clock: Callable[[], float] = time.perf_counter, log_every: int = 100, pool_cache: dict | None = None,
-              audit: tuple | None = None) -> TileFit:
+              audit: tuple | None = None, reference_work: float | None = None,
+              budget_key: str | None = None) -> TileFit:
     """Fit a tile level r on the frozen coarse SDF ``base`` (unit frame) inside its band |base| < ``band``.
 
-    ``sdf_config`` gives the pools (sizes, refreshes, sampling), the loss weights, the device and dtype;
-    ``config`` the tiles and the schedule (:class:`TileFitConfig`). ``pool_cache``: the pools a construction's
-    levels share (:class:`~neural_bake.fit.sdf_pools._Pools`); ``audit``: (points, true distances) of the
-    coarse level's band audit (:func:`~neural_bake.fit.sdf_pools.band_audit`), added to every pool's uniform
-    points. Returns a :class:`TileFit` whose ``model`` starts from zero output layers (r = 0) and is in eval
-    mode. Raises FitError for bad settings or a band without surface points.
+    ``sdf_config`` gives the pools (sizes, refreshes, sampling), the loss weights, the device and dtype, the
+    progress bar and the checkpoint (``checkpoint``, ``checkpoint_every``, ``resume``: the run resumes only on
+    the same mesh, settings, base, band and audit); ``config`` the tiles and the schedule
+    (:class:`TileFitConfig`). The steps run in the fits' loop (:func:`~neural_bake.fit.training.train`: Adam,
+    the cosine learning rate, divergence recovery, the CPU threads chosen by measurement). ``pool_cache``: the
+    pools a construction's levels share (:class:`~neural_bake.fit.sdf_pools._Pools`); ``audit``: (points,
+    true distances) of the coarse level's band audit (:func:`~neural_bake.fit.sdf_pools.band_audit`), added
+    to every pool's uniform points. A time budget (``minutes``) counts the band's pool and the grid too.
+    ``reference_work``: run instead the steps that make this much work, in reference steps (a
+    ``budget="steps"`` construction: the work its fine level has on the quiet reference machine), each step's
+    by :func:`~neural_bake.fit.budget.tile_level_cost` (it grows with the number of tiles); no time stop.
+    ``budget_key``: the name the level's account gives its preset (a construction's "PRESET/fine"). Returns a :class:`TileFit` whose ``model`` starts from zero output layers (r = 0) and is in eval mode.
+    Raises FitError for bad settings, a band without surface points, divergence that learning-rate halvings
+    did not cure, or reference work for tiles without a reference step cost.
     """
+    from .budget import _full_rate, fit_budget, tile_level_cost
+    from .sdf import _fingerprint
     from .sdf_config import _DTYPES
-    start = clock()  # the budget counts the band's pool and the grid too
+    from .training import LoopConfig, train
 
+    start = clock()
     cfg = config or TileFitConfig()
     _check(cfg)
     if not (math.isfinite(band) and band > 0):
@@ -186,66 +183,71 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     for p in base.parameters():
         p.requires_grad_(False)
     pools = _Pools(mesh, sdf_config, device, dtype, prepare=band_pools(base, band, audit=audit), cache=pool_cache)
-    gen = torch.Generator().manual_seed(int(cfg.seed))
     data = pools.get(0)
     grid = tile_grid_for(data["surf_p"], cfg.grid, cfg.margin, cfg.min_surface)
     model = TiledSiren(grid, cfg.width, cfg.depth, cfg.omega_0, cfg.hidden_omega, zero_output=True,
-                       generator=gen).to(device=device, dtype=dtype)
+                       generator=torch.Generator().manual_seed(int(cfg.seed))).to(device=device, dtype=dtype)
+    cost = tile_level_cost(model.tiles, cfg.width, cfg.depth, cfg.surface_points + cfg.volume_points)
+    if reference_work is not None:  # the reference machine's steps for this many tiles, no time stop
+        if cost is None:
+            raise FitError(f"fit_tiles: tiles of {cfg.width}x{cfg.depth} with {cfg.surface_points} + "
+                           f"{cfg.volume_points} points have no reference step cost; give steps or minutes")
+        cfg = replace(cfg, steps=max(1, int(reference_work / cost)), minutes=None)
     centres = grid.centres(dtype=dtype, device=device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    history: list[dict] = []
-    index, buckets = None, None
-    budget = None if cfg.minutes is None else 60.0 * cfg.minutes
-    step, stopped = 0, "steps"
-    bar = _progress(sdf_config.progress, cfg, model.tiles)
-    while step < cfg.steps:
-        elapsed = clock() - start
-        if budget is not None and elapsed >= budget:
-            stopped = "time"
-            break
+    s = cfg.surface_points
+    sorted_pool: dict = {"index": None}
+    sampling = {"seconds": 0.0, "steps": 0}  # the asset's own work in the steps: new pools, their band, sorting
+
+    def step_fn(step: int, gen: torch.Generator) -> dict:
+        t_sample = clock()
         data = pools.get(step)
-        if buckets is None or pools.index != index:  # a new pool: its points sorted by tile once
-            index = pools.index
-            buckets = (_by_tile(grid, data["surf_p"]), _by_tile(grid, data["vol_p"]))
-        lr = cosine_lr(cfg.lr, cfg.lr_min_factor, step, cfg.steps, elapsed, cfg.minutes)
-        for group in opt.param_groups:
-            group["lr"] = lr
-        si, s_has = _draw(buckets[0], cfg.surface_points, gen)
-        vi, v_has = _draw(buckets[1], cfg.volume_points, gen)
+        if sorted_pool["index"] is None or pools.index != sorted_pool["index"]:  # a new pool: sorted by tile once
+            sorted_pool.update(index=pools.index, surface=_by_tile(grid, data["surf_p"]),
+                               volume=_by_tile(grid, data["vol_p"]))
+        sampling["seconds"] += clock() - t_sample
+        sampling["steps"] += 1
+        si, s_has = _draw(sorted_pool["surface"], s, gen)
+        vi, v_has = _draw(sorted_pool["volume"], cfg.volume_points, gen)
         x = torch.cat([data["surf_p"][si], data["vol_p"][vi]], dim=1)
         h = torch.cat([data["surf_base"][si], data["vol_base"][vi]], dim=1)
         hg = torch.cat([data["surf_base_grad"][si], data["vol_base_grad"][vi]], dim=1)
         r, rg = model.tile_values_and_gradients((x - centres[:, None, :]) / grid.half)
         f, g = h + r, hg + rg
-        s = cfg.surface_points
-        # the SDF loss's terms of the rows of the tiles that have points (surface rows first), each tile's
-        # share a mean over its own points: the means over all rows × the tiles with surface points
+        # the SDF loss's terms of the rows of the tiles that have points (surface rows first): means over all
+        # rows, each tile's share a mean over its own points; a tile's loss reaches only its own network, so
+        # their sum (the means × the tiles with surface points) steps them all at once
         terms = loss_terms_of(torch.cat([f[s_has, :s].reshape(-1), f[v_has, s:].reshape(-1)]),
                               torch.cat([g[s_has, :s].reshape(-1, 3), g[v_has, s:].reshape(-1, 3)]),
                               data["surf_n"][si[s_has]].reshape(-1, 3), data["vol_d"][vi[v_has]].reshape(-1),
                               sdf_config)
-        k = float(max(1, int(s_has.sum())))
-        loss = terms.pop("loss")
-        value = float(loss.detach())
-        if not math.isfinite(value):  # before the step: the weights are never left non-finite
-            raise FitError(f"fit_tiles: the loss became non-finite at step {step + 1}")
-        # a tile's loss reaches only its own network: the sum over tiles steps them all at once
-        loss = loss * k
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        step += 1
-        if step % log_every == 0 or step == 1:
-            history.append({"step": step, "lr": lr, "loss": value,
-                            **{name: float(v.detach()) for name, v in terms.items()}})
-            if bar is not None:
-                bar.set_postfix({"step": step, "loss": f"{value:.3g}"}, refresh=False)
-        if bar is not None:  # a step, or the seconds since the last one
-            bar.update(1 if budget is None else max(0.0, round(min(elapsed, bar.total) - bar.n, 3)))
-    if bar is not None:
-        bar.close()
+        terms["loss"] = terms["loss"] * float(max(1, int(s_has.sum())))
+        return terms
+
+    minutes = None if cfg.minutes is None else max(cfg.minutes - (clock() - start) / 60.0, 0.05 * cfg.minutes)
+    loop = LoopConfig(steps=int(cfg.steps), minutes=minutes, lr=float(cfg.lr), lr_schedule="cosine",
+                      lr_min_factor=float(cfg.lr_min_factor), seed=int(cfg.seed), progress=sdf_config.progress,
+                      log_every=int(log_every), checkpoint=sdf_config.checkpoint,
+                      checkpoint_every=sdf_config.checkpoint_every, resume=sdf_config.resume,
+                      desc=f"fit sdf tiles {model.tiles}x({cfg.width}x{cfg.depth})")
+    fingerprint = _fingerprint(mesh, sdf_config, networks=(base,), arrays=tuple(audit or ()),
+                               values=(band, cfg.grid, cfg.margin, cfg.width, cfg.depth, cfg.omega_0,
+                                       cfg.hidden_omega, cfg.min_surface, s, cfg.volume_points, cfg.lr,
+                                       cfg.lr_min_factor, cfg.seed))
+    res = train(model, step_fn, loop, fingerprint=fingerprint, metadata={"mesh": mesh.name, "tiles": model.tiles},
+                clock=clock)
     model.eval()
     for p in model.parameters():
         p.requires_grad_(False)
-    return TileFit(model=model, steps=step, seconds=clock() - start, history=history, stopped_reason=stopped,
-                   config=cfg)
+    seconds = clock() - start
+    asset = sampling["seconds"] / sampling["steps"] if sampling["steps"] else None
+    account = fit_budget(budget_key, steps=res.steps, seconds=seconds, minutes=cfg.minutes, step_cap=cfg.steps,
+                         stopped_reason=res.stopped_reason, cost=cost, what=f"tile level ({model.tiles} tiles)",
+                         asset_seconds=asset, sampling_share=None if not res.seconds else sampling["seconds"] /
+                         res.seconds)
+    if reference_work is not None and cost is not None:
+        account = {"budget": "steps", "preset": budget_key, "steps": res.steps, "reference_steps": cfg.steps, "expected_steps": cfg.steps,
+                   "estimated_seconds": cfg.steps * cost / _full_rate(), "seconds": seconds, "warning": None,
+                   "note": None, "stopped": f"reference steps ({cfg.steps}) done"}
+    return TileFit(model=model, steps=res.steps, seconds=seconds, history=res.history,
+                   stopped_reason=res.stopped_reason, config=cfg, budget=account, restarts=res.restarts,
+                   threads=res.threads)

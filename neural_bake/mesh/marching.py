@@ -30,8 +30,13 @@ def grid_points(resolution: int, bound: float = 1.0) -> np.ndarray:
 
 
 def _as_field(field) -> tuple[Callable[[torch.Tensor], torch.Tensor], torch.dtype, torch.device, bool]:
-    """(evaluate (N, 3) -> (N,), dtype, device, is_siren) for a scalar Siren or a callable."""
+    """(evaluate (N, 3) -> (N,), dtype, device, bounded) for a scalar Siren, a tiled SDF or a callable (``bounded``:
+    range analysis bounds its values over boxes)."""
     from ..nets.siren import Siren
+
+    if getattr(field, "composite", False):  # several networks with their own range bounds (nets.tiles.TiledSdf)
+        p = next(field.parameters())
+        return field.value, p.dtype, p.device, True
 
     if isinstance(field, Siren):
         if field.in_dim != 3 or field.out_dim != 1:
@@ -268,7 +273,8 @@ def march(
     """Triangle mesh of the level set ``field = level`` by Lewiner's marching cubes on a regular grid.
 
     Args:
-        field: a scalar :class:`~neural_bake.nets.siren.Siren` (3 -> 1), or a callable mapping (N, 3) tensors
+        field: a scalar :class:`~neural_bake.nets.siren.Siren` (3 -> 1), a
+            :class:`~neural_bake.nets.tiles.TiledSdf`, or a callable mapping (N, 3) tensors
             to (N,) (or (N, 1)) values; evaluated in its parameters' dtype/device (float32 on CPU for plain
             callables), under ``torch.no_grad``.
         resolution: R cells per axis: the grid has (R+1)³ points over [-bound, bound]³, spacing 2 bound / R.
@@ -335,7 +341,8 @@ def march(
     resolution, chunk_size, leaf_cells = int(resolution), int(chunk_size), int(leaf_cells)
     evaluate, dtype, device, is_siren = _as_field(field)
     if pruned is True and not is_siren:
-        raise NeuralBakeError("march: pruned=True needs a Siren field (range analysis bounds its values)")
+        raise NeuralBakeError("march: pruned=True needs a Siren or tiled SDF field (range analysis bounds its "
+                              "values)")
     n = resolution + 1
     axis = grid_points(resolution, bound)
     mode = "dense" if pruned is False else ("auto" if pruned == "auto" else "pruned")
@@ -357,7 +364,7 @@ def march(
     if mode == "auto":
         probe_cost = PROBE_BOXES * sum(costs.get(m, PRIOR_BOUND_COST[m]) for m in methods)
         if not is_siren:
-            stats["reason"] = "not a Siren: no range bounds"
+            stats["reason"] = "not a Siren or tiled SDF: no range bounds"
         elif probe_cost > MAX_PROBE_FRACTION * n**3:
             stats["reason"] = (f"grid too small: probes (~{probe_cost:.0f} evaluations) would cost more than "
                                f"{MAX_PROBE_FRACTION:.0%} of the {n**3} grid points")

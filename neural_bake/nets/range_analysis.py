@@ -437,6 +437,22 @@ def range_bound(
     return _round_out(torch.cat(los), torch.cat(his), out_dtype)
 
 
+def _composite_difference(h, f, center, axes, method, **kwargs) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounds of h − f where h or f is a tiled SDF c + r: the difference of the SIRENs (h − c or c − f) with
+    shared noise symbols, minus (or plus) r's range bound over the box."""
+    center, axes = torch.as_tensor(center), torch.as_tensor(axes)
+    if getattr(f, "composite", False):
+        lo, hi = difference_bound(h, f.coarse, center, axes, method, **kwargs)
+        r_lo, r_hi = f.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
+        lo, hi = lo - r_hi, hi - r_lo
+    else:
+        lo, hi = difference_bound(h.coarse, f, center, axes, method, **kwargs)
+        r_lo, r_hi = h.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
+        lo, hi = lo + r_lo, hi + r_hi
+    inf = torch.tensor(math.inf, dtype=lo.dtype, device=lo.device)
+    return torch.nextafter(lo, -inf), torch.nextafter(hi, inf)
+
+
 def difference_bound(
     h,
     f,
@@ -458,13 +474,18 @@ def difference_bound(
     arithmetic has no symbols) and the result is the difference of the two ranges.
 
     Args:
-        h, f: Sirens with ``out_dim == 1`` and the same ``in_dim`` = d.
+        h, f: Sirens with ``out_dim == 1`` and the same ``in_dim`` = d, or a tiled SDF
+            (:class:`~neural_bake.nets.tiles.TiledSdf`) of 3 inputs: its coarse SIREN shares the symbols, its tiles'
+            range bound is added.
         center, axes, method, keep, chunk, compute_dtype: as in :func:`range_bound`.
 
     Returns:
         ``(lo, hi)``, (B,) tensors in the inputs' dtype with ``lo <= h(x) - f(x) <= hi`` on every box.
     """
     fn = "difference_bound"
+    if getattr(f, "composite", False) or getattr(h, "composite", False):  # a tiled SDF (nets.tiles.TiledSdf):
+        return _composite_difference(h, f, center, axes, method, keep=keep, chunk=chunk,  # its coarse SIREN
+                                     compute_dtype=compute_dtype)  # shares the symbols, its tiles are bounded
     layers_list, center, axes, out_dtype, cdtype, u_in, n_in, chunk, e_rel = _prepare(
         fn, [h, f], center, axes, method, keep, chunk, compute_dtype)
     u = _unit_roundoff(cdtype)

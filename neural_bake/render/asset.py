@@ -32,7 +32,7 @@ from ..types import Frame
 
 __all__ = [
     "RenderError", "TraceLevel", "TextureSource", "RenderAsset", "SpaceTimeAsset", "as_render_asset",
-    "siren_level", "analytic_level", "siren_texture", "analytic_texture", "as_texture", "level_names",
+    "siren_level", "tiled_level", "analytic_level", "siren_texture", "analytic_texture", "as_texture", "level_names",
 ]
 
 
@@ -136,8 +136,29 @@ def _gemm_dtype(precision: str, model: Siren):
     return gemm_dtype(resolve_precision(precision, model)[0])
 
 
-def _arch_name(model: Siren) -> str:
+def _arch_name(model) -> str:
+    """"(W,D)" of a SIREN; a tiled SDF's label ("64x3+44x(64x2)")."""
+    if getattr(model, "composite", False):
+        return str(model.label)
     return f"({model.width},{model.depth})"
+
+
+def _is_network(m) -> bool:
+    """A SIREN or a tiled SDF (nets.tiles.TiledSdf: a level of several networks with their own bounds)."""
+    return isinstance(m, Siren) or getattr(m, "composite", False)
+
+
+def tiled_level(model, delta: float = 0.0, *, name: str | None = None) -> TraceLevel:
+    """A level from a tiled SDF (:class:`~neural_bake.nets.tiles.TiledSdf`): its forward values, GEMM gradients
+    and range bounds (float32 throughout: its networks have no reduced-precision path)."""
+    from ..nets.gemm import gemm_gradient as _gg
+
+    def value_and_gradient(p):
+        v, g = _gg(model, p)
+        return v.reshape(-1), g
+
+    return TraceLevel(name or _arch_name(model), lambda p: model.value(p).reshape(-1), value_and_gradient, delta,
+                      lambda c, a: model.range_bound(c, a, "affine-fixed"), model)
 
 
 class _SirenEval:
@@ -279,7 +300,8 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
                     precision: str = "fp32") -> RenderAsset:
     """A RenderAsset from a nested sequence, an SDF field, a Siren, a list of Sirens or a RenderAsset.
 
-    - nested sequence (``levels`` list of Sirens, ``deltas``, ``frame``): one level per network, δ from
+    - nested sequence (``levels`` list of Sirens, the fine one possibly a tiled SDF, ``deltas``, ``frame``): one
+      level per network, δ from
       ``deltas`` (argument) or the sequence's; the last level's δ is 0 (f is traced itself).
     - SDF field (``value_and_gradient``; ``model`` a Siren, a tiled SDF or None): one level.
     - ``texture``: a TextureSource, a Siren, or a texture field (``color(points)``); ``frame`` overrides.
@@ -289,13 +311,13 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
     """
     if isinstance(obj, RenderAsset):
         asset = obj
-    elif isinstance(obj, Siren) or (isinstance(obj, (list, tuple)) and obj and all(isinstance(m, Siren) for m in obj)):
+    elif isinstance(obj, Siren) or (isinstance(obj, (list, tuple)) and obj and all(_is_network(m) for m in obj)):
         models = [obj] if isinstance(obj, Siren) else list(obj)
         asset = _from_models(models, deltas, frame or Frame(), precision)
     elif hasattr(obj, "levels") and isinstance(getattr(obj, "levels"), (list, tuple)):
         models = list(obj.levels)
-        if not all(isinstance(m, Siren) for m in models):
-            raise RenderError("asset: a nested sequence's levels must be Sirens")
+        if not all(_is_network(m) for m in models):
+            raise RenderError("asset: a nested sequence's levels must be Sirens (the fine one may be a tiled SDF)")
         ds = deltas if deltas is not None else list(getattr(obj, "deltas", [0.0] * len(models)))
         asset = _from_models(models, ds, frame or getattr(obj, "frame", None) or Frame(), precision)
     elif hasattr(obj, "value_and_gradient"):
@@ -304,9 +326,7 @@ def as_render_asset(obj, *, deltas: Sequence[float] | None = None, texture=None,
         if isinstance(model, Siren):
             level = siren_level(model, 0.0, name=f"f {_arch_name(model)}", precision=precision)
         elif getattr(model, "composite", False):  # several networks (nets.tiles.TiledSdf): their own bounds
-            level = TraceLevel(f"f {model.label}", lambda p: model.value(p).reshape(-1),
-                               lambda p: tuple(t for t in obj.value_and_gradient(p)), 0.0,
-                               lambda c, a: model.range_bound(c, a, "affine-fixed"), model)
+            level = tiled_level(model, 0.0, name=f"f {model.label}")
         else:
             level = TraceLevel(name, lambda p: obj.value_and_gradient(p)[0].reshape(-1),
                                lambda p: tuple(t for t in obj.value_and_gradient(p)), 0.0, None, None)
@@ -325,7 +345,8 @@ def _from_models(models: list[Siren], deltas, frame: Frame, precision: str = "fp
         raise RenderError(f"asset: {len(models)} levels but {len(deltas)} δ values")
     deltas[-1] = 0.0  # the last level is f itself
     names = level_names(models)
-    return RenderAsset([siren_level(m, d, name=n, precision=precision) for m, d, n in zip(models, deltas, names)],
+    return RenderAsset([tiled_level(m, d, name=n) if getattr(m, "composite", False)
+                        else siren_level(m, d, name=n, precision=precision) for m, d, n in zip(models, deltas, names)],
                        frame)
 
 

@@ -31,11 +31,11 @@ def _is_texture(field) -> bool:
     return isinstance(field, TextureField)
 
 
-def _networks(field) -> list[Siren]:
+def _networks(field) -> list:
     if hasattr(field, "levels"):
         return list(field.levels)
     model = getattr(field, "model", None)
-    if not isinstance(model, Siren):
+    if not isinstance(model, Siren) and not getattr(model, "composite", False):  # a SIREN or a tiled SDF
         raise RenderError(f"{getattr(field, 'name', 'model')}: not a network-backed SDF field")
     return [model]
 
@@ -63,8 +63,6 @@ def load_asset(path, *, texture=None, deltas=None, device=None, precision: str =
         from ..fields import check_texture_matches_sdf
 
         check_texture_matches_sdf(tex, field, force=force, option=force_option, sdf_name=Path(path).name)
-    if getattr(getattr(field, "model", None), "composite", False):  # a tiled SDF: one level of several networks
-        return as_render_asset(field, texture=tex, precision=precision)
     nets = _networks(field)
     frame = getattr(field, "frame", None)
     ds = list(deltas) if deltas is not None else list(getattr(field, "deltas", None) or [0.0] * len(nets))

@@ -136,7 +136,7 @@ def test_parse_levels():
 def test_bad_arguments(fine, kw, msg):
     with pytest.raises(FitError, match=msg):
         fit_nested(fine, **{"levels": [(8, 0)], **kw})
-    with pytest.raises(FitError, match="must be a Siren or an SdfFit"):
+    with pytest.raises(FitError, match="must be a Siren, a TiledSdf or an SdfFit"):
         fit_nested("model.sdf")
 
 

@@ -258,7 +258,7 @@ def test_bad_constructions_and_residual_settings_are_refused(fit_sphere_siren):
     with pytest.raises(FitError, match=r"coarse_width must be an integer in \(0, width 32\)"):
         fit_sdf_construction(sphere(), "residual-warm", steps=2, coarse_width=32, **TINY)
     with pytest.raises(FitError, match="construction must be one of"):
-        fit_sdf(sphere(), steps=2, construction="tiles", **TINY)
+        fit_sdf(sphere(), steps=2, construction="octree", **TINY)
     with pytest.raises(FitError, match="budget='steps' runs the reference steps of a preset's own construction"):
         fit_sdf(sphere(), construction="residual", coarse_width=8, budget="steps", **TINY)
     h = fit_sphere_siren(r=R, steps=300)

@@ -63,11 +63,12 @@ def test_the_grid_covers_the_surface_and_only_its_cells_hold_networks():
 def test_a_time_budget_stops_on_the_injected_clock(fit_sphere_siren):
     h = fit_sphere_siren(r=R, steps=60, width=16)
     ticks = iter(range(10_000))
-    fit = fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=1000, minutes=3 / 60, **SMALL),
+    fit = fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=1000, minutes=40 / 60, **SMALL),
                     clock=lambda: float(next(ticks)))
-    # one reading at the start and one before each step: steps at 1 s and 2 s, the third reading (3 s) stops
-    # the fit, and one reading at the end gives its seconds
-    assert fit.steps == 2 and fit.seconds == pytest.approx(4.0)
+    # a clock that ticks a second a reading: two readings before the loop (the start, and what is left of the
+    # budget after the pool and the grid), four a step (the loop's two, the sampling's two): the budget of
+    # 40 s stops the loop after 10 steps, and the readings after it give the fit's seconds
+    assert (fit.steps, fit.stopped_reason, fit.seconds) == (10, "time budget", pytest.approx(45.0))
 
 
 @pytest.mark.parametrize("change,word", [({"grid": 0}, "grid"), ({"width": 1.5}, "width"), ({"depth": -1}, "depth"),
@@ -107,7 +108,7 @@ def test_the_tiles_construction_fits_saves_loads_and_beats_its_coarse_level(tmp_
     _, hg = gemm_gradient(fit.coarse.model, x)
     v, g = gemm_gradient(fit.model, x)
     # the sphere's oracle: its normals are its unit positions, its surface |x| = R
-    assert float(normal_error_deg(g, x).median()) < 0.6 * float(normal_error_deg(hg, x).median())
+    assert float(normal_error_deg(g, x).median()) < 0.75 * float(normal_error_deg(hg, x).median())
     assert float(v.abs().max()) <= fit.distance_error * 1.5
     path = fit.save(tmp_path / "t.sdf")
     again = load_sdf(path)
@@ -125,3 +126,55 @@ def test_bad_tiles_settings_are_one_line_errors(change, word):
     with pytest.raises(FitError, match=word) as err:
         fit_sdf(sphere(), steps=10, **{**TILES, **change})
     assert "\n" not in str(err.value)
+
+
+def test_a_time_budgeted_tile_level_is_accounted_and_warns_when_short(fit_sphere_siren, monkeypatch):
+    from neural_bake.errors import NeuralBakeWarning
+    from neural_bake.fit import budget
+    from neural_bake.fit.budget import TILE_STEP, TILE_STEP_COST, tile_level_cost
+
+    assert tile_level_cost(10, *TILE_STEP[:2], TILE_STEP[2]) == pytest.approx(10 * TILE_STEP_COST)
+    assert TILE_STEP_COST > 0 and tile_level_cost(10, 16, 1, 128) is None
+    h = fit_sphere_siren(r=R, steps=60, width=16)
+    cfg = TileFitConfig(steps=1000, minutes=40 / 60, **{**SMALL, "width": 64, "depth": 2, "surface_points": 256,
+                                                         "volume_points": 320})
+    rates = []
+    monkeypatch.setattr(budget, "_full_rate", lambda: rates[0])
+
+    def run():
+        ticks = iter(range(10_000))
+        return fit_tiles(sphere(), h, 0.1, POOLS, cfg, clock=lambda: float(next(ticks)))
+
+    k = fit_tiles(sphere(), h, 0.1, POOLS, replace_steps(cfg, 1)).model.tiles
+    # the injected clock makes 10 steps in the 40 s (test above), each with 1 s of the asset's own work (its
+    # sampling's two readings). A machine whose step takes 0.2 s quiet makes 40 / 1.2 = 33: 10 is short
+    rates.append(k * TILE_STEP_COST / 0.2)
+    with pytest.warns(NeuralBakeWarning, match=rf"tile level \({k} tiles\): made 10 steps of the ~33 this machine"):
+        fit = run()
+    assert fit.steps == 10 and fit.budget["expected_steps"] == 33
+    assert fit.budget["asset_seconds_per_step"] == pytest.approx(1.0)
+    assert fit.budget["stopped"] == "time budget (40 s) used"
+    rates[0] = k * TILE_STEP_COST / 2.9  # one whose step takes 2.9 s makes 40 / 3.9 = 10: no warning
+    fit = run()
+    assert fit.budget["expected_steps"] == 10 and fit.budget["warning"] is None
+
+
+def replace_steps(cfg, steps):
+    from dataclasses import replace
+
+    return replace(cfg, steps=steps, minutes=None)
+
+
+def test_reference_work_sets_the_steps_by_the_number_of_tiles(fit_sphere_siren, monkeypatch):
+    from neural_bake.fit import budget
+    from neural_bake.fit.budget import TILE_STEP_COST
+
+    monkeypatch.setattr(budget, "_full_rate", lambda: 100.0)
+    h = fit_sphere_siren(r=R, steps=60, width=16)
+    cfg = TileFitConfig(steps=1, **{**SMALL, "width": 64, "depth": 2, "surface_points": 256, "volume_points": 320})
+    k = fit_tiles(sphere(), h, 0.1, POOLS, cfg).model.tiles
+    fit = fit_tiles(sphere(), h, 0.1, POOLS, cfg, reference_work=3.5 * k * TILE_STEP_COST)
+    assert fit.steps == 3 and fit.budget["reference_steps"] == 3 and fit.budget["budget"] == "steps"
+    assert fit.budget["estimated_seconds"] == pytest.approx(3 * k * TILE_STEP_COST / 100.0)
+    with pytest.raises(FitError, match="no reference step cost"):
+        fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=1, **SMALL), reference_work=10.0)

@@ -86,6 +86,26 @@ def test_pruned_on_a_random_siren_at_its_median_level():
     assert sp["evaluations"] <= sd["evaluations"]
 
 
+@pytest.mark.parametrize("method", ["affine-fixed", "interval"])
+def test_pruned_tiled_sdf_gives_the_dense_triangles(method):
+    from neural_bake.nets.tiles import TiledSdf, TileGrid, TiledSiren
+
+    g = torch.Generator().manual_seed(5)
+    tiles = TiledSiren(TileGrid([-1.0, -1.0, -1.0], 0.5, 4, 0.1, torch.arange(64)[::2]), 8, 1, omega_0=4.0,
+                       hidden_omega=4.0, zero_output=False, generator=g)
+    with torch.no_grad():  # a residual that moves the sphere's surface by a few hundredths
+        tiles.weights[-1].mul_(0.3)
+        tiles.biases[-1].mul_(0.3)
+    net = TiledSdf(sphere_siren(), tiles).double()
+    dense, sd = march(net, 32)
+    pruned, sp = march(net, 32, pruned=True, method=method)
+    np.testing.assert_array_equal(pruned.faces, dense.faces)
+    np.testing.assert_array_equal(pruned.vertices, dense.vertices)
+    assert sp["evaluations"] < sd["evaluations"] and sp["boxes_pruned"] > 0
+    plain, _ = march(sphere_siren().double(), 32)
+    assert plain.n_faces != dense.n_faces or not np.array_equal(plain.vertices, dense.vertices)  # tiles count
+
+
 def test_grid_points():
     np.testing.assert_allclose(grid_points(4, 1.0), [-1, -0.5, 0, 0.5, 1])
 
