@@ -9,6 +9,7 @@ import trimesh
 from neural_bake.bench.fidelity import open_caps, run
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fit.sdf import load_sdf
+from neural_bake.nets.tiles import TiledSdf
 from neural_bake.types import Mesh
 
 
@@ -245,9 +246,9 @@ def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     v, f = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.2)
     trimesh.Trimesh(v, f, process=False).export(path)
-    res = run(quick=True, meshes=[str(path)], steps=[8], constructions=["plain", "residual"], size=32, faces=100,
-              save_dir=tmp_path / "models", sampling=["audit"])
-    plain, residual = res["rows"]
+    res = run(quick=True, meshes=[str(path)], steps=[8], constructions=["plain", "residual", "tiles"], size=32,
+              faces=100, save_dir=tmp_path / "models", sampling=["audit"])
+    plain, residual, tiles = res["rows"]
     # the band audit between the residual construction's levels (a plain fit has none)
     assert plain["audit_kept"] is None and plain["audit_s"] is None
     assert residual["audit_kept"] >= 0 and residual["audit_s"] >= 0
@@ -264,6 +265,12 @@ def test_sdf_constructions_side_by_side_get_ratios_against_plain(tmp_path):
     assert residual["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
     saved = load_sdf(tmp_path / "models" / "block-quick-8-audit-residual.sdf")  # the sum, an ordinary SDF file
     assert saved.model.width == 192 and saved.steps == 6
+    # the tiles construction: the same coarse level, then its tiles; scored and baked like the others
+    assert (tiles["construction"], tiles["steps"], tiles["coarse_steps"]) == ("tiles", 6, 2)
+    assert tiles["net"].startswith("64x3+") and tiles["net"].endswith("x(64x2)") and tiles["band"] > 0
+    assert tiles["map_median_deg"] > 0 and tiles["plain_median_ratio"] == pytest.approx(
+        tiles["map_median_deg"] / plain["map_median_deg"])
+    assert isinstance(load_sdf(tmp_path / "models" / "block-quick-8-audit-tiles.sdf").model, TiledSdf)
     json.dumps(res)
 
 
