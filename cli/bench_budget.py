@@ -11,8 +11,9 @@ from .bench import bench_options, report
 @bench_options
 @click.option("--preset", "presets", multiple=True,
               help="A preset to measure, repeatable: quick, default, high, 64x1, …, quick/coarse and quick/fine (the "
-                   "levels of quick's construction), or texture:quick, texture:default, texture:high (default: all "
-                   "of them; --quick: quick, its two levels, 64x1, texture:quick).")
+                   "levels of quick's construction), texture:quick, texture:default, texture:high, or tile (a tile "
+                   "level's step per tile, --construction tiles) (default: all of them; --quick: quick, its two "
+                   "levels, 64x1, texture:quick).")
 @click.option("--seconds", type=click.FloatRange(min=1.0), default=None,
               help="Each fit's budget in seconds (default 30; --quick 8).")
 def command(quick: bool, json_path: str | None, presets: tuple[str, ...], seconds: float | None) -> None:

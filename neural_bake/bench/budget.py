@@ -14,7 +14,9 @@ off for that preset on this kind of CPU (the expected steps and the under-budget
 The texture presets are fitted against the 64x1 preset's SDF of the same run (fitted for them when 64x1 is
 not measured). A preset whose own construction has two levels (``quick``: :mod:`neural_bake.fit.residual`)
 is measured plainly under its name (its network alone) and by level under "PRESET/coarse" and
-"PRESET/fine", both read from one fit of its construction (loss not compiled).
+"PRESET/fine", both read from one fit of its construction (loss not compiled). The row ``tile`` checks
+:data:`~neural_bake.fit.budget.TILE_STEP_COST`: the quick preset fitted by the ``tiles`` construction, its tile
+level's step time ÷ its number of tiles (no budget of its own: a tile level's steps follow its tiles).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import warnings
 from ..errors import NeuralBakeError, NeuralBakeWarning
 from .common import load_note, machine_info
 
-__all__ = ["run", "COLUMNS", "QUICK_PRESETS", "warm_seconds_per_step"]
+__all__ = ["run", "COLUMNS", "QUICK_PRESETS", "TILE", "warm_seconds_per_step"]
 
 #: Table columns, in order.
 COLUMNS = ["preset", "net", "compiled", "steps", "ms / step", "cost (reference steps)", "table cost",
@@ -44,6 +46,9 @@ def warm_seconds_per_step(history: list[dict], skip: int = 1) -> float | None:
     return seconds / steps if steps > 0 and seconds > 0 else None
 
 
+#: The row of a tile level's step cost per tile (:data:`~neural_bake.fit.budget.TILE_STEP_COST`).
+TILE = "tile"
+
 #: The presets of ``--quick`` (none compiled: the run stays under two minutes).
 QUICK_PRESETS = ("quick", "quick/coarse", "quick/fine", "64x1", "texture:quick")
 
@@ -51,11 +56,11 @@ QUICK_PRESETS = ("quick", "quick/coarse", "quick/fine", "64x1", "texture:quick")
 def _presets(presets, quick: bool) -> list[str]:
     from ..fit.budget import STEP_COST
 
-    names = list(presets or (QUICK_PRESETS if quick else STEP_COST))
-    bad = [p for p in names if p not in STEP_COST]
+    names = list(presets or (QUICK_PRESETS if quick else [*STEP_COST, TILE]))
+    bad = [p for p in names if p not in STEP_COST and p != TILE]
     if bad:
         raise NeuralBakeError(f"bench budget: no step cost for preset(s) {', '.join(bad)}; choose among "
-                              f"{', '.join(STEP_COST)}")
+                              f"{', '.join([*STEP_COST, TILE])}")
     # the texture presets need an SDF: the 64x1 fit of this run
     return sorted(names, key=lambda p: p.startswith("texture:"))
 
@@ -64,8 +69,8 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
         sdf_overrides: dict | None = None, texture_overrides: dict | None = None, log=None) -> dict:
     """Run the benchmark (module docstring); returns the result dict of :mod:`neural_bake.bench.common`.
 
-    - ``presets``: keys of :data:`~neural_bake.fit.budget.STEP_COST` (default all; quick :data:`QUICK_PRESETS`;
-      ``"texture:NAME"`` for a texture preset).
+    - ``presets``: keys of :data:`~neural_bake.fit.budget.STEP_COST` (default all and :data:`TILE`; quick
+      :data:`QUICK_PRESETS`; ``"texture:NAME"`` for a texture preset, ``"tile"`` for a tile level's step per tile).
     - ``seconds``: each fit's budget (default 30; quick 8).
     - ``log_every``: steps between the history entries the step time is read from.
     - ``sdf_overrides``, ``texture_overrides``: more settings for every SDF or texture fit (tests shrink the
@@ -93,6 +98,19 @@ def run(quick: bool = False, *, presets=None, seconds: float | None = None, log_
     levels: dict = {}  # a preset's construction of two levels, fitted once for both of its rows
 
     def measure(name: str) -> dict:
+        if name == TILE:  # the quick preset by the tiles construction: its tile level's step ÷ its tiles
+            from ..fit.budget import TILE_STEP_COST
+
+            fit = fit_sdf(mesh, preset="quick", construction="tiles", minutes=seconds / 60.0, progress=False,
+                          log_every=log_every, compile="off", **sdf_over)
+            k = fit.model.tiles.tiles
+            per_step = warm_seconds_per_step(fit.history)
+            if per_step is None:
+                notes.append(f"{name}: too few steps in its part of {seconds:.0f} s to read a warm step time")
+            return {"preset": name, "net": f"{k}x({fit.model.tiles.width}x{fit.model.tiles.depth})",
+                    "compiled": False, "steps": fit.steps, "ms / step": None if per_step is None else
+                    1000.0 * per_step / k, "_seconds_per_step": None if per_step is None else per_step / k,
+                    "table cost": TILE_STEP_COST, "budget s": None}
         texture = name.startswith("texture:")
         preset, _, level = name.partition("/")
         preset = name.partition(":")[2] if texture else preset

@@ -271,7 +271,8 @@ def _fit_tile_level(mesh: Mesh, cfg: SdfFitConfig, key: str | None, fine_cfg: Sd
 
         work = float(reference_steps(fine_key) or 0) * STEP_COST[str(fine_key)]
     tiles = fit_tiles(mesh, coarse.model, band, fine_cfg, tile_cfg, clock=clock or time.perf_counter,
-                      pool_cache=cache, audit=audit, reference_work=work, budget_key=fine_key)
+                      pool_cache=cache, audit=audit, reference_work=work, budget_key=fine_key,
+                      log_every=int(cfg.log_every))
     h = coarse.model
     model = TiledSdf(h, tiles.model.to(next(h.parameters()))).eval()
     budget = _levels_budget(cfg, key, coarse, tiles)

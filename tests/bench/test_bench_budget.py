@@ -54,8 +54,19 @@ def test_texture_alone_fits_its_sdf_first():
 def test_preset_choice_puts_textures_after_the_sdf_they_need():
     assert _presets(None, quick=True) == list(QUICK_PRESETS)  # nothing compiled: under two minutes
     full = _presets(None, quick=False)
-    assert sorted(full) == sorted(STEP_COST)
+    assert sorted(full) == sorted([*STEP_COST, "tile"])
     assert [p.startswith("texture:") for p in full] == sorted(p.startswith("texture:") for p in full)
+
+
+def test_the_tile_row_measures_a_tile_levels_step_per_tile():
+    from neural_bake.fit.budget import TILE_STEP_COST
+
+    res = run(quick=True, presets=["tile"], seconds=8.0, log_every=2, sdf_overrides={**SMALL_SDF, "tile_grid": 3})
+    (row,) = res["rows"]
+    k = int(row["net"].split("x(")[0])
+    assert row["preset"] == "tile" and row["net"] == f"{k}x(64x2)" and 0 < k <= 27
+    assert row["table cost"] == TILE_STEP_COST and row["budget s"] is None
+    assert row["cost (reference steps)"] == pytest.approx(row["ms / step"] / 1000.0 * res["reference_rate"])
 
 
 def test_errors():
