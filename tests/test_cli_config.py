@@ -136,6 +136,26 @@ def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed, fit.config.pool_surface) == (16, 1, 4, 6, 2000)
 
 
+def test_fit_sdf_tiles_construction_writes_a_tiled_sdf(tmp_path, capsys):
+    """`fit sdf --construction tiles`: the coarse level and its tiles in one file that loads as a field."""
+    from neural_bake.fields import load_field
+    from neural_bake.nets.tiles import TiledSdf
+
+    src, f = _tiny_fit_inputs(tmp_path, steps=8, subdivisions=2)
+    out = tmp_path / "ball.sdf"
+    code, printed, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f),
+                             "--construction", "tiles", "--coarse-width", "6", "--tile-grid", "3", "--tile-width",
+                             "8", "--tile-depth", "1", "--no-metrics")
+    assert code == 0, err
+    field = load_field(out)
+    assert isinstance(field.model, TiledSdf) and f"fit sdf 6x1+{field.model.tiles.tiles}x(8x1):" in printed
+    values, normals, valid = field.value_and_normal(torch.rand(64, 3) * 2 - 1)
+    assert valid.all() and torch.isfinite(values).all()
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction", "tiles",
+                       "--coarse-width", "6", "--tile-margin", "0.5")
+    assert code == 2 and "tile_margin must be in (0, 0.25] cells" in err and err.count("\n") == 1
+
+
 def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, capsys):
     """`fit sdf --construction residual`: a coarse level, then a fine one of the rest of the width on top of it,
     written as one SIREN of the config's width that loads as a field; an unknown construction is refused in
@@ -158,8 +178,8 @@ def test_fit_sdf_residual_construction_writes_one_sdf_of_both_levels(tmp_path, c
     values, normals, valid = field.value_and_normal(x)
     assert valid.all() and torch.isfinite(values).all()
     assert torch.allclose(normals.norm(dim=1), torch.ones(64), atol=1e-4)
-    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction", "tiles")
-    assert code == 2 and "construction must be one of plain, residual, residual-warm, got 'tiles'" in err
+    code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction", "octree")
+    assert code == 2 and "construction must be one of plain, residual, residual-warm, tiles, got 'octree'" in err
     assert err.count("\n") == 1
     code, _, err = run(capsys, "fit", "sdf", str(src), "-o", str(out), "--config", str(f), "--construction",
                        "residual", "--coarse-width", "16")

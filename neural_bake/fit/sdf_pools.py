@@ -119,12 +119,15 @@ class _Pools:
 BASE_KEYS = ("surf_base", "surf_base_grad", "vol_base", "vol_base_grad")
 
 
-def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None = None) -> Callable[[dict], dict]:
+def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None = None,
+               shell: float = 1.0) -> Callable[[dict], dict]:
     """A pool ``prepare`` (:class:`_Pools`) for a level trained as a residual on the frozen network ``base``:
     it keeps only the points with |base| < ``band`` (surface, near and uniform alike) and adds base's values
     and GEMM gradients at them (:data:`BASE_KEYS`). ``audit``: (points (k, 3), true distances (k,)) of
     :func:`band_audit`, appended to every pool's uniform points (so they are drawn, and sign-mined, with
-    them). FitError when no surface point is left in the band."""
+    them). ``shell``: keep the off-surface points out to ``shell`` × ``band`` (the surface points stay in the
+    band), so the level is also held to the true distances just past the band's edge. FitError when no surface
+    point is left in the band."""
     from ..nets.gemm import gemm_gradient
 
     def values(points: torch.Tensor):
@@ -144,7 +147,7 @@ def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None
             vol_s = torch.cat([vol_s, torch.ones(audit[0].shape[0], dtype=torch.bool, device=vol_s.device)])
         sv, sg = values(data["surf_p"])
         vv, vg = values(vol_p)
-        ks, kv = sv.abs() < band, vv.abs() < band
+        ks, kv = sv.abs() < band, vv.abs() < shell * band
         if not bool(ks.any()):
             raise FitError(f"band_pools: no surface sample lies in the band |base| < {band:.3g}")
         n_near = int(kv[: data["n_near"]].sum())

@@ -110,6 +110,12 @@ def test_the_tiles_construction_fits_saves_loads_and_beats_its_coarse_level(tmp_
     # the sphere's oracle: its normals are its unit positions, its surface |x| = R
     assert float(normal_error_deg(g, x).median()) < 0.75 * float(normal_error_deg(hg, x).median())
     assert float(v.abs().max()) <= fit.distance_error * 1.5
+    # the level stays a residual inside its band: no surface of its own past it (the sphere's sign, |x| − R)
+    gen = torch.Generator().manual_seed(6)
+    y = torch.rand(20_000, 3, generator=gen) * 2 - 1
+    d = y.norm(dim=1) - R
+    away = d.abs() > fit.band
+    assert bool((torch.sign(fit.model(y)[:, 0]) == torch.sign(d))[away].all())
     path = fit.save(tmp_path / "t.sdf")
     again = load_sdf(path)
     assert isinstance(again.model, TiledSdf) and again.distance_error == pytest.approx(fit.distance_error)
@@ -178,3 +184,21 @@ def test_reference_work_sets_the_steps_by_the_number_of_tiles(fit_sphere_siren, 
     assert fit.budget["estimated_seconds"] == pytest.approx(3 * k * TILE_STEP_COST / 100.0)
     with pytest.raises(FitError, match="no reference step cost"):
         fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(steps=1, **SMALL), reference_work=10.0)
+
+
+def test_band_pools_keep_off_surface_points_out_to_the_shell(fit_sphere_siren):
+    from neural_bake.fit.sdf_pools import band_pools
+
+    h = fit_sphere_siren(r=R, steps=60, width=16)
+    gen = torch.Generator().manual_seed(7)
+    surf = sphere_points(500, 8)
+    vol = torch.rand(4000, 3, generator=gen) * 2 - 1
+    data = {"surf_p": surf, "surf_n": torch.nn.functional.normalize(surf, dim=1), "vol_p": vol,
+            "vol_d": vol.norm(dim=1) - R, "n_near": 0}
+    hv = h(vol)[:, 0].detach()
+    one, two = band_pools(h, 0.1)(data), band_pools(h, 0.1, shell=2.0)(data)
+    assert one["vol_p"].shape[0] == int((hv.abs() < 0.1).sum())
+    assert two["vol_p"].shape[0] == int((hv.abs() < 0.2).sum()) > one["vol_p"].shape[0]
+    assert torch.equal(one["surf_p"], two["surf_p"])  # surface points stay in the band
+    with pytest.raises(FitError, match="shell"):
+        fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(**{**SMALL, "shell": 0.5}))
