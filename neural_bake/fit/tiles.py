@@ -53,8 +53,8 @@ class TileFitConfig:
     """ω of each tile's later sine layers."""
     shell: float = 2.0
     """Off-surface points are drawn out to ``shell`` × the band (:func:`~neural_bake.fit.sdf_pools.band_pools`):
-    past the band's edge each tile is held to the true distances too, so it grows no stray surface there (at 1,
-    nefertiti's 2-minute fit grew one at the band's edge: Hausdorff 0.145 against 0.006)."""
+    past the band's edge each tile is held to the true distances too (nefertiti's 2-minute Hausdorff 0.145 at
+    1, 0.104 at 2: docs/findings.md)."""
     min_surface: int = 1
     """Surface samples of the first pool a cell needs in its cell or seams to get a network (1: every cell
     whose seams a surface sample reaches, so the weights sum to 1 all over the surface)."""
