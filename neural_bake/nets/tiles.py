@@ -224,29 +224,38 @@ class TiledSiren(nn.Module):
             g = torch.bmm(g, layers[i][0]) * cos[i - 1]
         return values, torch.bmm(g, layers[0][0])
 
-    @torch.no_grad()
-    def value_and_gradient(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The blend r (N,) and ∇r (N, 3) at unit-frame ``points`` (N, 3), dtype and device of ``points``: every
-        tile's network runs once on the points it covers (:func:`~neural_bake.nets.gemm.gemm_gradient`)."""
+    def _per_tile(self, points: torch.Tensor):
+        """The covering of ``points`` (N, 3) (:meth:`TileGrid.covering`: tiles, weights, weight gradients) and a
+        generator of ``(rows, layers, local)`` per tile with points: the flat (point, corner) slots ``8 · point +
+        corner`` it fills, its ω-folded layers and its points in its local coordinates."""
         if points.dim() != 2 or points.shape[1] != 3 or not points.is_floating_point():
             raise NeuralBakeError(f"TiledSiren: expected floating points of shape (N, 3), got {tuple(points.shape)}")
         dtype, device = points.dtype, points.device
         tiles, weights, wgrads = self.grid.covering(points)
-        n = points.shape[0]
         pairs, bounds = by_tile(tiles, self.tiles)
-        values = torch.zeros(n * 8, dtype=dtype, device=device)
-        grads = torch.zeros(n * 8, 3, dtype=dtype, device=device)
         centres = self.grid.centres(dtype=dtype, device=device)
         layers = self.affine_layers(dtype=dtype, device=device)
-        half = self.grid.half
-        for t in range(self.tiles):
-            lo, hi = bounds[t], bounds[t + 1]
-            if lo == hi:
-                continue
-            rows = pairs[lo:hi]
-            local = (points[rows // 8] - centres[t]) / half
-            v, g = gemm_gradient(_TileView([(w[t], b[t]) for w, b in layers]), local)
-            values[rows] = v[:, 0] * half
+
+        def each():
+            for t in range(self.tiles):
+                lo, hi = bounds[t], bounds[t + 1]
+                if lo < hi:
+                    rows = pairs[lo:hi]
+                    yield rows, [(w[t], b[t]) for w, b in layers], (points[rows // 8] - centres[t]) / self.grid.half
+
+        return weights, wgrads, each()
+
+    @torch.no_grad()
+    def value_and_gradient(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The blend r (N,) and ∇r (N, 3) at unit-frame ``points`` (N, 3), dtype and device of ``points``: every
+        tile's network runs once on the points it covers (:func:`~neural_bake.nets.gemm.gemm_gradient`)."""
+        weights, wgrads, tiles = self._per_tile(points)
+        n = points.shape[0]
+        values = torch.zeros(n * 8, dtype=points.dtype, device=points.device)
+        grads = torch.zeros(n * 8, 3, dtype=points.dtype, device=points.device)
+        for rows, layers, local in tiles:
+            v, g = gemm_gradient(_TileView(layers), local)
+            values[rows] = v[:, 0] * self.grid.half
             grads[rows] = g
         values, grads = values.view(n, 8), grads.view(n, 8, 3)
         r = (weights * values).sum(dim=1)
@@ -256,24 +265,11 @@ class TiledSiren(nn.Module):
     @torch.no_grad()
     def value(self, points: torch.Tensor) -> torch.Tensor:
         """The blend r (N,) at unit-frame ``points`` (N, 3) without its gradient (each tile's forward pass)."""
-        if points.dim() != 2 or points.shape[1] != 3 or not points.is_floating_point():
-            raise NeuralBakeError(f"TiledSiren: expected floating points of shape (N, 3), got {tuple(points.shape)}")
-        dtype, device = points.dtype, points.device
-        tiles, weights, _ = self.grid.covering(points)
-        n = points.shape[0]
-        pairs, bounds = by_tile(tiles, self.tiles)
-        values = torch.zeros(n * 8, dtype=dtype, device=device)
-        centres = self.grid.centres(dtype=dtype, device=device)
-        layers = self.affine_layers(dtype=dtype, device=device)
-        half = self.grid.half
-        for t in range(self.tiles):
-            lo, hi = bounds[t], bounds[t + 1]
-            if lo == hi:
-                continue
-            rows = pairs[lo:hi]
-            local = (points[rows // 8] - centres[t]) / half
-            values[rows] = siren_forward_inference([(w[t], b[t]) for w, b in layers], local)[:, 0] * half
-        return (weights * values.view(n, 8)).sum(dim=1)
+        weights, _, tiles = self._per_tile(points)
+        values = torch.zeros(points.shape[0] * 8, dtype=points.dtype, device=points.device)
+        for rows, layers, local in tiles:
+            values[rows] = siren_forward_inference(layers, local)[:, 0] * self.grid.half
+        return (weights * values.view(-1, 8)).sum(dim=1)
 
     def tile_view(self, t: int) -> "_TileView":
         """Tile ``t``'s network alone (on its local coordinates; its output not yet scaled by ``grid.half``)."""
