@@ -26,8 +26,8 @@ preset's own or the caller's); :func:`~neural_bake.fit.sdf.fit_sdf` hands a cons
   ``tile_grid``³ cells over the mesh's bounding cube, a ``tile_width`` × ``tile_depth`` SIREN on every cell the
   surface reaches, blended across seams of ``tile_margin`` cells) fitted inside h's band for the rest of the
   budget. The ``model`` is a :class:`~neural_bake.nets.tiles.TiledSdf` (h and r in one file): it loads, bakes,
-  marches and renders through the field layer with GEMM normals and range bounds. The tile level is not
-  checkpointed: a resumed run continues the coarse level, then fits the tiles again.
+  marches and renders through the field layer with GEMM normals and range bounds. Checkpoints as
+  ``residual``'s: the tile level's in the construction's file, the coarse level's beside it.
 
 ``steps``, ``history`` and ``sampling_seconds`` of the result are the fine level's, ``seconds`` the whole
 construction's, ``budget`` the account of both levels (steps made and expected, summed, each level's own

@@ -1,6 +1,8 @@
 """Tile levels fitted on a coarse SDF: the sphere's oracle (its normals are its unit positions), the band, the
 grid, the time budget on an injected clock, and the settings' errors."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -202,3 +204,17 @@ def test_band_pools_keep_off_surface_points_out_to_the_shell(fit_sphere_siren):
     assert torch.equal(one["surf_p"], two["surf_p"])  # surface points stay in the band
     with pytest.raises(FitError, match="shell"):
         fit_tiles(sphere(), h, 0.1, POOLS, TileFitConfig(**{**SMALL, "shell": 0.5}))
+
+
+def test_the_tiles_construction_checkpoints_and_resumes_both_levels(tmp_path):
+    from neural_bake.fit.residual import coarse_checkpoint
+    from neural_bake.fit.sdf import fit_sdf
+
+    ckpt = tmp_path / "run.ckpt"
+    first = fit_sdf(sphere(), steps=40, checkpoint=str(ckpt), checkpoint_every=10, **TILES)
+    assert ckpt.is_file() and Path(coarse_checkpoint(str(ckpt))).is_file()
+    again = fit_sdf(sphere(), steps=40, checkpoint=str(ckpt), checkpoint_every=10, resume=True, **TILES)
+    # both levels were finished: the resumed run takes their weights and makes no step
+    assert again.stopped_reason == "resumed finished run" and again.steps == first.steps == 30
+    x = sphere_points(500, 9)
+    assert torch.equal(again.model(x), first.model(x))
