@@ -223,9 +223,8 @@ def _read_sdf(path: Path, header: dict, *, device=None, dtype=None) -> SdfField:
     if network_kind(arch) not in ("siren", "tiles"):
         raise ModelFileError(f"{path}: kind 'sdf' is a SIREN or a tiled SDF (their normals are GEMM gradients), "
                              f"this file holds a {network_kind(arch)} network")
-    if network_kind(arch) == "tiles":  # a coarse SIREN and its tiles: R^3 to R (checked with the architecture)
-        pass
-    elif arch["in_dim"] != 3 or arch["out_dim"] != 1:
+    # a tiled SDF maps R^3 to R by construction (its coarse SIREN's sizes are checked with the architecture)
+    if network_kind(arch) == "siren" and (arch["in_dim"] != 3 or arch["out_dim"] != 1):
         st = " (a space-time SDF is kind 'spacetime_sdf', with its time range)" if arch["in_dim"] == 4 else ""
         raise ModelFileError(f"{path}: kind 'sdf' is a static SDF mapping R^3 (x, y, z) to R, this network maps "
                              f"R^{arch['in_dim']} to R^{arch['out_dim']}{st}")

@@ -152,9 +152,9 @@ def read_nested(path: Path, header: dict, *, device=None, dtype=None) -> NestedS
     if not isinstance(archs, list) or not 1 <= len(archs) <= MAX_NESTED_LEVELS:
         raise ModelFileError(f"{path}: architectures is not a list of 1 to {MAX_NESTED_LEVELS} levels")
     # every level a SIREN; the fine one may be a tiled SDF (a coarse SIREN and its tiles, R^3 to R)
-    archs = [check_architecture(a, path, f"level {i} ") if i < len(archs) - 1 or not isinstance(a, dict)
-             or a.get("network") != "tiles" else check_network_architecture(a, path, f"level {i} ")
-             for i, a in enumerate(archs)]
+    fine_tiled = isinstance(archs[-1], dict) and archs[-1].get("network") == "tiles"
+    archs = [check_network_architecture(a, path, f"level {i} ") if fine_tiled and i == len(archs) - 1
+             else check_architecture(a, path, f"level {i} ") for i, a in enumerate(archs)]
     dims = [(3, 1) if a.get("network") == "tiles" else (a["in_dim"], a["out_dim"]) for a in archs]
     for i, (d_in, d_out) in enumerate(dims):
         if d_out != 1 or d_in != dims[-1][0]:

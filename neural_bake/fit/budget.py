@@ -54,14 +54,6 @@ REFERENCE_STEP = (128, 2, 4096)
 #: 1.50× and 1.53×, old against new on one machine; texture:default's 64x2 MLP, 1.15× its 64x1's). 64x1,
 #: 128x2, 256x3 and 256x2 keep ratios to quick and default measured elsewhere; texture:high its ratio to
 #: texture:default in ``neural-bake bench budget``, which checks the whole table on the machine it runs on.
-#: The tiles :data:`TILE_STEP_COST` was measured with: (width, depth, points a tile a step).
-TILE_STEP = (64, 2, 576)
-
-#: Reference steps in one step of a tile level (:mod:`~neural_bake.fit.tiles`), per tile, for the tiles of
-#: :data:`TILE_STEP`: the ogre's 44-tile level's step, 0.127 s at 30.9 reference steps a second, ÷ 44 (the
-#: 2 GHz Zen 1 EPYC, quiet, two threads; BENCHMARKS.md, "budget").
-TILE_STEP_COST = 0.090
-
 STEP_COST: dict[str, float] = {
     "quick": 5.15,
     "quick/coarse": 1.46,
@@ -80,6 +72,14 @@ STEP_COST: dict[str, float] = {
     "texture:default": 0.75,
     "texture:high": 1.41,
 }
+
+#: The tiles :data:`TILE_STEP_COST` was measured with: (width, depth, points a tile a step).
+TILE_STEP = (64, 2, 576)
+
+#: Reference steps in one step of a tile level (:mod:`~neural_bake.fit.tiles`), per tile, for the tiles of
+#: :data:`TILE_STEP`: a tile level's step time over the reference step's, ÷ its tiles, quiet (how it was
+#: measured, and ``neural-bake bench budget --preset tile`` beside it: BENCHMARKS.md, "budget").
+TILE_STEP_COST = 0.090
 
 
 class ReferenceStep:
@@ -306,17 +306,19 @@ def fit_budget(preset: str | None, *, steps: int, seconds: float, minutes: float
     return rec
 
 
-def steps_budget(preset: str, *, steps: int, seconds: float, asset_seconds: float | None = None,
-                 sampling_share: float | None = None) -> dict:
+def steps_budget(preset: str | None, *, steps: int, seconds: float, asset_seconds: float | None = None,
+                 sampling_share: float | None = None, cost: float | None = None,
+                 reference: int | None = None) -> dict:
     """The account of a ``budget="steps"`` fit, JSON-ready: ``budget`` ("steps"), the ``steps`` made and the
     preset's ``reference_steps`` (:func:`reference_steps`; also as ``expected_steps``), ``estimated_seconds``:
     the time they take on this machine, quiet (steps × (cost / rate + the asset's own seconds a step,
     ``asset_seconds``, when measured)), beside the ``seconds`` they took, ``step_seconds``,
     ``asset_seconds_per_step``, ``reference_rate``, ``sampling_share``, ``stopped`` and no warning (the load
-    changes its time, not its result)."""
+    changes its time, not its result). ``cost`` and ``reference``: the step's reference steps and the steps to
+    make instead of the preset's (a tile level's: :func:`tile_level_cost`)."""
     rate = _full_rate()
-    step_seconds = STEP_COST[preset] / rate
-    n = reference_steps(preset)
+    step_seconds = (STEP_COST[str(preset)] if cost is None else cost) / rate
+    n = reference_steps(preset) if reference is None else int(reference)
     return {"budget": "steps", "preset": preset, "steps": int(steps), "reference_steps": n, "expected_steps": n,
             "estimated_seconds": steps * (step_seconds + max(0.0, float(asset_seconds or 0.0))),
             "seconds": seconds, "step_seconds": step_seconds, "asset_seconds_per_step": asset_seconds,

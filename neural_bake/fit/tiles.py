@@ -53,8 +53,7 @@ class TileFitConfig:
     """ω of each tile's later sine layers."""
     shell: float = 2.0
     """Off-surface points are drawn out to ``shell`` × the band (:func:`~neural_bake.fit.sdf_pools.band_pools`):
-    past the band's edge each tile is held to the true distances too (nefertiti's 2-minute Hausdorff 0.145 at
-    1, 0.104 at 2: docs/findings.md)."""
+    past the band's edge each tile is held to the true distances too (what it changed: docs/findings.md)."""
     min_surface: int = 1
     """Surface samples of the first pool a cell needs in its cell or seams to get a network (1: every cell
     whose seams a surface sample reaches, so the weights sum to 1 all over the surface)."""
@@ -135,23 +134,25 @@ def tile_grid_for(surface: torch.Tensor, grid: int, margin: float, min_surface: 
     return TileGrid(origin, cell, grid, margin, active)
 
 
-def _by_tile(grid: TileGrid, points: torch.Tensor) -> list[torch.Tensor]:
-    """For each active tile, the indices of ``points`` inside its cell and seams."""
+def _by_tile(grid: TileGrid, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The indices of ``points`` inside each active tile's cell and seams, tile after tile: ``(rows, start,
+    count)``, tile t's being ``rows[start[t]:start[t] + count[t]]``."""
     pairs, bounds = by_tile(grid.covering(points)[0], grid.active.numel())
-    rows = pairs // 8
-    return [rows[bounds[t]: bounds[t + 1]] for t in range(grid.active.numel())]
+    b = torch.as_tensor(bounds, device=points.device)
+    return pairs // 8, b[:-1], b[1:] - b[:-1]
 
 
-def _draw(buckets: list[torch.Tensor], n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """(K, n) indices drawn uniformly with replacement from each tile's bucket, and (K,) whether it had any, on
-    the buckets' device."""
-    device = buckets[0].device
-    idx, has = [], []
-    for b in buckets:
-        has.append(len(b) > 0)
-        pick = torch.randint(max(len(b), 1), (n,), generator=gen, device=gen.device).to(device)
-        idx.append(b[pick] if len(b) else torch.zeros(n, dtype=torch.long, device=device))
-    return torch.stack(idx), torch.tensor(has, device=device)
+def _draw(buckets: tuple[torch.Tensor, torch.Tensor, torch.Tensor], n: int, gen: torch.Generator
+          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(K, n) indices drawn uniformly with replacement from each tile's bucket (:func:`_by_tile`), all tiles in
+    one draw, and (K,) whether each had any (an empty bucket's row is index 0, unused)."""
+    rows, start, count = buckets
+    has = count > 0
+    if rows.numel() == 0:
+        return torch.zeros(count.shape[0], n, dtype=torch.long, device=rows.device), has
+    u = torch.rand(count.shape[0], n, generator=gen, device=gen.device).to(rows.device)
+    offset = torch.minimum((u * count[:, None]).long(), (count - 1).clamp_min(0)[:, None])
+    return rows[(start[:, None] + offset).clamp(max=rows.numel() - 1)] * has[:, None], has
 
 
 def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, config: TileFitConfig | None = None,
@@ -171,11 +172,12 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     ``reference_work``: run instead the steps that make this much work, in reference steps (a
     ``budget="steps"`` construction: the work its fine level has on the quiet reference machine), each step's
     by :func:`~neural_bake.fit.budget.tile_level_cost` (it grows with the number of tiles); no time stop.
-    ``budget_key``: the name the level's account gives its preset (a construction's "PRESET/fine"). Returns a :class:`TileFit` whose ``model`` starts from zero output layers (r = 0) and is in eval mode.
+    ``budget_key``: the name the level's account gives its preset (a construction's "PRESET/fine"). Returns a
+    :class:`TileFit` whose ``model`` starts from zero output layers (r = 0) and is in eval mode.
     Raises FitError for bad settings, a band without surface points, divergence that learning-rate halvings
     did not cure, or reference work for tiles without a reference step cost.
     """
-    from .budget import _full_rate, fit_budget, tile_level_cost
+    from .budget import fit_budget, steps_budget, tile_level_cost
     from .sdf import _fingerprint
     from .sdf_config import _DTYPES
     from .training import LoopConfig, train
@@ -253,9 +255,7 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
                          asset_seconds=asset, sampling_share=None if not res.seconds else sampling["seconds"] /
                          res.seconds)
     if reference_work is not None and cost is not None:
-        account = {"budget": "steps", "preset": budget_key, "steps": res.steps, "reference_steps": cfg.steps, "expected_steps": cfg.steps,
-                   "estimated_seconds": cfg.steps * cost / _full_rate(), "seconds": seconds, "warning": None,
-                   "note": None, "stopped": f"reference steps ({cfg.steps}) done"}
+        account = steps_budget(budget_key, steps=res.steps, seconds=seconds, cost=cost, reference=cfg.steps)
     return TileFit(model=model, steps=res.steps, seconds=seconds, history=res.history,
                    stopped_reason=res.stopped_reason, config=cfg, budget=account, restarts=res.restarts,
                    threads=res.threads)

@@ -437,20 +437,22 @@ def range_bound(
     return _round_out(torch.cat(los), torch.cat(his), out_dtype)
 
 
+def add_bounds(lo: torch.Tensor, hi: torch.Tensor, lo_b: torch.Tensor, hi_b: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounds of the sum of two bounded terms: (lo + lo_b, hi + hi_b), each sum rounded outward by one ulp."""
+    inf = torch.tensor(math.inf, dtype=lo.dtype, device=lo.device)
+    return torch.nextafter(lo + lo_b, -inf), torch.nextafter(hi + hi_b, inf)
+
+
 def _composite_difference(h, f, center, axes, method, **kwargs) -> tuple[torch.Tensor, torch.Tensor]:
     """Bounds of h − f where h or f is a tiled SDF c + r: the difference of the SIRENs (h − c or c − f) with
     shared noise symbols, minus (or plus) r's range bound over the box."""
     center, axes = torch.as_tensor(center), torch.as_tensor(axes)
-    if getattr(f, "composite", False):
-        lo, hi = difference_bound(h, f.coarse, center, axes, method, **kwargs)
-        r_lo, r_hi = f.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
-        lo, hi = lo - r_hi, hi - r_lo
-    else:
-        lo, hi = difference_bound(h.coarse, f, center, axes, method, **kwargs)
-        r_lo, r_hi = h.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
-        lo, hi = lo + r_lo, hi + r_hi
-    inf = torch.tensor(math.inf, dtype=lo.dtype, device=lo.device)
-    return torch.nextafter(lo, -inf), torch.nextafter(hi, inf)
+    tiled = f if getattr(f, "composite", False) else h
+    lo, hi = difference_bound(h, f.coarse, center, axes, method, **kwargs) if tiled is f else \
+        difference_bound(h.coarse, f, center, axes, method, **kwargs)
+    r_lo, r_hi = tiled.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
+    return add_bounds(lo, hi, -r_hi, -r_lo) if tiled is f else add_bounds(lo, hi, r_lo, r_hi)
 
 
 def difference_bound(

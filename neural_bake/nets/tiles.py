@@ -403,12 +403,10 @@ class TiledSdf(nn.Module):
     def range_bound(self, center: torch.Tensor, axes: torch.Tensor, method: str = "affine-fixed"
                     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Guaranteed (lo, hi) of f = h + r over boxes (as :func:`~neural_bake.nets.range_analysis.range_bound`)."""
-        from .range_analysis import range_bound
+        from .range_analysis import add_bounds, range_bound
 
         lo, hi = range_bound(self.coarse, center, axes, method)
-        r_lo, r_hi = self.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
-        inf = torch.tensor(math.inf, dtype=lo.dtype, device=lo.device)
-        return torch.nextafter(lo + r_lo, -inf), torch.nextafter(hi + r_hi, inf)  # the sum's rounding, outward
+        return add_bounds(lo, hi, *self.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method))
 
     def extra_repr(self) -> str:
         return f"f = h {self.coarse.width}x{self.coarse.depth} + {self.tiles.extra_repr()}"

@@ -151,10 +151,8 @@ def _is_network(m) -> bool:
 def tiled_level(model, delta: float = 0.0, *, name: str | None = None) -> TraceLevel:
     """A level from a tiled SDF (:class:`~neural_bake.nets.tiles.TiledSdf`): its forward values, GEMM gradients
     and range bounds (float32 throughout: its networks have no reduced-precision path)."""
-    from ..nets.gemm import gemm_gradient as _gg
-
     def value_and_gradient(p):
-        v, g = _gg(model, p)
+        v, g = gemm_gradient(model, p)
         return v.reshape(-1), g
 
     return TraceLevel(name or _arch_name(model), lambda p: model.value(p).reshape(-1), value_and_gradient, delta,
