@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
+from ..constants import MAX_TILE_GRID
 from ..errors import FitError
 from ..nets.compiled import COMPILE_MODES
 from .config_checks import DTYPES as _DTYPES, check_counts, check_sigmas, check_weights
@@ -178,7 +179,8 @@ class SdfFitConfig(PresetLoopSettings):
     band_factor: float = 4.0
     """A residual level's band δ in multiples of the coarse level's sampled distance error."""
     tile_grid: int = 6
-    """The "tiles" construction: cells per axis of the tile grid over the mesh's bounding cube."""
+    """The "tiles" construction: cells per axis of the tile grid over the mesh's bounding cube (at most 62: the
+    grid has a ring of cells more around it, where the coarse level's stray surface gets tiles)."""
     tile_width: int = 64
     """The "tiles" construction: hidden units of each tile's SIREN."""
     tile_depth: int = 2
@@ -351,6 +353,9 @@ def _check_config(cfg: SdfFitConfig) -> None:
             v = getattr(cfg, name)
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise FitError(f"fit_sdf: {name} must be a positive integer, got {v!r}")
+        if cfg.tile_grid > MAX_TILE_GRID - 2:
+            raise FitError(f"fit_sdf: tile_grid must be at most {MAX_TILE_GRID - 2} (the grid has a ring of cells "
+                           f"more around the mesh's), got {cfg.tile_grid!r}")
         if isinstance(cfg.tile_depth, bool) or int(cfg.tile_depth) != cfg.tile_depth or cfg.tile_depth < 0:
             raise FitError(f"fit_sdf: tile_depth must be a non-negative integer, got {cfg.tile_depth!r}")
         if not (math.isfinite(cfg.tile_margin) and 0 < cfg.tile_margin <= 0.25):

@@ -120,14 +120,15 @@ BASE_KEYS = ("surf_base", "surf_base_grad", "vol_base", "vol_base_grad")
 
 
 def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None = None,
-               shell: float = 1.0) -> Callable[[dict], dict]:
+               shell: float = 1.0, far: bool = False) -> Callable[[dict], dict]:
     """A pool ``prepare`` (:class:`_Pools`) for a level trained as a residual on the frozen network ``base``:
     it keeps only the points with |base| < ``band`` (surface, near and uniform alike) and adds base's values
     and GEMM gradients at them (:data:`BASE_KEYS`). ``audit``: (points (k, 3), true distances (k,)) of
     :func:`band_audit`, appended to every pool's uniform points (so they are drawn, and sign-mined, with
     them). ``shell``: keep the off-surface points out to ``shell`` × ``band`` (the surface points stay in the
-    band), so the level is also held to the true distances just past the band's edge. FitError when no surface
-    point is left in the band."""
+    band), so the level is also held to the true distances just past the band's edge. ``far``: keep the uniform
+    (and audit) points beyond the shell too, marked in ``vol_far`` (for sign mining alone: a level that is not
+    one network everywhere can grow a surface there). FitError when no surface point is left in the band."""
     from ..nets.gemm import gemm_gradient
 
     def values(points: torch.Tensor):
@@ -151,9 +152,15 @@ def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None
         if not bool(ks.any()):
             raise FitError(f"band_pools: no surface sample lies in the band |base| < {band:.3g}")
         n_near = int(kv[: data["n_near"]].sum())
-        return {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": vol_p[kv],
-                "vol_d": vol_d[kv], "vol_sure": vol_s[kv], "n_near": n_near, "surf_base": sv[ks], "surf_base_grad": sg[ks],
-                "vol_base": vv[kv], "vol_base_grad": vg[kv]}
+        keep = kv.clone()
+        if far:
+            keep[data["n_near"]:] = True
+        out = {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": vol_p[keep],
+               "vol_d": vol_d[keep], "vol_sure": vol_s[keep], "n_near": n_near, "surf_base": sv[ks],
+               "surf_base_grad": sg[ks], "vol_base": vv[keep], "vol_base_grad": vg[keep]}
+        if far:
+            out["vol_far"] = ~kv[keep]
+        return out
 
     return prepare
 
@@ -206,10 +213,12 @@ def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target:
     return _top_part(err, cfg.hard_pool)
 
 
-def _sign_errors(model: Siren, pools: dict, chunk: int = 65536) -> torch.Tensor | None:
+def _sign_errors(model: Callable[[torch.Tensor], torch.Tensor], pools: dict, chunk: int = 65536
+                 ) -> torch.Tensor | None:
     """Indices into the volume pool of its uniform points where f and the true distance d differ in sign with
     |d| ≥ :data:`~neural_bake.constants.SIGN_MINING_TOL` and d's sign is sure (``vol_sure``: not beside an
-    open sheet) (``SdfFitConfig.sign_fraction``), or None where there are none. With a residual level's pool (``vol_base``, :func:`band_pools`) f is the sum base + model."""
+    open sheet) (``SdfFitConfig.sign_fraction``), or None where there are none. ``model`` maps (n, 3) points
+    to (n, 1) values; with a residual level's pool (``vol_base``, :func:`band_pools`) f is the sum base + model."""
     n_near, vp, vd = pools["n_near"], pools["vol_p"], pools["vol_d"]
     if vp.shape[0] <= n_near:
         return None

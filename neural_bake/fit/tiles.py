@@ -1,13 +1,18 @@
 """Fitting a residual level of tiles (:class:`~neural_bake.nets.tiles.TiledSiren`) on a frozen coarse SDF.
 
 The fine level of a residual construction (nested-neighbourhoods §3), split in space: a grid of ``grid``³
-cells around the mesh's bounding cube (:func:`tile_grid_for`), a small SIREN on every cell with at least
-``min_surface`` of the first pool's surface samples in its cell or seams, each network trained on the pool
-points inside its own cell and seams as a residual r_t on the coarse level h. The loss terms are those of
+cells over the mesh's bounding cube and a ring of cells around it (:func:`tile_grid_for`), a small SIREN on every
+cell with at least ``min_surface`` of the first pool's surface samples in its cell or seams, and on every cell
+holding ``min_errors`` of the coarse level's sign errors (a stray piece of its surface, which only a network there
+can remove), each network trained on the pool points inside its own cell and seams as a residual r_t on the
+coarse level h. The loss terms are those of
 :func:`~neural_bake.fit.sdf_loss.sdf_loss_terms` (:func:`~neural_bake.fit.sdf_loss.loss_terms_of`: surface, normal,
 angle, eikonal and SDF, with the SDF config's weights and focus; no mined batches), taken of h + r_t on the pool
 points inside h's band |h| < ``band``, the off-surface ones out to ``shell`` bands
-(:func:`~neural_bake.fit.sdf_pools.band_pools`). All tiles step
+(:func:`~neural_bake.fit.sdf_pools.band_pools`); with the SDF config's ``sign_fraction``, that part of each
+tile's off-surface draw comes from the pool's uniform points where h + r has the wrong sign, re-mined every
+``hard_every`` steps (the residual level's sign mining, tile by tile), among all of the pool's uniform points
+in the tiles' cells, the shell's and beyond it: where no point holds a tile, it can grow a surface. All tiles step
 together: each step draws the same number of points for every tile and runs them as one batched product
 (:meth:`TiledSiren.tile_values_and_gradients`).
 The steps run in the fits' loop (:func:`~neural_bake.fit.training.train`): Adam with its cosine learning rate to
@@ -24,13 +29,14 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
+from ..constants import MAX_TILE_GRID
 from ..errors import FitError
 from ..nets.siren import Siren
 from ..nets.tiles import TileGrid, TiledSiren, by_tile
 from ..types import Mesh
 from .sdf_config import SdfFitConfig
 from .sdf_loss import loss_terms_of
-from .sdf_pools import _Pools, band_pools
+from .sdf_pools import _Pools, _sign_errors, band_pools
 
 __all__ = ["TileFitConfig", "TileFit", "fit_tiles", "tile_grid_for"]
 
@@ -40,7 +46,7 @@ class TileFitConfig:
     """Settings of :func:`fit_tiles`."""
 
     grid: int = 6
-    """Cells per axis over the mesh's bounding cube."""
+    """Cells per axis over the mesh's bounding cube (the grid has a ring of cells more around it)."""
     margin: float = 0.08
     """Half-width of the seams between cells, in cells (0 < margin ≤ 0.25)."""
     width: int = 64
@@ -57,6 +63,11 @@ class TileFitConfig:
     min_surface: int = 1
     """Surface samples of the first pool a cell needs in its cell or seams to get a network (1: every cell
     whose seams a surface sample reaches, so the weights sum to 1 all over the surface)."""
+    min_errors: int = 8
+    """Errors of the coarse level a cell needs in its cell or seams to get a network beside the surface's cells
+    (0: none): the first pool's uniform points at least :data:`~neural_bake.constants.SIGN_MINING_TOL` from the
+    surface, of a sure sign, where h has the wrong one, and the band audit's points (h small, the mesh not near):
+    a stray piece of h's surface, which only a network there can remove."""
     surface_points: int = 256
     """Surface points a tile a step."""
     volume_points: int = 320
@@ -102,6 +113,11 @@ def _check(cfg: TileFitConfig) -> None:
         v = getattr(cfg, name)
         if isinstance(v, bool) or int(v) != v or v < 1:
             raise FitError(f"fit_tiles: {name} must be a positive integer, got {v!r}")
+    if cfg.grid > MAX_TILE_GRID - 2:
+        raise FitError(f"fit_tiles: grid must be at most {MAX_TILE_GRID - 2} (a ring of cells more around it), "
+                       f"got {cfg.grid!r}")
+    if isinstance(cfg.min_errors, bool) or int(cfg.min_errors) != cfg.min_errors or cfg.min_errors < 0:
+        raise FitError(f"fit_tiles: min_errors must be a non-negative integer, got {cfg.min_errors!r}")
     if isinstance(cfg.depth, bool) or int(cfg.depth) != cfg.depth or cfg.depth < 0:
         raise FitError(f"fit_tiles: depth must be a non-negative integer, got {cfg.depth!r}")
     if not (math.isfinite(cfg.shell) and cfg.shell >= 1.0):
@@ -115,23 +131,33 @@ def _check(cfg: TileFitConfig) -> None:
         raise FitError(f"fit_tiles: minutes must be a positive number, got {cfg.minutes!r}")
 
 
-def tile_grid_for(surface: torch.Tensor, grid: int, margin: float, min_surface: int = 1) -> TileGrid:
-    """The grid around the bounding cube of ``surface`` (N, 3) points (widened by a thousandth of its side), a seam
-    wider on every side so that no point lies in an outer seam; its active cells those with at least
-    ``min_surface`` of the points in their cell or seams: at 1, the weights around every one of the points sum
-    to 1 (no surface point sits in a seam towards a cell without a network)."""
+def tile_grid_for(surface: torch.Tensor, grid: int, margin: float, min_surface: int = 1,
+                  errors: torch.Tensor | None = None, min_errors: int = 1) -> TileGrid:
+    """The grid of ``grid``³ cells around the bounding cube of ``surface`` (N, 3) points (widened by a
+    thousandth of its side, a seam wider on every side so that no point lies in an outer seam) and a ring of
+    cells around those (``grid`` + 2 per axis in all). Its active cells: those with at least ``min_surface`` of
+    the points in their cell or seams (at 1, the weights around every one of the points sum to 1: no surface
+    point sits in a seam towards a cell without a network), and those with at least ``min_errors`` (≥ 1) of the
+    ``errors`` (M, 3) points (a coarse level's sign errors, in the ring too)."""
     lo = surface.min(dim=0).values.double()
     hi = surface.max(dim=0).values.double()
     side = float((hi - lo).max()) * 1.002 + 1e-9
     cell = side / (grid - 2.0 * margin)
-    origin = 0.5 * (lo + hi) - 0.5 * grid * cell
-    every = TileGrid(origin, cell, grid, margin, torch.arange(grid ** 3))
-    tiles, weights, _ = every.covering(surface.double())
-    counts = torch.bincount(tiles[weights > 0], minlength=grid ** 3)
-    active = torch.nonzero(counts >= min_surface).reshape(-1)
-    if active.numel() == 0:
-        active = torch.nonzero(counts > 0).reshape(-1)
-    return TileGrid(origin, cell, grid, margin, active)
+    n = grid + 2
+    origin = 0.5 * (lo + hi) - 0.5 * n * cell
+    every = TileGrid(origin, cell, n, margin, torch.arange(n ** 3))
+
+    def counts(points: torch.Tensor) -> torch.Tensor:
+        tiles, weights, _ = every.covering(points.double())
+        return torch.bincount(tiles[weights > 0], minlength=n ** 3)
+
+    on_surface = counts(surface)
+    active = on_surface >= min_surface
+    if not bool(active.any()):
+        active = on_surface > 0
+    if errors is not None and errors.shape[0]:
+        active |= counts(errors) >= max(1, int(min_errors))
+    return TileGrid(origin, cell, n, margin, torch.nonzero(active).reshape(-1))
 
 
 def _by_tile(grid: TileGrid, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -191,10 +217,15 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     base = base.to(device=device, dtype=dtype).eval()
     for p in base.parameters():
         p.requires_grad_(False)
-    pools = _Pools(mesh, sdf_config, device, dtype, prepare=band_pools(base, band, audit=audit, shell=cfg.shell),
-                   cache=pool_cache)
+    pools = _Pools(mesh, sdf_config, device, dtype, cache=pool_cache,
+                   prepare=band_pools(base, band, audit=audit, shell=cfg.shell, far=True))
     data = pools.get(0)
-    grid = tile_grid_for(data["surf_p"], cfg.grid, cfg.margin, cfg.min_surface)
+    errors = None  # the coarse level's sign errors in the first pool (h alone: r = 0) and its band audit's points
+    if cfg.min_errors > 0:
+        wrong = _sign_errors(lambda p: p.new_zeros(p.shape[0], 1), data)
+        found = ([] if wrong is None else [data["vol_p"][wrong]]) + ([] if audit is None else [audit[0].to(data["vol_p"])])
+        errors = torch.cat(found) if found else None
+    grid = tile_grid_for(data["surf_p"], cfg.grid, cfg.margin, cfg.min_surface, errors, cfg.min_errors)
     model = TiledSiren(grid, cfg.width, cfg.depth, cfg.omega_0, cfg.hidden_omega, zero_output=True,
                        generator=torch.Generator().manual_seed(int(cfg.seed))).to(device=device, dtype=dtype)
     cost = tile_level_cost(model.tiles, cfg.width, cfg.depth, cfg.surface_points + cfg.volume_points)
@@ -204,20 +235,38 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
                            f"{cfg.volume_points} points have no reference step cost; give steps or minutes")
         cfg = replace(cfg, steps=max(1, int(reference_work / cost)), minutes=None)
     centres = grid.centres(dtype=dtype, device=device)
-    s = cfg.surface_points
+    s, v = cfg.surface_points, cfg.volume_points
+    n_sign = min(v, int(round(float(sdf_config.sign_fraction) * v)))  # the tail of each off-surface draw
     sorted_pool: dict = {"index": None}
+    mined: dict = {"index": None, "buckets": None}  # h + r's sign errors, sorted by tile
     sampling = {"seconds": 0.0, "steps": 0}  # the asset's own work in the steps: new pools, their band, sorting
 
     def step_fn(step: int, gen: torch.Generator) -> dict:
         t_sample = clock()
         data = pools.get(step)
         if sorted_pool["index"] is None or pools.index != sorted_pool["index"]:  # a new pool: sorted by tile once
+            shell = torch.nonzero(~data["vol_far"]).reshape(-1)  # the far points are for sign mining alone
+            rows, first, count = _by_tile(grid, data["vol_p"][shell])
             sorted_pool.update(index=pools.index, surface=_by_tile(grid, data["surf_p"]),
-                               volume=_by_tile(grid, data["vol_p"]))
+                               volume=(shell[rows], first, count))
+        # re-mined every hard_every steps, at each new pool and at each checkpoint step (as a SIREN's fit does)
+        at_checkpoint = bool(sdf_config.checkpoint) and step % sdf_config.checkpoint_every == 0
+        if n_sign and (mined["index"] != pools.index or step % sdf_config.hard_every == 0 or at_checkpoint):
+            wrong = _sign_errors(lambda p: model.value(p)[:, None], data)
+            buckets = None
+            if wrong is not None:
+                rows, first, count = _by_tile(grid, data["vol_p"][wrong])
+                buckets = (wrong[rows], first, count)
+            mined.update(index=pools.index, buckets=buckets)
         sampling["seconds"] += clock() - t_sample
         sampling["steps"] += 1
         si, s_has = _draw(sorted_pool["surface"], s, gen)
-        vi, v_has = _draw(sorted_pool["volume"], cfg.volume_points, gen)
+        vi, v_has = _draw(sorted_pool["volume"], v, gen)
+        if mined["buckets"] is not None:  # the draw's tail from the tile's sign errors (all of it without others)
+            mi, m_has = _draw(mined["buckets"], v, gen)
+            tail = torch.arange(v, device=vi.device) >= v - n_sign
+            vi = torch.where(m_has[:, None] & (tail[None, :] | ~v_has[:, None]), mi, vi)
+            v_has = v_has | m_has
         x = torch.cat([data["surf_p"][si], data["vol_p"][vi]], dim=1)
         h = torch.cat([data["surf_base"][si], data["vol_base"][vi]], dim=1)
         hg = torch.cat([data["surf_base_grad"][si], data["vol_base_grad"][vi]], dim=1)
@@ -241,7 +290,7 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
                       desc=f"fit sdf tiles {model.tiles}x({cfg.width}x{cfg.depth})")
     fingerprint = _fingerprint(mesh, sdf_config, networks=(base,), arrays=tuple(audit or ()),
                                values=(band, cfg.shell, cfg.grid, cfg.margin, cfg.width, cfg.depth, cfg.omega_0,
-                                       cfg.hidden_omega, cfg.min_surface, s, cfg.volume_points, cfg.lr,
+                                       cfg.hidden_omega, cfg.min_surface, cfg.min_errors, s, v, cfg.lr,
                                        cfg.lr_min_factor, cfg.seed))
     res = train(model, step_fn, loop, fingerprint=fingerprint, metadata={"mesh": mesh.name, "tiles": model.tiles},
                 clock=clock)

@@ -57,9 +57,61 @@ def test_the_grid_covers_the_surface_and_only_its_cells_hold_networks():
     assert float(sparse.covering(x)[1].sum(1).min()) < 1.0
     inner = ((x - grid.origin.float()) / grid.cell)  # in cells: a seam clear of the grid's outer faces
     assert float(inner.min()) >= grid.margin and float(inner.max()) <= grid.grid - grid.margin
-    assert 8 < grid.active.numel() < 64  # the sphere's shell, not the cube's centre
-    centre_cell = grid.slot[(2 * 4 + 2) * 4 + 2]
-    assert int(centre_cell) == -1 or grid.active.numel() == 64
+    assert grid.grid == 6 and 8 < grid.active.numel() < 64  # the sphere's shell, not the cube's centre
+    assert int(grid.slot[(3 * 6 + 3) * 6 + 3]) == -1  # the centre of the sphere
+    ring = torch.tensor([i in (0, 5) or j in (0, 5) or k in (0, 5) for i in range(6) for j in range(6)
+                         for k in range(6)])
+    assert not bool(ring[grid.active].any())  # no surface point reaches the ring of cells around the cube
+
+
+def test_cells_holding_enough_sign_errors_get_a_network_in_the_ring_too():
+    x = sphere_points(5000, 2)
+    plain = tile_grid_for(x, 4, 0.1)
+    errors = torch.tensor([[0.95, 0.0, 0.0]]).repeat(5, 1) + 0.01 * torch.randn(5, 3)  # beyond the cube: the ring
+    assert plain.covering(errors)[1].sum() == 0
+    assert torch.equal(tile_grid_for(x, 4, 0.1, errors=errors, min_errors=6).active, plain.active)
+    grid = tile_grid_for(x, 4, 0.1, errors=errors, min_errors=5)
+    assert grid.active.numel() > plain.active.numel()
+    torch.testing.assert_close(grid.covering(errors)[1].sum(1), torch.ones(5), rtol=0, atol=1e-6)
+
+
+def _stray_siren(steps: int = 400) -> torch.nn.Module:
+    """A small SIREN fitted to a sphere of radius 0.5 and a stray ball of radius 0.16 at (0.72, 0, 0): the
+    ball lies beyond the sphere's bounding cube, in the tile grid's ring."""
+    from neural_bake.nets.siren import Siren
+
+    net = Siren(32, 1, omega_0=10.0, generator=torch.Generator().manual_seed(3))
+    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    gen = torch.Generator().manual_seed(4)
+    for _ in range(steps):
+        x = torch.rand(1024, 3, generator=gen) * 2 - 1
+        d = torch.minimum(x.norm(dim=1) - 0.5, (x - torch.tensor([0.72, 0.0, 0.0])).norm(dim=1) - 0.16)
+        loss = ((net(x)[:, 0] - d) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return net.eval()
+
+
+@pytest.mark.parametrize("mined", [True, False])
+def test_the_tile_level_removes_a_stray_solid_of_the_coarse_level_with_tiles_on_its_sign_errors(mined):
+    h = _stray_siren()
+    ball = torch.tensor([0.72, 0.0, 0.0]) + 0.08 * torch.nn.functional.normalize(
+        torch.randn(400, 3, generator=torch.Generator().manual_seed(5)), dim=1) * torch.rand(400, 1)
+    with torch.no_grad():
+        assert float((h(ball)[:, 0] < 0).float().mean()) > 0.9  # the coarse level's stray solid
+    pools = SdfFitConfig(pool_surface=6000, pool_near=6000, pool_uniform=16000, progress=False,
+                         sign_fraction=0.5 if mined else 0.0, hard_every=25)
+    fit = fit_tiles(sphere(0.5), h, 0.1, pools, TileFitConfig(**{**SMALL, "steps": 300, "min_errors": 8 if mined
+                                                                 else 0}))
+    ring = (fit.model.grid.centres(dtype=torch.float32)[:, 0] > 0.5 + 0.5 * fit.model.grid.cell)
+    with torch.no_grad():
+        f = h(ball)[:, 0] + fit.model.value(ball)
+    if mined:
+        assert bool(ring.any())  # the ball's cells hold networks
+        assert float((f > 0).float().mean()) > 0.9  # and the ball is gone: f has the true distance's sign
+    else:
+        assert not bool(ring.any()) and float((f < 0).float().mean()) > 0.9
 
 
 def test_a_time_budget_stops_on_the_injected_clock(fit_sphere_siren):
@@ -104,7 +156,8 @@ def test_the_tiles_construction_fits_saves_loads_and_beats_its_coarse_level(tmp_
     fit = fit_sdf(sphere(), steps=320, **TILES)
     assert isinstance(fit.model, TiledSdf) and fit.construction == "tiles"
     assert fit.coarse.steps == 80 and fit.steps == 240  # coarse_share 0.25 of the steps, the tiles the rest
-    assert fit.label == f"16x1+{fit.model.tiles.tiles}x(16x1)" and 8 < fit.model.tiles.tiles <= 27
+    # the sphere's cells of the 3³ over its cube, and any of the ring around it where the coarse level errs
+    assert fit.label == f"16x1+{fit.model.tiles.tiles}x(16x1)" and 8 < fit.model.tiles.tiles <= 5 ** 3
     assert fit.band > 0 and fit.audit["candidates"] == 2000
     x = sphere_points(3000, 5)
     _, hg = gemm_gradient(fit.coarse.model, x)
