@@ -23,8 +23,9 @@ preset's own or the caller's); :func:`~neural_bake.fit.sdf.fit_sdf` hands a cons
 - ``"residual-warm"``: the same coarse h, then a network of the config's width initialised as h beside fresh
   units whose output weights are zero (the same function as h) and fitted plainly (every point, no band).
 - ``"tiles"``: the same coarse h and band audit, then a tile level r (:func:`~neural_bake.fit.tiles.fit_tiles`:
-  ``tile_grid``³ cells over the mesh's bounding cube, a ``tile_width`` × ``tile_depth`` SIREN on every cell the
-  surface reaches, blended across seams of ``tile_margin`` cells) fitted inside h's band for the rest of the
+  ``tile_grid``³ cells over the mesh's bounding cube and a ring around it, a ``tile_width`` × ``tile_depth``
+  SIREN on every cell the surface reaches and where h has a stray piece of surface, blended across seams of
+  ``tile_margin`` cells) fitted inside h's band for the rest of the
   budget. The ``model`` is a :class:`~neural_bake.nets.tiles.TiledSdf` (h and r in one file): it loads, bakes,
   marches and renders through the field layer with GEMM normals and range bounds. Checkpoints as
   ``residual``'s: the tile level's in the construction's file, the coarse level's beside it.

@@ -223,7 +223,9 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
     errors = None  # the coarse level's sign errors in the first pool (h alone: r = 0) and its band audit's points
     if cfg.min_errors > 0:
         wrong = _sign_errors(lambda p: p.new_zeros(p.shape[0], 1), data)
-        found = ([] if wrong is None else [data["vol_p"][wrong]]) + ([] if audit is None else [audit[0].to(data["vol_p"])])
+        found = [] if wrong is None else [data["vol_p"][wrong]]
+        if audit is not None:
+            found.append(audit[0].to(data["vol_p"]))
         errors = torch.cat(found) if found else None
     grid = tile_grid_for(data["surf_p"], cfg.grid, cfg.margin, cfg.min_surface, errors, cfg.min_errors)
     model = TiledSiren(grid, cfg.width, cfg.depth, cfg.omega_0, cfg.hidden_omega, zero_output=True,

@@ -67,7 +67,8 @@ def test_the_grid_covers_the_surface_and_only_its_cells_hold_networks():
 def test_cells_holding_enough_sign_errors_get_a_network_in_the_ring_too():
     x = sphere_points(5000, 2)
     plain = tile_grid_for(x, 4, 0.1)
-    errors = torch.tensor([[0.95, 0.0, 0.0]]).repeat(5, 1) + 0.01 * torch.randn(5, 3)  # beyond the cube: the ring
+    errors = torch.tensor([[0.95, 0.0, 0.0]]) + 0.01 * torch.randn(5, 3, generator=torch.Generator().manual_seed(3))
+    # (beyond the sphere's bounding cube: in the ring)
     assert plain.covering(errors)[1].sum() == 0
     assert torch.equal(tile_grid_for(x, 4, 0.1, errors=errors, min_errors=6).active, plain.active)
     grid = tile_grid_for(x, 4, 0.1, errors=errors, min_errors=5)
@@ -127,7 +128,8 @@ def test_a_time_budget_stops_on_the_injected_clock(fit_sphere_siren):
 
 @pytest.mark.parametrize("change,word", [({"grid": 0}, "grid"), ({"width": 1.5}, "width"), ({"depth": -1}, "depth"),
                                          ({"margin": 0.5}, "margin"), ({"lr": 0.0}, "lr"), ({"minutes": -1.0}, "minutes"),
-                                         ({"steps": 0}, "steps"), ({"surface_points": 0}, "surface_points")])
+                                         ({"steps": 0}, "steps"), ({"surface_points": 0}, "surface_points"),
+                                         ({"grid": 63}, "grid must be at most 62"), ({"min_errors": -1}, "min_errors")])
 def test_bad_settings_are_one_line_errors(fit_sphere_siren, change, word):
     h = fit_sphere_siren(r=R, steps=10, width=16)
     with pytest.raises(FitError, match=word):
@@ -180,7 +182,8 @@ def test_the_tiles_construction_fits_saves_loads_and_beats_its_coarse_level(tmp_
 
 @pytest.mark.parametrize("change,word", [({"tile_grid": 0}, "tile_grid"), ({"tile_width": 0}, "tile_width"),
                                          ({"tile_depth": -1}, "tile_depth"), ({"tile_margin": 0.3}, "tile_margin"),
-                                         ({"budget": "steps"}, "reference steps")])
+                                         ({"budget": "steps"}, "reference steps"),
+                                         ({"tile_grid": 63}, "tile_grid must be at most 62")])
 def test_bad_tiles_settings_are_one_line_errors(change, word):
     from neural_bake.fit.sdf import fit_sdf
 
