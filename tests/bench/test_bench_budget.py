@@ -64,7 +64,8 @@ def test_the_tile_row_measures_a_tile_levels_step_per_tile():
     res = run(quick=True, presets=["tile"], seconds=8.0, log_every=2, sdf_overrides={**SMALL_SDF, "tile_grid": 3})
     (row,) = res["rows"]
     k = int(row["net"].split("x(")[0])
-    assert row["preset"] == "tile" and row["net"] == f"{k}x(64x2)" and 0 < k <= 27
+    # the 3³ cells over the mesh's cube and any of the ring around them where the rough coarse level errs
+    assert row["preset"] == "tile" and row["net"] == f"{k}x(64x2)" and 0 < k <= 5 ** 3
     assert row["table cost"] == TILE_STEP_COST and row["budget s"] is None
     assert row["cost (reference steps)"] == pytest.approx(row["ms / step"] / 1000.0 * res["reference_rate"])
 
