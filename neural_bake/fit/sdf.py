@@ -49,7 +49,7 @@ from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
 from .sdf_loss import (FIRST_ORDER_MIN_SLOPE, FOCUS_CAP, first_order_distance, focused_squares, mixed_gradient,
                        sdf_loss_terms, sdf_step_backward)
 from .sdf_pools import (BASE_KEYS, _draw, _error_cdf, _hard_indices, _Pools, _sign_errors, _zero_set_samples,
-                        band_pools)
+                        band_pools, remine_due)
 from .sdf_tuning import TRAIN_CHUNK_ELEMENTS, TUNE_EVERY, MicroBatchTuner, _bf16_pays, micro_batch_count
 from .training import train
 
@@ -281,12 +281,10 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     hard = {"pool": None, "idx": None}  # idx: {"surf", "near"} index tensors
 
     def hard_set(step: int, data: dict) -> dict | None:
-        # re-ranked every hard_every steps, at each pool refresh and at each checkpoint step, so that a run
-        # resumed from a periodic checkpoint re-ranks exactly where the uninterrupted run did
+        # re-ranked when remine_due says (a new pool, every hard_every steps, each checkpoint step)
         if cfg.hard_fraction <= 0 and cfg.zero_fraction <= 0 and cfg.error_sampling <= 0 and cfg.sign_fraction <= 0:
             return None
-        at_checkpoint = bool(cfg.checkpoint) and step % cfg.checkpoint_every == 0
-        if hard["idx"] is None or hard["pool"] is not data or step % cfg.hard_every == 0 or at_checkpoint:
+        if remine_due(cfg, step, hard["idx"] is None or hard["pool"] is not data):
             idx, n_near = {}, data["n_near"]
             if cfg.hard_fraction > 0:
                 idx["surf"] = _hard_indices(model, data["surf_p"], cfg)

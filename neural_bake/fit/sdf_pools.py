@@ -213,6 +213,13 @@ def _hard_indices(model: Siren, points: torch.Tensor, cfg: SdfFitConfig, target:
     return _top_part(err, cfg.hard_pool)
 
 
+def remine_due(cfg: SdfFitConfig, step: int, new_pool: bool) -> bool:
+    """Whether a fit re-ranks its mined sets (hard examples, sign errors, zero-set points) at ``step``: at a new
+    pool, every ``hard_every`` steps and at each checkpoint step, so that a run resumed from a periodic
+    checkpoint re-ranks exactly where the uninterrupted run did."""
+    return new_pool or step % cfg.hard_every == 0 or (bool(cfg.checkpoint) and step % cfg.checkpoint_every == 0)
+
+
 def _sign_errors(model: Callable[[torch.Tensor], torch.Tensor], pools: dict, chunk: int = 65536
                  ) -> torch.Tensor | None:
     """Indices into the volume pool of its uniform points where f and the true distance d differ in sign with

@@ -36,7 +36,7 @@ from ..nets.tiles import TileGrid, TiledSiren, by_tile
 from ..types import Mesh
 from .sdf_config import SdfFitConfig
 from .sdf_loss import loss_terms_of
-from .sdf_pools import _Pools, _sign_errors, band_pools
+from .sdf_pools import _Pools, _sign_errors, band_pools, remine_due
 
 __all__ = ["TileFitConfig", "TileFit", "fit_tiles", "tile_grid_for"]
 
@@ -160,12 +160,14 @@ def tile_grid_for(surface: torch.Tensor, grid: int, margin: float, min_surface: 
     return TileGrid(origin, cell, n, margin, torch.nonzero(active).reshape(-1))
 
 
-def _by_tile(grid: TileGrid, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The indices of ``points`` inside each active tile's cell and seams, tile after tile: ``(rows, start,
-    count)``, tile t's being ``rows[start[t]:start[t] + count[t]]``."""
+def _by_tile(grid: TileGrid, points: torch.Tensor, rows: torch.Tensor | None = None
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The indices of ``points`` inside each active tile's cell and seams, tile after tile: ``(indices, start,
+    count)``, tile t's being ``indices[start[t]:start[t] + count[t]]``. ``rows``: the points are these rows of a
+    pool (``points`` = its ``[rows]``), and the indices are those rows."""
     pairs, bounds = by_tile(grid.covering(points)[0], grid.active.numel())
     b = torch.as_tensor(bounds, device=points.device)
-    return pairs // 8, b[:-1], b[1:] - b[:-1]
+    return pairs // 8 if rows is None else rows[pairs // 8], b[:-1], b[1:] - b[:-1]
 
 
 def _draw(buckets: tuple[torch.Tensor, torch.Tensor, torch.Tensor], n: int, gen: torch.Generator
@@ -248,18 +250,12 @@ def fit_tiles(mesh: Mesh, base: Siren, band: float, sdf_config: SdfFitConfig, co
         data = pools.get(step)
         if sorted_pool["index"] is None or pools.index != sorted_pool["index"]:  # a new pool: sorted by tile once
             shell = torch.nonzero(~data["vol_far"]).reshape(-1)  # the far points are for sign mining alone
-            rows, first, count = _by_tile(grid, data["vol_p"][shell])
             sorted_pool.update(index=pools.index, surface=_by_tile(grid, data["surf_p"]),
-                               volume=(shell[rows], first, count))
-        # re-mined every hard_every steps, at each new pool and at each checkpoint step (as a SIREN's fit does)
-        at_checkpoint = bool(sdf_config.checkpoint) and step % sdf_config.checkpoint_every == 0
-        if n_sign and (mined["index"] != pools.index or step % sdf_config.hard_every == 0 or at_checkpoint):
+                               volume=_by_tile(grid, data["vol_p"][shell], shell))
+        if n_sign and remine_due(sdf_config, step, mined["index"] != pools.index):
             wrong = _sign_errors(lambda p: model.value(p)[:, None], data)
-            buckets = None
-            if wrong is not None:
-                rows, first, count = _by_tile(grid, data["vol_p"][wrong])
-                buckets = (wrong[rows], first, count)
-            mined.update(index=pools.index, buckets=buckets)
+            mined.update(index=pools.index,
+                         buckets=None if wrong is None else _by_tile(grid, data["vol_p"][wrong], wrong))
         sampling["seconds"] += clock() - t_sample
         sampling["steps"] += 1
         si, s_has = _draw(sorted_pool["surface"], s, gen)

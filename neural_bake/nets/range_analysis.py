@@ -448,11 +448,12 @@ def _composite_difference(h, f, center, axes, method, **kwargs) -> tuple[torch.T
     """Bounds of h − f where h or f is a tiled SDF c + r: the difference of the SIRENs (h − c or c − f) with
     shared noise symbols, minus (or plus) r's range bound over the box."""
     center, axes = torch.as_tensor(center), torch.as_tensor(axes)
-    tiled = f if getattr(f, "composite", False) else h
-    lo, hi = difference_bound(h, f.coarse, center, axes, method, **kwargs) if tiled is f else \
-        difference_bound(h.coarse, f, center, axes, method, **kwargs)
-    r_lo, r_hi = tiled.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
-    return add_bounds(lo, hi, -r_hi, -r_lo) if tiled is f else add_bounds(lo, hi, r_lo, r_hi)
+    if getattr(f, "composite", False):  # h − (c + r) = (h − c) − r
+        lo, hi = difference_bound(h, f.coarse, center, axes, method, **kwargs)
+        r_lo, r_hi = f.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method)
+        return add_bounds(lo, hi, -r_hi, -r_lo)
+    lo, hi = difference_bound(h.coarse, f, center, axes, method, **kwargs)  # (c + r) − f = (c − f) + r
+    return add_bounds(lo, hi, *h.tiles.range_bound(center.to(lo.dtype), axes.to(lo.dtype), method))
 
 
 def difference_bound(
