@@ -1,6 +1,6 @@
 /* Interpolation inside accepted cells: the C kernels of neural_bake.bake.adaptive._interpolate (bilinear) and
-   _interpolate_quadratic (their torch paths are the references; the tests hold each pair together in float64 and
-   within float32's precision of a float32 reference).
+   _interpolate_quadratic, and of the quadratic test _quadratic_ok (their torch paths are the references; the tests
+   hold each pair together in float64 and within float32's precision of a float32 reference).
 
    nb_interp_cells(flat_index, wg, r0, c0, n_cells, k, points, normals, values, colors, n_colors, done, interpolated,
    valid, extrapolate, direction_eps): for every accepted cell of side k with top-left position (r0, c0) on the
@@ -284,6 +284,71 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
                                  good + cell);
     free(inv);
     free(good);
+}
+
+/* The quadratic test: the C kernel of neural_bake.bake.adaptive._quadratic_ok. For each of n_cells cells, its 9 nodes
+   (nodes, (n_cells, 9) sample indices, node order) fix the quadratic of nb_interp_cell_quadratic; at its 4 test
+   points (tests, (n_cells, 4) sample indices, all evaluated) the quadratic's unit normal must lie within the chord
+   `chord` of the sample's own (|a - b| <= chord), f within value_tol and every colour channel within color_tol.
+   ok (n_cells,) uint8: 1 where every node and test sample is valid, the nodes fix a quadratic and all four test
+   points pass. Cells over a team of `threads` where built with OpenMP (each cell writes its own ok). */
+void nb_quadratic_test(const int64_t *nodes, const int64_t *tests, int64_t n_cells, const double *points,
+                       const double *normals, const double *values, const double *colors, int64_t n_colors,
+                       const uint8_t *valid, double chord, double value_tol, double color_tol, double extrapolate,
+                       double direction_eps, uint8_t *ok, int64_t threads) {
+    const double chord2 = chord * chord;
+    (void)threads;
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK) num_threads((int)threads)
+#endif
+    for (int64_t cell = 0; cell < n_cells; cell++) {
+        const int64_t *node = nodes + 9 * cell, *test = tests + 4 * cell;
+        int good = 1;
+        for (int j = 0; j < 9 && good; j++) good = valid[node[j]];
+        for (int j = 0; j < 4 && good; j++) good = valid[test[j]];
+        const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
+        const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
+        double vander[81], inv[81];
+        for (int j = 0; j < 9 && good; j++) {
+            double t, u;
+            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u);
+            nb_lagrange(t, u, vander + 9 * j);
+        }
+        good = good && nb_invert9(vander, inv);
+        for (int i = 0; i < 4 && good; i++) {
+            const int64_t idx = test[i];
+            const double *pa = points + 3 * idx;
+            double t, u, basis[9], n[3] = {0.0, 0.0, 0.0}, f = 0.0;
+            nb_coordinates(q0, q1, q2, q3, pa, extrapolate, direction_eps, &t, &u);
+            nb_lagrange(t, u, basis);
+            double w[9];
+            for (int j = 0; j < 9; j++) {
+                double sum = 0.0;
+                for (int b = 0; b < 9; b++) sum += basis[b] * inv[9 * b + j];
+                w[j] = sum;
+            }
+            for (int j = 0; j < 9; j++) {
+                const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
+                for (int c = 0; c < 3; c++) n[c] += w[j] * nj[c];
+                f += w[j] * (values[node[j]] + (pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
+                             + (pa[2] - pj[2]) * nj[2]);
+            }
+            double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+            if (length < direction_eps) length = direction_eps;
+            double d2 = 0.0;
+            for (int c = 0; c < 3; c++) {
+                const double d = n[c] / length - normals[3 * idx + c];
+                d2 += d * d;
+            }
+            good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
+            for (int64_t c = 0; c < n_colors && good; c++) {
+                double sum = 0.0;
+                for (int j = 0; j < 9; j++) sum += w[j] * colors[n_colors * node[j] + c];
+                good = fabs(sum - colors[n_colors * idx + c]) <= color_tol;
+            }
+        }
+        ok[cell] = (uint8_t)good;
+    }
 }
 
 static int64_t nb_find(int64_t *parent, int64_t x) {

@@ -57,6 +57,8 @@ def _declare(lib) -> None:
     lib.nb_interp_cells.restype = None
     lib.nb_interp_cells_quadratic.argtypes = lib.nb_interp_cells.argtypes
     lib.nb_interp_cells_quadratic.restype = None
+    lib.nb_quadratic_test.argtypes = [p, p, i64, p, p, p, p, i64, p, f64, f64, f64, f64, f64, p, i64]
+    lib.nb_quadratic_test.restype = None
     lib.nb_face_components.argtypes = [p, i64, i64, p, p]
     lib.nb_face_components.restype = i64
 
@@ -67,7 +69,8 @@ KERNEL = Kernel(Path(__file__).with_name("adaptive.c"), switch=ENV_SWITCH, decla
 
 
 def kernel_status() -> str:
-    """Which cell interpolation (bilinear and quadratic) and chart labelling run here: the C kernel (and its file),
+    """Which cell interpolation (bilinear and quadratic), quadratic test and chart labelling run here: the C kernel
+    (and its file),
     or why torch's interpolation and scipy's labelling do."""
     return KERNEL.status().replace("numpy (", "torch (", 1)
 
@@ -619,11 +622,15 @@ def _quadratic_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, tests: n
                   dtype: torch.dtype) -> np.ndarray:
     """(P,) bool: the cells whose quarters' centres ``tests`` (P, 4) (sample indices, all evaluated) lie within
     every field's tolerance (as :func:`_surplus_ok` tests) of the quadratic interpolation from the cells' 9
-    ``nodes`` (P, 9) (:func:`_quadratic_weights`)."""
-    ok = store.valid[nodes].all(axis=1) & store.valid[tests].all(axis=1)
+    ``nodes`` (P, 9) (:func:`_quadratic_weights`). By the C kernel in float64 where it builds, else in ``dtype``
+    by torch."""
     safety = _QUADRATIC_SAFETY * ADAPTIVE_SAFETY
     chord = 2.0 * np.sin(np.radians(safety * opt.tolerance_deg) / 2.0)
     value_tol, color_tol = safety * opt.value_tol, safety * opt.color_tol
+    lib = KERNEL.lib()
+    if lib is not None:
+        return _quadratic_ok_native(lib, store, points, nodes, tests, chord, value_tol, color_tol)
+    ok = store.valid[nodes].all(axis=1) & store.valid[tests].all(axis=1)
     n = len(nodes)
     g = _pack(store, points, nodes.T.reshape(-1), dtype).view(-1, 9, n)  # (7 + C, 9, P)
     own = _pack(store, points, tests.T.reshape(-1), dtype).view(-1, 4, n).permute(0, 2, 1)  # (7 + C, P, 4)
@@ -634,6 +641,23 @@ def _quadratic_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, tests: n
     if col is not None:
         fine &= ((col - own[7:]).abs() <= color_tol).all(dim=0)
     return ok & (good & fine.all(dim=1)).numpy()
+
+
+def _quadratic_ok_native(lib, store: _Store, points: np.ndarray, nodes: np.ndarray, tests: np.ndarray, chord: float,
+                         value_tol: float, color_tol: float) -> np.ndarray:
+    """:func:`_quadratic_ok` by the C kernel (adaptive.c), in float64 on the store's arrays."""
+    if store.colors is not None and not store.colors.flags.c_contiguous:
+        store.colors = np.ascontiguousarray(store.colors)
+    nodes = np.ascontiguousarray(nodes, dtype=np.int64)
+    tests = np.ascontiguousarray(tests, dtype=np.int64)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    ok = np.zeros(len(nodes), dtype=np.uint8)
+    n_colors = 0 if store.colors is None else store.colors.shape[1]
+    lib.nb_quadratic_test(nodes.ctypes.data, tests.ctypes.data, len(nodes), pts.ctypes.data, store.normals.ctypes.data,
+                          store.values.ctypes.data, None if store.colors is None else store.colors.ctypes.data,
+                          n_colors, store.valid.view(np.uint8).ctypes.data, float(chord), float(value_tol),
+                          float(color_tol), float(_EXTRAPOLATE), float(DIRECTION_EPS), ok.ctypes.data, threads())
+    return ok.view(bool)
 
 
 def _interpolate_quadratic(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,

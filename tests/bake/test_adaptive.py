@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from neural_bake.bake.adaptive import (KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv, _integral, _interp,
-                                       _interpolate, _interpolate_native, _interpolate_quadratic, _pack, _Store,
-                                       _weights, adaptive_evaluate, chart_labels, grid_positions, kernel_status,
+from neural_bake.bake.adaptive import (_NODES, _QUARTERS, KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv,
+                                       _integral, _interp, _interpolate, _interpolate_native, _interpolate_quadratic,
+                                       _pack, _quadratic_ok, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions, kernel_status,
                                        vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -392,6 +392,42 @@ def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(co
         if colours:
             np.testing.assert_allclose(native.colors, ref.colors, atol=atol)
     assert np.allclose(np.linalg.norm(native.normals[native.interpolated], axis=1), 1.0, atol=1e-12)
+
+
+@pytest.mark.skipif(compiler() is None, reason="no C compiler: the torch path is the only one")
+@pytest.mark.parametrize("colours", [False, True])
+def test_native_quadratic_test_decides_as_the_torch_path(colours, monkeypatch):
+    # cells of side 4 on a bent sheet whose normals bend by a seeded amount per cell: the C kernel (float64) and the
+    # float64 torch path accept the same cells, some and not all; an invalid node or test sample and a cell whose
+    # nodes are one point (no parallelogram) are refused by both
+    from neural_bake.bake import adaptive
+
+    rng = np.random.default_rng(11)
+    n_cells = 400
+    r, c = np.meshgrid(np.arange(5), np.arange(5), indexing="ij")
+    local = np.stack([0.01 * c.reshape(-1), 0.01 * r.reshape(-1)], axis=1)  # (25, 2)
+    freq = np.repeat(rng.uniform(0.0, 60.0, n_cells), 25)[:, None]  # how fast each cell's normals turn
+    xy = (local[None] + rng.uniform(-1, 1, (n_cells, 1, 2))).reshape(-1, 2)
+    points = np.concatenate([xy, 0.2 * np.sin(3 * xy[:, :1]) * np.cos(2 * xy[:, 1:])], axis=1)
+    normals = np.concatenate([np.sin(freq * xy), np.ones((len(xy), 1))], axis=1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    m = len(points)
+    store = _Store(values=rng.normal(scale=1e-4, size=m), normals=normals, valid=np.ones(m, bool),
+                   colors=rng.uniform(0.5, 0.5 + 1e-4, size=(m, 3)) if colours else None,
+                   evaluated=np.ones(m, bool), interpolated=np.zeros(m, bool))
+    cell = np.arange(n_cells)[:, None] * 25
+    nodes = cell + (2 * _NODES[:, 0] * 5 + 2 * _NODES[:, 1])[None]  # (P, 9): every other position
+    tests = cell + (_QUARTERS[:, 0] * 5 + _QUARTERS[:, 1])[None]  # (P, 4)
+    store.valid[nodes[0, 4]] = False  # an invalid node
+    store.valid[tests[1, 2]] = False  # an invalid test sample
+    points[cell[2, 0]: cell[2, 0] + 25] = points[cell[2, 0]]  # a cell whose samples are one point
+    opt = AdaptiveOptions(tolerance_deg=0.5)
+    native = _quadratic_ok(store, points, nodes, tests, opt, torch.float64)
+    monkeypatch.setattr(adaptive.KERNEL, "lib", lambda: None)
+    reference = _quadratic_ok(store, points, nodes, tests, opt, torch.float64)
+    np.testing.assert_array_equal(native, reference)
+    assert not native[:3].any()
+    assert 0.1 < native.mean() < 0.9
 
 
 @pytest.mark.skipif(compiler() is None, reason="no C compiler: scipy is the only path")
