@@ -70,8 +70,7 @@ KERNEL = Kernel(Path(__file__).with_name("adaptive.c"), switch=ENV_SWITCH, decla
 
 def kernel_status() -> str:
     """Which cell interpolation (bilinear and quadratic), quadratic test and chart labelling run here: the C kernel
-    (and its file),
-    or why torch's interpolation and scipy's labelling do."""
+    (and its file), or why torch's interpolation and scipy's labelling do."""
     return KERNEL.status().replace("numpy (", "torch (", 1)
 
 #: Interpolated samples handled at once (bounds the (7 + C, 4, n) gathered corner arrays; small enough for the cache).
