@@ -196,6 +196,11 @@ HYBRID_CHECK_FRACTION = 1.0 / 1024
 #: Least number of undecided samples per band that a lattice-decided hybrid bake checks in full.
 HYBRID_CHECK_MIN = 256
 
+#: Hybrid bake decided on the adaptive lattice: of the samples the bake evaluated, those of texels whose row and
+#: column are multiples of this are decided first; the others are decided when one found unfaithful lies within
+#: this many positions (1: every evaluated sample first).
+HYBRID_STRIDE = 2
+
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
 #: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
 #: the normals at its edge midpoints and centre lie within ADAPTIVE_SAFETY times this of what its corners

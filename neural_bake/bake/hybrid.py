@@ -22,11 +22,14 @@ normals' (a sample near an unfaithful colour is decided too).
 
 Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
 sample, a second bake's cost), or on the adaptive lattice ("lattice", the default): at the samples the bake
-evaluated its fields at (the lattice nodes, borders, seams), and at the interpolated samples within
-``reach`` sample-grid positions of a node found unfaithful (every sample of an interpolation cell lies that
-close to its nodes); when the bake says in which cell side each sample was interpolated (``side``), within that
-side instead, so a sample of a side-4 cell is decided only when an unfaithful node lies within 4 positions. The
-other interpolated samples keep ∇f as their cell's faithful nodes do; a seeded uniform subsample of them is
+evaluated its fields at (the lattice nodes, borders, seams; of an adaptive bake, one that says ``side``, those
+whose texel's row and column are multiples of ``stride``, which every lattice node of a cell of side 4 and up
+is), and at the other samples within ``reach`` sample-grid positions of one found unfaithful (every sample of an
+interpolation cell lies that close to its nodes); when the bake says in which cell side each sample was
+interpolated (``side``), within that side instead, so a sample of a side-4 cell is decided only when an
+unfaithful node lies within 4 positions, and an evaluated sample between the stride's within ``stride``
+positions (where the fields vary too fast for any cell, an unfaithful region holds several of the stride's
+samples). The other samples keep ∇f as their cell's faithful nodes do; a seeded uniform subsample of them is
 decided in full as a check (``summary()["lattice_check"]``: how many of those the lattice rule would have
 missed; they are replaced too).
 
@@ -51,7 +54,8 @@ import numpy as np
 from types import SimpleNamespace
 from typing import NamedTuple
 
-from ..constants import ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN, HYBRID_SDF_TOL
+from ..constants import (ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN, HYBRID_SDF_TOL,
+                         HYBRID_STRIDE)
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
@@ -160,7 +164,8 @@ class HybridFallback:
       the quality report of a bake whose texels are cached, so it is not cast twice (every sample is then
       ray-cast, f still only where the decision needs it).
     - ``decide``: "lattice" (default) or "all" (:data:`HYBRID_DECISIONS`, module docstring); ``reach``:
-      the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side).
+      the lattice rule's neighbourhood in sample-grid positions (default: the adaptive lattice's side);
+      ``stride``: of the evaluated samples it decides first (:data:`~neural_bake.constants.HYBRID_STRIDE`).
     - ``seed``: of the lattice rule's check subsample.
     - ``color_tol``: ΔE (CIEDE2000) above which a neural colour takes the source texture's; ``color_psnr``: the
       least PSNR (dB) a neural colour keeps against the source's; ``color_within``: the dB the colours may lose
@@ -179,7 +184,7 @@ class HybridFallback:
 
     def __init__(self, fine: Mesh, sdf, *, sdf_tol: float = HYBRID_SDF_TOL, angle_deg: float = HYBRID_ANGLE_DEG,
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
-                 decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, seed: int = 0,
+                 decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, stride: int = HYBRID_STRIDE, seed: int = 0,
                  color_tol: float | None = None, color_psnr: float | None = None,
                  color_within: float | None = None, color_bits: int = 8):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
@@ -192,6 +197,9 @@ class HybridFallback:
                                   parameter="decide")
         if isinstance(reach, bool) or int(reach) != reach or reach < 1:
             raise NeuralBakeError(f"hybrid reach must be a positive integer, got {reach!r}", parameter="reach")
+        if isinstance(stride, bool) or int(stride) != stride or not 1 <= stride <= reach:
+            raise NeuralBakeError(f"hybrid stride must be an integer from 1 to reach ({reach}), got {stride!r}",
+                                  parameter="stride")
         if color_tol is not None and not (color_tol > 0):  # NaN and non-positive
             raise NeuralBakeError(f"hybrid color_tol must be a positive ΔE, got {color_tol!r}", parameter="color_tol")
         if color_psnr is not None and not (np.isfinite(color_psnr) and color_psnr > 0):
@@ -211,7 +219,7 @@ class HybridFallback:
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
         self.cage, self.keep_baseline, self.chunk_size = cage, bool(keep_baseline), int(chunk_size)
-        self.decide, self.reach, self.seed = decide, int(reach), int(seed)
+        self.decide, self.reach, self.stride, self.seed = decide, int(reach), int(stride), int(seed)
         self.color_tol = None if color_tol is None else float(color_tol)
         self.color_psnr = None if color_psnr is None else float(color_psnr)
         self.color_within = None if color_within is None else float(color_within)
@@ -277,11 +285,13 @@ class HybridFallback:
         With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful;
         with ``values`` (f at the texel points), f at the source is estimated where safe (``share``:
         :meth:`_source_values`)."""
-        from .baseline import baseline_bake
+        from .baseline import baseline_bake, same_surface
 
         if base is None:
+            own = same_surface(coarse, self.fine)  # each sample's own face and barycentrics, no rays
             sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
-                                  face=np.asarray(texels.face)[idx], bary=np.asarray(texels.bary)[idx])
+                                  face=np.asarray(texels.face)[idx] if own else None,
+                                  bary=np.asarray(texels.bary)[idx] if own else None)
             b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
@@ -388,8 +398,17 @@ class HybridFallback:
         if self.decide == "all" or evaluated is None:
             first = np.arange(m)
         else:
-            # the evaluated samples, and the decision points of what was interpolated without them (``decide``)
-            first = np.flatnonzero(np.asarray(evaluated if decide is None else decide, dtype=bool) | ~valid)
+            # the evaluated samples on the stride's texels, and the decision points of what was interpolated
+            # without them (``decide``); the evaluated samples between the stride's are decided near unfaithful ones
+            points = np.asarray(evaluated if decide is None else decide, dtype=bool)
+            between = np.zeros(m, dtype=bool)
+            if self.stride > 1 and side is not None:  # an adaptive bake: its evaluated samples lie where it refined
+                pix = np.asarray(texels.pixel)
+                between = np.asarray(evaluated, dtype=bool) & ((pix[:, 0] % self.stride != 0)
+                                                               | (pix[:, 1] % self.stride != 0))
+                side = np.asarray(side).copy()
+                side[between] = self.stride
+            first = np.flatnonzero((points & ~between) | ~valid)
         # f and ∇f are known at the evaluated samples (all without ``evaluated``): f at their source points
         # can be estimated; the interpolated samples' (NaN here) are not used until the ring
         values = None if values is None else np.asarray(values, dtype=np.float64)

@@ -159,8 +159,9 @@ def bumped_sphere_field(radius=R, centre=(0.0, 0.0, R), height=0.06, width=0.2):
 
 @pytest.mark.parametrize("supersample", [1, 2])
 def test_lattice_decision_matches_deciding_every_sample(supersample):
-    """On an adaptive bake, deciding on the lattice (evaluated samples, then the ring around unfaithful ones)
-    replaces exactly the samples that deciding every sample replaces, at a fraction of the decisions."""
+    """On an adaptive bake, deciding on the lattice (evaluated samples on the stride's texels, then the ring around
+    unfaithful ones) replaces exactly the samples that deciding every sample replaces, at a fraction of the
+    decisions; the stride decides fewer than every evaluated sample, and the same ones are replaced."""
     from neural_bake.bake.adaptive import AdaptiveOptions
 
     coarse = unwrap(ico(2), resolution=256)
@@ -168,16 +169,48 @@ def test_lattice_decision_matches_deciding_every_sample(supersample):
     baker = Baker(coarse, 256 // supersample, supersample=supersample)
     full = HybridFallback(ico(5), field, decide="all")
     lattice = HybridFallback(ico(5), field)
+    every_evaluated = HybridFallback(ico(5), field, stride=1)
     a = baker.bake(field, hybrid=full, adaptive=AdaptiveOptions())
     b = baker.bake(field, hybrid=lattice, adaptive=AdaptiveOptions())
+    c = baker.bake(field, hybrid=every_evaluated, adaptive=AdaptiveOptions())
     assert a.replaced.sum() > 200  # the bump is off the sphere by more than the tolerance over a cap
-    np.testing.assert_array_equal(a.replaced, b.replaced)
-    np.testing.assert_array_equal(a.normal_map, b.normal_map)
+    for other in (b, c):
+        np.testing.assert_array_equal(a.replaced, other.replaced)
+        np.testing.assert_array_equal(a.normal_map, other.normal_map)
     s_full, s_lat = full.summary(), lattice.summary()
     assert s_full["decided"] == s_full["samples"] and s_full["lattice_check"] is None
     assert s_lat["decided"] < 0.7 * s_lat["samples"]  # the lattice rule decides a fraction of the samples
+    assert s_lat["decided"] < every_evaluated.summary()["decided"]
     check = s_lat["lattice_check"]
     assert check["samples"] > 0 and check["missed"] == 0 and check["missed_fraction"] == 0.0
+
+
+def test_stride_decides_evaluated_samples_between_its_texels_only_near_unfaithful_ones():
+    """Every sample evaluated (an adaptive bake's hard region: ``side`` 0): with stride 2 the samples on even rows and
+    columns are decided first and the others only within 2 positions (3 texels) of an unfaithful one, so an
+    unfaithful region is found whole, while a lone unfaithful sample between the stride's texels, with none of them
+    unfaithful near it, is left to the check; with stride 1 every evaluated sample is decided."""
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256)
+    tx = baker.texels
+    m = tx.n_samples
+    valid, evaluated, side = np.ones(m, dtype=bool), np.ones(m, dtype=bool), np.zeros(m, dtype=np.int16)
+    normals = np.asarray(tx.points, dtype=np.float64) / np.linalg.norm(tx.points, axis=1, keepdims=True)
+    pix = np.asarray(tx.pixel)
+    far = np.flatnonzero((np.asarray(tx.points)[:, 2] < -0.3) & (pix[:, 0] % 2 == 1) & (pix[:, 1] % 2 == 1))
+    lone = far[len(far) // 2]
+    normals[lone] = -normals[lone]  # one sample's normal flipped, far from the bump's cap
+    runs = {}
+    for stride in (1, 2):
+        hybrid = HybridFallback(ico(5), field, stride=stride, seed=3)
+        runs[stride] = (hybrid(baker.mesh, tx, normals, valid, evaluated, side=side).replaced, hybrid.summary())
+    (every, s1), (strided, s2) = runs[1], runs[2]
+    assert every[lone] and not strided[lone]
+    cap = every.copy()
+    cap[lone] = False
+    assert cap.sum() > 200 and not (cap & ~strided).any()  # the cap's region found whole
+    assert s2["decided"] < 0.6 * s1["decided"] and s1["decided"] == m
 
 
 def test_lattice_decision_without_adaptive_decides_every_sample():
@@ -254,7 +287,9 @@ def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, h, 
 
 
 @pytest.mark.parametrize("kwargs, message", [({"decide": "some"}, "decide"), ({"reach": 0}, "reach"),
-                                             ({"reach": 2.5}, "reach")])
+                                             ({"reach": 2.5}, "reach"), ({"stride": 0}, "stride"),
+                                             ({"stride": 1.5}, "stride"), ({"stride": True}, "stride"),
+                                             ({"stride": 8, "reach": 4}, "stride")])
 def test_bad_decision_settings_raise(kwargs, message):
     with pytest.raises(NeuralBakeError, match=message):
         HybridFallback(ico(1), sphere_field(), **kwargs)
