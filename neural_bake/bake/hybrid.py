@@ -23,13 +23,13 @@ normals' (a sample near an unfaithful colour is decided too).
 Where the decision is made (``decide``): at every sample ("all": a ray cast and a forward pass of f per
 sample, a second bake's cost), or on the adaptive lattice ("lattice", the default): at the samples the bake
 evaluated its fields at (the lattice nodes, borders, seams; of an adaptive bake, one that says ``side``, those
-whose texel's row and column are multiples of ``stride``, which every lattice node of a cell of side 4 and up
-is), and at the other samples within ``reach`` sample-grid positions of one found unfaithful (every sample of an
-interpolation cell lies that close to its nodes); when the bake says in which cell side each sample was
-interpolated (``side``), within that side instead, so a sample of a side-4 cell is decided only when an
-unfaithful node lies within 4 positions, and an evaluated sample between the stride's within ``stride``
-positions (where the fields vary too fast for any cell, an unfaithful region holds several of the stride's
-samples). The other samples keep ∇f as their cell's faithful nodes do; a seeded uniform subsample of them is
+whose texel's row and column are multiples of ``stride``, which at one sample per texel every lattice node of a
+cell of side 4 and up is), and at the other samples within ``reach`` sample-grid positions of one found
+unfaithful (every sample of an interpolation cell lies that close to its nodes); when the bake says in which
+cell side each sample was interpolated (``side``), within that side instead, so a sample of a side-4 cell is
+decided only when an unfaithful node lies within 4 positions, and an evaluated sample between the stride's
+within ``stride`` positions (where the fields vary too fast for any cell, an unfaithful region holds several of
+the stride's samples). The other samples keep ∇f as their cell's faithful nodes do; a seeded uniform subsample of them is
 decided in full as a check (``summary()["lattice_check"]``: how many of those the lattice rule would have
 missed; they are replaced too).
 
