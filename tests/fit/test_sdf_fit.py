@@ -665,30 +665,6 @@ def test_sign_errors_take_the_tail_of_the_uniform_batch():
     assert len(set((vp0[230:, 0] / 3).long().tolist())) > 5
 
 
-def test_sign_mining_removes_a_networks_stray_solid_sooner():
-    # a network of the sphere's SDF with a stray piece of solid (trained in against a mesh with a second,
-    # small sphere) refitted to the sphere: at equal steps, the fit that draws half of its uniform batch from
-    # its sign errors has fewer of them left, on points it never trained on
-    from neural_bake.fit.sdf_pools import _sign_errors
-    from neural_bake.nets.siren import Siren
-
-    start = fit_sdf(sphere(), steps=150, seed=0, **TINY).model
-    blob = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=R),
-                                     trimesh.creation.icosphere(subdivisions=2, radius=0.15).apply_translation(
-                                         [0.75, 0.75, 0.75])])
-    two = mesh_from_arrays(np.asarray(blob.vertices), np.asarray(blob.faces), normalise=False)
-    stray = fit_sdf(two, steps=150, seed=0, init=start, **TINY).model
-    test = _sign_pools(n_uniform=40_000)
-    assert _sign_errors(stray, test) is not None
-    kw = dict(TINY, steps=40, seed=1, init=stray, hard_every=5)
-    on = fit_sdf(sphere(), sign_fraction=0.5, **kw)
-    off = fit_sdf(sphere(), **kw)
-    assert isinstance(on.model, Siren) and torch.isfinite(weights(on.model)).all()
-    left_on, left_off = (_sign_errors(f.model, test) for f in (on, off))
-    n_on = 0 if left_on is None else left_on.numel()
-    assert left_off is not None and n_on < 0.5 * left_off.numel()
-
-
 def _step_data(dtype, s=37, v=29, seed=5):
     g = torch.Generator().manual_seed(seed)
     sp = (torch.rand(s, 3, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
