@@ -1,6 +1,6 @@
 /* Interpolation inside accepted cells: the C kernels of neural_bake.bake.adaptive._interpolate (bilinear) and
    _interpolate_quadratic, and of the quadratic test _quadratic_ok (their torch paths are the references; the tests
-   hold each pair together in float64 and within float32's precision of a float32 reference).
+   hold each pair together in float64, and the interpolations within float32's precision of a float32 reference).
 
    nb_interp_cells(flat_index, wg, r0, c0, n_cells, k, points, normals, values, colors, n_colors, done, interpolated,
    valid, extrapolate, direction_eps): for every accepted cell of side k with top-left position (r0, c0) on the

@@ -10,8 +10,8 @@ import torch
 
 from neural_bake.bake.adaptive import (_NODES, _QUARTERS, KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv,
                                        _integral, _interp, _interpolate, _interpolate_native, _interpolate_quadratic,
-                                       _pack, _quadratic_ok, _Store, _weights, adaptive_evaluate, chart_labels, grid_positions, kernel_status,
-                                       vertex_positions)
+                                       _pack, _quadratic_ok, _Store, _weights, adaptive_evaluate, chart_labels,
+                                       grid_positions, kernel_status, vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
 from neural_bake.fields import SdfField, TextureField
@@ -397,7 +397,7 @@ def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(co
 @pytest.mark.skipif(compiler() is None, reason="no C compiler: the torch path is the only one")
 @pytest.mark.parametrize("colours", [False, True])
 def test_native_quadratic_test_decides_as_the_torch_path(colours, monkeypatch):
-    # cells of side 4 on a bent sheet whose normals bend by a seeded amount per cell: the C kernel (float64) and the
+    # cells of side 4 on a bent sheet whose normals turn at a seeded rate per cell: the C kernel (float64) and the
     # float64 torch path accept the same cells, some and not all; an invalid node or test sample and a cell whose
     # nodes are one point (no parallelogram) are refused by both
     from neural_bake.bake import adaptive
