@@ -49,13 +49,12 @@ static int nb_coordinates(const double *c0, const double *c1, const double *c2, 
     return 1;
 }
 
-/* Sample idx takes the blend of the nodes node[0..nw) with weights w: the unit normal (the weighted sum
-   renormalised, its length clamped below at direction_eps), f from each node's first-order extrapolation
-   f_j + n_j . (p - p_j), the colours; and is marked done, interpolated and valid. */
-static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, const double *points, double *normals,
-                     double *values, double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated,
-                     uint8_t *valid, double direction_eps) {
-    const double *pa = points + 3 * idx;
+/* The blend at point pa of the nodes node[0..nw) with weights w: the unit normal n_out (the weighted sum
+   renormalised, its length clamped below at direction_eps) and f (*f_out) from each node's first-order
+   extrapolation f_j + n_j . (pa - p_j). */
+static void nb_blend_normal_value(const int64_t *node, const double *w, int nw, const double *pa, const double *points,
+                                  const double *normals, const double *values, double direction_eps, double *n_out,
+                                  double *f_out) {
     double n[3] = {0.0, 0.0, 0.0}, f = 0.0;
     for (int j = 0; j < nw; j++) {
         const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
@@ -64,13 +63,28 @@ static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, 
     }
     double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (length < direction_eps) length = direction_eps;
-    for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i] / length;
+    for (int i = 0; i < 3; i++) n_out[i] = n[i] / length;
+    *f_out = f;
+}
+
+/* Colour channel c of the blend of the nodes node[0..nw) with weights w. */
+static double nb_blend_colour(const int64_t *node, const double *w, int nw, const double *colors, int64_t n_colors,
+                              int64_t c) {
+    double sum = 0.0;
+    for (int j = 0; j < nw; j++) sum += w[j] * colors[n_colors * node[j] + c];
+    return sum;
+}
+
+/* Sample idx takes the blend of the nodes node[0..nw) with weights w (nb_blend_normal_value, the colours
+   nb_blend_colour); and is marked done, interpolated and valid. */
+static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, const double *points, double *normals,
+                     double *values, double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated,
+                     uint8_t *valid, double direction_eps) {
+    double n[3], f;
+    nb_blend_normal_value(node, w, nw, points + 3 * idx, points, normals, values, direction_eps, n, &f);
+    for (int i = 0; i < 3; i++) normals[3 * idx + i] = n[i];
     values[idx] = f;
-    for (int64_t c = 0; c < n_colors; c++) {
-        double sum = 0.0;
-        for (int j = 0; j < nw; j++) sum += w[j] * colors[n_colors * node[j] + c];
-        colors[n_colors * idx + c] = sum;
-    }
+    for (int64_t c = 0; c < n_colors; c++) colors[n_colors * idx + c] = nb_blend_colour(node, w, nw, colors, n_colors, c);
     done[idx] = 1;
     interpolated[idx] = 1;
     valid[idx] = 1;
@@ -199,6 +213,37 @@ static int nb_invert9(const double *m, double *inv) {
     return 1;
 }
 
+/* The quadratic of a cell's 9 nodes (node order): the inverse `inv` of the Lagrange basis's values at the nodes'
+   coordinates in the parallelogram of its corners (nodes 0, 2, 6, 8); returns 0 where the nodes are not all in a
+   parallelogram or the matrix is singular. */
+static int nb_quadratic_fit(const int64_t *node, const double *points, double extrapolate, double direction_eps,
+                            double *inv) {
+    const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
+    const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
+    double vander[81];
+    for (int j = 0; j < 9; j++) {
+        double t, u;
+        if (!nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u)) return 0;
+        nb_lagrange(t, u, vander + 9 * j);
+    }
+    return nb_invert9(vander, inv);
+}
+
+/* The 9 nodes' weights w at point pa of the cell's quadratic (nb_quadratic_fit's inv): the Lagrange basis at pa's
+   clamped coordinates, corrected by inv. */
+static void nb_quadratic_weights(const int64_t *node, const double *points, const double *pa, const double *inv,
+                                 double extrapolate, double direction_eps, double *w) {
+    double t, u, basis[9];
+    nb_coordinates(points + 3 * node[0], points + 3 * node[2], points + 3 * node[6], points + 3 * node[8], pa,
+                   extrapolate, direction_eps, &t, &u);
+    nb_lagrange(t, u, basis);
+    for (int j = 0; j < 9; j++) {
+        double s = 0.0;
+        for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];
+        w[j] = s;
+    }
+}
+
 /* Quadratic interpolation inside accepted cells: the C kernel of neural_bake.bake.adaptive._interpolate_quadratic.
    For every cell of side k at (r0, c0), its 9 nodes (3x3, spacing k/2) fix a quadratic in the cell's spatial
    coordinates (those of nb_coordinates from its four corners): the Lagrange basis on the ideal nodes {0, 1/2, 1}^2
@@ -218,19 +263,11 @@ static void nb_interp_cell_quadratic(const int64_t *flat_index, int64_t wg, int6
     int64_t node[9];
     for (int a = 0; a < 3; a++)
         for (int b = 0; b < 3; b++) node[3 * a + b] = flat_index[base + (a * wg + b) * h];
-    const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
-    const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
-    int good = 1;
+    int good;
     if (part == NB_BORDER) {
         good = *good_out;
     } else {
-        double vander[81];
-        for (int j = 0; j < 9 && good; j++) {
-            double t, u;
-            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u);
-            nb_lagrange(t, u, vander + 9 * j);
-        }
-        good = good && nb_invert9(vander, inv);
+        good = nb_quadratic_fit(node, points, extrapolate, direction_eps, inv);
         *good_out = (uint8_t)good;
     }
     if (!good) return;
@@ -238,14 +275,8 @@ static void nb_interp_cell_quadratic(const int64_t *flat_index, int64_t wg, int6
     do {                                                                                                       \
         const int64_t idx = flat_index[base + (dr_) * wg + (dc_)];                                             \
         if (done[idx]) break;                                                                                  \
-        double t, u, basis[9], w[9];                                                                           \
-        nb_coordinates(q0, q1, q2, q3, points + 3 * idx, extrapolate, direction_eps, &t, &u);                  \
-        nb_lagrange(t, u, basis);                                                                              \
-        for (int j = 0; j < 9; j++) {                                                                          \
-            double s = 0.0;                                                                                    \
-            for (int i = 0; i < 9; i++) s += basis[i] * inv[9 * i + j];                                        \
-            w[j] = s;                                                                                          \
-        }                                                                                                      \
+        double w[9];                                                                                           \
+        nb_quadratic_weights(node, points, points + 3 * idx, inv, extrapolate, direction_eps, w);              \
         nb_blend(node, w, 9, idx, points, normals, values, colors, n_colors, done, interpolated, valid,        \
                  direction_eps);                                                                               \
     } while (0)
@@ -306,46 +337,17 @@ void nb_quadratic_test(const int64_t *nodes, const int64_t *tests, int64_t n_cel
         int good = 1;
         for (int j = 0; j < 9 && good; j++) good = valid[node[j]];
         for (int j = 0; j < 4 && good; j++) good = valid[test[j]];
-        const double *q0 = points + 3 * node[0], *q1 = points + 3 * node[2];
-        const double *q2 = points + 3 * node[6], *q3 = points + 3 * node[8];
-        double vander[81], inv[81];
-        for (int j = 0; j < 9 && good; j++) {
-            double t, u;
-            good = nb_coordinates(q0, q1, q2, q3, points + 3 * node[j], extrapolate, direction_eps, &t, &u);
-            nb_lagrange(t, u, vander + 9 * j);
-        }
-        good = good && nb_invert9(vander, inv);
+        double inv[81];
+        good = good && nb_quadratic_fit(node, points, extrapolate, direction_eps, inv);
         for (int i = 0; i < 4 && good; i++) {
             const int64_t idx = test[i];
-            const double *pa = points + 3 * idx;
-            double t, u, basis[9], n[3] = {0.0, 0.0, 0.0}, f = 0.0;
-            nb_coordinates(q0, q1, q2, q3, pa, extrapolate, direction_eps, &t, &u);
-            nb_lagrange(t, u, basis);
-            double w[9];
-            for (int j = 0; j < 9; j++) {
-                double sum = 0.0;
-                for (int b = 0; b < 9; b++) sum += basis[b] * inv[9 * b + j];
-                w[j] = sum;
-            }
-            for (int j = 0; j < 9; j++) {
-                const double *nj = normals + 3 * node[j], *pj = points + 3 * node[j];
-                for (int c = 0; c < 3; c++) n[c] += w[j] * nj[c];
-                f += w[j] * (values[node[j]] + (pa[0] - pj[0]) * nj[0] + (pa[1] - pj[1]) * nj[1]
-                             + (pa[2] - pj[2]) * nj[2]);
-            }
-            double length = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-            if (length < direction_eps) length = direction_eps;
-            double d2 = 0.0;
-            for (int c = 0; c < 3; c++) {
-                const double d = n[c] / length - normals[3 * idx + c];
-                d2 += d * d;
-            }
+            double w[9], n[3], f, d2 = 0.0;
+            nb_quadratic_weights(node, points, points + 3 * idx, inv, extrapolate, direction_eps, w);
+            nb_blend_normal_value(node, w, 9, points + 3 * idx, points, normals, values, direction_eps, n, &f);
+            for (int c = 0; c < 3; c++) d2 += (n[c] - normals[3 * idx + c]) * (n[c] - normals[3 * idx + c]);
             good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
-            for (int64_t c = 0; c < n_colors && good; c++) {
-                double sum = 0.0;
-                for (int j = 0; j < 9; j++) sum += w[j] * colors[n_colors * node[j] + c];
-                good = fabs(sum - colors[n_colors * idx + c]) <= color_tol;
-            }
+            for (int64_t c = 0; c < n_colors && good; c++)
+                good = fabs(nb_blend_colour(node, w, 9, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
         }
         ok[cell] = (uint8_t)good;
     }

@@ -545,19 +545,24 @@ def _interpolate_native(lib, store: _Store, points: np.ndarray, index: np.ndarra
                         k: int, *, quadratic: bool = False) -> None:
     """:func:`_interpolate` (``quadratic``: :func:`_interpolate_quadratic`) by the C kernel (adaptive.c), in float64,
     on the store's arrays in place (all float64 and contiguous, as :func:`adaptive_evaluate` makes them)."""
-    if store.colors is not None and not store.colors.flags.c_contiguous:
-        store.colors = np.ascontiguousarray(store.colors)
+    pts, colors, n_colors = _native_fields(store, points)
     flat = np.ascontiguousarray(index, dtype=np.int64).reshape(-1)
     r0, c0 = np.ascontiguousarray(r0, dtype=np.int64), np.ascontiguousarray(c0, dtype=np.int64)
-    pts = np.ascontiguousarray(points, dtype=np.float64)
     done = (store.evaluated | store.interpolated).view(np.uint8)
     interp, valid = store.interpolated.view(np.uint8), store.valid.view(np.uint8)
-    n_colors = 0 if store.colors is None else store.colors.shape[1]
     fn = lib.nb_interp_cells_quadratic if quadratic else lib.nb_interp_cells
     fn(flat.ctypes.data, index.shape[1], r0.ctypes.data, c0.ctypes.data, len(r0), int(k), pts.ctypes.data,
-       store.normals.ctypes.data, store.values.ctypes.data, None if store.colors is None else store.colors.ctypes.data,
-       n_colors, done.ctypes.data, interp.ctypes.data, valid.ctypes.data, float(_EXTRAPOLATE), float(DIRECTION_EPS),
-       threads())
+       store.normals.ctypes.data, store.values.ctypes.data, colors, n_colors, done.ctypes.data, interp.ctypes.data,
+       valid.ctypes.data, float(_EXTRAPOLATE), float(DIRECTION_EPS), threads())
+
+
+def _native_fields(store: _Store, points: np.ndarray) -> tuple[np.ndarray, int | None, int]:
+    """What the C kernels read of a band: its points (float64, contiguous), the address of the store's colours (made
+    contiguous in the store; None without colours) and their channels."""
+    if store.colors is not None and not store.colors.flags.c_contiguous:
+        store.colors = np.ascontiguousarray(store.colors)
+    colors = None if store.colors is None else store.colors.ctypes.data
+    return np.ascontiguousarray(points, dtype=np.float64), colors, 0 if store.colors is None else store.colors.shape[1]
 
 
 #: Smallest side of a cell that may be accepted with quadratic interpolation (:func:`_quadratic_ok`): its test
@@ -645,17 +650,14 @@ def _quadratic_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, tests: n
 def _quadratic_ok_native(lib, store: _Store, points: np.ndarray, nodes: np.ndarray, tests: np.ndarray, chord: float,
                          value_tol: float, color_tol: float) -> np.ndarray:
     """:func:`_quadratic_ok` by the C kernel (adaptive.c), in float64 on the store's arrays."""
-    if store.colors is not None and not store.colors.flags.c_contiguous:
-        store.colors = np.ascontiguousarray(store.colors)
+    pts, colors, n_colors = _native_fields(store, points)
     nodes = np.ascontiguousarray(nodes, dtype=np.int64)
     tests = np.ascontiguousarray(tests, dtype=np.int64)
-    pts = np.ascontiguousarray(points, dtype=np.float64)
     ok = np.zeros(len(nodes), dtype=np.uint8)
-    n_colors = 0 if store.colors is None else store.colors.shape[1]
     lib.nb_quadratic_test(nodes.ctypes.data, tests.ctypes.data, len(nodes), pts.ctypes.data, store.normals.ctypes.data,
-                          store.values.ctypes.data, None if store.colors is None else store.colors.ctypes.data,
-                          n_colors, store.valid.view(np.uint8).ctypes.data, float(chord), float(value_tol),
-                          float(color_tol), float(_EXTRAPOLATE), float(DIRECTION_EPS), ok.ctypes.data, threads())
+                          store.values.ctypes.data, colors, n_colors, store.valid.view(np.uint8).ctypes.data,
+                          float(chord), float(value_tol), float(color_tol), float(_EXTRAPOLATE), float(DIRECTION_EPS),
+                          ok.ctypes.data, threads())
     return ok.view(bool)
 
 
