@@ -8,7 +8,9 @@ interpolated vertex normal and texture colour there.
 
 from __future__ import annotations
 
+import ctypes
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -16,12 +18,78 @@ from ..constants import DIRECTION_EPS
 from ..errors import MeshError, NeuralBakeError
 from ..geometry import import_open3d, interpolate_corners
 from ..geometry import raycasting_scene as _shared_scene
+from ..nets.native import Kernel, threads
 from ..types import Mesh
 
-__all__ = ["baseline_bake", "closest_surface", "raycasting_scene"]
+__all__ = ["baseline_bake", "closest_surface", "raycasting_scene", "kernel_status", "ENV_SWITCH"]
 
 #: Default cage distance in unit-frame units (the unit frame's longest side is 1.8).
 DEFAULT_CAGE = 0.05
+
+#: 0/off/false: the numpy path even where the C kernel (baseline.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_BASELINE"
+
+
+def _declare(lib) -> None:
+    p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+    lib.nb_rays.argtypes = [p, p, i64, p]
+    lib.nb_rays.restype = None
+    lib.nb_pick_hits.argtypes = [p, p, p, i64, f64, p, p, p, i64]
+    lib.nb_pick_hits.restype = None
+    lib.nb_shade.argtypes = [p, p, p, p, p, i64, f64, p, p, i64]
+    lib.nb_shade.restype = None
+
+
+#: The C kernel (baseline.c, :class:`neural_bake.nets.native.Kernel`; the samples on torch's OpenMP team where it
+#: shares it); numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("baseline.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
+
+
+def kernel_status() -> str:
+    """Which ray set-up, hit choice and shading of the classical bake run here: the C kernel (and its file), or why
+    numpy does."""
+    return KERNEL.status()
+
+
+def _ptr(a: np.ndarray) -> int:
+    return a.ctypes.data
+
+
+def _rays(lib, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(2M, 6) float32 rays of ``points`` (M, 3): along + ``normals`` (M, 3) for the first M, − for the next M."""
+    m = len(points)
+    if lib is None:
+        return np.concatenate([np.concatenate([points, normals], axis=1),
+                               np.concatenate([points, -normals], axis=1)]).astype(np.float32)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    nrm = np.ascontiguousarray(normals, dtype=np.float64)
+    rays = np.empty((2 * m, 6), dtype=np.float32)
+    lib.nb_rays(_ptr(pts), _ptr(nrm), m, _ptr(rays))
+    return rays
+
+
+def _pick_hits(lib, t_hit: np.ndarray, prim: np.ndarray, uvs: np.ndarray, m: int,
+               cage: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(distance (M,), face (M,) int64, barycentrics (M, 2)) of each sample's nearer hit of its two rays (open3d's
+    ``t_hit``, ``primitive_ids``, ``primitive_uvs`` of :func:`_rays`' 2M rays) finite and within ``cage``, the + ray's
+    on a tie; (inf, 0, 0) where neither hits."""
+    best_t = np.full(m, np.inf)
+    best_prim = np.zeros(m, dtype=np.int64)
+    best_uv = np.zeros((m, 2))
+    if lib is not None:
+        t = np.ascontiguousarray(t_hit, dtype=np.float32)
+        ids = np.ascontiguousarray(prim, dtype=np.uint32)
+        uv = np.ascontiguousarray(uvs, dtype=np.float32)
+        lib.nb_pick_hits(_ptr(t), _ptr(ids), _ptr(uv), m, float(cage), _ptr(best_t), _ptr(best_prim), _ptr(best_uv),
+                         threads())
+        return best_t, best_prim, best_uv
+    for side in (0, 1):
+        t = np.asarray(t_hit[side * m: (side + 1) * m], dtype=np.float64)
+        better = np.isfinite(t) & (t <= cage) & (t < best_t)
+        best_t[better] = t[better]
+        best_prim[better] = prim[side * m: (side + 1) * m][better]
+        best_uv[better] = uvs[side * m: (side + 1) * m][better]
+    return best_t, best_prim, best_uv
 
 
 def raycasting_scene(fine: Mesh):
@@ -60,7 +128,8 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
     return {"points": pts, "face": prim, "bary": bary, "normals": n, "distance": np.linalg.norm(pts - points, axis=1)}
 
 
-def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None, scene=None) -> dict:
+def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None, scene=None,
+                  fine_normals: np.ndarray | None = None) -> dict:
     """Mesh-to-mesh bake of ``fine`` onto the texel samples of ``coarse``.
 
     - ``coarse``: the mesh ``texels`` were rasterised on (``Baker.mesh``); its frame maps the texel points
@@ -72,6 +141,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
       (default :data:`DEFAULT_CAGE`).
     - ``scene``: a :func:`raycasting_scene` of ``fine`` to reuse (e.g. over the bands of a streamed bake);
       default: built here (its time is ``seconds["setup"]``).
+    - ``fine_normals``: ``fine``'s (V, 3) unit vertex normals (:func:`~neural_bake.geometry.vertex_normals`) to
+      reuse; default: computed here.
 
     When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each
     sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or coincident face
@@ -94,7 +165,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         bary = np.asarray(texels.bary, dtype=np.float64)
         m = len(bary)
         return _shade(fine, np.asarray(texels.face, dtype=np.int64), bary[:, 1:3], np.ones(m, dtype=bool),
-                      np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0})
+                      np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0}, fine_normals)
     o3d = import_open3d()
     pts = np.asarray(texels.points, dtype=np.float64)
     nrm = np.asarray(texels.normal, dtype=np.float64)
@@ -106,17 +177,10 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     t_setup = time.perf_counter() - t_all
 
     t0 = time.perf_counter()
-    best_t = np.full(m, np.inf)
-    prim = np.zeros(m, dtype=np.int64)
-    uvs = np.zeros((m, 2))
-    for sign in (1.0, -1.0):
-        rays = np.concatenate([pts, sign * nrm], axis=1).astype(np.float32)
-        res = scene.cast_rays(o3d.core.Tensor(rays))
-        t_hit = res["t_hit"].numpy().astype(np.float64)
-        better = np.isfinite(t_hit) & (t_hit <= cage) & (t_hit < best_t)
-        best_t[better] = t_hit[better]
-        prim[better] = res["primitive_ids"].numpy()[better]
-        uvs[better] = res["primitive_uvs"].numpy()[better]
+    lib = KERNEL.lib()
+    res = scene.cast_rays(o3d.core.Tensor(_rays(lib, pts, nrm)))  # both directions in one cast
+    best_t, prim, uvs = _pick_hits(lib, res["t_hit"].numpy(), res["primitive_ids"].numpy(),
+                                   res["primitive_uvs"].numpy(), m, cage)
     hit = np.isfinite(best_t)
     t_rays = time.perf_counter() - t0
 
@@ -129,7 +193,31 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         uvs[~hit] = res["primitive_uvs"].numpy()
         dist[~hit] = np.linalg.norm(res["points"].numpy() - pts[~hit], axis=1)
     t_closest = time.perf_counter() - t0
-    return _shade(fine, prim, uvs, hit, dist, cage, t_all, {"setup": t_setup, "rays": t_rays, "closest": t_closest})
+    return _shade(fine, prim, uvs, hit, dist, cage, t_all, {"setup": t_setup, "rays": t_rays, "closest": t_closest},
+                  fine_normals)
+
+
+def _shade_points(lib, fine: Mesh, prim: np.ndarray, uvs: np.ndarray,
+                  fine_normals: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (M, 3), points (M, 3)) of ``fine`` at faces ``prim`` (M,) and open3d barycentrics ``uvs``
+    (M, 2): its vertex normals (``fine_normals``, or computed) and corners blended, the normals renormalised."""
+    from ..geometry import vertex_normals
+
+    vn = vertex_normals(fine) if fine_normals is None else fine_normals
+    if lib is None:
+        normals = _interp(fine, prim, uvs, vn[fine.faces])
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), DIRECTION_EPS)
+        return normals, _interp(fine, prim, uvs, fine.triangles)
+    m = len(prim)
+    vert = np.ascontiguousarray(fine.vertices, dtype=np.float64)
+    vn = np.ascontiguousarray(vn, dtype=np.float64)
+    faces = np.ascontiguousarray(fine.faces, dtype=np.int64)
+    ids = np.ascontiguousarray(prim, dtype=np.int64)
+    uv = np.ascontiguousarray(uvs, dtype=np.float64)
+    normals, points = np.empty((m, 3)), np.empty((m, 3))
+    lib.nb_shade(_ptr(vert), _ptr(vn), _ptr(faces), _ptr(ids), _ptr(uv), m, float(DIRECTION_EPS), _ptr(normals),
+                 _ptr(points), threads())
+    return normals, points
 
 
 def same_surface(coarse: Mesh, fine: Mesh) -> bool:
@@ -142,15 +230,12 @@ def same_surface(coarse: Mesh, fine: Mesh) -> bool:
 
 
 def _shade(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, hit: np.ndarray, dist: np.ndarray, cage: float,
-           t_all: float, seconds: dict) -> dict:
+           t_all: float, seconds: dict, fine_normals: np.ndarray | None = None) -> dict:
     """:func:`baseline_bake`'s result from each sample's face ``prim`` and barycentrics ``uvs`` (open3d's)."""
-    from ..geometry import vertex_normals
     from ..io.colour import sample_texture
 
     t0 = time.perf_counter()
-    normals = _interp(fine, prim, uvs, vertex_normals(fine)[fine.faces])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), DIRECTION_EPS)
-    points = _interp(fine, prim, uvs, fine.triangles)
+    normals, points = _shade_points(KERNEL.lib(), fine, prim, uvs, fine_normals)
     colors = None
     if fine.uv is not None and fine.texture is not None:
         uv = _interp(fine, prim, uvs, np.asarray(fine.uv, dtype=np.float64))

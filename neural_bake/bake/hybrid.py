@@ -215,6 +215,7 @@ class HybridFallback:
         if given and (fine.uv is None or fine.texture is None):
             raise NeuralBakeError(f"{fine.name}: hybrid colours need a source mesh with UVs and a texture",
                                   parameter=given[0])
+        from ..geometry import vertex_normals
         from .baseline import raycasting_scene
 
         self.fine, self.sdf, self.sdf_tol, self.angle_deg = fine, sdf, float(sdf_tol), float(angle_deg)
@@ -226,6 +227,7 @@ class HybridFallback:
         self.color_bits = int(color_bits)
         self.decides_colours = bool(given)
         self.scene = raycasting_scene(fine)
+        self.fine_normals = vertex_normals(fine)  # shared by every band's classical shading
         self.baselines: list[dict] = []
         self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0,
                        "color_replaced": 0, "color_within_replaced": 0}
@@ -292,7 +294,7 @@ class HybridFallback:
             sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
                                   face=np.asarray(texels.face)[idx] if own else None,
                                   bary=np.asarray(texels.bary)[idx] if own else None)
-            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene)
+            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
         # the angle and validity rules first: f at the source is needed only where neither replaces the sample
@@ -393,7 +395,8 @@ class HybridFallback:
         colors = None if colors is None or not self.decides_colours else np.asarray(colors, dtype=np.float64)
         color_mask = np.zeros(m, dtype=bool) if colors is not None else None
         source_colors = np.zeros_like(colors) if colors is not None else None
-        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene) if self.keep_baseline \
+        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene,
+                             fine_normals=self.fine_normals) if self.keep_baseline \
             else None
         if self.decide == "all" or evaluated is None:
             first = np.arange(m)

@@ -129,3 +129,41 @@ def test_a_bake_onto_the_source_itself_reads_each_samples_own_face():
     # a coarse mesh that is not the source is baked by rays, whose hits on coincident faces are either board's
     moved = Mesh(vertices=mesh.vertices + [0.0, 0.0, 1e-4], faces=mesh.faces, uv=mesh.uv, watertight=False)
     assert baseline_bake(moved, mesh, tx)["seconds"]["rays"] > 0.0
+
+
+def test_native_kernel_matches_the_numpy_path(coarse_texels, monkeypatch):
+    """The C ray set-up, hit choice and shading (baseline.c) give the numpy path's bits: on a bake where some rays
+    miss within a small cage, and on hand-made hits with ties, misses and hits beyond the cage."""
+    from neural_bake.bake import baseline
+
+    lib = baseline.KERNEL.lib()
+    if lib is None:
+        pytest.skip(baseline.kernel_status())
+    coarse, tx = coarse_texels
+    fine = ico(4, 0.72)
+    for cage in (0.1, 0.015):
+        native = baseline_bake(coarse, fine, tx, cage=cage)
+        with monkeypatch.context() as mp:
+            mp.setattr(baseline.KERNEL, "lib", lambda: None)
+            ref = baseline_bake(coarse, fine, tx, cage=cage)
+        assert native["fallback"] == ref["fallback"]
+        for k in ("normals", "points", "hit", "distance"):
+            np.testing.assert_array_equal(native[k], ref[k])
+    assert ref["fallback"] > 0  # the small cage left some samples to the closest point
+
+    rng = np.random.default_rng(3)
+    m = 1000
+    pts, nrm = rng.normal(size=(m, 3)), unit(rng.normal(size=(m, 3)))
+    np.testing.assert_array_equal(baseline._rays(lib, pts, nrm), baseline._rays(None, pts, nrm))
+    t = rng.uniform(0, 0.2, 2 * m).astype(np.float32)
+    t[rng.random(2 * m) < 0.2] = np.inf  # misses
+    t[m: m + 50] = t[:50]  # ties: the + ray's hit
+    ids = rng.integers(0, fine.n_faces, 2 * m).astype(np.uint32)
+    uv = rng.uniform(0, 0.5, (2 * m, 2)).astype(np.float32)
+    for a, b in zip(baseline._pick_hits(lib, t, ids, uv, m, 0.1), baseline._pick_hits(None, t, ids, uv, m, 0.1)):
+        np.testing.assert_array_equal(a, b)
+    best_t, prim, bary = baseline._pick_hits(lib, t, ids, uv, m, 0.1)
+    assert np.isinf(best_t).any() and (best_t[np.isfinite(best_t)] <= 0.1).all()
+    np.testing.assert_array_equal(prim[:50][np.isfinite(best_t[:50])], ids[:50][np.isfinite(best_t[:50])])
+    for a, b in zip(baseline._shade_points(lib, fine, prim, bary, None), baseline._shade_points(None, fine, prim, bary, None)):
+        np.testing.assert_array_equal(a, b)
