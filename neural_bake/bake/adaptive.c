@@ -1,5 +1,5 @@
 /* Interpolation inside accepted cells: the C kernels of neural_bake.bake.adaptive._interpolate (bilinear) and
-   _interpolate_quadratic, and of the quadratic test _quadratic_ok (their torch paths are the references; the tests
+   _interpolate_quadratic, and of the cells' tests _surplus_ok and _quadratic_ok (their torch paths are the references; the tests
    hold each pair together in float64, and the interpolations within float32's precision of a float32 reference).
 
    nb_interp_cells(flat_index, wg, r0, c0, n_cells, k, points, normals, values, colors, n_colors, done, interpolated,
@@ -348,6 +348,43 @@ void nb_quadratic_test(const int64_t *nodes, const int64_t *tests, int64_t n_cel
             good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
             for (int64_t c = 0; c < n_colors && good; c++)
                 good = fabs(nb_blend_colour(node, w, 9, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
+        }
+        ok[cell] = (uint8_t)good;
+    }
+}
+
+/* The bilinear (hierarchical surplus) test: the C kernel of neural_bake.bake.adaptive._surplus_ok. For each of n_cells
+   cells, its 9 nodes (nodes, (n_cells, 9) sample indices, node order), the five that are not corners (the edges'
+   midpoints and the centre) must lie within the tolerances (as nb_quadratic_test's) of their blend from the four
+   corners of the cell (nb_coordinates in the corners' parallelogram, bilinear weights, nb_blend_normal_value).
+   ok (n_cells,) uint8: 1 where every node is valid and all five pass. Cells over a team of `threads` where built with
+   OpenMP (each cell writes its own ok). */
+void nb_surplus_test(const int64_t *nodes, int64_t n_cells, const double *points, const double *normals,
+                     const double *values, const double *colors, int64_t n_colors, const uint8_t *valid, double chord,
+                     double value_tol, double color_tol, double extrapolate, double direction_eps, uint8_t *ok,
+                     int64_t threads) {
+    static const int mids[5] = {1, 3, 4, 5, 7};
+    const double chord2 = chord * chord;
+    (void)threads;
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK) num_threads((int)threads)
+#endif
+    for (int64_t cell = 0; cell < n_cells; cell++) {
+        const int64_t *node = nodes + 9 * cell;
+        const int64_t corner[4] = {node[0], node[2], node[6], node[8]};
+        int good = 1;
+        for (int j = 0; j < 9 && good; j++) good = valid[node[j]];
+        for (int i = 0; i < 5 && good; i++) {
+            const int64_t idx = node[mids[i]];
+            double t, u, n[3], f, d2 = 0.0;
+            nb_coordinates(points + 3 * corner[0], points + 3 * corner[1], points + 3 * corner[2],
+                           points + 3 * corner[3], points + 3 * idx, extrapolate, direction_eps, &t, &u);
+            const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};
+            nb_blend_normal_value(corner, w, 4, points + 3 * idx, points, normals, values, direction_eps, n, &f);
+            for (int c = 0; c < 3; c++) d2 += (n[c] - normals[3 * idx + c]) * (n[c] - normals[3 * idx + c]);
+            good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
+            for (int64_t c = 0; c < n_colors && good; c++)
+                good = fabs(nb_blend_colour(corner, w, 4, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
         }
         ok[cell] = (uint8_t)good;
     }

@@ -59,6 +59,8 @@ def _declare(lib) -> None:
     lib.nb_interp_cells_quadratic.restype = None
     lib.nb_quadratic_test.argtypes = [p, p, i64, p, p, p, p, i64, p, f64, f64, f64, f64, f64, p, i64]
     lib.nb_quadratic_test.restype = None
+    lib.nb_surplus_test.argtypes = [p, i64, p, p, p, p, i64, p, f64, f64, f64, f64, f64, p, i64]
+    lib.nb_surplus_test.restype = None
     lib.nb_face_components.argtypes = [p, i64, i64, p, p]
     lib.nb_face_components.restype = i64
 
@@ -486,11 +488,22 @@ def _interp(packed: torch.Tensor, corners: torch.Tensor, at: torch.Tensor) -> tu
 def _surplus_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, opt: AdaptiveOptions,
                 dtype: torch.dtype) -> np.ndarray:
     """(P,) bool: the cells whose 3×3 ``nodes`` (P, 9) sample indices pass every field's tolerance: the
-    midpoints' and centre's values against their interpolation from the cell's four corners (in ``dtype``;
-    angles as chord lengths |a − b| = 2·sin(θ/2), exact near 0° in float32 too)."""
-    ok = store.valid[nodes].all(axis=1)
+    midpoints' and centre's values against their interpolation from the cell's four corners (angles as chord
+    lengths |a − b| = 2·sin(θ/2), exact near 0° in float32 too). By the C kernel in float64 where it builds, else in
+    ``dtype`` by torch."""
     chord = 2.0 * np.sin(np.radians(ADAPTIVE_SAFETY * opt.tolerance_deg) / 2.0)
     value_tol, color_tol = ADAPTIVE_SAFETY * opt.value_tol, ADAPTIVE_SAFETY * opt.color_tol
+    lib = KERNEL.lib()
+    if lib is not None:
+        pts, colors, n_colors = _native_fields(store, points)
+        cells = np.ascontiguousarray(nodes, dtype=np.int64)
+        out = np.zeros(len(cells), dtype=np.uint8)
+        lib.nb_surplus_test(cells.ctypes.data, len(cells), pts.ctypes.data, store.normals.ctypes.data,
+                            store.values.ctypes.data, colors, n_colors, store.valid.view(np.uint8).ctypes.data,
+                            float(chord), float(value_tol), float(color_tol), float(_EXTRAPOLATE),
+                            float(DIRECTION_EPS), out.ctypes.data, threads())
+        return out.view(bool)
+    ok = store.valid[nodes].all(axis=1)
     packed = _pack(store, points, nodes.reshape(-1), dtype)
     local = torch.arange(nodes.size).view(nodes.shape)
     mids = local[:, [1, 3, 4, 5, 7]].t().reshape(-1)  # (5P,): the five non-corner nodes, one after another

@@ -10,7 +10,7 @@ import torch
 
 from neural_bake.bake.adaptive import (_NODES, _QUARTERS, KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv,
                                        _integral, _interp, _interpolate, _interpolate_native, _interpolate_quadratic,
-                                       _pack, _quadratic_ok, _Store, _weights, adaptive_evaluate, chart_labels,
+                                       _pack, _quadratic_ok, _surplus_ok, _Store, _weights, adaptive_evaluate, chart_labels,
                                        grid_positions, kernel_status, vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -396,10 +396,12 @@ def test_native_cell_interpolation_matches_the_torch_path_float64_and_float32(co
 
 @pytest.mark.skipif(compiler() is None, reason="no C compiler: the torch path is the only one")
 @pytest.mark.parametrize("colours", [False, True])
-def test_native_quadratic_test_decides_as_the_torch_path(colours, monkeypatch):
-    # cells of side 4 on a bent sheet whose normals turn at a seeded rate per cell: the C kernel (float64) and the
-    # float64 torch path accept the same cells, some and not all; an invalid node or test sample and a cell whose
-    # nodes are one point (no parallelogram) are refused by both
+@pytest.mark.parametrize("which", ["surplus", "quadratic"])
+def test_native_cell_tests_decide_as_the_torch_path(which, colours, monkeypatch):
+    # cells of side 4 on a bent sheet whose normals turn at a seeded rate per cell: the C kernels (float64) of the
+    # bilinear and the quadratic test and their float64 torch paths accept the same cells, some and not all; an
+    # invalid node (and for the quadratic test an invalid test sample and a cell whose nodes are one point, no
+    # parallelogram) are refused by both
     from neural_bake.bake import adaptive
 
     rng = np.random.default_rng(11)
@@ -421,12 +423,18 @@ def test_native_quadratic_test_decides_as_the_torch_path(colours, monkeypatch):
     store.valid[nodes[0, 4]] = False  # an invalid node
     store.valid[tests[1, 2]] = False  # an invalid test sample
     points[cell[2, 0]: cell[2, 0] + 25] = points[cell[2, 0]]  # a cell whose samples are one point
-    opt = AdaptiveOptions(tolerance_deg=0.5)
-    native = _quadratic_ok(store, points, nodes, tests, opt, torch.float64)
+    opt = AdaptiveOptions(tolerance_deg=0.5 if which == "quadratic" else 2.0)
+
+    def decide():
+        if which == "surplus":
+            return _surplus_ok(store, points, nodes, opt, torch.float64)
+        return _quadratic_ok(store, points, nodes, tests, opt, torch.float64)
+
+    native = decide()
     monkeypatch.setattr(adaptive.KERNEL, "lib", lambda: None)
-    reference = _quadratic_ok(store, points, nodes, tests, opt, torch.float64)
+    reference = decide()
     np.testing.assert_array_equal(native, reference)
-    assert not native[:3].any()
+    assert not native[0] and (which == "surplus" or not native[:3].any())
     assert 0.1 < native.mean() < 0.9
 
 
