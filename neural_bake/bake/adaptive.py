@@ -238,6 +238,8 @@ def adaptive_evaluate(
     dtype: torch.dtype = torch.float64,
     faces: FaceGeometry | None = None,
     evaluate_points: Callable[[np.ndarray, np.ndarray], dict] | None = None,
+    unfaithful: Callable[..., np.ndarray] | None = None,
+    give_up_nodes: int = 9,
 ) -> dict:
     """Evaluate the fields at a band's samples adaptively (module docstring).
 
@@ -253,15 +255,22 @@ def adaptive_evaluate(
       invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
     - ``faces`` and ``evaluate_points`` ((points (n, 3), their faces (n,)) → the same dict): with both, the
       samples no cell covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
+    - ``unfaithful`` ((sample indices (n,), normals (M, 3), valid (M,), values (M,), colours (M, C) or None: the
+      band's fields so far) → (n,) bool) and ``give_up_nodes``: a hybrid bake's decision at evaluated samples
+      (:meth:`~neural_bake.bake.hybrid.HybridFallback.early`). A cell that fails the bilinear test with at least
+      ``give_up_nodes`` of its 9 nodes unfaithful is *given up*: not tested or refined further, its samples
+      interpolated bilinearly from its nodes (that ∇f is not what the map shows: the hybrid gives them the
+      classical bake's normal and colour) and returned in ``"given_up"``.
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
-    ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides), ``"side"``
+    ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides), ``"given_up"``
+    ((M,) bool: the samples of given-up cells that no accepted cell covers), ``"side"``
     ((M,) int16: the side of the cell each interpolated sample lies in, every sample of which is that close to
     the cell's nodes; the lattice's side for samples interpolated inside faces, 0 for evaluated ones) and
     ``"stats"`` (samples evaluated / interpolated, cells accepted per level (``cells_quadratic``: of them, those
-    interpolated quadratically), the face pass's evaluations at points of faces, samples and sub-triangles,
-    evaluation calls).
+    interpolated quadratically; ``cells_given_up``), the face pass's evaluations at points of faces, samples and
+    sub-triangles, evaluation calls).
     """
     opt = options or AdaptiveOptions()
     m = int(texels.n_samples)
@@ -295,11 +304,13 @@ def adaptive_evaluate(
         store.calls += 1
 
     hard = np.zeros(m, bool)
+    given_up = np.zeros(m, bool)
     side = np.zeros(m, np.int16)  # the side of the cell each sample was interpolated in
     gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
     on = np.flatnonzero(gr >= 0)
     k0 = int(opt.lattice)
     levels: dict[int, int] = {}
+    given_cells: dict[int, int] = {}
     if on.size:
         r_base = (int(gr[on].min()) // k0) * k0
         rows = int(gr[on].max()) - r_base + 1
@@ -321,6 +332,7 @@ def adaptive_evaluate(
         r0, c0 = r0[keep], c0[keep]
         k = k0
         accepted: list[tuple[np.ndarray, np.ndarray, int, bool]] = []
+        gave: list[tuple[np.ndarray, np.ndarray, int]] = []
         quadratic: dict[int, int] = {}
         while k >= 4 and r0.size:  # a side-2 cell has no sample besides its 3×3 nodes
             n = (k + 1) ** 2
@@ -332,11 +344,19 @@ def adaptive_evaluate(
             acc = np.zeros(len(r0), bool)
             p = np.flatnonzero(pure)
             quad = np.zeros(len(r0), bool)
+            given = np.zeros(len(r0), bool)
             if p.size:
                 nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 run(nodes.reshape(-1))
                 acc[p] = _surplus_ok(store, points, nodes, opt, dtype)
                 fail = ~acc[p]
+                if unfaithful is not None and fail.any():  # mostly unfaithful: the classical bake's, not refined
+                    bad = unfaithful(nodes[fail].reshape(-1), store.normals, store.valid, store.values, store.colors)
+                    off = np.flatnonzero(fail)[np.asarray(bad, dtype=bool).reshape(-1, 9).sum(axis=1) >= give_up_nodes]
+                    if off.size:
+                        gave.append((r0[p[off]], c0[p[off]], k))
+                        given[p[off]] = True
+                        fail[off] = False
                 if k >= _QUADRATIC_SIDE and fail.any():  # the quarters' centres: evaluated anyway when it fails
                     f = p[fail]
                     tests = index[r0[f, None] + (k // 4) * _QUARTERS[:, 0], c0[f, None] + (k // 4) * _QUARTERS[:, 1]]
@@ -349,7 +369,9 @@ def adaptive_evaluate(
                 quadratic[k] = int(quad.sum())
             if acc.any() or quad.any():
                 levels[k] = int(acc.sum() + quad.sum())
-            split = ~(acc | quad)
+            if given.any():
+                given_cells[k] = int(given.sum())
+            split = ~(acc | quad | given)
             if k == 4 and p.size:  # pure cells that failed at the last level: the fields vary too fast there
                 f = p[split[p]]
                 d = np.arange(k + 1)
@@ -370,13 +392,24 @@ def adaptive_evaluate(
             else:
                 (_interpolate_quadratic if quad else _interpolate)(store, packed, index, ar, ac, k)
             side[store.interpolated & (side == 0)] = k
+        if gave:  # after every accepted cell: a sample one of them covers keeps its interpolation
+            before = store.interpolated.copy()
+            lib = KERNEL.lib()
+            packed = _pack(store, points, None, dtype) if lib is None else None
+            for ar, ac, k in gave:
+                if lib is not None:
+                    _interpolate_native(lib, store, points, index, ar, ac, k)
+                else:
+                    _interpolate(store, packed, index, ar, ac, k)
+                side[store.interpolated & (side == 0)] = k
+            given_up = store.interpolated & ~before
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     decide = np.zeros(m, bool)
     face_stats = {"nodes": 0, "interpolated": 0, "accepted": 0}
     # the lattice is the face pass's free probe: where it interpolated less than it evaluated, the fields vary
     # too fast for the faces' sub-triangles too
     if faces is not None and evaluate_points is not None and rest.size \
-            and store.interpolated.sum() >= store.evaluated.sum():
+            and (store.interpolated & ~given_up).sum() >= store.evaluated.sum():
         # the samples no cell could hold (borders, seams, around vertices), not those of cells that failed
         rest = rest[~hard[rest]]
         fp = face_pass(rest, np.asarray(texels.face, dtype=np.int64)[rest], np.asarray(texels.bary)[rest],
@@ -404,12 +437,15 @@ def adaptive_evaluate(
         "evaluated": store.evaluated,
         "interpolated": store.interpolated,
         "decide": store.evaluated | decide,
+        "given_up": given_up,
         "side": side,
         "stats": {"samples": m, "evaluated": n_eval, "interpolated": int(store.interpolated.sum()),
                   "face_nodes": face_stats["nodes"], "face_interpolated": face_stats["interpolated"],
                   "face_cells": face_stats["accepted"],
                   "cells_accepted": {str(k): v for k, v in sorted(levels.items(), reverse=True)},
                   "cells_quadratic": {str(k): v for k, v in sorted(quadratic.items(), reverse=True)},
+                  "cells_given_up": {str(k): v for k, v in sorted(given_cells.items(), reverse=True)},
+                  "given_up": int(given_up.sum()),
                   "evaluated_outside_cells": int(rest.size), "evaluation_calls": store.calls},
     }
 

@@ -335,8 +335,9 @@ class _ErrorControl:
         self.checked = adaptive is not None or self.reduced
         self.fraction = min(1.0, samples / max(1, expected)) if self.checked else 0.0
         self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0, "outside": 0, "face_nodes": 0,
-                       "face_interpolated": 0, "face_cells": 0}
+                       "face_interpolated": 0, "face_cells": 0, "given_up": 0}
         self.cells: dict[str, int] = {}
+        self.given_cells: dict[str, int] = {}
         self.angles: list[np.ndarray] = []
         self.colors: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
@@ -356,8 +357,11 @@ class _ErrorControl:
             self._face_normals = self.baker.mesh.face_normals
         return self._face_normals[np.asarray(face, dtype=np.int64)]
 
-    def evaluate(self, tx, points: np.ndarray, normals: np.ndarray | None = None) -> dict:
-        """The fields at the band ``tx``'s ``points``; ``normals``: :meth:`face_normals` of its samples."""
+    def evaluate(self, tx, points: np.ndarray, normals: np.ndarray | None = None, unfaithful=None,
+                 give_up_nodes: int = 9) -> dict:
+        """The fields at the band ``tx``'s ``points``; ``normals``: :meth:`face_normals` of its samples;
+        ``unfaithful`` and ``give_up_nodes``: a hybrid's early decision, for an adaptive bake
+        (:func:`~neural_bake.bake.adaptive.adaptive_evaluate`; its ``"given_up"`` samples are in the result)."""
         b = self.baker
         if self.adaptive is None:
             ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at,
@@ -387,16 +391,19 @@ class _ErrorControl:
 
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
                                 at_samples, self.adaptive, vertices=self._vertices,
-                                dtype=self.dtype, faces=self._faces, evaluate_points=at_face_points)
+                                dtype=self.dtype, faces=self._faces, evaluate_points=at_face_points,
+                                unfaithful=unfaithful, give_up_nodes=give_up_nodes)
         st = res["stats"]
-        for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells"):
+        for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells", "given_up"):
             self.counts[k] += st[k]
+        for k, v in st["cells_given_up"].items():
+            self.given_cells[k] = self.given_cells.get(k, 0) + v
         self.counts["calls"] += st["evaluation_calls"]
         self.counts["outside"] += st["evaluated_outside_cells"]
         for k, v in st["cells_accepted"].items():
             self.cells[k] = self.cells.get(k, 0) + v
         ev = {"values": res["values"], "normals": res["normals"], "valid": res["valid"], "evaluated": res["evaluated"],
-              "decide": res["decide"], "side": res["side"], **times}
+              "decide": res["decide"], "side": res["side"], "given_up": res["given_up"], **times}
         if self.texture is not None:
             ev["colors"] = res["colors"]
         ev["time_adaptive"] = time.perf_counter() - t0 - times["time_sdf"] - times["time_texture"]
@@ -410,6 +417,8 @@ class _ErrorControl:
             return
         keys = sample_keys(index, self.seed)
         pick = np.flatnonzero(keys_below(keys, self.fraction))
+        if ev.get("given_up") is not None:  # the classical bake's texels: no interpolation of ∇f in the map
+            pick = pick[~ev["given_up"][pick]]
         if pick.size == 0:
             return
         exact = ev["evaluated"][pick] & (not self.reduced)  # evaluated in float32: the reference itself
@@ -443,7 +452,7 @@ class _ErrorControl:
             "evaluated_fraction": evaluated,
             "evaluated_outside_cells": c["outside"], "cells_accepted": self.cells, "face_nodes": c["face_nodes"],
             "face_interpolated": c["face_interpolated"], "face_cells": c["face_cells"],
-            "evaluation_calls": c["calls"]},
+            "given_up": c["given_up"], "cells_given_up": self.given_cells, "evaluation_calls": c["calls"]},
             "evaluated_fraction": evaluated}
         out["precision"] = self.precision
         if self.checked:
@@ -698,7 +707,10 @@ class Baker:
                 secs["rasterize"] += time.perf_counter() - t_band
             points = np.asarray(tx.points, dtype=np.float64)
             surface = control.face_normals(tx.face)
-            ev = control.evaluate(tx, points, surface)
+            early = hybrid.early(self.mesh, tx, textured=texture is not None) \
+                if adaptive is not None and hasattr(hybrid, "early") else None
+            ev = control.evaluate(tx, points, surface, unfaithful=early,
+                                  give_up_nodes=getattr(hybrid, "give_up_nodes", 9))
             secs["sdf"] += ev["time_sdf"]
             secs["texture"] += ev["time_texture"]
             secs["adaptive"] += ev.get("time_adaptive", 0.0)
@@ -713,11 +725,17 @@ class Baker:
             if hybrid is not None:
                 t1 = time.perf_counter()
                 band.neural, band.neural_colors = normals, band.colors
+                given = ev.get("given_up") if early is not None else None
                 out = hybrid(self.mesh, tx, normals, valid, ev["evaluated"], colors=band.colors, values=values,
-                             decide=ev.get("decide"), side=ev.get("side"))
+                             decide=ev.get("decide"), side=ev.get("side"),
+                             **({} if given is None else {"given_up": given}))
                 band.normals, band.replaced = out[0], np.asarray(out[1], dtype=bool)
                 if len(out) > 2 and out[2] is not None:
                     band.colors, band.colors_replaced = out[2], np.asarray(out[3], dtype=bool)
+                if given is not None and given.any():  # not evaluated there: no figure of the fields' own
+                    band.neural[given] = np.nan  # the fields' arrays (the hybrid's output is a copy)
+                    if band.neural_colors is not None and band.colors is not band.neural_colors:
+                        band.neural_colors[given] = np.nan
                 secs["hybrid"] += time.perf_counter() - t1
             if self.normal_space == "tangent":
                 band.encoded, band.frame_ok = encode_tangent_space(band.normals, tx.tangent, tx.bitangent, tx.normal,

@@ -44,6 +44,14 @@ holds within its value tolerance). A seeded uniform subsample of the estimated s
 check (``summary()["estimate_check"]``: how many the estimate would have called faithful wrongly; they are
 decided on the evaluated f).
 
+An adaptive bake asks for the decision while it refines (:meth:`HybridFallback.early`): at the nodes of every
+cell that fails its interpolation test. A cell with at least ``give_up_nodes`` of its 9 nodes unfaithful
+(:data:`~neural_bake.constants.HYBRID_GIVE_UP_NODES`) is *given up* instead of refined: its samples take the
+classical normal without being evaluated or decided (their colours, interpolated from the nodes, go through the
+colour rules as any other). Where the field is unfaithful the bake spends no evaluations on samples that would
+take the classical normal anyway; a given-up cell's few faithful samples take it too (the classical normal is the
+source's, so no texel gets further from it). The reports' figures of the fields alone leave those samples out.
+
 :class:`HybridFallback` is what :meth:`neural_bake.bake.baker.Baker.bake` calls per band of texel samples.
 """
 
@@ -54,8 +62,8 @@ import numpy as np
 from types import SimpleNamespace
 from typing import NamedTuple
 
-from ..constants import (ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN, HYBRID_SDF_TOL,
-                         HYBRID_STRIDE)
+from ..constants import (ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN,
+                         HYBRID_GIVE_UP_NODES, HYBRID_SDF_TOL, HYBRID_STRIDE)
 from ..errors import NeuralBakeError
 from ..types import Mesh
 
@@ -171,13 +179,16 @@ class HybridFallback:
       least PSNR (dB) a neural colour keeps against the source's; ``color_within``: the dB the colours may lose
       against a classical transfer into a ``color_bits``-bit map (:func:`colour_budget`) (all None: colours are
       not decided). Need ``fine`` with UVs and a texture.
+    - ``give_up_nodes``: of a failing cell's 9 nodes, how many unfaithful ones give it up (module docstring; 10:
+      never).
 
     Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
     texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
     (M,) mask of the samples the fields were evaluated at (None: all of them) and its (M, C) linear neural
     colours (None: no texture baked); ``values`` (f at the samples), ``decide`` (the adaptive bake's decision
     points) and ``side`` (its interpolation cell sides, :func:`~neural_bake.bake.adaptive.adaptive_evaluate`)
-    are optional keywords; returns a :class:`HybridBand`. ``self.counts`` sums the samples per
+    are optional keywords, as is ``given_up`` (the adaptive bake's given-up samples, after :meth:`early`); returns a
+    :class:`HybridBand`. ``self.counts`` sums the samples per
     reason over the calls (f at the source is tested, and counted, only where the angle and validity rules keep
     the sample); ``self.f_abs`` keeps |f| at the source points of those tested samples.
     """
@@ -186,7 +197,7 @@ class HybridFallback:
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
                  decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, stride: int = HYBRID_STRIDE, seed: int = 0,
                  color_tol: float | None = None, color_psnr: float | None = None,
-                 color_within: float | None = None, color_bits: int = 8):
+                 color_within: float | None = None, color_bits: int = 8, give_up_nodes: int = HYBRID_GIVE_UP_NODES):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
             raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
@@ -208,6 +219,9 @@ class HybridFallback:
         if color_within is not None and not (np.isfinite(color_within) and color_within >= 0):
             raise NeuralBakeError(f"hybrid color_within must be a number of dB ≥ 0, got {color_within!r}",
                                   parameter="color_within")
+        if isinstance(give_up_nodes, bool) or int(give_up_nodes) != give_up_nodes or not 1 <= give_up_nodes <= 10:
+            raise NeuralBakeError(f"hybrid give_up_nodes must be an integer from 1 to 9 (10: never), got {give_up_nodes!r}",
+                                  parameter="give_up_nodes")
         if color_bits not in (8, 16):
             raise NeuralBakeError(f"hybrid color_bits must be 8 or 16, got {color_bits!r}", parameter="color_bits")
         rules = {"color_tol": color_tol, "color_psnr": color_psnr, "color_within": color_within}
@@ -225,11 +239,13 @@ class HybridFallback:
         self.color_psnr = None if color_psnr is None else float(color_psnr)
         self.color_within = None if color_within is None else float(color_within)
         self.color_bits = int(color_bits)
+        self.give_up_nodes = int(give_up_nodes)
+        self._early: SimpleNamespace | None = None
         self.decides_colours = bool(given)
         self.scene = raycasting_scene(fine)
         self.fine_normals = vertex_normals(fine)  # shared by every band's classical shading
         self.baselines: list[dict] = []
-        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "decided": 0,
+        self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "given_up": 0, "decided": 0,
                        "color_replaced": 0, "color_within_replaced": 0}
         self.check = {"samples": 0, "missed": 0}
         self.estimate = {"estimated": 0, "samples": 0, "missed": 0}
@@ -308,19 +324,23 @@ class HybridFallback:
         far[tested] = far_from_surface(f_surf, self.sdf_tol)
         why["sdf"], why["mask"] = far, why["mask"] | far
         if colors is not None:
-            bad = np.zeros(len(idx), dtype=bool)
-            # a budget of 0 replaces every colour the map would store differently, which takes in every colour
-            # more than ΔE color_tol off: the CIEDE2000 pass would decide nothing more
-            if self.color_tol is not None and self.color_within != 0:
-                bad |= colour_difference(colors[idx], b["colors"]) > self.color_tol
-            if self.color_psnr is not None:
-                bad |= ~(colour_psnr(colors[idx], b["colors"]) >= self.color_psnr)
-            if self.color_within is not None:
-                within = colour_budget(colors[idx], b["colors"], self.color_within, self.color_bits, replaced=bad)
-                self.counts["color_within_replaced"] += int((within & ~bad).sum())
-                bad = within
-            why["color"] = bad
+            why["color"] = self._colour_rules(colors[idx], b["colors"])
         return why, b
+
+    def _colour_rules(self, neural: np.ndarray, source: np.ndarray) -> np.ndarray:
+        """(n,) bool: the ``neural`` colours (n, C) the colour rules replace by the ``source``'s (n, C)."""
+        bad = np.zeros(len(neural), dtype=bool)
+        # a budget of 0 replaces every colour the map would store differently, which takes in every colour
+        # more than ΔE color_tol off: the CIEDE2000 pass would decide nothing more
+        if self.color_tol is not None and self.color_within != 0:
+            bad |= colour_difference(neural, source) > self.color_tol
+        if self.color_psnr is not None:
+            bad |= ~(colour_psnr(neural, source) >= self.color_psnr)
+        if self.color_within is not None:
+            within = colour_budget(neural, source, self.color_within, self.color_bits, replaced=bad)
+            self.counts["color_within_replaced"] += int((within & ~bad).sum())
+            bad = within
+        return bad
 
     def _near(self, texels, seeds: np.ndarray, candidates: np.ndarray, side: np.ndarray | None = None) -> np.ndarray:
         """Which ``candidates`` (indices) lie within ``reach`` sample-grid positions of a ``seeds`` sample; with
@@ -381,9 +401,66 @@ class HybridFallback:
         """The lattice rule's check: :meth:`_check_mask`'s choice among ``candidates``."""
         return candidates[self._check_mask(candidates, 1)]
 
+    def early(self, coarse: Mesh, texels, *, textured: bool = False):
+        """The decision at evaluated samples while an adaptive bake refines the band ``texels`` of ``coarse``: a
+        callable ``(sample indices (n,), normals (M, 3), valid (M,), values (M,), colours (M, C) or None) → (n,)
+        bool`` (the normal unfaithful by the rules of :meth:`__call__`; each sample decided once, its colour too), for
+        :func:`~neural_bake.bake.adaptive.adaptive_evaluate` to give up cells (``give_up_nodes``); the next call
+        for the band takes those decisions and its ``given_up`` samples. None where it does not apply: deciding
+        "all", ``give_up_nodes`` 10, or colours baked that it does not decide (a given-up cell's colours would stay
+        interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band."""
+        from .baseline import baseline_bake
+
+        self._early = None
+        if self.decide != "lattice" or self.give_up_nodes > 9 or (textured and not self.decides_colours):
+            return None
+        m = int(texels.n_samples)
+        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene,
+                             fine_normals=self.fine_normals) if self.keep_baseline else None
+        state = SimpleNamespace(texels=texels, decided=np.zeros(m, bool), bad=np.zeros(m, bool), parts=[], base=base)
+        self._early = state
+
+        def unfaithful(idx, normals, valid, values, colors):
+            idx = np.asarray(idx, dtype=np.int64)
+            fresh = np.unique(idx[~state.decided[idx]])
+            if fresh.size:
+                col = np.asarray(colors, dtype=np.float64) if colors is not None and self.decides_colours else None
+                why, b = self._decide(coarse, texels, fresh, np.asarray(normals, dtype=np.float64),
+                                      np.asarray(valid, dtype=bool), state.base, col,
+                                      values=np.asarray(values, dtype=np.float64))
+                state.parts.append((fresh, why, b))
+                state.decided[fresh] = True
+                state.bad[fresh] = why["mask"]  # the normal's rules: a cell is given up where the SDF is unfaithful
+            return state.bad[idx]
+
+        return unfaithful
+
+    def _classical(self, coarse: Mesh, texels, idx: np.ndarray, colors: np.ndarray | None,
+                   base: dict | None) -> tuple[dict, dict]:
+        """(reasons, classical bake) of samples ``idx`` whose normals are replaced without a decision (given-up
+        cells' samples); their ``colors`` (the band's (M, C), None: not decided) by the colour rules, as anywhere
+        (what they keep is as close to the source's). Rays cast unless ``base`` holds the band's classical bake."""
+        from .baseline import baseline_bake, same_surface
+
+        if base is None:
+            own = same_surface(coarse, self.fine)
+            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
+                                  face=np.asarray(texels.face)[idx] if own else None,
+                                  bary=np.asarray(texels.bary)[idx] if own else None)
+            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals)
+        else:
+            b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
+        n = len(idx)
+        why = {"mask": np.ones(n, bool), "sdf": np.zeros(n, bool), "angle": np.zeros(n, bool),
+               "invalid": np.zeros(n, bool)}
+        if colors is not None:
+            why["color"] = self._colour_rules(colors[idx], b["colors"])
+        return why, b
+
     def __call__(self, coarse: Mesh, texels, normals: np.ndarray, valid: np.ndarray, evaluated=None,
                  colors: np.ndarray | None = None, values: np.ndarray | None = None,
-                 decide: np.ndarray | None = None, side: np.ndarray | None = None) -> HybridBand:
+                 decide: np.ndarray | None = None, side: np.ndarray | None = None,
+                 given_up: np.ndarray | None = None) -> HybridBand:
         import time
 
         from .baseline import baseline_bake
@@ -395,9 +472,14 @@ class HybridFallback:
         colors = None if colors is None or not self.decides_colours else np.asarray(colors, dtype=np.float64)
         color_mask = np.zeros(m, dtype=bool) if colors is not None else None
         source_colors = np.zeros_like(colors) if colors is not None else None
-        base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene,
-                             fine_normals=self.fine_normals) if self.keep_baseline \
-            else None
+        state, self._early = self._early, None
+        if state is not None and (given_up is None or state.texels is not texels):
+            state = None
+        if state is not None and state.base is not None:
+            base = state.base
+        else:
+            base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene,
+                                 fine_normals=self.fine_normals) if self.keep_baseline else None
         if self.decide == "all" or evaluated is None:
             first = np.arange(m)
         else:
@@ -435,11 +517,23 @@ class HybridFallback:
         def either(why):  # unfaithful normal or colour
             return why["mask"] | why["color"] if color_mask is not None else why["mask"]
 
-        why, b = self._decide(coarse, texels, first, normals, valid, base, colors, values=estimable)
-        take(first, why, b)
+        if state is not None:
+            for idx, why, b in state.parts:  # decided while the bake refined the band
+                take(idx, why, b)
+            given = np.flatnonzero(np.asarray(given_up, dtype=bool) & ~decided)
+            if len(given):  # the classical bake's without a decision
+                take(given, *self._classical(coarse, texels, given, colors, base))
+                self.counts["given_up"] += len(given)
+            first = first[~decided[first]]
+        if len(first):
+            why, b = self._decide(coarse, texels, first, normals, valid, base, colors, values=estimable)
+            take(first, why, b)
         rest = np.flatnonzero(~decided)
         if len(rest):
-            near = self._near(texels, first[either(why)], rest, side)
+            found = mask if color_mask is None else mask | color_mask
+            if given_up is not None:
+                found = found & ~np.asarray(given_up, dtype=bool)  # decided unfaithful, not given up
+            near = self._near(texels, np.flatnonzero(found & decided), rest, side)
             ring = rest[near]
             if len(ring):  # f at their points is the bake's interpolation: half the estimate's room for its error
                 take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors, values=values,

@@ -264,7 +264,8 @@ def bake_report(
 
     A hybrid bake (``result.hybrid``) adds ``"hybrid"`` (samples and texels that took the classical normal,
     their share of the covered texels, their error; texels that took the source's colour) and
-    ``"neural_vs_truth_deg"`` (∇f alone; ``"neural_color_psnr_db"``: the texture network alone).
+    ``"neural_vs_truth_deg"`` (∇f alone; ``"neural_color_psnr_db"``: the texture network alone; both over the
+    samples the fields were evaluated or interpolated at, not those of cells given up to the classical bake).
 
     Returns a JSON-ready dict. Angles are in degrees.
     """
@@ -316,8 +317,10 @@ def bake_report(
         rep["vs_truth_deg"] = stats(err)
         rep["gradient_vs_truth_deg"] = stats(angular_error(normals, truth_n))
         rep["geometric_vs_truth_deg"] = stats(angular_error(tx.normal, truth_n))
-        if neural is not None:  # a hybrid bake: what ∇f alone would have given
-            rep["neural_vs_truth_deg"] = stats(angular_error(neural, truth_n))
+        if neural is not None:  # a hybrid bake: what ∇f alone would have given, where it was evaluated or
+            # interpolated (not at the texels of cells given up to the classical bake: NaN)
+            known = np.isfinite(neural).all(axis=1)
+            rep["neural_vs_truth_deg"] = stats(angular_error(neural[known], truth_n[known]))
     if result.hybrid is not None:
         rep["hybrid"] = {k: result.stats.get(k) for k in ("hybrid_samples", "hybrid_texels", "hybrid_fraction",
                                                           "hybrid_color_texels", "hybrid_color_fraction")
@@ -330,8 +333,10 @@ def bake_report(
         rep["color_psnr_db"] = psnr(_quantise(ours, bits), linear_to_srgb(truth_c[:, :k]))
         neural_c = neural_colors if full else None
         if neural_c is not None:  # a hybrid bake that decided colours: what the texture network alone gives
-            rep["neural_color_psnr_db"] = psnr(_quantise(linear_to_srgb(neural_c[:, :k].astype(np.float64)), bits),
-                                               linear_to_srgb(truth_c[:, :k]))
+            known = np.isfinite(neural_c).all(axis=1)  # (not at given-up cells' texels)
+            rep["neural_color_psnr_db"] = psnr(
+                _quantise(linear_to_srgb(neural_c[known, :k].astype(np.float64)), bits),
+                linear_to_srgb(truth_c[known, :k]))
     rep["seams"] = seam_discontinuity(
         baker.mesh, baker.tangents, result.normal_map, result.albedo,
         normal_space=baker.normal_space, y_convention=baker.y_convention,

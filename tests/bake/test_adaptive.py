@@ -281,6 +281,40 @@ def test_side_four_cells_that_fail_bilinear_pass_quadratic_at_no_extra_cost(monk
     assert np.array_equal(with_quad["normals"][ev], truth["normals"][ev] / np.linalg.norm(truth["normals"][ev],
                                                                                      axis=1, keepdims=True))
 
+def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
+    """A hybrid's early decision (``unfaithful``): a failing cell with at least ``give_up_nodes`` of its 9 nodes
+    unfaithful is neither tested nor refined; its samples are interpolated from its nodes and returned as given up.
+    Here every node in the band's left half is unfaithful: cells there are given up (fewer evaluations, each cell
+    whole and none of its samples evaluated but its nodes), the right half refines as without a decision, and a
+    decision that finds nothing unfaithful changes nothing."""
+    tx, rows, cols, labels, evaluate = _sphere_over_grid(65, [0.32, 0.32, -0.3])
+    opt = AdaptiveOptions(lattice=16, tolerance_deg=0.1)
+    asked = []
+
+    def left_half(idx, normals, valid, values, colors):
+        asked.append(np.asarray(idx))
+        assert valid[idx].all() and np.allclose(np.linalg.norm(normals[idx], axis=1), 1.0)  # nodes: evaluated
+        return cols[idx] < 32
+
+    plain = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
+    none = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, unfaithful=lambda idx, *a: np.zeros(len(idx), bool),
+                             give_up_nodes=7)
+    for k in ("evaluated", "interpolated", "normals"):
+        np.testing.assert_array_equal(plain[k], none[k])
+    assert not none["given_up"].any() and none["stats"]["given_up"] == 0
+    res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, unfaithful=left_half, give_up_nodes=7)
+    given = res["given_up"]
+    assert res["stats"]["given_up"] == given.sum() > 0 and res["stats"]["cells_given_up"]
+    assert res["stats"]["evaluated"] < plain["stats"]["evaluated"]
+    assert (res["evaluated"] | res["interpolated"]).all() and not (given & res["evaluated"]).any()
+    assert (cols[given] <= 32).all()  # only cells of the unfaithful half (a cell's right edge may touch it)
+    right = cols > 40
+    for k in ("evaluated", "interpolated"):
+        np.testing.assert_array_equal(res[k][right], plain[k][right])
+    assert np.allclose(np.linalg.norm(res["normals"][given], axis=1), 1.0)  # interpolated: unit normals
+    assert all(a.size for a in asked)
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_spatial_weights_match_the_bilinear_reference(dtype, rng):
     # on a flat parallelogram the spatial coordinates are the parameters themselves: bilinear weights

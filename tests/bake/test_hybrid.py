@@ -161,18 +161,22 @@ def bumped_sphere_field(radius=R, centre=(0.0, 0.0, R), height=0.06, width=0.2):
 def test_lattice_decision_matches_deciding_every_sample(supersample):
     """On an adaptive bake, deciding on the lattice (evaluated samples on the stride's texels, then the ring around
     unfaithful ones) replaces exactly the samples that deciding every sample replaces, at a fraction of the
-    decisions; the stride decides fewer than every evaluated sample, and the same ones are replaced."""
+    decisions, when no cell is given up; the stride decides fewer than every evaluated sample, and the same ones are
+    replaced. Cells given up (most nodes unfaithful) add only their own samples to what is replaced, with the
+    classical normal, and spare evaluations."""
     from neural_bake.bake.adaptive import AdaptiveOptions
 
     coarse = unwrap(ico(2), resolution=256)
     field = bumped_sphere_field()
     baker = Baker(coarse, 256 // supersample, supersample=supersample)
     full = HybridFallback(ico(5), field, decide="all")
-    lattice = HybridFallback(ico(5), field)
-    every_evaluated = HybridFallback(ico(5), field, stride=1)
+    lattice = HybridFallback(ico(5), field, give_up_nodes=10)
+    every_evaluated = HybridFallback(ico(5), field, stride=1, give_up_nodes=10)
+    giving_up = HybridFallback(ico(5), field)
     a = baker.bake(field, hybrid=full, adaptive=AdaptiveOptions())
     b = baker.bake(field, hybrid=lattice, adaptive=AdaptiveOptions())
     c = baker.bake(field, hybrid=every_evaluated, adaptive=AdaptiveOptions())
+    d = baker.bake(field, hybrid=giving_up, adaptive=AdaptiveOptions())
     assert a.replaced.sum() > 200  # the bump is off the sphere by more than the tolerance over a cap
     for other in (b, c):
         np.testing.assert_array_equal(a.replaced, other.replaced)
@@ -183,6 +187,20 @@ def test_lattice_decision_matches_deciding_every_sample(supersample):
     assert s_lat["decided"] < every_evaluated.summary()["decided"]
     check = s_lat["lattice_check"]
     assert check["samples"] > 0 and check["missed"] == 0 and check["missed_fraction"] == 0.0
+    # giving up: the cap's cells are given up, their samples take the classical normal, nothing else changes
+    given = d.stats["adaptive"]["given_up"]
+    assert given > 0 and giving_up.summary()["given_up"] == given and s_lat["given_up"] == 0
+    assert d.stats["adaptive"]["evaluated"] < b.stats["adaptive"]["evaluated"]
+    assert (a.replaced & ~d.replaced).sum() == 0  # every unfaithful sample is still replaced
+    extra = d.replaced & ~a.replaced
+    assert 0 <= extra.sum() <= given
+    np.testing.assert_array_equal(np.isnan(d.neural).any(axis=1), np.isnan(d.neural).all(axis=1))
+    assert np.isnan(d.neural).any(axis=1).sum() == given  # no ∇f of the fields at given-up samples
+    rep = np.flatnonzero(d.replaced)  # replaced by the classical bake's normal, given up or decided
+    tx = baker.texels
+    sub = SimpleNamespace(points=np.asarray(tx.points)[rep], normal=np.asarray(tx.normal)[rep], face=None, bary=None)
+    np.testing.assert_allclose(d.normals[rep], baseline_bake(coarse, ico(5), sub)["normals"], atol=1e-12)
+    assert giving_up.summary()["lattice_check"]["missed"] == 0
 
 
 def test_stride_decides_evaluated_samples_between_its_texels_only_near_unfaithful_ones():
@@ -289,7 +307,9 @@ def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, h, 
 @pytest.mark.parametrize("kwargs, message", [({"decide": "some"}, "decide"), ({"reach": 0}, "reach"),
                                              ({"reach": 2.5}, "reach"), ({"stride": 0}, "stride"),
                                              ({"stride": 1.5}, "stride"), ({"stride": True}, "stride"),
-                                             ({"stride": 8, "reach": 4}, "stride")])
+                                             ({"stride": 8, "reach": 4}, "stride"), ({"give_up_nodes": 0}, "give_up"),
+                                             ({"give_up_nodes": 11}, "give_up"), ({"give_up_nodes": 7.5}, "give_up"),
+                                             ({"give_up_nodes": True}, "give_up")])
 def test_bad_decision_settings_raise(kwargs, message):
     with pytest.raises(NeuralBakeError, match=message):
         HybridFallback(ico(1), sphere_field(), **kwargs)
