@@ -29,7 +29,7 @@ from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_pos
 from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
 from .baseline import kernel_status as classical_kernel_status
-from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normal_map_from_sums, splat, splat_into
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normal_map_from_sums, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
 from .padding import kernel_status as padding_kernel_status
@@ -869,7 +869,10 @@ class _MapAccumulator:
         self.hybrid_color_map: np.ndarray | None = None
 
     def _count_image(self, image: np.ndarray, pix: np.ndarray, rows: tuple[int, int]) -> None:
-        image[rows[0]: rows[1]] += splat(np.ones((len(pix), 1)), pix, None, self.shape, rows=rows)[1]
+        """Add to ``image`` (H, W) the number of samples at each pixel of ``pix`` (n, 2), all within ``rows``."""
+        w = self.shape[1]
+        flat = (np.asarray(pix[:, 0], dtype=np.int64) - rows[0]) * w + np.asarray(pix[:, 1], dtype=np.int64)
+        image[rows[0]: rows[1]] += np.bincount(flat, minlength=(rows[1] - rows[0]) * w).reshape(-1, w)
 
     def add(self, tx, band: _Band) -> None:
         values = band.values

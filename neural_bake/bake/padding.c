@@ -3,16 +3,17 @@
    numpy's).
 
    nb_pull_push_T(img, covered, h, w, c, work, out, threads): img (h, w, c) row-major, covered (h, w) uint8;
-   out (h, w, c) gets the pushed-down values of the pyramid of coverage-weighted 2×2 averages at every texel (the
-   caller restores the covered ones). work: scratch of nb_pull_push_work(h, w, c) elements. The same arithmetic as
+   out (h, w, c) gets the pushed-down values of the pyramid of coverage-weighted 2×2 averages at every texel not
+   covered, img's own at the covered ones. work: scratch of nb_pull_push_work(h, w, c) elements. The same arithmetic as
    the torch path: each level pads an odd side with zero weight, sums 2×2 blocks, holds averages with weight
    min(1, sum); the push upsamples ×2 bilinearly (texel centres aligned, borders replicated) and blends each
    level's own average in by its weight. Each level's rows are split over an OpenMP team of `threads` where
    built with OpenMP (every texel is computed as on one thread).
 
-   nb_dilate_T(out, filled, h, w, c, steps): steps rings of dilation in place: each ring gives the unfilled
-   texels next to a filled one the mean of their filled 8-neighbours (texels filled before the ring only, in
-   the neighbour order of the numpy path, accumulated in T); filled (h, w) uint8 (0/1) is updated. Returns 0
+   nb_dilate_T(out, filled, h, w, c, steps, threads): steps rings of dilation in place: each ring gives the
+   unfilled texels next to a filled one the mean of their filled 8-neighbours (texels filled before the ring only,
+   in the neighbour order of the numpy path, accumulated in T); filled (h, w) uint8 (0/1) is updated. The first
+   ring's rows over a team of `threads` where built with OpenMP (each texel computed as on one thread). Returns 0
    (and changes nothing) when its scratch cannot be allocated or c > 64. */
 #include <stdint.h>
 #include <stdlib.h>
@@ -134,7 +135,7 @@ static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
                     for (int64_t k = 0; k < c; k++) {                                                          \
                         T up = ly0 * (lx0 * a[k] + lx1 * b[k]) + ly1 * (lx0 * e[k] + lx1 * f[k]);             \
                         if (i == 0) {                                                                          \
-                            o[k] = up;                                                                         \
+                            o[k] = covered[y * ws[0] + x] ? img[(y * ws[0] + x) * c + k] : up;                 \
                         } else {                                                                               \
                             T own = o[k] / d;                                                                  \
                             o[k] = up + al * (own - up);                                                       \
@@ -162,21 +163,32 @@ static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
         return 1;                                                                                              \
     }                                                                                                          \
                                                                                                                \
-    int nb_dilate_##SUFFIX(T *out, uint8_t *filled, int64_t h, int64_t w, int64_t c, int64_t steps) {          \
+    int nb_dilate_##SUFFIX(T *out, uint8_t *filled, int64_t h, int64_t w, int64_t c, int64_t steps,            \
+                           int64_t threads) {                                                                  \
         /* filled: 0 unfilled, 1 filled before this ring, 2 a candidate of this ring (read as unfilled) */     \
         int64_t *ring = (int64_t *)malloc(sizeof(int64_t) * (size_t)(h * w > 0 ? h * w : 1));                  \
         int64_t *next = (int64_t *)malloc(sizeof(int64_t) * (size_t)(h * w > 0 ? h * w : 1));                  \
+        uint8_t *mark = (uint8_t *)calloc((size_t)(h * w > 0 ? h * w : 1), 1);                                 \
         int64_t m = 0;                                                                                         \
-        if (ring == NULL || next == NULL || c > 64) {                                                          \
+        const int nt = threads > 1 ? (int)threads : 1, big = nt > 1 && h * w >= NB_ROWS_MIN;                   \
+        (void)nt;                                                                                              \
+        (void)big;                                                                                             \
+        if (ring == NULL || next == NULL || mark == NULL || c > 64) {                                          \
             free(ring);                                                                                        \
             free(next);                                                                                        \
+            free(mark);                                                                                        \
             return 0;                                                                                          \
         }                                                                                                      \
         for (int64_t step = 0; step < steps; step++) {                                                         \
             int64_t n = 0;                                                                                     \
-            if (step == 0) { /* the first ring: every unfilled texel next to a filled one */                  \
+            if (step == 0) { /* the first ring: every unfilled texel next to a filled one (rows over the team: \
+                                each writes its own texels and reads only texels filled before) */              \
+                NB_ROWS                                                                                        \
+                for (int64_t y = 0; y < h; y++)                                                                \
+                    for (int64_t q = y * w; q < (y + 1) * w; q++)                                              \
+                        if (!filled[q] && nb_fill_##SUFFIX(out, filled, h, w, c, q)) mark[q] = 1;              \
                 for (int64_t q = 0; q < h * w; q++)                                                            \
-                    if (!filled[q] && nb_fill_##SUFFIX(out, filled, h, w, c, q)) next[n++] = q;                \
+                    if (mark[q]) next[n++] = q;                                                                \
                 for (int64_t s = 0; s < n; s++) filled[next[s]] = 2;                                           \
             } else { /* the next ring: the unfilled neighbours of the last one */                             \
                 for (int64_t s = 0; s < m; s++) {                                                              \
@@ -199,6 +211,7 @@ static const int NB_DJ[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
         }                                                                                                      \
         free(ring);                                                                                            \
         free(next);                                                                                            \
+        free(mark);                                                                                            \
         return 1;                                                                                              \
     }
 

@@ -23,7 +23,7 @@ def _declare(lib) -> None:
     for suffix in ("f32", "f64"):
         getattr(lib, f"nb_pull_push_{suffix}").argtypes = [p, p, i64, i64, i64, p, p, i64]
         getattr(lib, f"nb_pull_push_{suffix}").restype = None
-        getattr(lib, f"nb_dilate_{suffix}").argtypes = [p, p, i64, i64, i64, i64]
+        getattr(lib, f"nb_dilate_{suffix}").argtypes = [p, p, i64, i64, i64, i64, i64]
         getattr(lib, f"nb_dilate_{suffix}").restype = ctypes.c_int
 
 
@@ -86,7 +86,6 @@ def pad_charts(
     else:
         work = np.ascontiguousarray(img, dtype=ftype)  # read only: the image itself where it is one already
         out = _pull_push(work, covered)
-        np.copyto(out, work, where=covered[:, :, None])
         # the first rings come from dilation (values of the nearest chart only), so that bilinear and the
         # first mip levels at a chart's edge never mix in a neighbouring chart's pushed-down colours
         rings = PULL_PUSH_DILATE if pixels is None else min(int(pixels), PULL_PUSH_DILATE)
@@ -110,7 +109,8 @@ def _dilate(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
     if lib is not None and out.flags.c_contiguous and out.dtype in _SUFFIX:
         state = np.ascontiguousarray(filled, dtype=np.uint8)  # a copy: the kernel marks the rings in it
         h, w, c = out.shape
-        if getattr(lib, f"nb_dilate_{_SUFFIX[out.dtype]}")(out.ctypes.data, state.ctypes.data, h, w, c, int(steps)):
+        if getattr(lib, f"nb_dilate_{_SUFFIX[out.dtype]}")(out.ctypes.data, state.ctypes.data, h, w, c, int(steps),
+                                                           threads()):
             return
     _dilate_numpy(out, filled, steps)
 
@@ -152,7 +152,8 @@ def _dilate_numpy(out: np.ndarray, filled: np.ndarray, steps: int) -> None:
 
 
 def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
-    """:func:`_pull_push_torch` by the C kernel where it runs (within a few ulps), else by torch."""
+    """:func:`_pull_push_torch` by the C kernel where it runs (within a few ulps), else by torch; the covered texels
+    of the result hold ``img``'s own values."""
     lib = KERNEL.lib()
     if lib is not None and img.flags.c_contiguous and img.dtype in _SUFFIX:
         h, w, c = img.shape
@@ -162,7 +163,9 @@ def _pull_push(img: np.ndarray, covered: np.ndarray) -> np.ndarray:
         getattr(lib, f"nb_pull_push_{_SUFFIX[img.dtype]}")(img.ctypes.data, cov.ctypes.data, h, w, c,
                                                            work.ctypes.data, out.ctypes.data, threads())
         return out
-    return _pull_push_torch(img, covered)
+    out = _pull_push_torch(img, covered)
+    np.copyto(out, img, where=covered[:, :, None])
+    return out
 
 
 def _pull_push_torch(img: np.ndarray, covered: np.ndarray) -> np.ndarray:

@@ -139,8 +139,9 @@ def test_pull_push_matches_the_plain_reference(monkeypatch, rng, path, dtype, sh
     out = _pull_push(img, cov)
     assert out.dtype == dtype and out.shape == img.shape
     tol = 1e-5 if dtype == np.float32 else 1e-12
-    # the covered texels are the caller's to restore: compared where the pyramid filled
+    # where the pyramid filled, its values; the covered texels keep their own
     assert np.allclose(out[~cov], _pull_push_reference(img, cov)[~cov], atol=tol)
+    np.testing.assert_array_equal(out[cov], img[cov])
 
 
 def _charts(rng, shape, n):
@@ -165,15 +166,17 @@ def test_pull_push_kernel_equals_the_torch_path(monkeypatch, rng, dtype, shape):
     fast = padding_module._pull_push(img, cov)
     slow = _pull_push_torch(img, cov)
     assert fast.dtype == slow.dtype == dtype and fast.shape == slow.shape
-    np.testing.assert_allclose(fast, slow, rtol=0, atol=4 * np.finfo(dtype).eps)
+    np.testing.assert_allclose(fast[~cov], slow[~cov], rtol=0, atol=4 * np.finfo(dtype).eps)
+    np.testing.assert_array_equal(fast[cov], img[cov])  # the covered texels keep their own values
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("steps", [1, 3, 40])  # 40: past the last empty texel
-def test_dilate_kernel_equals_the_numpy_path_bit_for_bit(rng, dtype, steps):
+@pytest.mark.parametrize("shape", [(37, 53), (211, 190)])  # the second large enough for the first ring's team
+def test_dilate_kernel_equals_the_numpy_path_bit_for_bit(rng, dtype, steps, shape):
     _need_kernel()
-    img = rng.uniform(0, 1, size=(37, 53, 3)).astype(dtype)
-    cov = _charts(rng, img.shape[:2], 5)
+    img = rng.uniform(0, 1, size=(*shape, 3)).astype(dtype)
+    cov = _charts(rng, img.shape[:2], 5 if shape[0] < 100 else 120)
     fast, slow = img.copy(), img.copy()
     padding_module._dilate(fast, cov, steps)
     padding_module._dilate_numpy(slow, cov, steps)
