@@ -11,10 +11,11 @@
    normal is the weighted sum renormalised (its length clamped below at direction_eps), f the weighted sum of each
    node's first-order extrapolation f_i + n_i . (p - p_i), colours the weighted sum. Samples are marked done,
    interpolated and valid. Arrays: points, normals (M, 3), values (M,), colors (M, n_colors) float64 row-major
-   (colors NULL when n_colors is 0); done, interpolated, valid (M,) uint8. The last argument, threads: where built
-   with OpenMP, the samples strictly inside the cells (each held by one cell) are interpolated over a team of that
-   many threads, then the cells' borders in cell order, so every sample takes the value of the loop on one thread.
-   Both entries take it. */
+   (colors NULL when n_colors is 0); done, interpolated, valid (M,) uint8. A sample on the edge two cells share
+   takes the interpolation of the cell whose (r0 / k + c0 / k) is even (of a checkerboard of the cells, its black
+   ones, done first: two cells of one colour share no sample but nodes). The last argument, threads: where built
+   with OpenMP, each colour's cells over a team of that many threads, so every sample takes the same value on any
+   number of threads and in any order of the cells. Both entries take it. */
 #include <float.h>
 #include <math.h>
 #include <stdint.h>
@@ -90,36 +91,21 @@ static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, 
     valid[idx] = 1;
 }
 
-/* Which samples of a cell's closed square a pass handles: all of them, those strictly inside it (no other cell
-   of the same side holds them), or those on its border (shared with its neighbours: the first cell in order
-   sets them). */
-enum { NB_ALL = 0, NB_INSIDE = 1, NB_BORDER = 2 };
-
-/* Calls at(dr, dc) for the positions (dr, dc) of a cell of side k that pass `part` handles, the border's
-   alone when it is the border's (each sample is written once, from the cell's nodes, so the order within a cell
-   does not change a value). */
-#define NB_FOR_PART(k, part, at)                                                                              \
+/* Calls at(dr, dc) for every position (dr, dc) of a cell of side k's closed square (each sample is written once,
+   from the cell's nodes, so the order within a cell does not change a value). */
+#define NB_FOR_CELL(k, at)                                                                                     \
     do {                                                                                                       \
-        if ((part) == NB_BORDER) {                                                                             \
-            for (int64_t dc = 0; dc <= (k); dc++) {                                                            \
-                at(0, dc);                                                                                     \
-                at((k), dc);                                                                                   \
-            }                                                                                                  \
-            for (int64_t dr = 1; dr < (k); dr++) {                                                             \
-                at(dr, 0);                                                                                     \
-                at(dr, (k));                                                                                   \
-            }                                                                                                  \
-        } else {                                                                                               \
-            const int64_t lo = (part) == NB_INSIDE, hi = (part) == NB_INSIDE ? (k) - 1 : (k);                   \
-            for (int64_t dr = lo; dr <= hi; dr++)                                                              \
-                for (int64_t dc = lo; dc <= hi; dc++) at(dr, dc);                                              \
-        }                                                                                                      \
+        for (int64_t dr = 0; dr <= (k); dr++)                                                                  \
+            for (int64_t dc = 0; dc <= (k); dc++) at(dr, dc);                                                  \
     } while (0)
+
+/* The cell's colour on the checkerboard of cells of side k: 0 (done first) or 1. */
+static inline int nb_colour(int64_t r0, int64_t c0, int64_t k) { return (int)((r0 / k + c0 / k) & 1); }
 
 static void nb_interp_cell(const int64_t *flat_index, int64_t wg, int64_t r0, int64_t c0, int64_t k,
                            const double *points, double *normals, double *values, double *colors, int64_t n_colors,
                            uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
-                           double direction_eps, int part) {
+                           double direction_eps) {
     const int64_t h = k / 2;
     const int64_t base = r0 * wg + c0;
 #define NB_AT(dr_, dc_)                                                                                        \
@@ -141,7 +127,7 @@ static void nb_interp_cell(const int64_t *flat_index, int64_t wg, int64_t r0, in
         nb_blend(corner, w, 4, idx, points, normals, values, colors, n_colors, done, interpolated, valid,      \
                  direction_eps);                                                                               \
     } while (0)
-    NB_FOR_PART(k, part, NB_AT);
+    NB_FOR_CELL(k, NB_AT);
 #undef NB_AT
 }
 
@@ -152,23 +138,16 @@ void nb_interp_cells(const int64_t *flat_index, int64_t wg, const int64_t *r0, c
                      int64_t k, const double *points, double *normals, double *values, double *colors,
                      int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid, double extrapolate,
                      double direction_eps, int64_t threads) {
-    if (threads < 2 || n_cells < 2 * NB_CELLS_CHUNK) {
-        for (int64_t cell = 0; cell < n_cells; cell++)
-            nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
-                           interpolated, valid, extrapolate, direction_eps, NB_ALL);
-        return;
-    }
-    /* the insides over the team (each written by its one cell), then the borders in cell order: the samples
-       and values of the loop above */
+    (void)threads;
+    for (int colour = 0; colour < 2; colour++) {
 #ifdef _OPENMP
-#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK) num_threads((int)threads)
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK) num_threads((int)threads) if(threads > 1 && n_cells >= 2 * NB_CELLS_CHUNK)
 #endif
-    for (int64_t cell = 0; cell < n_cells; cell++)
-        nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
-                       interpolated, valid, extrapolate, direction_eps, NB_INSIDE);
-    for (int64_t cell = 0; cell < n_cells; cell++)
-        nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
-                       interpolated, valid, extrapolate, direction_eps, NB_BORDER);
+        for (int64_t cell = 0; cell < n_cells; cell++)
+            if (nb_colour(r0[cell], c0[cell], k) == colour)
+                nb_interp_cell(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors, done,
+                               interpolated, valid, extrapolate, direction_eps);
+    }
 }
 
 /* The tensor-product quadratic Lagrange basis on the nodes {0, 1/2, 1}^2 at (t, u), in node order (row index with
@@ -254,23 +233,14 @@ static void nb_quadratic_weights(const int64_t *node, const double *points, cons
 static void nb_interp_cell_quadratic(const int64_t *flat_index, int64_t wg, int64_t r0, int64_t c0, int64_t k,
                                      const double *points, double *normals, double *values, double *colors,
                                      int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
-                                     double extrapolate, double direction_eps, int part, double *inv,
-                                     uint8_t *good_out) {
-    /* inv: the cell's 81 correction weights, computed here unless `part` is the border's (then the inside's pass
-       left them, with *good_out) */
+                                     double extrapolate, double direction_eps) {
     const int64_t h = k / 2;
     const int64_t base = r0 * wg + c0;
     int64_t node[9];
     for (int a = 0; a < 3; a++)
         for (int b = 0; b < 3; b++) node[3 * a + b] = flat_index[base + (a * wg + b) * h];
-    int good;
-    if (part == NB_BORDER) {
-        good = *good_out;
-    } else {
-        good = nb_quadratic_fit(node, points, extrapolate, direction_eps, inv);
-        *good_out = (uint8_t)good;
-    }
-    if (!good) return;
+    double inv[81];
+    if (!nb_quadratic_fit(node, points, extrapolate, direction_eps, inv)) return;
 #define NB_AT(dr_, dc_)                                                                                        \
     do {                                                                                                       \
         const int64_t idx = flat_index[base + (dr_) * wg + (dc_)];                                             \
@@ -280,7 +250,7 @@ static void nb_interp_cell_quadratic(const int64_t *flat_index, int64_t wg, int6
         nb_blend(node, w, 9, idx, points, normals, values, colors, n_colors, done, interpolated, valid,        \
                  direction_eps);                                                                               \
     } while (0)
-    NB_FOR_PART(k, part, NB_AT);
+    NB_FOR_CELL(k, NB_AT);
 #undef NB_AT
 }
 
@@ -288,33 +258,17 @@ void nb_interp_cells_quadratic(const int64_t *flat_index, int64_t wg, const int6
                                int64_t n_cells, int64_t k, const double *points, double *normals, double *values,
                                double *colors, int64_t n_colors, uint8_t *done, uint8_t *interpolated, uint8_t *valid,
                                double extrapolate, double direction_eps, int64_t threads) {
-    const int split = threads >= 2 && n_cells >= 2 * NB_CELLS_CHUNK / 4;
-    double *inv = split ? (double *)malloc(sizeof(double) * 81 * (size_t)n_cells) : NULL;
-    uint8_t *good = inv == NULL ? NULL : (uint8_t *)malloc((size_t)n_cells);
-    if (good == NULL) { /* one thread (or no scratch): every cell whole, in order */
-        free(inv);
-        double one[81];
-        uint8_t ok;
-        for (int64_t cell = 0; cell < n_cells; cell++)
-            nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors,
-                                     n_colors, done, interpolated, valid, extrapolate, direction_eps, NB_ALL, one, &ok);
-        return;
-    }
-    /* as nb_interp_cells: the insides over the team, keeping each cell's weights, then the borders in cell order
-       (cells of side 8 and up hold four times the samples of side 4: a quarter of the chunk) */
+    /* as nb_interp_cells (cells of side 8 and up hold four times the samples of side 4: a quarter of the chunk) */
+    (void)threads;
+    for (int colour = 0; colour < 2; colour++) {
 #ifdef _OPENMP
-#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK / 4) num_threads((int)threads)
+#pragma omp parallel for schedule(dynamic, NB_CELLS_CHUNK / 4) num_threads((int)threads) if(threads > 1 && n_cells >= NB_CELLS_CHUNK / 2)
 #endif
-    for (int64_t cell = 0; cell < n_cells; cell++)
-        nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors,
-                                 done, interpolated, valid, extrapolate, direction_eps, NB_INSIDE, inv + 81 * cell,
-                                 good + cell);
-    for (int64_t cell = 0; cell < n_cells; cell++)
-        nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors, n_colors,
-                                 done, interpolated, valid, extrapolate, direction_eps, NB_BORDER, inv + 81 * cell,
-                                 good + cell);
-    free(inv);
-    free(good);
+        for (int64_t cell = 0; cell < n_cells; cell++)
+            if (nb_colour(r0[cell], c0[cell], k) == colour)
+                nb_interp_cell_quadratic(flat_index, wg, r0[cell], c0[cell], k, points, normals, values, colors,
+                                         n_colors, done, interpolated, valid, extrapolate, direction_eps);
+    }
 }
 
 /* The quadratic test: the C kernel of neural_bake.bake.adaptive._quadratic_ok. For each of n_cells cells, its 9 nodes

@@ -553,10 +553,20 @@ def _surplus_ok(store: _Store, points: np.ndarray, nodes: np.ndarray, opt: Adapt
     return ok & good.view(5, -1).all(dim=0).numpy()
 
 
+def _colour_first(r0: np.ndarray, c0: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The cells (top-left positions ``r0``, ``c0``, side ``k``) with those whose (r0 / k + c0 / k) is even first (the
+    black ones of a checkerboard of cells, which share no sample but nodes with each other), each colour in its own
+    order: the edge two cells share goes to the black one, in any order of the cells."""
+    order = np.argsort((np.asarray(r0) // k + np.asarray(c0) // k) & 1, kind="stable")
+    return np.asarray(r0)[order], np.asarray(c0)[order]
+
+
 def _interpolate(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
                  k: int) -> None:
     """Interpolation from the 3×3 nodes of accepted cells (side ``k``) to their other samples, each from the
-    four nodes of its quarter of the cell (:func:`_weights`); ``packed``: :func:`_pack` of every sample."""
+    four nodes of its quarter of the cell (:func:`_weights`); ``packed``: :func:`_pack` of every sample. A sample
+    two cells share takes the interpolation of the cell :func:`_colour_first` puts first, as the C kernel does."""
+    r0, c0 = _colour_first(r0, c0, k)
     h = k // 2
     d = np.arange(k + 1)
     dr, dc = (a.reshape(-1) for a in np.meshgrid(d, d, indexing="ij"))
@@ -713,7 +723,9 @@ def _quadratic_ok_native(lib, store: _Store, points: np.ndarray, nodes: np.ndarr
 def _interpolate_quadratic(store: _Store, packed: torch.Tensor, index: np.ndarray, r0: np.ndarray, c0: np.ndarray,
                            k: int) -> None:
     """Interpolation from the 9 nodes of cells (side ``k``) accepted by :func:`_quadratic_ok` to their other
-    samples (:func:`_quadratic_weights`); ``packed``: :func:`_pack` of every sample."""
+    samples (:func:`_quadratic_weights`); ``packed``: :func:`_pack` of every sample (shared samples as
+    :func:`_interpolate`)."""
+    r0, c0 = _colour_first(r0, c0, k)
     h = k // 2
     d = np.arange(k + 1)
     dr, dc = (a.reshape(-1) for a in np.meshgrid(d, d, indexing="ij"))

@@ -714,8 +714,8 @@ def test_features_are_the_bent_edges_and_their_ends_not_every_vertex():
 @pytest.mark.parametrize("quadratic", [False, True])
 def test_native_cell_interpolation_gives_the_same_bits_on_any_thread_count(monkeypatch, quadratic):
     # enough cells to be split over the team (where the kernel shares torch's OpenMP), in a shuffled order, with
-    # some samples done before: the insides in parallel, then the shared borders in cell order, as one thread
-    # (the first cell in order sets a shared border sample; its neighbour would give it another value)
+    # some samples done before: each colour of the cells' checkerboard in parallel (a shared edge goes to the black
+    # cell; its neighbour would give it another value), the same bits on one thread and in any order
     from neural_bake.bake import adaptive as adaptive_module
 
     rng = np.random.default_rng(3)
@@ -745,7 +745,7 @@ def test_native_cell_interpolation_gives_the_same_bits_on_any_thread_count(monke
     assert runs[1].interpolated.sum() > 10_000
     for name in ("normals", "values", "colors", "interpolated", "valid"):
         np.testing.assert_array_equal(getattr(runs[1], name), getattr(runs[2], name))
-    # and the border order matters: the same cells in another order change some shared samples
+    # the same cells in another order: the same bits (the shared edges go by colour, not by order)
     monkeypatch.setattr(adaptive_module, "threads", lambda: 1)
     other = _Store(values=runs[1].values.copy(), normals=runs[1].normals.copy(), valid=np.zeros(len(points), bool),
                    colors=None, evaluated=runs[1].evaluated.copy(), interpolated=np.zeros(len(points), bool))
@@ -753,4 +753,12 @@ def test_native_cell_interpolation_gives_the_same_bits_on_any_thread_count(monke
     base = runs[2]
     other.values[~ev], other.normals[~ev] = 0.0, 0.0
     _interpolate_native(KERNEL.lib(), other, points, index, r0[::-1].copy(), c0[::-1].copy(), k, quadratic=quadratic)
+    np.testing.assert_array_equal(other.values, base.values)
+    np.testing.assert_array_equal(other.normals, base.normals)
+    # and the colour decides: the white cells first would change some shared samples
+    white_first = np.argsort(-((r0 // k + c0 // k) & 1), kind="stable")
+    other.values[~ev], other.normals[~ev], other.interpolated[:] = 0.0, 0.0, False
+    for part in (white_first[: len(r0) // 2], white_first[len(r0) // 2:]):  # each half one colour
+        _interpolate_native(KERNEL.lib(), other, points, index, r0[part].copy(), c0[part].copy(), k,
+                            quadratic=quadratic)
     assert not np.array_equal(other.values, base.values)
