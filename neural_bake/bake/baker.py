@@ -29,6 +29,7 @@ from .adaptive import AdaptiveOptions, adaptive_evaluate, chart_labels, grid_pos
 from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
 from .baseline import kernel_status as classical_kernel_status
+from .hybrid import kernel_status as hybrid_kernel_status
 from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normal_map_from_sums, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
@@ -779,7 +780,8 @@ class Baker:
             "kernels": {"rasteriser": kernel_status(), "tangent_encoding": encoding_kernel_status(),
                         "padding": padding_kernel_status(),
                         **({"interpolation": adaptive_kernel_status()} if adaptive is not None else {}),
-                        **({"classical": classical_kernel_status()} if hybrid is not None else {}),
+                        **({"classical": classical_kernel_status(), "hybrid_ring": hybrid_kernel_status()}
+                           if hybrid is not None else {}),
                         **({"grid_encoding": grid_kernel_status()} if texture is not None
                            and isinstance(getattr(texture, "model", None), GridNet) else {})},
             "field": sdf.name,

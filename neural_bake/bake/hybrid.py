@@ -57,6 +57,9 @@ source's, so no texel gets further from it). The reports' figures of the fields 
 
 from __future__ import annotations
 
+import ctypes
+from pathlib import Path
+
 import numpy as np
 
 from types import SimpleNamespace
@@ -65,10 +68,30 @@ from typing import NamedTuple
 from ..constants import (ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN,
                          HYBRID_GIVE_UP_NODES, HYBRID_SDF_TOL, HYBRID_STRIDE)
 from ..errors import NeuralBakeError
+from ..nets.native import Kernel, threads
 from ..types import Mesh
 
 __all__ = ["HybridFallback", "HybridBand", "unfaithful", "colour_difference", "colour_psnr", "colour_budget",
-           "HYBRID_DECISIONS"]
+           "HYBRID_DECISIONS", "kernel_status", "ENV_SWITCH"]
+
+#: 0/off/false: the numpy ring even where the C kernel (hybrid.c) builds (A/B checks).
+ENV_SWITCH = "NEURAL_BAKE_NATIVE_HYBRID"
+
+
+def _declare(lib) -> None:
+    p, i64 = ctypes.c_void_p, ctypes.c_int64
+    lib.nb_near.argtypes = [p, p, i64, i64, p, i64, p, i64, p, i64, i64, p, i64]
+    lib.nb_near.restype = ctypes.c_int
+
+
+#: The C kernel (hybrid.c, :class:`neural_bake.nets.native.Kernel`; the candidates on torch's OpenMP team where it
+#: shares it); numpy where it does not build.
+KERNEL = Kernel(Path(__file__).with_name("hybrid.c"), switch=ENV_SWITCH, declare=_declare, openmp=True)
+
+
+def kernel_status() -> str:
+    """Which ring search of the hybrid runs here: the C kernel (and its file), or why numpy does."""
+    return KERNEL.status()
 
 #: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
 HYBRID_DECISIONS = ("lattice", "all")
@@ -347,7 +370,8 @@ class HybridFallback:
         ``side`` ((M,) the band's interpolation cell sides), within their own cell's side (at most ``reach``).
         Counted in texels (a reach of k positions is ⌈k / s⌉ + 1 texels at supersample s). Blocks of the
         largest reach in texels first rule out the candidates with no seed in their own or a neighbouring block;
-        the others are counted exactly from the seeds' integral image, four lookups a candidate."""
+        the others are counted exactly from the seeds' integral image, four lookups a candidate. By the C kernel
+        (hybrid.c: every candidate looked up) where it builds."""
         if not len(seeds) or not len(candidates):
             return np.zeros(len(candidates), dtype=bool)
         from .adaptive import _integral
@@ -357,6 +381,17 @@ class HybridFallback:
         h = int(pix[:, 0].max()) - r0 + 1
         w = int(texels.size[1])
         s = max(1, int(getattr(texels, "supersample", 1)))
+        lib = KERNEL.lib()
+        if lib is not None:
+            found = np.zeros(len(candidates), dtype=np.uint8)
+            row = np.ascontiguousarray(pix[:, 0], dtype=np.int64) - r0
+            col = np.ascontiguousarray(pix[:, 1], dtype=np.int64)
+            own = None if side is None else np.ascontiguousarray(side, dtype=np.int16)
+            seeds, candidates = (np.ascontiguousarray(a, dtype=np.int64) for a in (seeds, candidates))
+            if lib.nb_near(row.ctypes.data, col.ctypes.data, h, w, seeds.ctypes.data, len(seeds),
+                           candidates.ctypes.data, len(candidates), None if own is None else own.ctypes.data,
+                           self.reach, s, found.ctypes.data, threads()):
+                return found.view(bool)
         block = -(-self.reach // s) + 1  # the largest reach in texels: a seed that near is in a neighbouring block
         rows, cols = pix[:, 0] - r0, pix[:, 1]
         seed_blocks = np.zeros((-(-h // block) + 2, -(-w // block) + 2), dtype=bool)  # a ring of empty blocks

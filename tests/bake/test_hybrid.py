@@ -281,12 +281,20 @@ def test_decision_points_of_interpolated_samples_are_decided():
     assert hybrid.summary()["decided"] > decide.sum()  # and the ring around them
 
 
+@pytest.mark.parametrize("path", ["kernel", "numpy"])
 @pytest.mark.parametrize("supersample", [1, 2])
 @pytest.mark.parametrize("h, w, reach", [(40, 56, 16), (150, 170, 4)])
-def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(supersample, h, w, reach, rng):
-    """The ring around unfaithful nodes against brute force: Chebyshev distance in texels at most ⌈reach / s⌉ + 1,
-    reach the candidate's own cell side (at most the hybrid's reach; the reach where the side is 0 or unknown).
-    On the larger grid most blocks hold no seed: the block test rules their candidates out."""
+def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(path, supersample, h, w, reach, rng, monkeypatch):
+    """The ring around unfaithful nodes against brute force, by the C kernel (hybrid.c) and by numpy: Chebyshev
+    distance in texels at most ⌈reach / s⌉ + 1, reach the candidate's own cell side (at most the hybrid's reach; the
+    reach where the side is 0 or unknown). On the larger grid most blocks hold no seed: numpy's block test rules their
+    candidates out."""
+    from neural_bake.bake import hybrid as hybrid_module
+
+    if path == "numpy":
+        monkeypatch.setattr(hybrid_module.KERNEL, "lib", lambda: None)
+    elif hybrid_module.KERNEL.lib() is None:
+        pytest.skip(hybrid_module.kernel_status())
     pix = np.stack(np.meshgrid(np.arange(3, 3 + h), np.arange(w), indexing="ij"), axis=-1).reshape(-1, 2)
     texels = SimpleNamespace(pixel=pix, size=(h + 24, w), supersample=supersample)
     seeds = rng.choice(len(pix), 6, replace=False)
