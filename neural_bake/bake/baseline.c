@@ -4,6 +4,8 @@
    nb_rays(points, normals, m, rays): the rays (2m, 6) float32 of m samples, origin the point, direction + the
    normal for the first m and − the normal for the next m. points, normals (m, 3) float64.
 
+   nb_rays_at(points, normals, index, n, rays): nb_rays of the rows index (n,) int64 of points and normals (M, 3).
+
    nb_pick_hits(t, prim, uv, m, cage, best_t, best_prim, best_uv, threads): per sample the nearer hit of its two
    rays (t, prim, uv as open3d's cast returns them for the 2m rays above: float32, uint32, (2m, 2) float32) that
    is finite and within cage, the + ray on a tie; best_t = +inf, best_prim = 0, best_uv = 0 where neither hits.
@@ -26,6 +28,18 @@ void nb_rays(const double *points, const double *normals, int64_t m, float *rays
             a[k] = b[k] = (float)points[3 * s + k];
             a[3 + k] = (float)normals[3 * s + k];
             b[3 + k] = (float)(-normals[3 * s + k]);
+        }
+    }
+}
+
+void nb_rays_at(const double *points, const double *normals, const int64_t *index, int64_t n, float *rays) {
+    for (int64_t s = 0; s < n; s++) {
+        const double *p = points + 3 * index[s], *q = normals + 3 * index[s];
+        float *a = rays + 6 * s, *b = rays + 6 * (n + s);
+        for (int k = 0; k < 3; k++) {
+            a[k] = b[k] = (float)p[k];
+            a[3 + k] = (float)q[k];
+            b[3 + k] = (float)(-q[k]);
         }
     }
 }

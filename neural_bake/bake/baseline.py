@@ -34,6 +34,8 @@ def _declare(lib) -> None:
     p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
     lib.nb_rays.argtypes = [p, p, i64, p]
     lib.nb_rays.restype = None
+    lib.nb_rays_at.argtypes = [p, p, p, i64, p]
+    lib.nb_rays_at.restype = None
     lib.nb_pick_hits.argtypes = [p, p, p, i64, f64, p, p, p, i64]
     lib.nb_pick_hits.restype = None
     lib.nb_shade.argtypes = [p, p, p, p, p, i64, f64, p, p, i64]
@@ -65,6 +67,15 @@ def _rays(lib, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
     rays = np.empty((2 * m, 6), dtype=np.float32)
     lib.nb_rays(_ptr(pts), _ptr(nrm), m, _ptr(rays))
+    return rays
+
+
+def _rays_at(lib, points: np.ndarray, normals: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """:func:`_rays` of the rows ``index`` (n,) of ``points`` and ``normals`` (M, 3), gathered by the C kernel."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    nrm = np.ascontiguousarray(normals, dtype=np.float64)
+    rays = np.empty((2 * len(index), 6), dtype=np.float32)
+    lib.nb_rays_at(_ptr(pts), _ptr(nrm), _ptr(index), len(index), _ptr(rays))
     return rays
 
 
@@ -129,7 +140,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
 
 
 def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None, scene=None,
-                  fine_normals: np.ndarray | None = None) -> dict:
+                  fine_normals: np.ndarray | None = None, index: np.ndarray | None = None) -> dict:
     """Mesh-to-mesh bake of ``fine`` onto the texel samples of ``coarse``.
 
     - ``coarse``: the mesh ``texels`` were rasterised on (``Baker.mesh``); its frame maps the texel points
@@ -143,6 +154,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
       default: built here (its time is ``seconds["setup"]``).
     - ``fine_normals``: ``fine``'s (V, 3) unit vertex normals (:func:`~neural_bake.geometry.vertex_normals`) to
       reuse; default: computed here.
+    - ``index``: (n,) the samples of ``texels`` to bake (default: all; the result then holds n rows).
 
     When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each
     sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or coincident face
@@ -160,25 +172,33 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     if fine.n_faces == 0:
         raise MeshError(f"{fine.name}: baseline: the fine mesh has no faces")
     t_all = time.perf_counter()
+    pick = (lambda a: a) if index is None else (lambda a: a[index])
     if getattr(texels, "face", None) is not None and getattr(texels, "bary", None) is not None \
             and same_surface(coarse, fine):
-        bary = np.asarray(texels.bary, dtype=np.float64)
+        bary = pick(np.asarray(texels.bary, dtype=np.float64))
         m = len(bary)
-        return _shade(fine, np.asarray(texels.face, dtype=np.int64), bary[:, 1:3], np.ones(m, dtype=bool),
+        return _shade(fine, pick(np.asarray(texels.face, dtype=np.int64)), bary[:, 1:3], np.ones(m, dtype=bool),
                       np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0}, fine_normals)
     o3d = import_open3d()
-    pts = np.asarray(texels.points, dtype=np.float64)
-    nrm = np.asarray(texels.normal, dtype=np.float64)
-    if coarse.frame != fine.frame:
-        pts = fine.frame.to_unit(coarse.frame.to_source(pts))
-    m = len(pts)
+    lib = KERNEL.lib()
     if scene is None:
         scene = raycasting_scene(fine)
     t_setup = time.perf_counter() - t_all
 
     t0 = time.perf_counter()
-    lib = KERNEL.lib()
-    res = scene.cast_rays(o3d.core.Tensor(_rays(lib, pts, nrm)))  # both directions in one cast
+    all_points = np.asarray(texels.points, dtype=np.float64)
+    pts: np.ndarray | None = None
+    if index is not None and lib is not None and coarse.frame == fine.frame:
+        index = np.ascontiguousarray(index, dtype=np.int64)
+        m = len(index)
+        rays = _rays_at(lib, all_points, np.asarray(texels.normal, dtype=np.float64), index)  # rows read in C
+    else:
+        pts = pick(all_points)
+        if coarse.frame != fine.frame:
+            pts = fine.frame.to_unit(coarse.frame.to_source(pts))
+        m = len(pts)
+        rays = _rays(lib, pts, pick(np.asarray(texels.normal, dtype=np.float64)))
+    res = scene.cast_rays(o3d.core.Tensor(rays))  # both directions in one cast
     best_t, prim, uvs = _pick_hits(lib, res["t_hit"].numpy(), res["primitive_ids"].numpy(),
                                    res["primitive_uvs"].numpy(), m, cage)
     hit = np.isfinite(best_t)
@@ -187,6 +207,9 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     t0 = time.perf_counter()
     dist = best_t.copy()
     if (~hit).any():
+        if pts is None:
+            pts = np.zeros((m, 3))
+            pts[~hit] = all_points[index[~hit]]
         q = o3d.core.Tensor(np.ascontiguousarray(pts[~hit], dtype=np.float32))
         res = scene.compute_closest_points(q)
         prim[~hit] = res["primitive_ids"].numpy()

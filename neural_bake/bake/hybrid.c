@@ -9,6 +9,7 @@
    candidate i's in both row and column (a square), else 0. The seeds' texels are counted from an integral image;
    the candidates split over an OpenMP team of `threads` where built with OpenMP. Returns 0 (out untouched) when
    its scratch cannot be allocated. */
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 
@@ -45,4 +46,45 @@ int nb_near(const int64_t *row, const int64_t *col, int64_t h, int64_t w, const 
     }
     free(sum);
     return 1;
+}
+
+/* nb_decide(idx, n, neural, valid, source_normals, cos_angle, points, values, source_points, to_x, to_p, near_dist,
+   est_tol, off, invalid, near, est, threads): the hybrid's per-sample rules before f at the source is needed, the C
+   kernel of HybridFallback._decide's angle and validity rules and _source_values' first-order estimate (numpy's
+   path is the reference). For sample i (band row idx[i]): invalid = !valid; off = !(neural . source_normal >=
+   cos_angle) (unit vectors); where neither holds and values is not NULL, the texel point x = points[idx] and the
+   source point p = source_points[i] are taken to the field's frame (to_x, to_p: {apply, s_m, c_m (3), s_f, c_f (3)}:
+   q = y / s_m + c_m, then (q - c_f) * s_f where apply is 1), est = values[idx] + neural . (p - x), and near = valid,
+   est finite, |p - x| < near_dist and |est| < est_tol. near = 0 and est = NaN elsewhere. neural, points (M, 3),
+   valid (M,) uint8, values (M,) float64; source_normals, source_points (n, 3); off, invalid, near (n,) uint8. */
+static inline void nb_frame(const double *y, const double *t, double *out) {
+    for (int k = 0; k < 3; k++) out[k] = t[0] != 0.0 ? ((y[k] / t[1] + t[2 + k]) - t[6 + k]) * t[5] : y[k];
+}
+
+void nb_decide(const int64_t *idx, int64_t n, const double *neural, const uint8_t *valid, const double *source_normals,
+               double cos_angle, const double *points, const double *values, const double *source_points,
+               const double *to_x, const double *to_p, double near_dist, double est_tol, uint8_t *off,
+               uint8_t *invalid, uint8_t *near, double *est, int64_t threads) {
+    (void)threads;
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && n >= NB_MT_MIN)
+#endif
+    for (int64_t i = 0; i < n; i++) {
+        const int64_t s = idx[i];
+        const double *g = neural + 3 * s, *q = source_normals + 3 * i;
+        const double cosine = (g[0] * q[0] + g[1] * q[1]) + g[2] * q[2];
+        invalid[i] = !valid[s];
+        off[i] = !(cosine >= cos_angle);
+        near[i] = 0;
+        est[i] = NAN;
+        if (invalid[i] || off[i] || values == NULL) continue;
+        double x[3], p[3], step[3];
+        nb_frame(points + 3 * s, to_x, x);
+        nb_frame(source_points + 3 * i, to_p, p);
+        for (int k = 0; k < 3; k++) step[k] = p[k] - x[k];
+        const double dist = sqrt((step[0] * step[0] + step[1] * step[1]) + step[2] * step[2]);
+        const double e = values[s] + ((g[0] * step[0] + g[1] * step[1]) + g[2] * step[2]);
+        est[i] = e;
+        near[i] = isfinite(e) && dist < near_dist && fabs(e) < est_tol;
+    }
 }

@@ -82,6 +82,9 @@ def _declare(lib) -> None:
     p, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.nb_near.argtypes = [p, p, i64, i64, p, i64, p, i64, p, i64, i64, p, i64]
     lib.nb_near.restype = ctypes.c_int
+    f64 = ctypes.c_double
+    lib.nb_decide.argtypes = [p, i64, p, p, p, f64, p, p, p, p, p, f64, f64, p, p, p, p, i64]
+    lib.nb_decide.restype = None
 
 
 #: The C kernel (hybrid.c, :class:`neural_bake.nets.native.Kernel`; the candidates on torch's OpenMP team where it
@@ -90,7 +93,8 @@ KERNEL = Kernel(Path(__file__).with_name("hybrid.c"), switch=ENV_SWITCH, declare
 
 
 def kernel_status() -> str:
-    """Which ring search of the hybrid runs here: the C kernel (and its file), or why numpy does."""
+    """Which ring search and per-sample rules of the hybrid run here: the C kernel (and its file), or why numpy
+    does."""
     return KERNEL.status()
 
 #: Where a hybrid bake decides: at every sample, or on the adaptive lattice (module docstring).
@@ -292,17 +296,22 @@ class HybridFallback:
 
     def _source_values(self, coarse: Mesh, texels, idx: np.ndarray, source_points: np.ndarray,
                        normals: np.ndarray, values: np.ndarray | None, valid: np.ndarray,
-                       share: float = 0.5) -> np.ndarray:
+                       share: float = 0.5, estimate: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """f at the source points of the samples ``idx``: estimated to first order from ``values`` (f at
         the texel points, None: not known) and the unit ``normals`` where that is safe (module docstring; the
         estimate must stay under ``share`` · sdf_tol), the field's forward pass elsewhere and at a seeded check
-        subsample of the estimated ones."""
+        subsample of the estimated ones. ``estimate``: (where safe, the estimate), as :meth:`_rules_native`
+        gives them, instead of computing them here."""
         from .baker import _to_field_frame
 
         f = np.empty(len(idx))
         near = np.zeros(len(idx), dtype=bool)
         check = np.zeros(len(idx), dtype=bool)
-        if values is not None:
+        if estimate is not None:
+            near, est = np.asarray(estimate[0], dtype=bool), estimate[1]
+            check[near] = self._check_mask(idx[near], 2)
+            f[near] = est[near]
+        elif values is not None:
             x = _to_field_frame(np.asarray(texels.points)[idx], coarse.frame, self.sdf.frame)
             p = _to_field_frame(np.asarray(source_points, dtype=np.float64), self.fine.frame, self.sdf.frame)
             step = p - x
@@ -319,6 +328,44 @@ class HybridFallback:
         self.estimate["missed"] += int((check & ~(np.abs(f) <= self.sdf_tol)).sum())
         return f
 
+    def _rules_native(self, lib, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
+                      values: np.ndarray | None, b: dict, share: float) -> tuple[np.ndarray, ...]:
+        """(off, invalid, near, est) (n,) of the samples ``idx`` by the C kernel (hybrid.c ``nb_decide``): the angle
+        and validity rules (:func:`unfaithful`) and, where neither replaces a sample, :meth:`_source_values`'
+        first-order estimate of f at its source point (``b["points"]``) and whether it is safe."""
+        def frame(mesh_frame) -> np.ndarray:  # _to_field_frame's map: (y / s_m + c_m − c_f) · s_f, or none
+            f = self.sdf.frame
+            if f is None or f == mesh_frame:
+                return np.zeros(9)
+            return np.array([1.0, mesh_frame.scale, *mesh_frame.center, f.scale, *f.center], dtype=np.float64)
+
+        n = len(idx)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        ok = np.ascontiguousarray(valid, dtype=bool).view(np.uint8)
+        source_n = np.ascontiguousarray(b["normals"], dtype=np.float64)
+        source_p = np.ascontiguousarray(b["points"], dtype=np.float64)
+        pts = np.ascontiguousarray(texels.points, dtype=np.float64)
+        val = None if values is None else np.ascontiguousarray(values, dtype=np.float64)
+        to_x, to_p = frame(coarse.frame), frame(self.fine.frame)
+        off, invalid, near = (np.zeros(n, dtype=np.uint8) for _ in range(3))
+        est = np.empty(n)
+        lib.nb_decide(idx.ctypes.data, n, nrm.ctypes.data, ok.ctypes.data, source_n.ctypes.data,
+                      float(np.cos(np.radians(self.angle_deg))), pts.ctypes.data, None if val is None else val.ctypes.data,
+                      source_p.ctypes.data, to_x.ctypes.data, to_p.ctypes.data, 0.5 * self.sdf_tol, share * self.sdf_tol,
+                      off.ctypes.data, invalid.ctypes.data, near.ctypes.data, est.ctypes.data, threads())
+        return off.view(bool), invalid.view(bool), near.view(bool), est
+
+    def _baseline(self, coarse: Mesh, texels, idx: np.ndarray) -> dict:
+        """The classical bake of the samples ``idx`` of the band ``texels`` (rays, or each sample's own face and
+        barycentrics on a bake onto the source)."""
+        from .baseline import baseline_bake, same_surface
+
+        own = same_surface(coarse, self.fine)
+        sub = texels if own else SimpleNamespace(points=texels.points, normal=texels.normal, face=None, bary=None)
+        return baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals,
+                             index=idx)
+
     def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
                 base: dict | None, colors: np.ndarray | None = None,
                 values: np.ndarray | None = None, share: float = 0.5) -> tuple[dict, dict]:
@@ -326,22 +373,26 @@ class HybridFallback:
         With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful;
         with ``values`` (f at the texel points), f at the source is estimated where safe (``share``:
         :meth:`_source_values`)."""
-        from .baseline import baseline_bake, same_surface
 
         if base is None:
-            own = same_surface(coarse, self.fine)  # each sample's own face and barycentrics, no rays
-            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
-                                  face=np.asarray(texels.face)[idx] if own else None,
-                                  bary=np.asarray(texels.bary)[idx] if own else None)
-            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals)
+            b = self._baseline(coarse, texels, idx)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
         # the angle and validity rules first: f at the source is needed only where neither replaces the sample
-        why = unfaithful(np.zeros(len(idx)), normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol,
-                         angle_deg=self.angle_deg)
+        lib = KERNEL.lib()
+        estimate = None
+        if lib is not None:
+            off, invalid, near, est = self._rules_native(lib, coarse, texels, idx, normals, valid, values, b, share)
+            why = {"mask": off | invalid, "sdf": np.zeros(len(idx), dtype=bool), "angle": off & ~invalid,
+                   "invalid": invalid}
+        else:
+            why = unfaithful(np.zeros(len(idx)), normals[idx], b["normals"], valid[idx], sdf_tol=self.sdf_tol,
+                             angle_deg=self.angle_deg)
         tested = np.flatnonzero(~why["mask"])
-        f_surf = self._source_values(coarse, texels, idx[tested], b["points"][tested], normals, values, valid, share) \
-            if len(tested) else np.zeros(0)
+        if lib is not None and values is not None:
+            estimate = (near[tested], est[tested])
+        f_surf = self._source_values(coarse, texels, idx[tested], b["points"][tested], normals, values, valid, share,
+                                     estimate) if len(tested) else np.zeros(0)
         self.f_abs.append(np.abs(f_surf))
         far = np.zeros(len(idx), dtype=bool)
         far[tested] = far_from_surface(f_surf, self.sdf_tol)
@@ -475,14 +526,8 @@ class HybridFallback:
         """(reasons, classical bake) of samples ``idx`` whose normals are replaced without a decision (given-up
         cells' samples); their ``colors`` (the band's (M, C), None: not decided) by the colour rules, as anywhere
         (what they keep is as close to the source's). Rays cast unless ``base`` holds the band's classical bake."""
-        from .baseline import baseline_bake, same_surface
-
         if base is None:
-            own = same_surface(coarse, self.fine)
-            sub = SimpleNamespace(points=np.asarray(texels.points)[idx], normal=np.asarray(texels.normal)[idx],
-                                  face=np.asarray(texels.face)[idx] if own else None,
-                                  bary=np.asarray(texels.bary)[idx] if own else None)
-            b = baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals)
+            b = self._baseline(coarse, texels, idx)
         else:
             b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
         n = len(idx)

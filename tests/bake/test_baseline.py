@@ -150,6 +150,20 @@ def test_native_kernel_matches_the_numpy_path(coarse_texels, monkeypatch):
         for k in ("normals", "points", "hit", "distance"):
             np.testing.assert_array_equal(native[k], ref[k])
     assert ref["fallback"] > 0  # the small cage left some samples to the closest point
+    # some samples by index: what the same samples gathered give, with the kernel (rows read in C) and numpy
+    from types import SimpleNamespace
+
+    idx = np.random.default_rng(2).choice(tx.n_samples, 400, replace=False)
+    sub = SimpleNamespace(points=np.asarray(tx.points)[idx], normal=np.asarray(tx.normal)[idx])
+    for use_kernel in (True, False):
+        with monkeypatch.context() as mp:
+            if not use_kernel:
+                mp.setattr(baseline.KERNEL, "lib", lambda: None)
+            at = baseline_bake(coarse, fine, tx, cage=0.015, index=idx)
+            gathered = baseline_bake(coarse, fine, sub, cage=0.015)
+        assert at["fallback"] == gathered["fallback"] > 0
+        for k in ("normals", "points", "hit", "distance"):
+            np.testing.assert_array_equal(at[k], gathered[k])
 
     rng = np.random.default_rng(3)
     m = 1000

@@ -144,6 +144,49 @@ def test_field_frame_is_honoured():
     assert hybrid.counts["replaced"] == 0 and hybrid.summary()["f_at_source"]["max"] < 4e-3
 
 
+@pytest.mark.parametrize("scale", [1.0, 2.0])  # 2: the field in another unit frame, its points mapped there
+def test_native_rules_decide_as_the_numpy_path(scale, monkeypatch):
+    """The C kernel of the per-sample rules (hybrid.c ``nb_decide``: the angle and validity rules, the first-order
+    estimate of f at the source and where it is safe) decides as numpy does: the same reasons, the same f at the
+    source points to rounding, on a bumped sphere whose bump is off by more than the angle and whose side is off
+    by more than the distance, with invalid samples, and with f at the texels known."""
+    import torch
+
+    from neural_bake.bake import hybrid as hybrid_module
+    from neural_bake.types import Frame
+
+    if hybrid_module.KERNEL.lib() is None:
+        pytest.skip(hybrid_module.kernel_status())
+    coarse = unwrap(ico(4), resolution=128)  # near the source: short rays, the estimate used
+    bump = bumped_sphere_field(radius=R * scale, centre=(0.0, 0.0, R * scale)).fn
+
+    def f(p):  # and off by 0.03 where x > 0.3 (the field's surface inside the source there, its normals right)
+        return bump(p) - 0.03 * scale * (p[:, 0] > 0.3 * scale).to(p.dtype)
+
+    field = SdfField(f, frame=Frame((0.0, 0.0, 0.0), scale) if scale != 1.0 else None)
+    tx = Baker(coarse, 96).texels
+    m = tx.n_samples
+    pts = torch.as_tensor(np.asarray(tx.points) * scale)
+    values, normals, valid = (a.detach().numpy().astype(np.float64) for a in field.value_and_normal(pts))
+    valid = valid.astype(bool)
+    valid[::97] = False
+    idx = np.arange(0, m, 3)
+    out = {}
+    for path in ("kernel", "numpy"):
+        hybrid = HybridFallback(ico(5), field)
+        with monkeypatch.context() as mp:
+            if path == "numpy":
+                mp.setattr(hybrid_module.KERNEL, "lib", lambda: None)
+            why, _ = hybrid._decide(coarse, tx, idx, normals, valid, None, values=values)
+        out[path] = (why, np.concatenate(hybrid.f_abs), dict(hybrid.estimate))
+    (why_k, f_k, est_k), (why_n, f_n, est_n) = out["kernel"], out["numpy"]
+    for k in ("mask", "sdf", "angle", "invalid"):
+        np.testing.assert_array_equal(why_k[k], why_n[k])
+    assert why_k["angle"].sum() > 10 and why_k["sdf"].sum() > 0 and why_k["invalid"].sum() > 0
+    np.testing.assert_allclose(f_k, f_n, rtol=0, atol=1e-15)
+    assert est_k == est_n and est_k["estimated"] > 0
+
+
 def bumped_sphere_field(radius=R, centre=(0.0, 0.0, R), height=0.06, width=0.2):
     """A sphere SDF with a bump of ``height`` over a cap of about ``width`` around ``centre``: off the true
     sphere (|f| at its surface up to ``height``) there, exact elsewhere."""
