@@ -281,8 +281,8 @@ def adaptive_evaluate(
     todo = np.zeros(m, bool)
 
     def run(idx: np.ndarray) -> None:
+        idx = idx[~store.evaluated[idx]]
         todo[idx] = True  # a mask, not np.unique: linear in the band, no sort
-        todo[store.evaluated] = False
         idx = np.flatnonzero(todo)
         todo[idx] = False
         if idx.size == 0:

@@ -4,7 +4,8 @@
    nb_rays(points, normals, m, rays): the rays (2m, 6) float32 of m samples, origin the point, direction + the
    normal for the first m and − the normal for the next m. points, normals (m, 3) float64.
 
-   nb_rays_at(points, normals, index, n, rays): nb_rays of the rows index (n,) int64 of points and normals (M, 3).
+   nb_rays_at(points, normals, index, n, rays, threads): nb_rays of the rows index (n,) int64 of points and normals
+   (M, 3), the samples over an OpenMP team of `threads` where built with OpenMP.
 
    nb_pick_hits(t, prim, uv, m, cage, best_t, best_prim, best_uv, threads): per sample the nearer hit of its two
    rays (t, prim, uv as open3d's cast returns them for the 2m rays above: float32, uint32, (2m, 2) float32) that
@@ -32,7 +33,12 @@ void nb_rays(const double *points, const double *normals, int64_t m, float *rays
     }
 }
 
-void nb_rays_at(const double *points, const double *normals, const int64_t *index, int64_t n, float *rays) {
+void nb_rays_at(const double *points, const double *normals, const int64_t *index, int64_t n, float *rays,
+                int64_t threads) {
+    (void)threads;
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(threads > 1 ? (int)threads : 1) if(threads > 1 && n >= NB_MT_MIN)
+#endif
     for (int64_t s = 0; s < n; s++) {
         const double *p = points + 3 * index[s], *q = normals + 3 * index[s];
         float *a = rays + 6 * s, *b = rays + 6 * (n + s);

@@ -34,7 +34,7 @@ def _declare(lib) -> None:
     p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
     lib.nb_rays.argtypes = [p, p, i64, p]
     lib.nb_rays.restype = None
-    lib.nb_rays_at.argtypes = [p, p, p, i64, p]
+    lib.nb_rays_at.argtypes = [p, p, p, i64, p, i64]
     lib.nb_rays_at.restype = None
     lib.nb_pick_hits.argtypes = [p, p, p, i64, f64, p, p, p, i64]
     lib.nb_pick_hits.restype = None
@@ -75,7 +75,7 @@ def _rays_at(lib, points: np.ndarray, normals: np.ndarray, index: np.ndarray) ->
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
     rays = np.empty((2 * len(index), 6), dtype=np.float32)
-    lib.nb_rays_at(_ptr(pts), _ptr(nrm), _ptr(index), len(index), _ptr(rays))
+    lib.nb_rays_at(_ptr(pts), _ptr(nrm), _ptr(index), len(index), _ptr(rays), threads())
     return rays
 
 
