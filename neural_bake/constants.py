@@ -201,10 +201,11 @@ HYBRID_CHECK_MIN = 256
 #: this many positions (1: every evaluated sample first).
 HYBRID_STRIDE = 2
 
-#: Hybrid bake on the adaptive lattice: a cell that fails its tests and has at least this many of its 9 nodes found
-#: unfaithful is given up to the classical bake (all its texels take the classical normal and colour) instead of
-#: refined. On the ogre's 2048² map (`quick` SDF) 7 saves 122k of 905k evaluations for 18k more classical texels
-#: (0.7 %), 9 saves 79k for 2k (docs/findings.md, "Giving cells up to the classical bake").
+#: Hybrid bake on the adaptive lattice: a cell that fails its bilinear test and has at least this many of its 9 nodes
+#: found unfaithful is given up to the classical bake (all its texels take the classical normal; their colours go
+#: through the colour rules) instead of refined. On the ogre's 2048² map (`quick` SDF) 7 saves 157k of 905k
+#: evaluations for 14k more classical texels (0.5 %); 9 would save 79k (docs/findings.md, "cells given up to the
+#: classical bake").
 HYBRID_GIVE_UP_NODES = 7
 
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
