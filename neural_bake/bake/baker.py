@@ -30,8 +30,7 @@ from .adaptive import kernel_status as adaptive_kernel_status
 from .adaptive_faces import face_geometry
 from .baseline import kernel_status as classical_kernel_status
 from .hybrid import kernel_status as hybrid_kernel_status
-from .maps import (NORMAL_SPACES, Y_CONVENTIONS, _one_per_texel, encode_tangent_space, normal_map_from_sums,
-                   splat_into)
+from .maps import NORMAL_SPACES, Y_CONVENTIONS, encode_tangent_space, normal_map_from_sums, splat_into
 from .maps import kernel_status as encoding_kernel_status
 from .padding import PADDING_METHODS, pad_charts
 from .padding import kernel_status as padding_kernel_status
@@ -875,11 +874,11 @@ class _MapAccumulator:
         """Add to ``image`` (H, W) the number of samples at each pixel of ``pix`` (n, 2), all within ``rows``."""
         w = self.shape[1]
         flat = (np.asarray(pix[:, 0], dtype=np.int64) - rows[0]) * w + np.asarray(pix[:, 1], dtype=np.int64)
-        band = image[rows[0]: rows[1]].reshape(-1)  # a view: the image's rows are contiguous
-        if _one_per_texel(flat):  # each texel once (as rasterised, one sample per texel): a scatter
-            band[flat] += 1
+        counts = image[rows[0]: rows[1]].reshape(-1)  # a view: the image's rows are contiguous
+        if len(flat) and bool((flat[1:] > flat[:-1]).all()):  # each texel once, as rasterised: a scatter
+            counts[flat] += 1
         elif len(flat):
-            band += np.bincount(flat, minlength=len(band))
+            counts += np.bincount(flat, minlength=len(counts))
 
     def add(self, tx, band: _Band) -> None:
         values = band.values

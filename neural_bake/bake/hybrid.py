@@ -373,7 +373,6 @@ class HybridFallback:
         With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful;
         with ``values`` (f at the texel points), f at the source is estimated where safe (``share``:
         :meth:`_source_values`)."""
-
         if base is None:
             b = self._baseline(coarse, texels, idx)
         else:
