@@ -76,6 +76,21 @@ static double nb_blend_colour(const int64_t *node, const double *w, int nw, cons
     return sum;
 }
 
+/* Whether the blend of the nodes node[0..nw) with weights w at sample idx lies within the tolerances of the sample's
+   own fields: the unit normal within the squared chord chord2, f within value_tol, each colour channel within
+   color_tol (the cells' tests). */
+static int nb_blend_within(const int64_t *node, const double *w, int nw, int64_t idx, const double *points,
+                           const double *normals, const double *values, const double *colors, int64_t n_colors,
+                           double chord2, double value_tol, double color_tol, double direction_eps) {
+    double n[3], f, d2 = 0.0;
+    nb_blend_normal_value(node, w, nw, points + 3 * idx, points, normals, values, direction_eps, n, &f);
+    for (int c = 0; c < 3; c++) d2 += (n[c] - normals[3 * idx + c]) * (n[c] - normals[3 * idx + c]);
+    int good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
+    for (int64_t c = 0; c < n_colors && good; c++)
+        good = fabs(nb_blend_colour(node, w, nw, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
+    return good;
+}
+
 /* Sample idx takes the blend of the nodes node[0..nw) with weights w (nb_blend_normal_value, the colours
    nb_blend_colour); and is marked done, interpolated and valid. */
 static void nb_blend(const int64_t *node, const double *w, int nw, int64_t idx, const double *points, double *normals,
@@ -295,13 +310,10 @@ void nb_quadratic_test(const int64_t *nodes, const int64_t *tests, int64_t n_cel
         good = good && nb_quadratic_fit(node, points, extrapolate, direction_eps, inv);
         for (int i = 0; i < 4 && good; i++) {
             const int64_t idx = test[i];
-            double w[9], n[3], f, d2 = 0.0;
+            double w[9];
             nb_quadratic_weights(node, points, points + 3 * idx, inv, extrapolate, direction_eps, w);
-            nb_blend_normal_value(node, w, 9, points + 3 * idx, points, normals, values, direction_eps, n, &f);
-            for (int c = 0; c < 3; c++) d2 += (n[c] - normals[3 * idx + c]) * (n[c] - normals[3 * idx + c]);
-            good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
-            for (int64_t c = 0; c < n_colors && good; c++)
-                good = fabs(nb_blend_colour(node, w, 9, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
+            good = nb_blend_within(node, w, 9, idx, points, normals, values, colors, n_colors, chord2, value_tol,
+                                   color_tol, direction_eps);
         }
         ok[cell] = (uint8_t)good;
     }
@@ -330,15 +342,12 @@ void nb_surplus_test(const int64_t *nodes, int64_t n_cells, const double *points
         for (int j = 0; j < 9 && good; j++) good = valid[node[j]];
         for (int i = 0; i < 5 && good; i++) {
             const int64_t idx = node[mids[i]];
-            double t, u, n[3], f, d2 = 0.0;
+            double t, u;
             nb_coordinates(points + 3 * corner[0], points + 3 * corner[1], points + 3 * corner[2],
                            points + 3 * corner[3], points + 3 * idx, extrapolate, direction_eps, &t, &u);
             const double w[4] = {(1 - t) * (1 - u), (1 - t) * u, t * (1 - u), t * u};
-            nb_blend_normal_value(corner, w, 4, points + 3 * idx, points, normals, values, direction_eps, n, &f);
-            for (int c = 0; c < 3; c++) d2 += (n[c] - normals[3 * idx + c]) * (n[c] - normals[3 * idx + c]);
-            good = d2 <= chord2 && fabs(f - values[idx]) <= value_tol;
-            for (int64_t c = 0; c < n_colors && good; c++)
-                good = fabs(nb_blend_colour(corner, w, 4, colors, n_colors, c) - colors[n_colors * idx + c]) <= color_tol;
+            good = nb_blend_within(corner, w, 4, idx, points, normals, values, colors, n_colors, chord2, value_tol,
+                                   color_tol, direction_eps);
         }
         ok[cell] = (uint8_t)good;
     }
