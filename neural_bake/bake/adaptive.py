@@ -238,8 +238,7 @@ def adaptive_evaluate(
     dtype: torch.dtype = torch.float64,
     faces: FaceGeometry | None = None,
     evaluate_points: Callable[[np.ndarray, np.ndarray], dict] | None = None,
-    unfaithful: Callable[..., np.ndarray] | None = None,
-    give_up_nodes: int = 9,
+    give_up: Callable[..., np.ndarray] | None = None,
 ) -> dict:
     """Evaluate the fields at a band's samples adaptively (module docstring).
 
@@ -255,12 +254,11 @@ def adaptive_evaluate(
       invalid), "valid": (n,) bool, "colors": (n, C) or absent/None}``.
     - ``faces`` and ``evaluate_points`` ((points (n, 3), their faces (n,)) → the same dict): with both, the
       samples no cell covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
-    - ``unfaithful`` ((sample indices (n,), normals (M, 3), valid (M,), values (M,), colours (M, C) or None: the
-      band's fields so far) → (n,) bool) and ``give_up_nodes``: a hybrid bake's decision at evaluated samples
-      (:meth:`~neural_bake.bake.hybrid.HybridFallback.early`). A cell that fails the bilinear test with at least
-      ``give_up_nodes`` of its 9 nodes unfaithful is *given up*: not tested or refined further, its samples
-      interpolated bilinearly from its nodes (that ∇f is not what the map shows: the hybrid gives them the
-      classical bake's normal and colour) and returned in ``"given_up"``.
+    - ``give_up`` ((nodes (P, 9) sample indices of cells that failed the bilinear test, normals (M, 3), valid (M,),
+      values (M,), colours (M, C) or None: the band's fields so far) → (P,) bool): a hybrid bake's decision at
+      their nodes (:meth:`~neural_bake.bake.hybrid.HybridFallback.early`); a cell it says is mostly unfaithful is
+      *given up*: not tested or refined further, its samples interpolated bilinearly from its nodes (that ∇f is not
+      what the map shows: the hybrid gives them the classical bake's normal) and returned in ``"given_up"``.
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
@@ -350,9 +348,9 @@ def adaptive_evaluate(
                 run(nodes.reshape(-1))
                 acc[p] = _surplus_ok(store, points, nodes, opt, dtype)
                 fail = ~acc[p]
-                if unfaithful is not None and fail.any():  # mostly unfaithful: the classical bake's, not refined
-                    bad = unfaithful(nodes[fail].reshape(-1), store.normals, store.valid, store.values, store.colors)
-                    off = np.flatnonzero(fail)[np.asarray(bad, dtype=bool).reshape(-1, 9).sum(axis=1) >= give_up_nodes]
+                if give_up is not None and fail.any():  # mostly unfaithful: the classical bake's, not refined
+                    off = np.flatnonzero(fail)[np.asarray(give_up(nodes[fail], store.normals, store.valid,
+                                                                  store.values, store.colors), dtype=bool)]
                     if off.size:
                         gave.append((r0[p[off]], c0[p[off]], k))
                         given[p[off]] = True
@@ -383,25 +381,21 @@ def adaptive_evaluate(
                 keep = _box(s0, r0, c0, h) > 0
                 r0, c0 = r0[keep], c0[keep]
             k = h
-        # the nodes are all evaluated by now; the C kernel reads them from the store itself
-        lib = KERNEL.lib() if accepted else None
-        packed = _pack(store, points, None, dtype) if accepted and lib is None else None
-        for ar, ac, k, quad in accepted:
+        # the nodes are all evaluated by now; the C kernel reads them from the store itself. The given-up cells
+        # (bilinear) come after every accepted one: a sample an accepted cell covers keeps its interpolation
+        cells = accepted + [(ar, ac, k, False) for ar, ac, k in gave]
+        lib = KERNEL.lib() if cells else None
+        packed = _pack(store, points, None, dtype) if cells and lib is None else None
+        before = None
+        for i, (ar, ac, k, quad) in enumerate(cells):
+            if i == len(accepted):
+                before = store.interpolated.copy()
             if lib is not None:
                 _interpolate_native(lib, store, points, index, ar, ac, k, quadratic=quad)
             else:
                 (_interpolate_quadratic if quad else _interpolate)(store, packed, index, ar, ac, k)
             side[store.interpolated & (side == 0)] = k
-        if gave:  # after every accepted cell: a sample one of them covers keeps its interpolation
-            before = store.interpolated.copy()
-            lib = KERNEL.lib()
-            packed = _pack(store, points, None, dtype) if lib is None else None
-            for ar, ac, k in gave:
-                if lib is not None:
-                    _interpolate_native(lib, store, points, index, ar, ac, k)
-                else:
-                    _interpolate(store, packed, index, ar, ac, k)
-                side[store.interpolated & (side == 0)] = k
+        if before is not None:
             given_up = store.interpolated & ~before
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     decide = np.zeros(m, bool)

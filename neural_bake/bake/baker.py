@@ -358,11 +358,10 @@ class _ErrorControl:
             self._face_normals = self.baker.mesh.face_normals
         return self._face_normals[np.asarray(face, dtype=np.int64)]
 
-    def evaluate(self, tx, points: np.ndarray, normals: np.ndarray | None = None, unfaithful=None,
-                 give_up_nodes: int = 9) -> dict:
+    def evaluate(self, tx, points: np.ndarray, normals: np.ndarray | None = None, give_up=None) -> dict:
         """The fields at the band ``tx``'s ``points``; ``normals``: :meth:`face_normals` of its samples;
-        ``unfaithful`` and ``give_up_nodes``: a hybrid's early decision, for an adaptive bake
-        (:func:`~neural_bake.bake.adaptive.adaptive_evaluate`; its ``"given_up"`` samples are in the result)."""
+        ``give_up``: a hybrid's early decision, for an adaptive bake (:func:`~neural_bake.bake.adaptive.adaptive_evaluate`;
+        its ``"given_up"`` samples are in the result)."""
         b = self.baker
         if self.adaptive is None:
             ev = _evaluate(points, b.mesh.frame, self.fast_sdf, self.fast_tex, b.chunk_size, self.texture_at,
@@ -393,7 +392,7 @@ class _ErrorControl:
         res = adaptive_evaluate(tx, self._charts[np.asarray(tx.face, dtype=np.int64)], grid_positions(tx, b.mesh),
                                 at_samples, self.adaptive, vertices=self._vertices,
                                 dtype=self.dtype, faces=self._faces, evaluate_points=at_face_points,
-                                unfaithful=unfaithful, give_up_nodes=give_up_nodes)
+                                give_up=give_up)
         st = res["stats"]
         for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells", "given_up"):
             self.counts[k] += st[k]
@@ -710,8 +709,7 @@ class Baker:
             surface = control.face_normals(tx.face)
             early = hybrid.early(self.mesh, tx, textured=texture is not None) \
                 if adaptive is not None and hasattr(hybrid, "early") else None
-            ev = control.evaluate(tx, points, surface, unfaithful=early,
-                                  give_up_nodes=getattr(hybrid, "give_up_nodes", 9))
+            ev = control.evaluate(tx, points, surface, give_up=early)
             secs["sdf"] += ev["time_sdf"]
             secs["texture"] += ev["time_texture"]
             secs["adaptive"] += ev.get("time_adaptive", 0.0)

@@ -1,11 +1,9 @@
 /* The classical bake's per-sample work around the ray casts: the C kernel of neural_bake.bake.baseline (its numpy
    path is the reference; the tests hold the two to the same bits, both computing in the same order in float64).
 
-   nb_rays(points, normals, m, rays): the rays (2m, 6) float32 of m samples, origin the point, direction + the
-   normal for the first m and − the normal for the next m. points, normals (m, 3) float64.
-
-   nb_rays_at(points, normals, index, n, rays, threads): nb_rays of the rows index (n,) int64 of points and normals
-   (M, 3), the samples over an OpenMP team of `threads` where built with OpenMP.
+   nb_rays(points, normals, index, n, rays, threads): the rays (2n, 6) float32 of n samples, origin the point,
+   direction + the normal for the first n and - the normal for the next n; the samples the rows index (n,) int64 of
+   points, normals (M, 3) float64, or their first n rows where index is NULL.
 
    nb_pick_hits(t, prim, uv, m, cage, best_t, best_prim, best_uv, threads): per sample the nearer hit of its two
    rays (t, prim, uv as open3d's cast returns them for the 2m rays above: float32, uint32, (2m, 2) float32) that
@@ -18,29 +16,20 @@
 
    threads: the samples split over an OpenMP team of that many where built with OpenMP. */
 #include <math.h>
+#include <stddef.h>
 #include <stdint.h>
 
 #define NB_MT_MIN 16384
 
-void nb_rays(const double *points, const double *normals, int64_t m, float *rays) {
-    for (int64_t s = 0; s < m; s++) {
-        float *a = rays + 6 * s, *b = rays + 6 * (m + s);
-        for (int k = 0; k < 3; k++) {
-            a[k] = b[k] = (float)points[3 * s + k];
-            a[3 + k] = (float)normals[3 * s + k];
-            b[3 + k] = (float)(-normals[3 * s + k]);
-        }
-    }
-}
-
-void nb_rays_at(const double *points, const double *normals, const int64_t *index, int64_t n, float *rays,
-                int64_t threads) {
+void nb_rays(const double *points, const double *normals, const int64_t *index, int64_t n, float *rays,
+             int64_t threads) {
     (void)threads;
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(threads > 1 ? (int)threads : 1) if(threads > 1 && n >= NB_MT_MIN)
 #endif
     for (int64_t s = 0; s < n; s++) {
-        const double *p = points + 3 * index[s], *q = normals + 3 * index[s];
+        const int64_t row = index != NULL ? index[s] : s;
+        const double *p = points + 3 * row, *q = normals + 3 * row;
         float *a = rays + 6 * s, *b = rays + 6 * (n + s);
         for (int k = 0; k < 3; k++) {
             a[k] = b[k] = (float)p[k];

@@ -32,10 +32,8 @@ ENV_SWITCH = "NEURAL_BAKE_NATIVE_BASELINE"
 
 def _declare(lib) -> None:
     p, i64, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
-    lib.nb_rays.argtypes = [p, p, i64, p]
+    lib.nb_rays.argtypes = [p, p, p, i64, p, i64]
     lib.nb_rays.restype = None
-    lib.nb_rays_at.argtypes = [p, p, p, i64, p, i64]
-    lib.nb_rays_at.restype = None
     lib.nb_pick_hits.argtypes = [p, p, p, i64, f64, p, p, p, i64]
     lib.nb_pick_hits.restype = None
     lib.nb_shade.argtypes = [p, p, p, p, p, i64, f64, p, p, i64]
@@ -57,25 +55,20 @@ def _ptr(a: np.ndarray) -> int:
     return a.ctypes.data
 
 
-def _rays(lib, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(2M, 6) float32 rays of ``points`` (M, 3): along + ``normals`` (M, 3) for the first M, − for the next M."""
-    m = len(points)
+def _rays(lib, points: np.ndarray, normals: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
+    """(2n, 6) float32 rays of the rows ``index`` (n,) of ``points`` (M, 3) (None: all of them, n = M): along +
+    ``normals`` (M, 3) for the first n, − for the next n; the rows read by the C kernel itself where it builds."""
     if lib is None:
+        if index is not None:
+            points, normals = points[index], normals[index]
         return np.concatenate([np.concatenate([points, normals], axis=1),
                                np.concatenate([points, -normals], axis=1)]).astype(np.float32)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    rays = np.empty((2 * m, 6), dtype=np.float32)
-    lib.nb_rays(_ptr(pts), _ptr(nrm), m, _ptr(rays))
-    return rays
-
-
-def _rays_at(lib, points: np.ndarray, normals: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """:func:`_rays` of the rows ``index`` (n,) of ``points`` and ``normals`` (M, 3), gathered by the C kernel."""
-    pts = np.ascontiguousarray(points, dtype=np.float64)
-    nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    rays = np.empty((2 * len(index), 6), dtype=np.float32)
-    lib.nb_rays_at(_ptr(pts), _ptr(nrm), _ptr(index), len(index), _ptr(rays), threads())
+    rows = None if index is None else np.ascontiguousarray(index, dtype=np.int64)
+    n = len(pts) if rows is None else len(rows)
+    rays = np.empty((2 * n, 6), dtype=np.float32)
+    lib.nb_rays(_ptr(pts), _ptr(nrm), None if rows is None else _ptr(rows), n, _ptr(rays), threads())
     return rays
 
 
@@ -191,7 +184,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     if index is not None and lib is not None and coarse.frame == fine.frame:
         index = np.ascontiguousarray(index, dtype=np.int64)
         m = len(index)
-        rays = _rays_at(lib, all_points, np.asarray(texels.normal, dtype=np.float64), index)  # rows read in C
+        rays = _rays(lib, all_points, np.asarray(texels.normal, dtype=np.float64), index)  # rows read in C
     else:
         pts = pick(all_points)
         if coarse.frame != fine.frame:

@@ -356,10 +356,14 @@ class HybridFallback:
                       off.ctypes.data, invalid.ctypes.data, near.ctypes.data, est.ctypes.data, threads())
         return off.view(bool), invalid.view(bool), near.view(bool), est
 
-    def _baseline(self, coarse: Mesh, texels, idx: np.ndarray) -> dict:
-        """The classical bake of the samples ``idx`` of the band ``texels`` (rays, or each sample's own face and
-        barycentrics on a bake onto the source)."""
+    def _baseline(self, coarse: Mesh, texels, idx: np.ndarray, base: dict | None = None) -> dict:
+        """The classical bake of the samples ``idx`` of the band ``texels``: their rows of ``base`` (the band's kept
+        classical bake) where given, else rays (or each sample's own face and barycentrics on a bake onto the
+        source)."""
         from .baseline import baseline_bake, same_surface
+
+        if base is not None:
+            return {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
 
         own = same_surface(coarse, self.fine)
         sub = texels if own else SimpleNamespace(points=texels.points, normal=texels.normal, face=None, bary=None)
@@ -373,10 +377,7 @@ class HybridFallback:
         With ``colors`` (the band's neural colours), ``reasons["color"]`` holds the colours found unfaithful;
         with ``values`` (f at the texel points), f at the source is estimated where safe (``share``:
         :meth:`_source_values`)."""
-        if base is None:
-            b = self._baseline(coarse, texels, idx)
-        else:
-            b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
+        b = self._baseline(coarse, texels, idx, base)
         # the angle and validity rules first: f at the source is needed only where neither replaces the sample
         lib = KERNEL.lib()
         estimate = None
@@ -488,10 +489,11 @@ class HybridFallback:
 
     def early(self, coarse: Mesh, texels, *, textured: bool = False):
         """The decision at evaluated samples while an adaptive bake refines the band ``texels`` of ``coarse``: a
-        callable ``(sample indices (n,), normals (M, 3), valid (M,), values (M,), colours (M, C) or None) → (n,)
-        bool`` (the normal unfaithful by the rules of :meth:`__call__`; each sample decided once, its colour too), for
-        :func:`~neural_bake.bake.adaptive.adaptive_evaluate` to give up cells (``give_up_nodes``); the next call
-        for the band takes those decisions and its ``given_up`` samples. None where it does not apply: deciding
+        callable ``(cells' nodes (P, 9) sample indices, normals (M, 3), valid (M,), values (M,), colours (M, C) or
+        None: the band's fields so far) → (P,) bool``, True for the cells with at least ``give_up_nodes`` nodes whose
+        normal is unfaithful by the rules of :meth:`__call__` (each sample decided once, its colour too), which
+        :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up; the next call for the band takes those
+        decisions and its ``given_up`` samples. None where it does not apply: deciding
         "all", ``give_up_nodes`` 10, or colours baked that it does not decide (a given-up cell's colours would stay
         interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band."""
         from .baseline import baseline_bake
@@ -505,9 +507,9 @@ class HybridFallback:
         state = SimpleNamespace(texels=texels, decided=np.zeros(m, bool), bad=np.zeros(m, bool), parts=[], base=base)
         self._early = state
 
-        def unfaithful(idx, normals, valid, values, colors):
-            idx = np.asarray(idx, dtype=np.int64)
-            fresh = np.unique(idx[~state.decided[idx]])
+        def give_up(nodes, normals, valid, values, colors):
+            nodes = np.asarray(nodes, dtype=np.int64)
+            fresh = np.unique(nodes[~state.decided[nodes]])
             if fresh.size:
                 col = np.asarray(colors, dtype=np.float64) if colors is not None and self.decides_colours else None
                 why, b = self._decide(coarse, texels, fresh, np.asarray(normals, dtype=np.float64),
@@ -516,19 +518,16 @@ class HybridFallback:
                 state.parts.append((fresh, why, b))
                 state.decided[fresh] = True
                 state.bad[fresh] = why["mask"]  # the normal's rules: a cell is given up where the SDF is unfaithful
-            return state.bad[idx]
+            return state.bad[nodes].sum(axis=1) >= self.give_up_nodes
 
-        return unfaithful
+        return give_up
 
     def _classical(self, coarse: Mesh, texels, idx: np.ndarray, colors: np.ndarray | None,
                    base: dict | None) -> tuple[dict, dict]:
         """(reasons, classical bake) of samples ``idx`` whose normals are replaced without a decision (given-up
         cells' samples); their ``colors`` (the band's (M, C), None: not decided) by the colour rules, as anywhere
         (what they keep is as close to the source's). Rays cast unless ``base`` holds the band's classical bake."""
-        if base is None:
-            b = self._baseline(coarse, texels, idx)
-        else:
-            b = {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
+        b = self._baseline(coarse, texels, idx, base)
         n = len(idx)
         why = {"mask": np.ones(n, bool), "sdf": np.zeros(n, bool), "angle": np.zeros(n, bool),
                "invalid": np.zeros(n, bool)}
@@ -611,8 +610,8 @@ class HybridFallback:
         if len(rest):
             found = mask if color_mask is None else mask | color_mask
             if given_up is not None:
-                found = found & ~np.asarray(given_up, dtype=bool)  # decided unfaithful, not given up
-            near = self._near(texels, np.flatnonzero(found & decided), rest, side)
+                found = found & ~np.asarray(given_up, dtype=bool)  # found unfaithful by a decision, not given up
+            near = self._near(texels, np.flatnonzero(found), rest, side)
             ring = rest[near]
             if len(ring):  # f at their points is the bake's interpolation: half the estimate's room for its error
                 take(ring, *self._decide(coarse, texels, ring, normals, valid, base, colors, values=values,

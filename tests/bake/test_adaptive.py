@@ -282,8 +282,8 @@ def test_side_four_cells_that_fail_bilinear_pass_quadratic_at_no_extra_cost(monk
                                                                                      axis=1, keepdims=True))
 
 def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
-    """A hybrid's early decision (``unfaithful``): a failing cell with at least ``give_up_nodes`` of its 9 nodes
-    unfaithful is neither tested nor refined; its samples are interpolated from its nodes and returned as given up.
+    """A hybrid's early decision (``give_up``, here: at least 7 of a failing cell's 9 nodes unfaithful): a cell it
+    gives up is neither tested nor refined; its samples are interpolated from its nodes and returned as given up.
     Here every node in the band's left half is unfaithful: cells there are given up (fewer evaluations, each cell
     whole and none of its samples evaluated but its nodes), the right half refines as without a decision, and a
     decision that finds nothing unfaithful changes nothing."""
@@ -297,12 +297,12 @@ def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
         return cols[idx] < 32
 
     plain = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
-    none = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, unfaithful=lambda idx, *a: np.zeros(len(idx), bool),
-                             give_up_nodes=7)
+    none = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, give_up=lambda nodes, *a: np.zeros(len(nodes), bool))
     for k in ("evaluated", "interpolated", "normals"):
         np.testing.assert_array_equal(plain[k], none[k])
     assert not none["given_up"].any() and none["stats"]["given_up"] == 0
-    res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, unfaithful=left_half, give_up_nodes=7)
+    res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt,
+                            give_up=lambda nodes, *a: left_half(nodes.reshape(-1), *a).reshape(-1, 9).sum(axis=1) >= 7)
     given = res["given_up"]
     assert res["stats"]["given_up"] == given.sum() > 0 and res["stats"]["cells_given_up"]
     assert res["stats"]["evaluated"] < plain["stats"]["evaluated"]
