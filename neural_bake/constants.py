@@ -208,6 +208,13 @@ HYBRID_STRIDE = 2
 #: classical bake").
 HYBRID_GIVE_UP_NODES = 7
 
+#: Hybrid bake on the adaptive lattice: a cell of at most this side (sample-grid positions) that fails its
+#: interpolation test, all of whose 9 nodes' classical rays hit the source, is given up to the classical bake
+#: (reason "detail"): the fields vary faster than the lattice holds there, every texel would be evaluated one by
+#: one, and the classical normal costs a fifth of a (256, 3) network's evaluation and is the source's own.
+#: 0: never. docs/findings.md, "Detail cells to the classical bake".
+HYBRID_DETAIL_SIDE = 8
+
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------
 #: Default tolerance (degrees) of adaptive texel evaluation: a cell of the lattice is interpolated only when
 #: the normals at its edge midpoints and centre lie within ADAPTIVE_SAFETY times this of what its corners

@@ -255,7 +255,8 @@ def adaptive_evaluate(
     - ``faces`` and ``evaluate_points`` ((points (n, 3), their faces (n,)) → the same dict): with both, the
       samples no cell covers are interpolated inside their faces where the fields allow (:mod:`.adaptive_faces`).
     - ``give_up`` ((nodes (P, 9) sample indices of cells that failed the bilinear test, normals (M, 3), valid (M,),
-      values (M,), colours (M, C) or None: the band's fields so far) → (P,) bool): a hybrid bake's decision at
+      values (M,), colours (M, C) or None: the band's fields so far; keyword ``side``: the cells' side) → (P,)
+      bool): a hybrid bake's decision at
       their nodes (:meth:`~neural_bake.bake.hybrid.HybridFallback.early`); a cell it says is mostly unfaithful is
       *given up*: not tested or refined further, its samples interpolated bilinearly from its nodes (that ∇f is not
       what the map shows: the hybrid gives them the classical bake's normal) and returned in ``"given_up"``.
@@ -350,7 +351,7 @@ def adaptive_evaluate(
                 fail = ~acc[p]
                 if give_up is not None and fail.any():  # mostly unfaithful: the classical bake's, not refined
                     off = np.flatnonzero(fail)[np.asarray(give_up(nodes[fail], store.normals, store.valid,
-                                                                  store.values, store.colors), dtype=bool)]
+                                                                  store.values, store.colors, side=k), dtype=bool)]
                     if off.size:
                         gave.append((r0[p[off]], c0[p[off]], k))
                         given[p[off]] = True

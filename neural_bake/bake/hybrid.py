@@ -51,6 +51,10 @@ classical normal without being evaluated or decided (their colours, interpolated
 colour rules as any other). Where the field is unfaithful the bake spends no evaluations on samples that would
 take the classical normal anyway; a given-up cell's few faithful samples take it too (the classical normal is the
 source's, so no texel gets further from it). The reports' figures of the fields alone leave those samples out.
+In a bake without colours, a failing cell no wider than ``detail_side`` (:data:`~neural_bake.constants.HYBRID_DETAIL_SIDE`)
+whose 9 nodes' classical rays all hit the source is given up too (a *detail* cell; its nodes take the classical
+normal as well): the fields vary faster than the lattice holds there, so every sample would be evaluated one by one,
+at several times a ray's cost, for a normal further from the source's than the rays find.
 
 :class:`HybridFallback` is what :meth:`neural_bake.bake.baker.Baker.bake` calls per band of texel samples.
 """
@@ -66,7 +70,7 @@ from types import SimpleNamespace
 from typing import NamedTuple
 
 from ..constants import (ADAPTIVE_LATTICE, HYBRID_ANGLE_DEG, HYBRID_CHECK_FRACTION, HYBRID_CHECK_MIN,
-                         HYBRID_GIVE_UP_NODES, HYBRID_SDF_TOL, HYBRID_STRIDE)
+                         HYBRID_DETAIL_SIDE, HYBRID_GIVE_UP_NODES, HYBRID_SDF_TOL, HYBRID_STRIDE)
 from ..errors import NeuralBakeError
 from ..nets.native import Kernel, threads
 from ..types import Mesh
@@ -207,7 +211,8 @@ class HybridFallback:
       against a classical transfer into a ``color_bits``-bit map (:func:`colour_budget`) (all None: colours are
       not decided). Need ``fine`` with UVs and a texture.
     - ``give_up_nodes``: of a failing cell's 9 nodes, how many unfaithful ones give it up (module docstring; 10:
-      never).
+      never); ``detail_side``: the widest failing cell given up where the classical rays hit at all its nodes
+      (module docstring; 0: never).
 
     Called as ``fallback(coarse, texels, normals, valid, evaluated, colors=None)`` with the coarse mesh the
     texels lie on, a :class:`~neural_bake.mesh.texels.TexelSet` band, its (M, 3) unit ∇f, (M,) valid mask,
@@ -224,7 +229,8 @@ class HybridFallback:
                  cage: float | None = None, keep_baseline: bool = False, chunk_size: int = 1 << 16,
                  decide: str = "lattice", reach: int = ADAPTIVE_LATTICE, stride: int = HYBRID_STRIDE, seed: int = 0,
                  color_tol: float | None = None, color_psnr: float | None = None,
-                 color_within: float | None = None, color_bits: int = 8, give_up_nodes: int = HYBRID_GIVE_UP_NODES):
+                 color_within: float | None = None, color_bits: int = 8, give_up_nodes: int = HYBRID_GIVE_UP_NODES,
+                 detail_side: int = HYBRID_DETAIL_SIDE):
         if not (np.isfinite(sdf_tol) and sdf_tol > 0):
             raise NeuralBakeError(f"hybrid sdf_tol must be a positive distance, got {sdf_tol!r}", parameter="sdf_tol")
         if not (np.isfinite(angle_deg) and 0 < angle_deg <= 180):
@@ -249,6 +255,9 @@ class HybridFallback:
         if isinstance(give_up_nodes, bool) or int(give_up_nodes) != give_up_nodes or not 1 <= give_up_nodes <= 10:
             raise NeuralBakeError(f"hybrid give_up_nodes must be an integer from 1 to 9 (10: never), got {give_up_nodes!r}",
                                   parameter="give_up_nodes")
+        if isinstance(detail_side, bool) or int(detail_side) != detail_side or detail_side < 0:
+            raise NeuralBakeError(f"hybrid detail_side must be a non-negative integer (0: never), got {detail_side!r}",
+                                  parameter="detail_side")
         if color_bits not in (8, 16):
             raise NeuralBakeError(f"hybrid color_bits must be 8 or 16, got {color_bits!r}", parameter="color_bits")
         rules = {"color_tol": color_tol, "color_psnr": color_psnr, "color_within": color_within}
@@ -267,13 +276,14 @@ class HybridFallback:
         self.color_within = None if color_within is None else float(color_within)
         self.color_bits = int(color_bits)
         self.give_up_nodes = int(give_up_nodes)
+        self.detail_side = int(detail_side)
         self._early: SimpleNamespace | None = None
         self.decides_colours = bool(given)
         self.scene = raycasting_scene(fine)
         self.fine_normals = vertex_normals(fine)  # shared by every band's classical shading
         self.baselines: list[dict] = []
         self.counts = {"samples": 0, "replaced": 0, "sdf": 0, "angle": 0, "invalid": 0, "given_up": 0, "decided": 0,
-                       "color_replaced": 0, "color_within_replaced": 0}
+                       "detail_nodes": 0, "detail_cells": 0, "color_replaced": 0, "color_within_replaced": 0}
         self.check = {"samples": 0, "missed": 0}
         self.estimate = {"estimated": 0, "samples": 0, "missed": 0}
         self.f_abs: list[np.ndarray] = []
@@ -363,7 +373,7 @@ class HybridFallback:
         from .baseline import baseline_bake, same_surface
 
         if base is not None:
-            return {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors")}
+            return {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors", "hit")}
 
         own = same_surface(coarse, self.fine)
         sub = texels if own else SimpleNamespace(points=texels.points, normal=texels.normal, face=None, bary=None)
@@ -490,24 +500,28 @@ class HybridFallback:
     def early(self, coarse: Mesh, texels, *, textured: bool = False):
         """The decision at evaluated samples while an adaptive bake refines the band ``texels`` of ``coarse``: a
         callable ``(cells' nodes (P, 9) sample indices, normals (M, 3), valid (M,), values (M,), colours (M, C) or
-        None: the band's fields so far) → (P,) bool``, True for the cells with at least ``give_up_nodes`` nodes whose
-        normal is unfaithful by the rules of :meth:`__call__` (each sample decided once, its colour too), which
-        :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up; the next call for the band takes those
-        decisions and its ``given_up`` samples. None where it does not apply: deciding
-        "all", ``give_up_nodes`` 10, or colours baked that it does not decide (a given-up cell's colours would stay
-        interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band."""
+        None: the band's fields so far, side=the cells' side) → (P,) bool``, True for the cells with at least
+        ``give_up_nodes`` nodes whose normal is unfaithful by the rules of :meth:`__call__` (each sample decided
+        once, its colour too) and, no wider than ``detail_side`` in a bake without colours, those whose nodes'
+        classical rays all hit (their nodes take the classical normal too), which :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up;
+        the next call for the band takes those decisions and its ``given_up`` samples. None where it does not
+        apply: deciding "all", ``give_up_nodes`` 10 and ``detail_side`` 0, or colours baked that it does not decide
+        (a given-up cell's colours would stay interpolated). A kept classical bake (``keep_baseline``) is cast here,
+        over the whole band."""
         from .baseline import baseline_bake
 
         self._early = None
-        if self.decide != "lattice" or self.give_up_nodes > 9 or (textured and not self.decides_colours):
+        if self.decide != "lattice" or (self.give_up_nodes > 9 and not self.detail_side) \
+                or (textured and not self.decides_colours):
             return None
         m = int(texels.n_samples)
         base = baseline_bake(coarse, self.fine, texels, cage=self.cage, scene=self.scene,
                              fine_normals=self.fine_normals) if self.keep_baseline else None
-        state = SimpleNamespace(texels=texels, decided=np.zeros(m, bool), bad=np.zeros(m, bool), parts=[], base=base)
+        state = SimpleNamespace(texels=texels, decided=np.zeros(m, bool), bad=np.zeros(m, bool), hit=np.zeros(m, bool),
+                                detail=np.zeros(m, bool), parts=[], base=base)
         self._early = state
 
-        def give_up(nodes, normals, valid, values, colors):
+        def give_up(nodes, normals, valid, values, colors, side=None):
             nodes = np.asarray(nodes, dtype=np.int64)
             fresh = np.unique(nodes[~state.decided[nodes]])
             if fresh.size:
@@ -518,7 +532,16 @@ class HybridFallback:
                 state.parts.append((fresh, why, b))
                 state.decided[fresh] = True
                 state.bad[fresh] = why["mask"]  # the normal's rules: a cell is given up where the SDF is unfaithful
-            return state.bad[nodes].sum(axis=1) >= self.give_up_nodes
+                state.hit[fresh] = b["hit"] if b.get("hit") is not None else True
+            out = state.bad[nodes].sum(axis=1) >= self.give_up_nodes
+            # too fine for the lattice: the source's normals (a normal-only bake: with colours a cell may fail for
+            # its colours alone, and its faithful normals would be replaced)
+            if side is not None and side <= self.detail_side and colors is None:
+                detail = ~out & state.hit[nodes].all(axis=1)
+                state.detail[nodes[detail].reshape(-1)] = True
+                self.counts["detail_cells"] += int(detail.sum())
+                out |= detail
+            return out
 
         return give_up
 
@@ -598,6 +621,9 @@ class HybridFallback:
         if state is not None:
             for idx, why, b in state.parts:  # decided while the bake refined the band
                 take(idx, why, b)
+            forced = state.detail & decided & ~mask  # a detail cell's nodes: the classical normal, as its texels'
+            mask |= forced
+            self.counts["detail_nodes"] += int(forced.sum())
             given = np.flatnonzero(np.asarray(given_up, dtype=bool) & ~decided)
             if len(given):  # the classical bake's without a decision
                 take(given, *self._classical(coarse, texels, given, colors, base))

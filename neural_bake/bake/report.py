@@ -155,7 +155,7 @@ class _ErrorImage:
 
     def add(self, err: np.ndarray, texels) -> None:
         """Add ``err`` (one per sample of ``texels``) at the samples' texels; with a lattice ``step``, only
-        samples of lattice texels (row and column multiples of it) are given, each at its lattice cell."""
+        samples of lattice texels (:func:`on_lattice`) are given, each at its block's pixel."""
         pix = np.asarray(texels.pixel) // self.step
         if len(pix) == 0:
             return
@@ -244,8 +244,8 @@ def bake_report(
     (``{"samples": N, "of": M, "seed", "sampled": [entries measured on the N], "note"}``, with the median's
     95 % confidence interval ``median_ci95`` added to each sampled error entry when N < M). A map wider than
     :data:`~neural_bake.constants.REPORT_LATTICE_SIDE` is compared with the truth and the baseline on the
-    lattice of every k-th texel of each row and column (``"lattice_step"`` k), and its error maps are drawn
-    at that lattice. Coverage, misses, invalid-gradient counts, seams and the masks cover every texel.
+    lattice of one texel in each k×k block (``"lattice_step"`` k; the texel at a seeded position in its block:
+    :func:`on_lattice`), and its error maps are drawn at that lattice, a pixel per block. Coverage, misses, invalid-gradient counts, seams and the masks cover every texel.
 
     - ``truth``: callable, unit-frame points (M, 3) -> ground-truth unit normals (M, 3) (analytic);
       otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point.
@@ -359,7 +359,7 @@ def bake_report(
     rep["seconds"] = {**result.stats.get("seconds", {}), **(timings or {})}
     measured = [k for k in SAMPLED_FIGURES if _has(rep, k)]
     if pick is not None:
-        note = (f"the texels on rows and columns that are multiples of {step} ({n} of {total} texel samples): "
+        note = (f"one texel of each {step}×{step} block, at a seeded position ({n} of {total} texel samples): "
                 f"{', '.join(measured)} and the error maps; all other figures over every texel")
     elif sampled:
         note = (f"sampled {n} of {total} texel samples (uniform, seed {result.sample.seed}): "
@@ -418,10 +418,27 @@ def lattice_step(shape: tuple[int, int]) -> int:
     return max(1, -(-max(int(shape[0]), int(shape[1])) // REPORT_LATTICE_SIDE))
 
 
-def on_lattice(texels, step: int) -> np.ndarray:
-    """Indices of the samples of ``texels`` whose texel's row and column are multiples of ``step``."""
-    pix = np.asarray(texels.pixel)
-    return np.flatnonzero((pix[:, 0] % step == 0) & (pix[:, 1] % step == 0))
+def lattice_offsets(pixels: np.ndarray, step: int, seed: int = 0) -> np.ndarray:
+    """(N, 2) int64: the (row, column) within its ``step``×``step`` block of the texel each block's lattice
+    takes, for the blocks of ``pixels`` (N, 2) (texel rows and columns): a seeded pseudo-random position per
+    block, the same whichever texels ask."""
+    from .baker import sample_keys
+
+    pix = np.asarray(pixels, dtype=np.int64)
+    block = (pix[:, 0] // step) * np.int64(1 << 31) + pix[:, 1] // step
+    off = (sample_keys(block, seed) % np.uint64(step * step)).astype(np.int64)
+    return np.stack([off // step, off % step], axis=1)
+
+
+def on_lattice(texels, step: int, seed: int = 0) -> np.ndarray:
+    """Indices of the samples of ``texels`` on the report's lattice: in each ``step``×``step`` block of texels,
+    the texel at a seeded pseudo-random position (:func:`lattice_offsets`), so every texel is as likely to be
+    measured whatever else lies on a regular lattice (an adaptive bake's evaluated nodes do: rows and columns
+    of even multiples)."""
+    pix = np.asarray(texels.pixel, dtype=np.int64)
+    if step <= 1:
+        return np.arange(len(pix))
+    return np.flatnonzero(((pix % step) == lattice_offsets(pix, step, seed)).all(axis=1))
 
 
 def _texel_subset(texels, pick: np.ndarray):

@@ -289,7 +289,7 @@ def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
     decision that finds nothing unfaithful changes nothing."""
     tx, rows, cols, labels, evaluate = _sphere_over_grid(65, [0.32, 0.32, -0.3])
     opt = AdaptiveOptions(lattice=16, tolerance_deg=0.1)
-    asked = []
+    asked, sides = [], []
 
     def left_half(idx, normals, valid, values, colors):
         asked.append(np.asarray(idx))
@@ -297,12 +297,13 @@ def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
         return cols[idx] < 32
 
     plain = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt)
-    none = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, give_up=lambda nodes, *a: np.zeros(len(nodes), bool))
+    none = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt, give_up=lambda nodes, *a, **kw: np.zeros(len(nodes), bool))
     for k in ("evaluated", "interpolated", "normals"):
         np.testing.assert_array_equal(plain[k], none[k])
     assert not none["given_up"].any() and none["stats"]["given_up"] == 0
     res = adaptive_evaluate(tx, labels, (rows, cols), evaluate, opt,
-                            give_up=lambda nodes, *a: left_half(nodes.reshape(-1), *a).reshape(-1, 9).sum(axis=1) >= 7)
+                            give_up=lambda nodes, *a, side: (sides.append(side), left_half(nodes.reshape(-1), *a)
+                                                             .reshape(-1, 9).sum(axis=1) >= 7)[1])
     given = res["given_up"]
     assert res["stats"]["given_up"] == given.sum() > 0 and res["stats"]["cells_given_up"]
     assert res["stats"]["evaluated"] < plain["stats"]["evaluated"]
@@ -313,6 +314,7 @@ def test_cells_with_mostly_unfaithful_nodes_are_given_up_not_refined():
         np.testing.assert_array_equal(res[k][right], plain[k][right])
     assert np.allclose(np.linalg.norm(res["normals"][given], axis=1), 1.0)  # interpolated: unit normals
     assert all(a.size for a in asked)
+    assert set(sides) <= {16, 8, 4} and 16 in sides  # each call names its cells' side
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

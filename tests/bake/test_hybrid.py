@@ -213,9 +213,9 @@ def test_lattice_decision_matches_deciding_every_sample(supersample):
     field = bumped_sphere_field()
     baker = Baker(coarse, 256 // supersample, supersample=supersample)
     full = HybridFallback(ico(5), field, decide="all")
-    lattice = HybridFallback(ico(5), field, give_up_nodes=10)
-    every_evaluated = HybridFallback(ico(5), field, stride=1, give_up_nodes=10)
-    giving_up = HybridFallback(ico(5), field)
+    lattice = HybridFallback(ico(5), field, give_up_nodes=10, detail_side=0)
+    every_evaluated = HybridFallback(ico(5), field, stride=1, give_up_nodes=10, detail_side=0)
+    giving_up = HybridFallback(ico(5), field, detail_side=0)
     a = baker.bake(field, hybrid=full, adaptive=AdaptiveOptions())
     b = baker.bake(field, hybrid=lattice, adaptive=AdaptiveOptions())
     c = baker.bake(field, hybrid=every_evaluated, adaptive=AdaptiveOptions())
@@ -244,6 +244,43 @@ def test_lattice_decision_matches_deciding_every_sample(supersample):
     sub = SimpleNamespace(points=np.asarray(tx.points)[rep], normal=np.asarray(tx.normal)[rep], face=None, bary=None)
     np.testing.assert_allclose(d.normals[rep], baseline_bake(coarse, ico(5), sub)["normals"], atol=1e-12)
     assert giving_up.summary()["lattice_check"]["missed"] == 0
+
+
+@pytest.mark.parametrize("detail_side", [4, 8])
+def test_cells_too_fine_for_the_lattice_take_the_classical_normal(detail_side):
+    """A cell no wider than ``detail_side`` that fails its interpolation test, with the classical rays hitting at
+    all its nodes, is given up to the classical bake (reason "detail"): its samples and its nodes take the classical
+    normal, fewer samples are evaluated, every unfaithful sample is still replaced, no wider cell is given up;
+    where the rays miss (a cage too small to reach the source) no cell is."""
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256)
+    opt = AdaptiveOptions(tolerance_deg=0.1)
+    plain = HybridFallback(ico(5), field, give_up_nodes=10, detail_side=0)
+    detail = HybridFallback(ico(5), field, give_up_nodes=10, detail_side=detail_side)
+    a = baker.bake(field, hybrid=plain, adaptive=opt)
+    d = baker.bake(field, hybrid=detail, adaptive=opt)
+    s = detail.summary()
+    cells = d.stats["adaptive"]["cells_given_up"]
+    assert s["detail_cells"] > 0 and s["detail_nodes"] > 0 and sum(cells.values()) == s["detail_cells"]
+    assert all(int(k) <= detail_side for k in cells) and plain.summary()["detail_cells"] == 0
+    assert d.stats["adaptive"]["evaluated"] < a.stats["adaptive"]["evaluated"]
+    assert (a.replaced & ~d.replaced).sum() == 0
+    given = d.stats["adaptive"]["given_up"]
+    given_up = np.isnan(d.neural).any(axis=1)  # no ∇f of the fields at given-up samples
+    assert given > 0 and given_up.sum() == given and d.replaced[given_up].all()
+    rep = np.flatnonzero(d.replaced)
+    tx = baker.texels
+    sub = SimpleNamespace(points=np.asarray(tx.points)[rep], normal=np.asarray(tx.normal)[rep], face=None, bary=None)
+    np.testing.assert_allclose(d.normals[rep], baseline_bake(coarse, ico(5), sub)["normals"], atol=1e-12)
+    # a detail cell's nodes (evaluated, so with ∇f of their own) take the classical normal as its samples do
+    nodes = d.replaced & ~a.replaced & np.isfinite(d.neural).all(axis=1)
+    assert nodes.sum() >= s["detail_nodes"] > 0
+    missing = HybridFallback(ico(5), field, give_up_nodes=10, detail_side=detail_side, cage=1e-5)
+    baker.bake(field, hybrid=missing, adaptive=opt)
+    assert missing.summary()["detail_cells"] == 0
 
 
 def test_stride_decides_evaluated_samples_between_its_texels_only_near_unfaithful_ones():
@@ -360,7 +397,10 @@ def test_ring_is_every_candidate_within_its_cell_side_of_a_seed(path, supersampl
                                              ({"stride": 1.5}, "stride"), ({"stride": True}, "stride"),
                                              ({"stride": 8, "reach": 4}, "stride"), ({"give_up_nodes": 0}, "give_up"),
                                              ({"give_up_nodes": 11}, "give_up"), ({"give_up_nodes": 7.5}, "give_up"),
-                                             ({"give_up_nodes": True}, "give_up")])
+                                             ({"give_up_nodes": True}, "give_up"),
+                                             ({"detail_side": -1}, "detail_side"),
+                                             ({"detail_side": 2.5}, "detail_side"),
+                                             ({"detail_side": True}, "detail_side")])
 def test_bad_decision_settings_raise(kwargs, message):
     with pytest.raises(NeuralBakeError, match=message):
         HybridFallback(ico(1), sphere_field(), **kwargs)

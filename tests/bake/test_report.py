@@ -260,8 +260,11 @@ def test_large_map_is_compared_on_a_lattice_of_its_texels(tmp_path, baked, monke
     monkeypatch.setattr(report_mod, "REPORT_LATTICE_SIDE", 32)
     assert report_mod.lattice_step((64, 64)) == 2 and report_mod.lattice_step((32, 32)) == 1
     lat = bake_report(res, baker, truth=truth, baseline_fn=base_fn, out_dir=tmp_path / "lat")
-    pix = baker.texels.pixel
-    on = (pix[:, 0] % 2 == 0) & (pix[:, 1] % 2 == 0)
+    pix = np.asarray(baker.texels.pixel)
+    on = ((pix % 2) == report_mod.lattice_offsets(pix, 2)).all(axis=1)
+    assert 0 < on.sum() < len(pix) and len(np.unique(pix[on] // 2, axis=0)) == on.sum()  # one texel a block
+    # not the even rows and columns alone (where an adaptive bake's nodes lie): every offset of a block is taken
+    assert len(np.unique(pix[on] % 2, axis=0)) == 4
     assert calls == [baker.texels.n_samples, int(on.sum())]  # the baseline ray-casts the lattice only
     s = lat["sampling"]
     assert s["lattice_step"] == 2 and s["samples"] == on.sum() and s["of"] == baker.texels.n_samples
@@ -271,7 +274,8 @@ def test_large_map_is_compared_on_a_lattice_of_its_texels(tmp_path, baked, monke
         full = read_image(tmp_path / "all" / name, colour="data")
         small = read_image(tmp_path / "lat" / name, colour="data")
         assert small.shape[:2] == (32, 32)
-        np.testing.assert_array_equal(small, full[::2, ::2])
+        blocks, at = pix[on] // 2, pix[on]  # each block's pixel is its lattice texel's
+        np.testing.assert_array_equal(small[blocks[:, 0], blocks[:, 1]], full[at[:, 0], at[:, 1]])
     # the lattice's figures are those of the full comparison at its samples
     dec = report_mod.decode_map(res.normal_map, baker.texels, baker.normal_space, baker.y_convention, 8)
     err = angular_error(dec, truth(baker.texels.points))
