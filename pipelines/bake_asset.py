@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from neural_bake.constants import ADAPTIVE_TOLERANCE_DEG
+from neural_bake.constants import ADAPTIVE_TOLERANCE_DEG, HYBRID_DETAIL_SIDE
 
 from neural_bake.bake.job import FORMATS, MAPS, MODEL_ONLY_COARSE
 
@@ -77,6 +77,8 @@ class BakeAssetConfig:
     hybrid_color_within: float | None = None
     """Hybrid bake with --texture-model: the dB of PSNR the colours may lose against a classical transfer into the same map: the neural colours closest to the source texture's are kept while their summed squared difference stays within that share of the map's quantisation noise, the rest take the source's (None: 0, constants.HYBRID_COLOR_WITHIN_DB: a neural colour stays only where the map stores the transfer's value; inf: no such rule)."""
     hybrid_decide: str = "lattice"
+    hybrid_detail: int = HYBRID_DETAIL_SIDE
+    """Hybrid bake without an albedo map: a lattice cell at most this many texels wide whose fields vary too fast to interpolate, with the classical rays hitting the source at all its nodes, takes the classical normal (0: never; constants.HYBRID_DETAIL_SIDE)."""
     """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
     """Evaluate the fields on a coarse lattice per chart, refined where interpolation would exceed the tolerance."""
@@ -123,6 +125,10 @@ def check_config(cfg: BakeAssetConfig) -> None:
         if getattr(cfg, name) not in allowed:
             raise NeuralBakeError(f"{name} {getattr(cfg, name)!r}: must be one of {', '.join(map(str, allowed))}",
                                   parameter=name)
+    d = cfg.hybrid_detail
+    if isinstance(d, bool) or not isinstance(d, int) or d < 0:
+        raise NeuralBakeError(f"hybrid_detail {d!r}: must be a whole number of texels ≥ 0 (0: never)",
+                              parameter="hybrid_detail")
     if cfg.delta is not None and not cfg.delta > 0:
         raise NeuralBakeError(f"delta {cfg.delta}: must be a positive distance", parameter="delta")
     r = cfg.report_samples
@@ -320,14 +326,17 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
         directx=cfg.directx, padding=cfg.padding, cache_texels=cfg.cache_texels, report_samples=cfg.report_samples,
         keep=keep, hybrid=cfg.hybrid, hybrid_tol=hybrid_tol, hybrid_angle=hybrid_angle,
         hybrid_color_tol=hybrid_color_tol, hybrid_color_psnr=cfg.hybrid_color_psnr,
-        hybrid_color_within=hybrid_color_within, bits=cfg.bits, hybrid_decide=cfg.hybrid_decide, cage=cfg.cage, keep_baseline=cfg.baseline,
+        hybrid_color_within=hybrid_color_within, bits=cfg.bits, hybrid_decide=cfg.hybrid_decide,
+        hybrid_detail=cfg.hybrid_detail, cage=cfg.cage, keep_baseline=cfg.baseline,
         adaptive=AdaptiveOptions(tolerance_deg=cfg.tolerance_deg) if cfg.adaptive else None,
         precision=cfg.precision, layout_cache=layouts)
     res, hybrid, size = baked.result, baked.hybrid, cfg.size
     if hybrid is not None:
-        log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
-            f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off)")
         hs = hybrid.summary()
+        log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
+            f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off"
+            + (f"; or in one of {hs['detail_cells']} cells too fine for the lattice" if hs["detail_cells"] else "")
+            + ")")
         if baked.colour_tol is not None or baked.colour_psnr is not None or baked.colour_within is not None:
             rules = ([f"ΔE > {baked.colour_tol:g}"] if baked.colour_tol is not None else []) + (
                 [f"PSNR < {baked.colour_psnr:g} dB"] if baked.colour_psnr is not None else []) + (

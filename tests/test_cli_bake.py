@@ -117,6 +117,7 @@ def test_failed_run_keeps_the_good_output(files, tmp_path, capsys):
         (["--report-samples", "0"], "--report-samples 0: must be a positive integer"),
         (["--hybrid-angle", "0"], "--hybrid-angle 0.0: must be in (0, 180] degrees"),
         (["--hybrid-tol", "-0.1"], "--hybrid-tol -0.1: must be a positive distance"),
+        (["--hybrid-detail", "-1"], "--hybrid-detail -1: must be a whole number of texels ≥ 0 (0: never)"),
         (["--hybrid-color-tol", "0"], "--hybrid-color-tol 0.0: must be a positive ΔE (inf: no ΔE rule)"),
         (["--hybrid-color-within", "-1"], "--hybrid-color-within -1.0: must be a number of dB ≥ 0 (inf: no such rule)"),
         (["--hybrid-color-within", "nan"], "--hybrid-color-within nan: must be a number of dB ≥ 0 (inf: no such rule)"),

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from ..constants import HYBRID_DETAIL_SIDE
 from ..errors import MeshError, ModelFileError, NeuralBakeError
 from ..types import Mesh
 
@@ -248,13 +249,14 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
               cache_texels: bool | None = None, report_samples: int, keep: bool, hybrid: bool = True,
               hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_color_psnr: float | None = None,
               hybrid_color_within: float | None = None, bits: int = 8, hybrid_decide: str = "lattice",
-              cage: float | None = None, keep_baseline: bool = False, adaptive=None,
+              hybrid_detail: int = HYBRID_DETAIL_SIDE, cage: float | None = None, keep_baseline: bool = False, adaptive=None,
               precision: str = "auto", layout_cache: LayoutCache | None = None) -> TexelBake:
     """Bake the texel maps (``maps`` "normal", "albedo") of ``inputs`` onto ``coarse_m`` (:class:`TexelBake`).
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
     texture is baked and the source has one (``hybrid_color_tol`` finite, ``hybrid_color_psnr`` or
-    ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in). ``keep_baseline``: the hybrid keeps
+    ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in; ``hybrid_detail``: the widest
+    cell given up as too fine for the lattice, :class:`~.hybrid.HybridFallback`'s ``detail_side``). ``keep_baseline``: the hybrid keeps
     its classical bake of every sample for the report (when the report measures every texel: a map up to the
     report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point).
     ``layout_cache``: a coarse mesh without UVs takes its layout from it (:meth:`LayoutCache.unwrap`)."""
@@ -284,7 +286,7 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
 
         fallback = HybridFallback(reference, inputs.sdf, sdf_tol=hybrid_tol, angle_deg=hybrid_angle, cage=cage,
                                   keep_baseline=keep_baseline and baker.cache and lattice_step((size, size)) == 1,
-                                  decide=hybrid_decide,
+                                  decide=hybrid_decide, detail_side=hybrid_detail,
                                   color_tol=colour_tol, color_psnr=colour_psnr, color_within=colour_within,
                                   color_bits=int(bits))
     res = baker.bake(inputs.sdf, tex if "albedo" in maps else None, delta=inputs.delta,
