@@ -133,7 +133,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
 
 
 def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None, scene=None,
-                  fine_normals: np.ndarray | None = None, index: np.ndarray | None = None) -> dict:
+                  fine_normals: np.ndarray | None = None, index: np.ndarray | None = None, colors: bool = True) -> dict:
     """Mesh-to-mesh bake of ``fine`` onto the texel samples of ``coarse``.
 
     - ``coarse``: the mesh ``texels`` were rasterised on (``Baker.mesh``); its frame maps the texel points
@@ -148,6 +148,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
     - ``fine_normals``: ``fine``'s (V, 3) unit vertex normals (:func:`~neural_bake.geometry.vertex_normals`) to
       reuse; default: computed here.
     - ``index``: (n,) the samples of ``texels`` to bake (default: all; the result then holds n rows).
+    - ``colors``: read ``fine``'s texture at the chosen points (where it has one); False: ``"colors"`` is None
+      (a bake of normals alone skips the texture reads).
 
     When ``coarse`` is ``fine`` itself (:func:`same_surface`: a bake onto the source, ``--coarse keep``), each
     sample's own face and barycentrics are its point of ``fine``: no rays, and no neighbouring or coincident face
@@ -171,7 +173,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         bary = pick(np.asarray(texels.bary, dtype=np.float64))
         m = len(bary)
         return _shade(fine, pick(np.asarray(texels.face, dtype=np.int64)), bary[:, 1:3], np.ones(m, dtype=bool),
-                      np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0}, fine_normals)
+                      np.zeros(m), cage, t_all, {"setup": 0.0, "rays": 0.0, "closest": 0.0}, fine_normals, colors)
     o3d = import_open3d()
     lib = KERNEL.lib()
     if scene is None:
@@ -210,7 +212,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
         dist[~hit] = np.linalg.norm(res["points"].numpy() - pts[~hit], axis=1)
     t_closest = time.perf_counter() - t0
     return _shade(fine, prim, uvs, hit, dist, cage, t_all, {"setup": t_setup, "rays": t_rays, "closest": t_closest},
-                  fine_normals)
+                  fine_normals, colors)
 
 
 def _shade_points(lib, fine: Mesh, prim: np.ndarray, uvs: np.ndarray,
@@ -246,19 +248,19 @@ def same_surface(coarse: Mesh, fine: Mesh) -> bool:
 
 
 def _shade(fine: Mesh, prim: np.ndarray, uvs: np.ndarray, hit: np.ndarray, dist: np.ndarray, cage: float,
-           t_all: float, seconds: dict, fine_normals: np.ndarray | None = None) -> dict:
+           t_all: float, seconds: dict, fine_normals: np.ndarray | None = None, colors: bool = True) -> dict:
     """:func:`baseline_bake`'s result from each sample's face ``prim`` and barycentrics ``uvs`` (open3d's)."""
     from ..io.colour import sample_texture
 
     t0 = time.perf_counter()
     normals, points = _shade_points(KERNEL.lib(), fine, prim, uvs, fine_normals)
-    colors = None
-    if fine.uv is not None and fine.texture is not None:
+    read = None
+    if colors and fine.uv is not None and fine.texture is not None:
         uv = _interp(fine, prim, uvs, np.asarray(fine.uv, dtype=np.float64))
-        colors = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
+        read = sample_texture(fine.texture, uv, fine.uv_policy).astype(np.float64)
     return {
         "normals": normals,
-        "colors": colors,
+        "colors": read,
         "points": points,
         "hit": hit,
         "fallback": int((~hit).sum()),

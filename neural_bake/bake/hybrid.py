@@ -378,7 +378,7 @@ class HybridFallback:
         own = same_surface(coarse, self.fine)
         sub = texels if own else SimpleNamespace(points=texels.points, normal=texels.normal, face=None, bary=None)
         return baseline_bake(coarse, self.fine, sub, cage=self.cage, scene=self.scene, fine_normals=self.fine_normals,
-                             index=idx)
+                             index=idx, colors=self.decides_colours)
 
     def _decide(self, coarse: Mesh, texels, idx: np.ndarray, normals: np.ndarray, valid: np.ndarray,
                 base: dict | None, colors: np.ndarray | None = None,
@@ -618,6 +618,7 @@ class HybridFallback:
         def either(why):  # unfaithful normal or colour
             return why["mask"] | why["color"] if color_mask is not None else why["mask"]
 
+        forced = None
         if state is not None:
             for idx, why, b in state.parts:  # decided while the bake refined the band
                 take(idx, why, b)
@@ -637,6 +638,8 @@ class HybridFallback:
             found = mask if color_mask is None else mask | color_mask
             if given_up is not None:
                 found = found & ~np.asarray(given_up, dtype=bool)  # found unfaithful by a decision, not given up
+            if forced is not None:
+                found = found & ~forced  # a detail cell's nodes are not unfaithful: no ring around them
             near = self._near(texels, np.flatnonzero(found), rest, side)
             ring = rest[near]
             if len(ring):  # f at their points is the bake's interpolation: half the estimate's room for its error

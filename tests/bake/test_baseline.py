@@ -79,6 +79,11 @@ def test_colours_from_the_fine_texture(coarse_texels):
     sure = np.abs(x) > 0.1
     expect = np.where((x < 0)[:, None], [1.0, 0, 0], [0, 0, 1.0])
     assert np.allclose(out["colors"][sure], expect[sure], atol=1e-6)
+    # a bake of normals alone reads no texture: the same normals and points, no colours
+    bare = baseline_bake(coarse, fine, tx, cage=0.1, colors=False)
+    assert bare["colors"] is None
+    for k in ("normals", "points", "hit", "distance"):
+        np.testing.assert_array_equal(bare[k], out[k])
 
 
 def test_closest_surface_on_sphere(rng):
