@@ -77,9 +77,9 @@ class BakeAssetConfig:
     hybrid_color_within: float | None = None
     """Hybrid bake with --texture-model: the dB of PSNR the colours may lose against a classical transfer into the same map: the neural colours closest to the source texture's are kept while their summed squared difference stays within that share of the map's quantisation noise, the rest take the source's (None: 0, constants.HYBRID_COLOR_WITHIN_DB: a neural colour stays only where the map stores the transfer's value; inf: no such rule)."""
     hybrid_decide: str = "lattice"
+    """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     hybrid_detail: int = HYBRID_DETAIL_SIDE
     """Hybrid bake without an albedo map: a lattice cell at most this many texels wide whose fields vary too fast to interpolate, with the classical rays hitting the source at all its nodes, takes the classical normal (0: never; constants.HYBRID_DETAIL_SIDE)."""
-    """Hybrid bake: decide at the samples the adaptive bake evaluates and around the unfaithful ones (lattice), or at every sample (all)."""
     adaptive: bool = True
     """Evaluate the fields on a coarse lattice per chart, refined where interpolation would exceed the tolerance."""
     tolerance_deg: float = ADAPTIVE_TOLERANCE_DEG

@@ -51,8 +51,8 @@ classical normal without being evaluated or decided (their colours, interpolated
 colour rules as any other). Where the field is unfaithful the bake spends no evaluations on samples that would
 take the classical normal anyway; a given-up cell's few faithful samples take it too (the classical normal is the
 source's, so no texel gets further from it). The reports' figures of the fields alone leave those samples out.
-In a bake without colours, a failing cell no wider than ``detail_side`` (:data:`~neural_bake.constants.HYBRID_DETAIL_SIDE`)
-whose 9 nodes' classical rays all hit the source is given up too (a *detail* cell; its nodes take the classical
+In a bake without colours, a failing cell no wider than ``detail_side``
+(:data:`~neural_bake.constants.HYBRID_DETAIL_SIDE`) whose 9 nodes' classical rays all hit the source is given up too (a *detail* cell; its nodes take the classical
 normal as well): the fields vary faster than the lattice holds there, so every sample would be evaluated one by one,
 at several times a ray's cost, for a normal further from the source's than the rays find.
 
@@ -503,11 +503,11 @@ class HybridFallback:
         None: the band's fields so far, side=the cells' side) → (P,) bool``, True for the cells with at least
         ``give_up_nodes`` nodes whose normal is unfaithful by the rules of :meth:`__call__` (each sample decided
         once, its colour too) and, no wider than ``detail_side`` in a bake without colours, those whose nodes'
-        classical rays all hit (their nodes take the classical normal too), which :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up;
-        the next call for the band takes those decisions and its ``given_up`` samples. None where it does not
-        apply: deciding "all", ``give_up_nodes`` 10 and ``detail_side`` 0, or colours baked that it does not decide
-        (a given-up cell's colours would stay interpolated). A kept classical bake (``keep_baseline``) is cast here,
-        over the whole band."""
+        classical rays all hit (their nodes take the classical normal too), which
+        :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up; the next call for the band takes those
+        decisions and its ``given_up`` samples. None where it does not apply: deciding "all", ``give_up_nodes`` 10
+        and ``detail_side`` 0, or colours baked that it does not decide (a given-up cell's colours would stay
+        interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band."""
         from .baseline import baseline_bake
 
         self._early = None

@@ -245,7 +245,8 @@ def bake_report(
     95 % confidence interval ``median_ci95`` added to each sampled error entry when N < M). A map wider than
     :data:`~neural_bake.constants.REPORT_LATTICE_SIDE` is compared with the truth and the baseline on the
     lattice of one texel in each k×k block (``"lattice_step"`` k; the texel at a seeded position in its block:
-    :func:`on_lattice`), and its error maps are drawn at that lattice, a pixel per block. Coverage, misses, invalid-gradient counts, seams and the masks cover every texel.
+    :func:`on_lattice`), and its error maps are drawn at that lattice, a pixel per block. Coverage, misses,
+    invalid-gradient counts, seams and the masks cover every texel.
 
     - ``truth``: callable, unit-frame points (M, 3) -> ground-truth unit normals (M, 3) (analytic);
       otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point.
