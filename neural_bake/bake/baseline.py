@@ -122,7 +122,7 @@ def closest_surface(fine: Mesh, points: np.ndarray, *, scene=None) -> dict:
     o3d = import_open3d()
 
     q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
-    res = scene.compute_closest_points(q)
+    res = scene.compute_closest_points(q, nthreads=threads())  # the bake's thread choice, not every core
     prim = res["primitive_ids"].numpy().astype(np.int64)
     uvs = res["primitive_uvs"].numpy().astype(np.float64)
     pts = res["points"].numpy().astype(np.float64)
@@ -193,7 +193,8 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
             pts = fine.frame.to_unit(coarse.frame.to_source(pts))
         m = len(pts)
         rays = _rays(lib, pts, pick(np.asarray(texels.normal, dtype=np.float64)))
-    res = scene.cast_rays(o3d.core.Tensor(rays))  # both directions in one cast
+    # both directions in one cast, on the bake's threads (measured or fixed), not open3d's default of every core
+    res = scene.cast_rays(o3d.core.Tensor(rays), nthreads=threads())
     best_t, prim, uvs = _pick_hits(lib, res["t_hit"].numpy(), res["primitive_ids"].numpy(),
                                    res["primitive_uvs"].numpy(), m, cage)
     hit = np.isfinite(best_t)
@@ -206,7 +207,7 @@ def baseline_bake(coarse: Mesh, fine: Mesh, texels, *, cage: float | None = None
             pts = np.zeros((m, 3))
             pts[~hit] = all_points[index[~hit]]
         q = o3d.core.Tensor(np.ascontiguousarray(pts[~hit], dtype=np.float32))
-        res = scene.compute_closest_points(q)
+        res = scene.compute_closest_points(q, nthreads=threads())
         prim[~hit] = res["primitive_ids"].numpy()
         uvs[~hit] = res["primitive_uvs"].numpy()
         dist[~hit] = np.linalg.norm(res["points"].numpy() - pts[~hit], axis=1)

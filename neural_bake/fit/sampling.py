@@ -300,7 +300,10 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
-    closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))["points"].numpy()
+    from ..nets.native import threads
+
+    # on the fit's threads (measured or fixed), not open3d's default of every core
+    closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)), nthreads=threads())["points"].numpy()
     return np.linalg.norm(p - closest.astype(np.float64), axis=1)
 
 

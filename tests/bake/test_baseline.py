@@ -186,3 +186,42 @@ def test_native_kernel_matches_the_numpy_path(coarse_texels, monkeypatch):
     np.testing.assert_array_equal(prim[:50][np.isfinite(best_t[:50])], ids[:50][np.isfinite(best_t[:50])])
     for a, b in zip(baseline._shade_points(lib, fine, prim, bary, None), baseline._shade_points(None, fine, prim, bary, None)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_rays_and_closest_points_run_on_the_bakes_threads(coarse_texels):
+    """open3d's queries take the thread count the bake runs with (torch's: measured or fixed), not open3d's default
+    of every core, so a thread choice made for a busy machine holds for the classical bake too; the result is the
+    same whatever the count."""
+    import torch
+
+    from neural_bake.bake.baseline import raycasting_scene
+
+    coarse, tx = coarse_texels
+    fine = ico(3, 0.7)
+
+    class Recording:  # the real scene, its calls' thread counts written down
+        def __init__(self):
+            self.scene, self.asked = raycasting_scene(fine), []
+
+        def cast_rays(self, rays, nthreads=0):
+            self.asked.append(nthreads)
+            return self.scene.cast_rays(rays, nthreads=nthreads)
+
+        def compute_closest_points(self, q, nthreads=0):
+            self.asked.append(nthreads)
+            return self.scene.compute_closest_points(q, nthreads=nthreads)
+
+    before = torch.get_num_threads()
+    try:
+        outs = []
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            rec = Recording()
+            outs.append(baseline_bake(coarse, fine, tx, cage=1e-3, scene=rec))  # a cage short enough to miss
+            closest_surface(fine, np.asarray(tx.points)[:10], scene=rec)
+            assert rec.asked and set(rec.asked) == {n}
+    finally:
+        torch.set_num_threads(before)
+    assert outs[0]["fallback"] > 0  # the closest-point fallback ran too
+    for k in ("normals", "points", "hit"):
+        np.testing.assert_array_equal(outs[0][k], outs[1][k])
