@@ -532,7 +532,7 @@ class HybridFallback:
                 state.parts.append((fresh, why, b))
                 state.decided[fresh] = True
                 state.bad[fresh] = why["mask"]  # the normal's rules: a cell is given up where the SDF is unfaithful
-                state.hit[fresh] = b["hit"] if b.get("hit") is not None else True
+                state.hit[fresh] = b["hit"]
             out = state.bad[nodes].sum(axis=1) >= self.give_up_nodes
             # too fine for the lattice: the source's normals (a normal-only bake: with colours a cell may fail for
             # its colours alone, and its faithful normals would be replaced)
@@ -622,7 +622,7 @@ class HybridFallback:
         if state is not None:
             for idx, why, b in state.parts:  # decided while the bake refined the band
                 take(idx, why, b)
-            forced = state.detail & decided & ~mask  # a detail cell's nodes: the classical normal, as its texels'
+            forced = state.detail & ~mask  # a detail cell's nodes (decided): the classical normal, as its texels'
             mask |= forced
             self.counts["detail_nodes"] += int(forced.sum())
             given = np.flatnonzero(np.asarray(given_up, dtype=bool) & ~decided)

@@ -419,15 +419,27 @@ def lattice_step(shape: tuple[int, int]) -> int:
     return max(1, -(-max(int(shape[0]), int(shape[1])) // REPORT_LATTICE_SIDE))
 
 
+def _block_offsets(pix: np.ndarray, step: int, seed: int) -> np.ndarray:
+    """(N,) int64: for each texel of ``pix`` (N, 2) (rows, columns), the position (row × step + column) within its
+    ``step``×``step`` block of the texel the block's lattice takes: a seeded hash of the block, drawn once per
+    block of the rows ``pix`` spans (not per texel) and read for each texel."""
+    from .baker import sample_keys
+
+    if len(pix) == 0:
+        return np.zeros(0, dtype=np.int64)
+    br, bc = pix[:, 0] // step, pix[:, 1] // step
+    r0, n_cols = int(br.min()), int(bc.max()) + 1
+    rows = np.arange(r0, int(br.max()) + 1, dtype=np.int64)
+    blocks = (rows[:, None] * np.int64(1 << 31) + np.arange(n_cols, dtype=np.int64)[None, :]).reshape(-1)
+    table = (sample_keys(blocks, seed) % np.uint64(step * step)).astype(np.int64).reshape(len(rows), n_cols)
+    return table[br - r0, bc]
+
+
 def lattice_offsets(pixels: np.ndarray, step: int, seed: int = 0) -> np.ndarray:
     """(N, 2) int64: the (row, column) within its ``step``×``step`` block of the texel each block's lattice
     takes, for the blocks of ``pixels`` (N, 2) (texel rows and columns): a seeded pseudo-random position per
     block, the same whichever texels ask."""
-    from .baker import sample_keys
-
-    pix = np.asarray(pixels, dtype=np.int64)
-    block = (pix[:, 0] // step) * np.int64(1 << 31) + pix[:, 1] // step
-    off = (sample_keys(block, seed) % np.uint64(step * step)).astype(np.int64)
+    off = _block_offsets(np.asarray(pixels, dtype=np.int64), step, seed)
     return np.stack([off // step, off % step], axis=1)
 
 
@@ -437,9 +449,7 @@ def on_lattice(texels, step: int, seed: int = 0) -> np.ndarray:
     measured whatever else lies on a regular lattice (an adaptive bake's evaluated nodes do: rows and columns
     of even multiples)."""
     pix = np.asarray(texels.pixel, dtype=np.int64)
-    if step <= 1:
-        return np.arange(len(pix))
-    return np.flatnonzero(((pix % step) == lattice_offsets(pix, step, seed)).all(axis=1))
+    return np.flatnonzero((pix[:, 0] % step) * step + pix[:, 1] % step == _block_offsets(pix, step, seed))
 
 
 def _texel_subset(texels, pick: np.ndarray):

@@ -42,6 +42,7 @@ from ..constants import DIRECTION_EPS, SIGN_SURE_MARGIN
 from ..geometry import check_points, import_open3d, raycasting_scene, sampleable_faces, vertex_normals
 from ..io.colour import sample_texture
 from ..mesh.winding import winding_number
+from ..nets.native import threads
 from ..types import Mesh
 
 __all__ = [
@@ -300,8 +301,6 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
-    from ..nets.native import threads
-
     # on the fit's threads (measured or fixed), not open3d's default of every core
     closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)), nthreads=threads())["points"].numpy()
     return np.linalg.norm(p - closest.astype(np.float64), axis=1)
