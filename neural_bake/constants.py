@@ -212,7 +212,10 @@ HYBRID_GIVE_UP_NODES = 7
 #: interpolation test, all of whose 9 nodes' classical rays hit the source, is given up to the classical bake
 #: (reason "detail"): the fields vary faster than the lattice holds there, every texel would be evaluated one by
 #: one, and the classical normal costs a fifth of a (256, 3) network's evaluation and is the source's own.
-#: 0: never. docs/findings.md, "Detail cells to the classical bake".
+#: In a bake of normals alone the same side bounds two more rules: a cell whose nodes' rays all hit a source whose
+#: normals fail the interpolation test is given up before ∇f is evaluated at its nodes (the source's detail), and
+#: the samples no cell holds within half this side of a given-up one take the classical normal where their rays hit
+#: (the detail rim). 0: never. docs/findings.md, "Detail cells to the classical bake" and "The source's detail".
 HYBRID_DETAIL_SIDE = 8
 
 # --- bake: adaptive texel evaluation (neural_bake.bake.adaptive) ------------------------------------------------

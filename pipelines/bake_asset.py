@@ -333,9 +333,13 @@ def _bake_texels(inputs, coarse_m, cfg: BakeAssetConfig, *, maps: list[str], kee
     res, hybrid, size = baked.result, baked.hybrid, cfg.size
     if hybrid is not None:
         hs = hybrid.summary()
+        adaptive_stats = res.stats.get("adaptive") or {}
+        sourced, rim = adaptive_stats.get("cells_source_detail") or {}, adaptive_stats.get("rim", 0)
         log(f"hybrid bake: {res.stats['hybrid_texels']} texels ({100 * res.stats['hybrid_fraction']:.1f} %) "
             f"took the classical normal (|f| at the source > {hybrid_tol:g} or ∇f > {hybrid_angle:g}° off"
             + (f"; or in one of {hs['detail_cells']} cells too fine for the lattice" if hs["detail_cells"] else "")
+            + (f"; or in one of {sum(sourced.values())} cells where the source has finer detail" if sourced else "")
+            + (f"; or {rim} samples next to given-up cells" if rim else "")
             + ")")
         if baked.colour_tol is not None or baked.colour_psnr is not None or baked.colour_within is not None:
             rules = ([f"ΔE > {baked.colour_tol:g}"] if baked.colour_tol is not None else []) + (

@@ -22,6 +22,11 @@ nodes and samples of an accepted cell all belong to one chart. With the coarse m
 of side-4 cells that failed, where the fields vary too fast) are interpolated inside their own faces where that
 pays (:mod:`.adaptive_faces`), when the lattice itself interpolated more samples than it evaluated.
 
+A hybrid bake may give cells up to the classical bake (``give_up``, :meth:`~neural_bake.bake.hybrid.HybridFallback.early`):
+on its decision at the nodes of a cell that fails; in a bake of normals alone also before the nodes are evaluated, on
+the classical rays' normals there (the source's detail), and, after the face pass, the samples still to evaluate
+next to a given-up one where their rays hit (the detail rim).
+
 The same refinement serves every field: f, the unit normals ∇f/|∇f| and (when a texture is baked) the colours
 are evaluated at the same samples, and a cell is accepted only when all of them pass their tolerance. The
 surplus is an estimate, not a bound: a feature of the field narrower than the node spacing can hide between
@@ -259,17 +264,22 @@ def adaptive_evaluate(
       bool): a hybrid bake's decision at
       their nodes (:meth:`~neural_bake.bake.hybrid.HybridFallback.early`); a cell it says is mostly unfaithful is
       *given up*: not tested or refined further, its samples interpolated bilinearly from its nodes (that ∇f is not
-      what the map shows: the hybrid gives them the classical bake's normal) and returned in ``"given_up"``.
+      what the map shows: the hybrid gives them the classical bake's normal) and returned in ``"given_up"``. With
+      its attributes ``classical``, ``detail_side`` and ``rim_reach`` (a bake of normals alone), a cell no wider than
+      ``detail_side`` with a node still to evaluate is first tested on the classical rays' normals at its nodes and
+      given up unevaluated where they all hit and fail (its samples and evaluated nodes in ``"given_up"``, f there
+      the source's signed distance), and the samples left to evaluate within ``rim_reach`` of a given-up one whose
+      rays hit are given up too.
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
     ``"decide"`` (the evaluated samples and the face pass's decision points: where a hybrid decides), ``"given_up"``
-    ((M,) bool: the samples of given-up cells that no accepted cell covers), ``"side"``
+    ((M,) bool: the samples of given-up cells that no accepted cell covers, and the rim's), ``"side"``
     ((M,) int16: the side of the cell each interpolated sample lies in, every sample of which is that close to
     the cell's nodes; the lattice's side for samples interpolated inside faces, 0 for evaluated ones) and
     ``"stats"`` (samples evaluated / interpolated, cells accepted per level (``cells_quadratic``: of them, those
-    interpolated quadratically; ``cells_given_up``), the face pass's evaluations at points of faces, samples and
-    sub-triangles, evaluation calls).
+    interpolated quadratically; ``cells_given_up``, of them ``cells_source_detail``), the face pass's evaluations at
+    points of faces, samples and sub-triangles, the rim's samples (``rim``), evaluation calls).
     """
     opt = options or AdaptiveOptions()
     m = int(texels.n_samples)
@@ -304,12 +314,19 @@ def adaptive_evaluate(
 
     hard = np.zeros(m, bool)
     given_up = np.zeros(m, bool)
+    rim_n = 0
+    # the source's detail (a hybrid bake of normals alone): its classical rays at a cell's nodes before ∇f's
+    classical = getattr(give_up, "classical", None)
+    detail_side = int(getattr(give_up, "detail_side", 0)) if classical is not None else 0
+    source = _Store(values=np.zeros(m), normals=np.zeros((m, 3)), valid=np.zeros(m, bool)) if detail_side else None
+    rayed = np.zeros(m, bool) if detail_side else None
     side = np.zeros(m, np.int16)  # the side of the cell each sample was interpolated in
     gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
     on = np.flatnonzero(gr >= 0)
     k0 = int(opt.lattice)
     levels: dict[int, int] = {}
     given_cells: dict[int, int] = {}
+    sourced_cells: dict[int, int] = {}
     if on.size:
         r_base = (int(gr[on].min()) // k0) * k0
         rows = int(gr[on].max()) - r_base + 1
@@ -332,6 +349,7 @@ def adaptive_evaluate(
         k = k0
         accepted: list[tuple[np.ndarray, np.ndarray, int, bool]] = []
         gave: list[tuple[np.ndarray, np.ndarray, int]] = []
+        sourced: list[tuple[np.ndarray, np.ndarray, int]] = []  # given up on the source's detail, not evaluated
         quadratic: dict[int, int] = {}
         while k >= 4 and r0.size:  # a side-2 cell has no sample besides its 3×3 nodes
             n = (k + 1) ** 2
@@ -344,6 +362,16 @@ def adaptive_evaluate(
             p = np.flatnonzero(pure)
             quad = np.zeros(len(r0), bool)
             given = np.zeros(len(r0), bool)
+            if p.size and k <= detail_side:
+                nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
+                fresh = ~store.evaluated[nodes].all(axis=1)  # ∇f still to evaluate at a node
+                if fresh.any():
+                    off = _source_detail(source, rayed, classical, points, nodes[fresh], opt, dtype)
+                    if off.any():
+                        q = p[np.flatnonzero(fresh)[off]]
+                        sourced.append((r0[q], c0[q], k))
+                        given[q] = True
+                        p = p[~given[p]]
             if p.size:
                 nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 run(nodes.reshape(-1))
@@ -370,6 +398,7 @@ def adaptive_evaluate(
                 levels[k] = int(acc.sum() + quad.sum())
             if given.any():
                 given_cells[k] = int(given.sum())
+                sourced_cells[k] = int(sum(len(a) for a, _, kk in sourced if kk == k))
             split = ~(acc | quad | given)
             if k == 4 and p.size:  # pure cells that failed at the last level: the fields vary too fast there
                 f = p[split[p]]
@@ -398,6 +427,15 @@ def adaptive_evaluate(
             side[store.interpolated & (side == 0)] = k
         if before is not None:
             given_up = store.interpolated & ~before
+        for ar, ac, k in sourced:  # what no accepted cell holds: the classical normal (the hybrid's), its nodes' too
+            d = np.arange(k + 1)
+            held = index[ar[:, None, None] + d[:, None], ac[:, None, None] + d[None, :]].reshape(-1)
+            held = held[~store.interpolated[held]]  # every position of a pure cell holds a sample
+            given_up[held] = True
+            held = held[~store.evaluated[held]]  # f not known there: the source's distance
+            _, store.normals[held], store.values[held] = classical(held)
+            store.valid[held] = store.interpolated[held] = True
+            side[held] = k
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     decide = np.zeros(m, bool)
     face_stats = {"nodes": 0, "interpolated": 0, "accepted": 0}
@@ -422,6 +460,18 @@ def adaptive_evaluate(
         decide[rest[fp["decide"]]] = True
         face_stats = {"nodes": int(fp["nodes"]), "interpolated": int(d.size), "accepted": int(fp["accepted"])}
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
+    if classical is not None and rest.size and given_up.any():  # the detail rim: the classical normal where rays hit
+        reach = int(getattr(give_up, "rim_reach", 1))
+        near = _next_to(rest, given_up, index, texels, gr, gc, r_base, reach)
+        if near.size:
+            hit, nrm, val = classical(near)
+            hit = np.asarray(hit, dtype=bool)
+            d = near[hit]
+            store.normals[d], store.values[d], store.valid[d] = nrm[hit], val[hit], True
+            store.interpolated[d] = given_up[d] = True
+            side[d] = reach
+            rim_n = int(d.size)
+            rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
     run(rest)
     n_eval = int(store.evaluated.sum())
     return {
@@ -440,9 +490,46 @@ def adaptive_evaluate(
                   "cells_accepted": {str(k): v for k, v in sorted(levels.items(), reverse=True)},
                   "cells_quadratic": {str(k): v for k, v in sorted(quadratic.items(), reverse=True)},
                   "cells_given_up": {str(k): v for k, v in sorted(given_cells.items(), reverse=True)},
-                  "given_up": int(given_up.sum()),
+                  "cells_source_detail": {str(k): v for k, v in sorted(sourced_cells.items(), reverse=True) if v},
+                  "given_up": int(given_up.sum()), "rim": rim_n,
                   "evaluated_outside_cells": int(rest.size), "evaluation_calls": store.calls},
     }
+
+
+def _source_detail(source: _Store, rayed: np.ndarray, classical: Callable, points: np.ndarray, nodes: np.ndarray,
+                   opt: AdaptiveOptions, dtype: torch.dtype) -> np.ndarray:
+    """(P,) bool: of the cells with 3×3 ``nodes`` (P, 9) sample indices, those whose classical rays hit the source at
+    every node and whose source normals there fail the bilinear test (:func:`_surplus_ok`). ``classical``: (sample
+    indices (n,)) → (hit (n,), unit normals (n, 3), the source's signed distance (n,)); each node cast once, kept in
+    ``source`` (``rayed`` marks them)."""
+    mark = np.zeros(len(rayed), bool)  # each node once (a mask, not np.unique: no sort)
+    mark[nodes.reshape(-1)] = True
+    new = np.flatnonzero(mark & ~rayed)
+    if new.size:
+        hit, nrm, _ = classical(new)
+        source.valid[new], source.normals[new], rayed[new] = hit, nrm, True
+    return source.valid[nodes].all(axis=1) & ~_surplus_ok(source, points, nodes, opt, dtype)
+
+
+def _next_to(candidates: np.ndarray, given_up: np.ndarray, index: np.ndarray, texels, gr: np.ndarray,
+             gc: np.ndarray, r_base: int, reach: int) -> np.ndarray:
+    """Those of ``candidates`` (sample indices) within ``reach`` sample-grid positions (a square) of a given-up
+    sample (``given_up`` (M,) bool): on the grid at their position, off it (border samples) at their texel's
+    centre. ``index``: the band's (hg, wg) sample-grid image of sample indices (-1: none), its row 0 at grid row
+    ``r_base``; ``gr``, ``gc``: the samples' grid positions (-1 off the grid)."""
+    hg, wg = index.shape
+    on = index >= 0
+    image = np.zeros((hg, wg), dtype=bool)
+    image[on] = given_up[index[on]]
+    counts = _integral(image)
+    s = int(texels.supersample)
+    pix = np.asarray(texels.pixel, dtype=np.int64)[candidates]
+    r = np.where(gr[candidates] >= 0, gr[candidates], pix[:, 0] * s + s // 2) - r_base
+    c = np.where(gc[candidates] >= 0, gc[candidates], pix[:, 1] * s + s // 2)
+    top, bottom = np.clip(r - reach, 0, hg), np.clip(r + reach + 1, 0, hg)
+    left, right = np.clip(c - reach, 0, wg), np.clip(c + reach + 1, 0, wg)
+    near = counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left] > 0
+    return candidates[near]
 
 
 def _weights(corners: torch.Tensor, points: torch.Tensor) -> torch.Tensor:

@@ -336,9 +336,10 @@ class _ErrorControl:
         self.checked = adaptive is not None or self.reduced
         self.fraction = min(1.0, samples / max(1, expected)) if self.checked else 0.0
         self.counts = {"samples": 0, "evaluated": 0, "interpolated": 0, "calls": 0, "outside": 0, "face_nodes": 0,
-                       "face_interpolated": 0, "face_cells": 0, "given_up": 0}
+                       "face_interpolated": 0, "face_cells": 0, "given_up": 0, "rim": 0}
         self.cells: dict[str, int] = {}
         self.given_cells: dict[str, int] = {}
+        self.source_cells: dict[str, int] = {}
         self.angles: list[np.ndarray] = []
         self.colors: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
@@ -394,10 +395,13 @@ class _ErrorControl:
                                 dtype=self.dtype, faces=self._faces, evaluate_points=at_face_points,
                                 give_up=give_up)
         st = res["stats"]
-        for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells", "given_up"):
+        for k in ("samples", "evaluated", "interpolated", "face_nodes", "face_interpolated", "face_cells", "given_up",
+                  "rim"):
             self.counts[k] += st[k]
         for k, v in st["cells_given_up"].items():
             self.given_cells[k] = self.given_cells.get(k, 0) + v
+        for k, v in st["cells_source_detail"].items():
+            self.source_cells[k] = self.source_cells.get(k, 0) + v
         self.counts["calls"] += st["evaluation_calls"]
         self.counts["outside"] += st["evaluated_outside_cells"]
         for k, v in st["cells_accepted"].items():
@@ -452,7 +456,8 @@ class _ErrorControl:
             "evaluated_fraction": evaluated,
             "evaluated_outside_cells": c["outside"], "cells_accepted": self.cells, "face_nodes": c["face_nodes"],
             "face_interpolated": c["face_interpolated"], "face_cells": c["face_cells"],
-            "given_up": c["given_up"], "cells_given_up": self.given_cells, "evaluation_calls": c["calls"]},
+            "given_up": c["given_up"], "rim": c["rim"], "cells_given_up": self.given_cells,
+            "cells_source_detail": self.source_cells, "evaluation_calls": c["calls"]},
             "evaluated_fraction": evaluated}
         out["precision"] = self.precision
         if self.checked:

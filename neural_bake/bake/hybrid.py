@@ -54,7 +54,14 @@ source's, so no texel gets further from it). The reports' figures of the fields 
 In a bake without colours, a failing cell no wider than ``detail_side``
 (:data:`~neural_bake.constants.HYBRID_DETAIL_SIDE`) whose 9 nodes' classical rays all hit the source is given up too (a *detail* cell; its nodes take the classical
 normal as well): the fields vary faster than the lattice holds there, so every sample would be evaluated one by one,
-at several times a ray's cost, for a normal further from the source's than the rays find.
+at several times a ray's cost, for a normal further from the source's than the rays find. Two more rules, in such a
+bake, save the evaluations that would only have found the same: a cell no wider than ``detail_side`` whose nodes'
+rays all hit a source whose normals fail the cell's interpolation test is given up before ∇f is evaluated at its
+nodes (*the source's detail*: the classical normal is the source's, and a field cannot follow detail its source has
+between the nodes better than the rays do; the nodes evaluated already take the classical normal too), and a sample
+no cell holds (chart borders, border samples) within ``detail_side / 2`` positions of a given-up sample takes the
+classical normal where its rays hit (*the detail rim*). Where f is not evaluated the bake takes the source's signed
+distance found by the rays, to first order, for its miss test.
 
 :class:`HybridFallback` is what :meth:`neural_bake.bake.baker.Baker.bake` calls per band of texel samples.
 """
@@ -507,7 +514,13 @@ class HybridFallback:
         :func:`~neural_bake.bake.adaptive.adaptive_evaluate` gives up; the next call for the band takes those
         decisions and its ``given_up`` samples. None where it does not apply: deciding "all", ``give_up_nodes`` 10
         and ``detail_side`` 0, or colours baked that it does not decide (a given-up cell's colours would stay
-        interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band."""
+        interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band.
+
+        In a bake without colours with ``detail_side`` > 0 the callable also carries ``classical`` ((sample indices
+        (n,)) → (hit (n,), classical unit normals (n, 3), the source's signed distance (n,)): the band's rays, each
+        sample cast once and kept for its given-up samples), ``detail_side`` and ``rim_reach`` (half of it), with
+        which the bake gives up cells on the source's own detail and the samples next to given-up ones (module
+        docstring)."""
         from .baseline import baseline_bake
 
         self._early = None
@@ -543,7 +556,40 @@ class HybridFallback:
                 out |= detail
             return out
 
+        if self.detail_side and not textured:  # the source's detail (adaptive_evaluate): its rays, cached
+            give_up.classical = self._cached_rays(state, coarse, texels)  # type: ignore[attr-defined]
+            give_up.detail_side = self.detail_side  # type: ignore[attr-defined]
+            give_up.rim_reach = max(1, self.detail_side // 2)  # type: ignore[attr-defined]
         return give_up
+
+    def _cached_rays(self, state: SimpleNamespace, coarse: Mesh, texels):
+        """``(sample indices (n,)) → (hit (n,) bool, classical unit normals (n, 3))`` of the band ``texels``: the
+        classical bake's rays, cast once per sample and kept in ``state.rays`` for the given-up samples' normals
+        (:meth:`_classical`)."""
+        m = int(texels.n_samples)
+        rays = state.rays = SimpleNamespace(done=np.zeros(m, bool), hit=np.zeros(m, bool), normals=np.zeros((m, 3)),
+                                            values=np.zeros(m))
+
+        def classical(idx):
+            idx = np.asarray(idx, dtype=np.int64)
+            self._cast(rays, coarse, texels, idx[~rays.done[idx]], state.base)
+            return rays.hit[idx], rays.normals[idx], rays.values[idx]
+
+        return classical
+
+    def _cast(self, rays: SimpleNamespace, coarse: Mesh, texels, idx: np.ndarray, base: dict | None) -> None:
+        """The classical bake of the samples ``idx`` of ``texels`` into the band's cast rays ``rays`` (``done``, ``hit``,
+        ``normals``, ``values``: (M,) each). ``values``: the source's signed distance at each sample to first order,
+        (x − p)·n with p the point the ray found and n the source's normal there, in the field's frame (what f
+        approximates; the bake's miss test reads it where f is not evaluated)."""
+        from .baker import _to_field_frame
+
+        if len(idx):
+            b = self._baseline(coarse, texels, idx, base)
+            x = _to_field_frame(np.asarray(texels.points, dtype=np.float64)[idx], coarse.frame, self.sdf.frame)
+            p = _to_field_frame(np.asarray(b["points"], dtype=np.float64), self.fine.frame, self.sdf.frame)
+            rays.hit[idx], rays.normals[idx], rays.done[idx] = b["hit"], b["normals"], True
+            rays.values[idx] = np.einsum("ij,ij->i", x - p, b["normals"])
 
     def _classical(self, coarse: Mesh, texels, idx: np.ndarray, colors: np.ndarray | None,
                    base: dict | None) -> tuple[dict, dict]:
@@ -601,7 +647,9 @@ class HybridFallback:
         estimable = values if values is None or evaluated is None \
             else np.where(np.asarray(evaluated, dtype=bool), values, np.nan)
         mask = np.zeros(m, dtype=bool)
-        classical = np.zeros((m, 3))
+        # the band's rays cast while it was refined (normals alone): every sample's classical normal is its own
+        rays = getattr(state, "rays", None) if state is not None and colors is None else None
+        classical = np.zeros((m, 3)) if rays is None else rays.normals
         reasons = {k: np.zeros(m, dtype=bool) for k in ("sdf", "angle", "invalid")}
         decided = np.zeros(m, dtype=bool)
 
@@ -622,11 +670,17 @@ class HybridFallback:
         if state is not None:
             for idx, why, b in state.parts:  # decided while the bake refined the band
                 take(idx, why, b)
-            forced = state.detail & ~mask  # a detail cell's nodes (decided): the classical normal, as its texels'
+            # a detail cell's nodes (decided), and the evaluated samples of cells given up on the source's detail:
+            # the classical normal, as their cells' other samples
+            forced = (state.detail | (np.asarray(given_up, dtype=bool) & decided)) & ~mask
             mask |= forced
             self.counts["detail_nodes"] += int(forced.sum())
             given = np.flatnonzero(np.asarray(given_up, dtype=bool) & ~decided)
-            if len(given):  # the classical bake's without a decision
+            if len(given) and rays is not None:  # the classical bake's without a decision, cast once a sample
+                self._cast(rays, coarse, texels, given[~rays.done[given]], base)
+                decided[given] = mask[given] = True
+                self.counts["given_up"] += len(given)
+            elif len(given):
                 take(given, *self._classical(coarse, texels, given, colors, base))
                 self.counts["given_up"] += len(given)
             first = first[~decided[first]]
@@ -653,7 +707,7 @@ class HybridFallback:
                 self.check["missed"] += int(either(why).sum())
         self._seen += m
         out = normals.copy()
-        out[mask] = classical[mask]
+        np.copyto(out, classical, where=mask[:, None])  # a masked copy: no gather of the replaced rows
         out_colors = None
         if color_mask is not None:
             out_colors = colors.copy()

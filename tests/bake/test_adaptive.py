@@ -10,7 +10,7 @@ import torch
 
 from neural_bake.bake.adaptive import (_NODES, _QUARTERS, KERNEL, AdaptiveOptions, _box, _grid_positions_from_uv,
                                        _integral, _interp, _interpolate, _interpolate_native, _interpolate_quadratic,
-                                       _pack, _quadratic_ok, _surplus_ok, _Store, _weights, adaptive_evaluate, chart_labels,
+                                       _next_to, _pack, _quadratic_ok, _surplus_ok, _Store, _weights, adaptive_evaluate, chart_labels,
                                        grid_positions, kernel_status, vertex_positions)
 from neural_bake.bake.baker import Baker, _evaluate
 from neural_bake.errors import NeuralBakeError
@@ -764,3 +764,22 @@ def test_native_cell_interpolation_gives_the_same_bits_on_any_thread_count(monke
         _interpolate_native(KERNEL.lib(), other, points, index, r0[part].copy(), c0[part].copy(), k,
                             quadratic=quadratic)
     assert not np.array_equal(other.values, base.values)
+
+
+def test_next_to_finds_the_samples_within_reach_of_a_given_up_one():
+    """The detail rim's neighbourhood: candidates within ``reach`` grid positions (a square) of a given-up sample, on
+    the grid at their position and off it (border samples) at their texel's centre; the image may start at any row."""
+    h = w = 10
+    rows, cols = np.divmod(np.arange(h * w), w)
+    index = np.arange(h * w).reshape(h, w)
+    m = h * w + 2  # two border samples after the grid's
+    gr = np.concatenate([rows + 20, [-1, -1]])  # the band's grid starts at row 20
+    gc = np.concatenate([cols, [-1, -1]])
+    pixel = np.stack([np.concatenate([rows + 20, [23, 20]]), np.concatenate([cols, [3, 0]])], axis=1)
+    given = np.zeros(m, bool)
+    given[5 * w + 5] = True
+    texels = SimpleNamespace(supersample=1, pixel=pixel)
+    out = _next_to(np.arange(m), given, index, texels, gr, gc, 20, 2)
+    near = (np.abs(rows - 5) <= 2) & (np.abs(cols - 5) <= 2)
+    np.testing.assert_array_equal(out, np.concatenate([np.flatnonzero(near), [m - 2]]))
+    assert _next_to(np.arange(m), np.zeros(m, bool), index, texels, gr, gc, 20, 2).size == 0

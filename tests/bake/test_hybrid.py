@@ -11,6 +11,7 @@ from neural_bake.bake.baker import Baker
 from neural_bake.bake.baseline import baseline_bake
 from neural_bake.fields import SdfField
 from neural_bake.bake.hybrid import HybridFallback, unfaithful
+from neural_bake.constants import HYBRID_DETAIL_SIDE
 from neural_bake.errors import NeuralBakeError
 from neural_bake.mesh.unwrap import unwrap
 from neural_bake.types import Mesh
@@ -264,7 +265,9 @@ def test_cells_too_fine_for_the_lattice_take_the_classical_normal(detail_side):
     d = baker.bake(field, hybrid=detail, adaptive=opt)
     s = detail.summary()
     cells = d.stats["adaptive"]["cells_given_up"]
-    assert s["detail_cells"] > 0 and s["detail_nodes"] > 0 and sum(cells.values()) == s["detail_cells"]
+    sourced = d.stats["adaptive"]["cells_source_detail"]
+    assert s["detail_cells"] > 0 and s["detail_nodes"] > 0
+    assert sum(cells.values()) == s["detail_cells"] + sum(sourced.values())
     assert all(int(k) <= detail_side for k in cells) and plain.summary()["detail_cells"] == 0
     assert d.stats["adaptive"]["evaluated"] < a.stats["adaptive"]["evaluated"]
     assert (a.replaced & ~d.replaced).sum() == 0
@@ -275,12 +278,94 @@ def test_cells_too_fine_for_the_lattice_take_the_classical_normal(detail_side):
     tx = baker.texels
     sub = SimpleNamespace(points=np.asarray(tx.points)[rep], normal=np.asarray(tx.normal)[rep], face=None, bary=None)
     np.testing.assert_allclose(d.normals[rep], baseline_bake(coarse, ico(5), sub)["normals"], atol=1e-12)
-    # a detail cell's nodes (evaluated, so with ∇f of their own) take the classical normal as its samples do
-    nodes = d.replaced & ~a.replaced & np.isfinite(d.neural).all(axis=1)
-    assert nodes.sum() >= s["detail_nodes"] > 0
+    # a detail cell's nodes (evaluated: decided, or given up with a cell given up on the source's detail) take the
+    # classical normal as its samples do
+    assert (d.replaced & ~a.replaced).sum() >= s["detail_nodes"] > 0
     missing = HybridFallback(ico(5), field, give_up_nodes=10, detail_side=detail_side, cage=1e-5)
-    baker.bake(field, hybrid=missing, adaptive=opt)
-    assert missing.summary()["detail_cells"] == 0
+    m = baker.bake(field, hybrid=missing, adaptive=opt)
+    assert missing.summary()["detail_cells"] == 0 and m.stats["adaptive"]["rim"] == 0
+    assert not m.stats["adaptive"]["cells_source_detail"] and m.stats["adaptive"]["given_up"] == 0
+
+
+@pytest.mark.parametrize("detail_side", [4, 8])
+def test_samples_next_to_given_up_cells_take_the_classical_normal(monkeypatch, detail_side):
+    """The detail rim: samples no cell holds (chart borders, border samples) within half ``detail_side`` of a given-up
+    sample take the classical normal where their rays hit, without an evaluation: fewer evaluations than without the
+    rim, by its count; every sample replaced without it still is, and the rim's samples have the classical bake's
+    normal and no ∇f of the fields'."""
+    from neural_bake.bake import adaptive as adaptive_module
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    coarse = unwrap(ico(2), resolution=256)
+    field = bumped_sphere_field()
+    baker = Baker(coarse, 256)
+    opt = AdaptiveOptions(tolerance_deg=0.1)
+    r = baker.bake(field, hybrid=HybridFallback(ico(5), field, give_up_nodes=10, detail_side=detail_side), adaptive=opt)
+    with monkeypatch.context() as mp:
+        mp.setattr(adaptive_module, "_next_to", lambda candidates, *a: candidates[:0])
+        p = baker.bake(field, hybrid=HybridFallback(ico(5), field, give_up_nodes=10, detail_side=detail_side),
+                       adaptive=opt)
+    n = r.stats["adaptive"]["rim"]
+    assert n > 0 and p.stats["adaptive"]["rim"] == 0
+    assert r.stats["adaptive"]["evaluated"] == p.stats["adaptive"]["evaluated"] - n
+    assert r.stats["adaptive"]["given_up"] == p.stats["adaptive"]["given_up"] + n
+    assert not (p.replaced & ~r.replaced).any()
+    extra = np.isnan(r.neural).any(axis=1) & ~np.isnan(p.neural).any(axis=1)  # the rim's samples
+    assert extra.sum() == n and r.replaced[extra].all()
+    tx = baker.texels
+    sub = SimpleNamespace(points=np.asarray(tx.points)[extra], normal=np.asarray(tx.normal)[extra], face=None,
+                          bary=None)
+    np.testing.assert_allclose(r.normals[extra], baseline_bake(coarse, ico(5), sub)["normals"], atol=1e-12)
+
+
+def rippled_sphere(level=5, amplitude=0.002, waves=24):
+    """A sphere mesh of radius R with ripples of ``amplitude`` (``waves`` around it; normals up to ~3° off the
+    sphere's, under the hybrid's angle): detail a sphere SDF lacks."""
+    mesh = ico(level)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    u = v / np.linalg.norm(v, axis=1, keepdims=True)
+    ripple = 1.0 + amplitude * np.sin(waves * np.arctan2(u[:, 1], u[:, 0])) * np.cos(waves * u[:, 2])
+    return Mesh(vertices=u * R * ripple[:, None], faces=mesh.faces)
+
+
+def test_cells_where_the_source_has_detail_are_given_up_unevaluated(monkeypatch):
+    """The source's detail: a cell no wider than ``detail_side`` whose nodes' classical rays all hit a source whose
+    normals fail the cell's interpolation test is given up before ∇f is evaluated at its nodes. A smooth field (a
+    sphere) over a rippled source: cells are given up on the source's normals alone, their samples take the
+    classical normal (the source's, so the map is closer to it than the field's), fewer samples are evaluated than
+    without the rule, and none where the rays miss (a cage too small to reach the source)."""
+    from neural_bake.bake import adaptive as adaptive_module
+    from neural_bake.bake.adaptive import AdaptiveOptions
+
+    coarse = unwrap(ico(2), resolution=256)
+    source = rippled_sphere()
+    field = sphere_field()
+    baker = Baker(coarse, 256)
+    opt = AdaptiveOptions()
+    d = baker.bake(field, hybrid=HybridFallback(source, field, give_up_nodes=10), adaptive=opt)
+    with monkeypatch.context() as mp:
+        mp.setattr(adaptive_module, "_source_detail", lambda source, rayed, classical, points, nodes, *a:
+                   np.zeros(len(nodes), bool))
+        p = baker.bake(field, hybrid=HybridFallback(source, field, give_up_nodes=10), adaptive=opt)
+    st = d.stats["adaptive"]
+    assert sum(st["cells_source_detail"].values()) > 50 and not p.stats["adaptive"]["cells_source_detail"]
+    assert all(int(k) <= HYBRID_DETAIL_SIDE for k in st["cells_source_detail"])
+    assert st["evaluated"] < p.stats["adaptive"]["evaluated"]
+    given = np.isnan(d.neural).any(axis=1)
+    assert given.sum() == st["given_up"] > 0 and d.replaced[given].all()
+    src = given & ~np.isnan(p.neural).any(axis=1)  # given up on the source's detail alone
+    tx = baker.texels
+    sub = SimpleNamespace(points=np.asarray(tx.points)[src], normal=np.asarray(tx.normal)[src], face=None, bary=None)
+    truth = baseline_bake(coarse, source, sub)["normals"]
+    np.testing.assert_allclose(d.normals[src], truth, atol=1e-12)
+    assert src.sum() > 1000 and np.median(angle_deg(p.normals[src], truth)) > 0.5  # the field has no ripples
+    # f where it was not evaluated: the source's signed distance (the ripples' 0.0014 off the sphere at most)
+    x = np.asarray(tx.points)[src]
+    assert np.abs(d.values[src] - (np.linalg.norm(x, axis=1) - R)).max() < 0.002
+    assert d.replaced.sum() > p.replaced.sum() + 1000
+    missing = HybridFallback(source, field, give_up_nodes=10, cage=1e-5)
+    m = baker.bake(field, hybrid=missing, adaptive=opt)
+    assert not m.stats["adaptive"]["cells_source_detail"] and m.stats["adaptive"]["given_up"] == 0
 
 
 def test_stride_decides_evaluated_samples_between_its_texels_only_near_unfaithful_ones():
@@ -462,6 +547,8 @@ def test_unfaithful_colours_take_the_source_texture(decide):
     res = Baker(coarse, 96).bake(field, tex, hybrid=hybrid, adaptive=AdaptiveOptions())
     below = np.asarray(Baker(coarse, 96).texels.points)[:, 2] < 0
     assert res.replaced.sum() == 0  # the sphere SDF is exact: every normal is faithful
+    # with colours no cell is given up on the source's normals alone, and no rim (a cell's colours may be faithful)
+    assert not res.stats["adaptive"]["cells_source_detail"] and res.stats["adaptive"]["rim"] == 0
     np.testing.assert_array_equal(res.colors_replaced, below)
     np.testing.assert_allclose(res.colors, np.tile(RED, (len(below), 1)), atol=1e-6)
     np.testing.assert_allclose(res.neural_colors[below], np.tile(BLUE, (below.sum(), 1)), atol=1e-6)
