@@ -268,8 +268,8 @@ def adaptive_evaluate(
       its attributes ``classical``, ``detail_side`` and ``rim_reach`` (a bake of normals alone), a cell no wider than
       ``detail_side`` with a node still to evaluate is first tested on the classical rays' normals at its nodes and
       given up unevaluated where they all hit and fail (its samples and evaluated nodes in ``"given_up"``, f there
-      the source's signed distance), and the samples left to evaluate within ``rim_reach`` of a given-up one whose
-      rays hit are given up too.
+      the source's signed distance; a wider cell is split unevaluated), and the samples left to evaluate within
+      ``rim_reach`` of a given-up one whose rays hit are given up too.
 
     Returns ``{"values", "normals", "valid", "colors"}`` for all M samples (interpolated normals are unit,
     valid), ``"evaluated"`` and ``"interpolated"`` (M,) bool masks (one of the two holds for every sample),
@@ -278,7 +278,8 @@ def adaptive_evaluate(
     ((M,) int16: the side of the cell each interpolated sample lies in, every sample of which is that close to
     the cell's nodes; the lattice's side for samples interpolated inside faces, 0 for evaluated ones) and
     ``"stats"`` (samples evaluated / interpolated, cells accepted per level (``cells_quadratic``: of them, those
-    interpolated quadratically; ``cells_given_up``, of them ``cells_source_detail``), the face pass's evaluations at
+    interpolated quadratically; ``cells_given_up``, of them ``cells_source_detail``; ``cells_source_split``: wider cells
+    split unevaluated on the source's detail), the face pass's evaluations at
     points of faces, samples and sub-triangles, the rim's samples (``rim``), evaluation calls).
     """
     opt = options or AdaptiveOptions()
@@ -318,8 +319,7 @@ def adaptive_evaluate(
     # the source's detail (a hybrid bake of normals alone): its classical rays at a cell's nodes before ∇f's
     classical = getattr(give_up, "classical", None)
     detail_side = int(getattr(give_up, "detail_side", 0)) if classical is not None else 0
-    source = _Store(values=np.zeros(m), normals=np.zeros((m, 3)), valid=np.zeros(m, bool)) if detail_side else None
-    rayed = np.zeros(m, bool) if detail_side else None
+    flat_f = np.zeros(m) if detail_side else None  # f of the source's test: not tested, its normals are
     side = np.zeros(m, np.int16)  # the side of the cell each sample was interpolated in
     gr, gc = (np.asarray(g, dtype=np.int64) for g in grid)
     on = np.flatnonzero(gr >= 0)
@@ -327,6 +327,7 @@ def adaptive_evaluate(
     levels: dict[int, int] = {}
     given_cells: dict[int, int] = {}
     sourced_cells: dict[int, int] = {}
+    split_cells: dict[int, int] = {}  # split on the source's detail, not evaluated
     if on.size:
         r_base = (int(gr[on].min()) // k0) * k0
         rows = int(gr[on].max()) - r_base + 1
@@ -362,16 +363,21 @@ def adaptive_evaluate(
             p = np.flatnonzero(pure)
             quad = np.zeros(len(r0), bool)
             given = np.zeros(len(r0), bool)
-            if p.size and k <= detail_side:
+            unevaluated = np.zeros(len(r0), bool)
+            if p.size and detail_side:
                 nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 fresh = ~store.evaluated[nodes].all(axis=1)  # ∇f still to evaluate at a node
                 if fresh.any():
-                    off = _source_detail(source, rayed, classical, points, nodes[fresh], opt, dtype)
+                    off = _source_detail(classical, flat_f, points, nodes[fresh], opt, dtype)
                     if off.any():
                         q = p[np.flatnonzero(fresh)[off]]
-                        sourced.append((r0[q], c0[q], k))
-                        given[q] = True
-                        p = p[~given[p]]
+                        if k <= detail_side:  # given up: the classical normal
+                            sourced.append((r0[q], c0[q], k))
+                            given[q] = True
+                        else:  # wider: split without evaluating ∇f, each quarter tested again
+                            unevaluated[q] = True
+                            split_cells[k] = split_cells.get(k, 0) + len(q)
+                        p = p[~(given[p] | unevaluated[p])]
             if p.size:
                 nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 run(nodes.reshape(-1))
@@ -433,7 +439,7 @@ def adaptive_evaluate(
             held = held[~store.interpolated[held]]  # every position of a pure cell holds a sample
             given_up[held] = True
             held = held[~store.evaluated[held]]  # f not known there: the source's distance
-            _, store.normals[held], store.values[held] = classical(held)
+            store.values[held] = classical(held).values[held]  # the normal is the hybrid's
             store.valid[held] = store.interpolated[held] = True
             side[held] = k
     rest = np.flatnonzero(~store.evaluated & ~store.interpolated)
@@ -464,10 +470,9 @@ def adaptive_evaluate(
         reach = int(getattr(give_up, "rim_reach", 1))
         near = _next_to(rest, given_up, index, texels, gr, gc, r_base, reach)
         if near.size:
-            hit, nrm, val = classical(near)
-            hit = np.asarray(hit, dtype=bool)
-            d = near[hit]
-            store.normals[d], store.values[d], store.valid[d] = nrm[hit], val[hit], True
+            rays = classical(near)
+            d = near[rays.hit[near]]
+            store.values[d], store.valid[d] = rays.values[d], True  # the normal is the hybrid's
             store.interpolated[d] = given_up[d] = True
             side[d] = reach
             rim_n = int(d.size)
@@ -491,24 +496,23 @@ def adaptive_evaluate(
                   "cells_quadratic": {str(k): v for k, v in sorted(quadratic.items(), reverse=True)},
                   "cells_given_up": {str(k): v for k, v in sorted(given_cells.items(), reverse=True)},
                   "cells_source_detail": {str(k): v for k, v in sorted(sourced_cells.items(), reverse=True) if v},
+                  "cells_source_split": {str(k): v for k, v in sorted(split_cells.items(), reverse=True)},
                   "given_up": int(given_up.sum()), "rim": rim_n,
                   "evaluated_outside_cells": int(rest.size), "evaluation_calls": store.calls},
     }
 
 
-def _source_detail(source: _Store, rayed: np.ndarray, classical: Callable, points: np.ndarray, nodes: np.ndarray,
+def _source_detail(classical: Callable, flat_f: np.ndarray, points: np.ndarray, nodes: np.ndarray,
                    opt: AdaptiveOptions, dtype: torch.dtype) -> np.ndarray:
     """(P,) bool: of the cells with 3×3 ``nodes`` (P, 9) sample indices, those whose classical rays hit the source at
-    every node and whose source normals there fail the bilinear test (:func:`_surplus_ok`). ``classical``: (sample
-    indices (n,)) → (hit (n,), unit normals (n, 3), the source's signed distance (n,)); each node cast once, kept in
-    ``source`` (``rayed`` marks them)."""
-    mark = np.zeros(len(rayed), bool)  # each node once (a mask, not np.unique: no sort)
+    every node and whose source normals there fail the bilinear test (:func:`_surplus_ok`, on the normals alone:
+    ``flat_f`` is (M,) zeros). ``classical``: (sample indices (n,)) → the band's rays, (M,) ``hit`` and (M, 3)
+    ``normals`` (unit), valid at those samples and every one cast before (each cast once)."""
+    mark = np.zeros(len(flat_f), bool)  # each node once (a mask, not np.unique: no sort)
     mark[nodes.reshape(-1)] = True
-    new = np.flatnonzero(mark & ~rayed)
-    if new.size:
-        hit, nrm, _ = classical(new)
-        source.valid[new], source.normals[new], rayed[new] = hit, nrm, True
-    return source.valid[nodes].all(axis=1) & ~_surplus_ok(source, points, nodes, opt, dtype)
+    rays = classical(np.flatnonzero(mark))
+    source = _Store(values=flat_f, normals=rays.normals, valid=rays.hit)
+    return rays.hit[nodes].all(axis=1) & ~_surplus_ok(source, points, nodes, opt, dtype)
 
 
 def _next_to(candidates: np.ndarray, given_up: np.ndarray, index: np.ndarray, texels, gr: np.ndarray,

@@ -340,6 +340,7 @@ class _ErrorControl:
         self.cells: dict[str, int] = {}
         self.given_cells: dict[str, int] = {}
         self.source_cells: dict[str, int] = {}
+        self.source_split: dict[str, int] = {}
         self.angles: list[np.ndarray] = []
         self.colors: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
@@ -402,6 +403,8 @@ class _ErrorControl:
             self.given_cells[k] = self.given_cells.get(k, 0) + v
         for k, v in st["cells_source_detail"].items():
             self.source_cells[k] = self.source_cells.get(k, 0) + v
+        for k, v in st["cells_source_split"].items():
+            self.source_split[k] = self.source_split.get(k, 0) + v
         self.counts["calls"] += st["evaluation_calls"]
         self.counts["outside"] += st["evaluated_outside_cells"]
         for k, v in st["cells_accepted"].items():
@@ -457,7 +460,8 @@ class _ErrorControl:
             "evaluated_outside_cells": c["outside"], "cells_accepted": self.cells, "face_nodes": c["face_nodes"],
             "face_interpolated": c["face_interpolated"], "face_cells": c["face_cells"],
             "given_up": c["given_up"], "rim": c["rim"], "cells_given_up": self.given_cells,
-            "cells_source_detail": self.source_cells, "evaluation_calls": c["calls"]},
+            "cells_source_detail": self.source_cells, "cells_source_split": self.source_split,
+            "evaluation_calls": c["calls"]},
             "evaluated_fraction": evaluated}
         out["precision"] = self.precision
         if self.checked:

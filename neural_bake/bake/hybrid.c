@@ -88,3 +88,31 @@ void nb_decide(const int64_t *idx, int64_t n, const double *neural, const uint8_
         near[i] = isfinite(e) && dist < near_dist && fabs(e) < est_tol;
     }
 }
+
+/* nb_keep_rays(index, n, x, normals, points, hit, out_normals, out_points, out_hit, out_values, out_done, threads): the
+   classical bake of n samples kept in the band's (M,) arrays: for s < n, row = index[s], out_normals[row] =
+   normals[s], out_points[row] = points[s], out_hit[row] = hit[s], out_done[row] = 1 and out_values[row] =
+   (x[row] − points[s])·normals[s], the source's signed distance to first order. x (M, 3) float64: the band's sample
+   points, in the frame of points; normals, points (n, 3) float64; hit (n,) uint8; out_normals, out_points (M, 3)
+   float64, out_values (M,) float64, out_hit, out_done (M,) uint8. The rows split over an OpenMP team of `threads`. */
+void nb_keep_rays(const int64_t *index, int64_t n, const double *x, const double *normals, const double *points,
+                  const uint8_t *hit, double *out_normals, double *out_points, uint8_t *out_hit, double *out_values,
+                  uint8_t *out_done, int64_t threads) {
+    (void)threads;
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads((int)threads) if(threads > 1 && n >= NB_MT_MIN)
+#endif
+    for (int64_t s = 0; s < n; s++) {
+        const int64_t row = index[s];
+        const double *nrm = normals + 3 * s, *p = points + 3 * s, *q = x + 3 * row;
+        double v = 0.0;
+        for (int k = 0; k < 3; k++) {
+            out_normals[3 * row + k] = nrm[k];
+            out_points[3 * row + k] = p[k];
+            v += (q[k] - p[k]) * nrm[k];
+        }
+        out_values[row] = v;
+        out_hit[row] = hit[s];
+        out_done[row] = 1;
+    }
+}

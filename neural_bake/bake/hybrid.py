@@ -96,6 +96,8 @@ def _declare(lib) -> None:
     f64 = ctypes.c_double
     lib.nb_decide.argtypes = [p, i64, p, p, p, f64, p, p, p, p, p, f64, f64, p, p, p, p, i64]
     lib.nb_decide.restype = None
+    lib.nb_keep_rays.argtypes = [p, i64, p, p, p, p, p, p, p, p, p, i64]
+    lib.nb_keep_rays.restype = None
 
 
 #: The C kernel (hybrid.c, :class:`neural_bake.nets.native.Kernel`; the candidates on torch's OpenMP team where it
@@ -285,6 +287,7 @@ class HybridFallback:
         self.give_up_nodes = int(give_up_nodes)
         self.detail_side = int(detail_side)
         self._early: SimpleNamespace | None = None
+        self._rays: SimpleNamespace | None = None  # the band's kept rays (:meth:`_cached_rays`)
         self.decides_colours = bool(given)
         self.scene = raycasting_scene(fine)
         self.fine_normals = vertex_normals(fine)  # shared by every band's classical shading
@@ -377,10 +380,17 @@ class HybridFallback:
         """The classical bake of the samples ``idx`` of the band ``texels``: their rows of ``base`` (the band's kept
         classical bake) where given, else rays (or each sample's own face and barycentrics on a bake onto the
         source)."""
-        from .baseline import baseline_bake, same_surface
-
         if base is not None:
             return {k: None if base[k] is None else base[k][idx] for k in ("normals", "points", "colors", "hit")}
+        rays = self._rays
+        if rays is not None and rays.texels is texels:  # the band's rays kept (a bake of normals alone): cast once
+            self._cast(rays, coarse, texels, idx[~rays.done[idx]])
+            return {"normals": rays.normals[idx], "points": rays.points[idx], "colors": None, "hit": rays.hit[idx]}
+        return self._cast_rays(coarse, texels, idx)
+
+    def _cast_rays(self, coarse: Mesh, texels, idx: np.ndarray) -> dict:
+        """:func:`~neural_bake.bake.baseline.baseline_bake` of the samples ``idx`` of the band ``texels``."""
+        from .baseline import baseline_bake, same_surface
 
         own = same_surface(coarse, self.fine)
         sub = texels if own else SimpleNamespace(points=texels.points, normal=texels.normal, face=None, bary=None)
@@ -517,13 +527,13 @@ class HybridFallback:
         interpolated). A kept classical bake (``keep_baseline``) is cast here, over the whole band.
 
         In a bake without colours with ``detail_side`` > 0 the callable also carries ``classical`` ((sample indices
-        (n,)) → (hit (n,), classical unit normals (n, 3), the source's signed distance (n,)): the band's rays, each
-        sample cast once and kept for its given-up samples), ``detail_side`` and ``rim_reach`` (half of it), with
+        (n,)) → the band's rays: (M,) ``hit``, (M, 3) unit ``normals`` and (M,) ``values``, the source's signed distance,
+        valid at those samples; each sample cast once, :meth:`_cached_rays`), ``detail_side`` and ``rim_reach`` (half of it), with
         which the bake gives up cells on the source's own detail and the samples next to given-up ones (module
         docstring)."""
         from .baseline import baseline_bake
 
-        self._early = None
+        self._early = self._rays = None
         if self.decide != "lattice" or (self.give_up_nodes > 9 and not self.detail_side) \
                 or (textured and not self.decides_colours):
             return None
@@ -563,32 +573,46 @@ class HybridFallback:
         return give_up
 
     def _cached_rays(self, state: SimpleNamespace, coarse: Mesh, texels):
-        """``(sample indices (n,)) → (hit (n,) bool, classical unit normals (n, 3))`` of the band ``texels``: the
-        classical bake's rays, cast once per sample and kept in ``state.rays`` for the given-up samples' normals
-        (:meth:`_classical`)."""
+        """``(sample indices (n,)) → rays`` of the band ``texels``: the classical bake's rays cast at those samples not
+        cast yet, and the band's kept rays returned (:meth:`_cast`: (M,) arrays, valid where ``done``), which every
+        decision and the given-up samples' normals reuse."""
         m = int(texels.n_samples)
-        rays = state.rays = SimpleNamespace(done=np.zeros(m, bool), hit=np.zeros(m, bool), normals=np.zeros((m, 3)),
-                                            values=np.zeros(m))
+        rays = self._rays = state.rays = SimpleNamespace(
+            texels=texels, base=state.base, done=np.zeros(m, bool), hit=np.zeros(m, bool), normals=np.zeros((m, 3)),
+            points=np.zeros((m, 3)), values=np.zeros(m))
 
         def classical(idx):
             idx = np.asarray(idx, dtype=np.int64)
-            self._cast(rays, coarse, texels, idx[~rays.done[idx]], state.base)
-            return rays.hit[idx], rays.normals[idx], rays.values[idx]
+            self._cast(rays, coarse, texels, idx[~rays.done[idx]])
+            return rays
 
         return classical
 
-    def _cast(self, rays: SimpleNamespace, coarse: Mesh, texels, idx: np.ndarray, base: dict | None) -> None:
-        """The classical bake of the samples ``idx`` of ``texels`` into the band's cast rays ``rays`` (``done``, ``hit``,
-        ``normals``, ``values``: (M,) each). ``values``: the source's signed distance at each sample to first order,
-        (x − p)·n with p the point the ray found and n the source's normal there, in the field's frame (what f
-        approximates; the bake's miss test reads it where f is not evaluated)."""
+    def _cast(self, rays: SimpleNamespace, coarse: Mesh, texels, idx: np.ndarray) -> None:
+        """The classical bake of the samples ``idx`` of ``texels`` into the band's kept rays ``rays`` (``done``, ``hit``,
+        ``normals``, ``points``, ``values``: (M,) each; the band's kept classical bake's rows where there is one).
+        ``values``: the source's signed distance at each sample to first order, (x − p)·n with p the point the ray
+        found and n the source's normal there, in the field's frame (what f approximates; the bake's miss test reads
+        it where f is not evaluated)."""
         from .baker import _to_field_frame
 
         if len(idx):
-            b = self._baseline(coarse, texels, idx, base)
-            x = _to_field_frame(np.asarray(texels.points, dtype=np.float64)[idx], coarse.frame, self.sdf.frame)
-            p = _to_field_frame(np.asarray(b["points"], dtype=np.float64), self.fine.frame, self.sdf.frame)
-            rays.hit[idx], rays.normals[idx], rays.done[idx] = b["hit"], b["normals"], True
+            b = {k: rays.base[k][idx] for k in ("normals", "points", "hit")} if rays.base is not None \
+                else self._cast_rays(coarse, texels, idx)
+            lib = KERNEL.lib()
+            frame = self.sdf.frame
+            if lib is not None and (frame is None or frame == coarse.frame == self.fine.frame):  # no frame to change
+                idx = np.ascontiguousarray(idx, dtype=np.int64)
+                x = np.ascontiguousarray(texels.points, dtype=np.float64)
+                nrm, pts = (np.ascontiguousarray(b[k], dtype=np.float64) for k in ("normals", "points"))
+                hit = np.ascontiguousarray(b["hit"], dtype=bool)
+                lib.nb_keep_rays(idx.ctypes.data, len(idx), x.ctypes.data, nrm.ctypes.data, pts.ctypes.data,
+                                 hit.ctypes.data, rays.normals.ctypes.data, rays.points.ctypes.data,
+                                 rays.hit.ctypes.data, rays.values.ctypes.data, rays.done.ctypes.data, threads())
+                return
+            x = _to_field_frame(np.asarray(texels.points, dtype=np.float64)[idx], coarse.frame, frame)
+            p = _to_field_frame(np.asarray(b["points"], dtype=np.float64), self.fine.frame, frame)
+            rays.hit[idx], rays.normals[idx], rays.points[idx], rays.done[idx] = b["hit"], b["normals"], b["points"], True
             rays.values[idx] = np.einsum("ij,ij->i", x - p, b["normals"])
 
     def _classical(self, coarse: Mesh, texels, idx: np.ndarray, colors: np.ndarray | None,
@@ -677,7 +701,7 @@ class HybridFallback:
             self.counts["detail_nodes"] += int(forced.sum())
             given = np.flatnonzero(np.asarray(given_up, dtype=bool) & ~decided)
             if len(given) and rays is not None:  # the classical bake's without a decision, cast once a sample
-                self._cast(rays, coarse, texels, given[~rays.done[given]], base)
+                self._cast(rays, coarse, texels, given[~rays.done[given]])
                 decided[given] = mask[given] = True
                 self.counts["given_up"] += len(given)
             elif len(given):
@@ -706,6 +730,7 @@ class HybridFallback:
                 self.check["samples"] += len(check)
                 self.check["missed"] += int(either(why).sum())
         self._seen += m
+        self._rays = None  # the band is done
         out = normals.copy()
         np.copyto(out, classical, where=mask[:, None])  # a masked copy: no gather of the replaced rows
         out_colors = None

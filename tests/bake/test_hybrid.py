@@ -344,12 +344,14 @@ def test_cells_where_the_source_has_detail_are_given_up_unevaluated(monkeypatch)
     opt = AdaptiveOptions()
     d = baker.bake(field, hybrid=HybridFallback(source, field, give_up_nodes=10), adaptive=opt)
     with monkeypatch.context() as mp:
-        mp.setattr(adaptive_module, "_source_detail", lambda source, rayed, classical, points, nodes, *a:
+        mp.setattr(adaptive_module, "_source_detail", lambda classical, flat_f, points, nodes, *a:
                    np.zeros(len(nodes), bool))
         p = baker.bake(field, hybrid=HybridFallback(source, field, give_up_nodes=10), adaptive=opt)
     st = d.stats["adaptive"]
     assert sum(st["cells_source_detail"].values()) > 50 and not p.stats["adaptive"]["cells_source_detail"]
     assert all(int(k) <= HYBRID_DETAIL_SIDE for k in st["cells_source_detail"])
+    # a wider cell (the lattice's 16) where the source fails is split without evaluating ∇f at its nodes
+    assert st["cells_source_split"].get("16", 0) > 0 and not p.stats["adaptive"]["cells_source_split"]
     assert st["evaluated"] < p.stats["adaptive"]["evaluated"]
     given = np.isnan(d.neural).any(axis=1)
     assert given.sum() == st["given_up"] > 0 and d.replaced[given].all()
@@ -796,3 +798,37 @@ def test_ring_estimates_from_interpolated_values_within_a_quarter_of_the_toleran
     assert half["estimated"] + half["samples"] == len(idx) > 500  # every one estimated (or checked)
     h._source_values(baker.mesh, tx, idx, src[idx], normals, values, valid, share=0.25)
     assert h.estimate == half  # none
+
+
+def test_kept_rays_kernel_matches_numpy(monkeypatch):
+    """The band's kept rays (normals, points, hit and the source's signed distance (x − p)·n, by rows): the C kernel
+    writes what numpy does; a sample's rays are cast once, a second call casts none."""
+    from neural_bake.bake import hybrid as hybrid_module
+
+    if hybrid_module.KERNEL.lib() is None:
+        pytest.skip(hybrid_module.kernel_status())
+    coarse = unwrap(ico(2), resolution=128)
+    tx = Baker(coarse, 64).texels
+    idx = np.arange(0, tx.n_samples, 3)
+    out = {}
+    for path in ("kernel", "numpy"):
+        hybrid = HybridFallback(rippled_sphere(), sphere_field())
+        with monkeypatch.context() as mp:
+            if path == "numpy":
+                mp.setattr(hybrid_module.KERNEL, "lib", lambda: None)
+            rays = hybrid._cached_rays(SimpleNamespace(base=None), coarse, tx)(idx)
+        out[path] = rays
+    k, n = out["kernel"], out["numpy"]
+    for name in ("done", "hit", "normals", "points"):
+        np.testing.assert_array_equal(getattr(k, name), getattr(n, name))
+    np.testing.assert_allclose(k.values, n.values, rtol=0, atol=1e-15)  # the sum's rounding
+    assert k.done.sum() == len(idx) and k.hit[idx].all()
+    x = np.asarray(tx.points)[idx]
+    assert np.abs(k.values[idx] - (np.linalg.norm(x, axis=1) - R)).max() < 0.002  # the rippled sphere's distance
+    calls = []
+    hybrid = HybridFallback(rippled_sphere(), sphere_field())
+    classical = hybrid._cached_rays(SimpleNamespace(base=None), coarse, tx)
+    classical(idx)
+    monkeypatch.setattr(hybrid, "_cast_rays", lambda *a: calls.append(a))
+    classical(idx[::2])
+    assert calls == []
