@@ -363,23 +363,21 @@ def adaptive_evaluate(
             p = np.flatnonzero(pure)
             quad = np.zeros(len(r0), bool)
             given = np.zeros(len(r0), bool)
-            unevaluated = np.zeros(len(r0), bool)
-            if p.size and detail_side:
-                nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
-                fresh = ~store.evaluated[nodes].all(axis=1)  # ∇f still to evaluate at a node
-                if fresh.any():
-                    off = _source_detail(classical, flat_f, points, nodes[fresh], opt, dtype)
-                    if off.any():
-                        q = p[np.flatnonzero(fresh)[off]]
-                        if k <= detail_side:  # given up: the classical normal
-                            sourced.append((r0[q], c0[q], k))
-                            given[q] = True
-                        else:  # wider: split without evaluating ∇f, each quarter tested again
-                            unevaluated[q] = True
-                            split_cells[k] = split_cells.get(k, 0) + len(q)
-                        p = p[~(given[p] | unevaluated[p])]
+            nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
+            fresh = ~store.evaluated[nodes].all(axis=1) if detail_side else None  # ∇f still to evaluate at a node
+            if fresh is not None and fresh.any():
+                off = np.zeros(len(p), bool)
+                off[fresh] = _source_detail(classical, flat_f, points, nodes[fresh], opt, dtype)
+                if off.any():
+                    q = p[off]
+                    if k <= detail_side:  # given up: the classical normal
+                        sourced.append((r0[q], c0[q], k))
+                        sourced_cells[k] = len(q)
+                        given[q] = True
+                    else:  # wider: split without evaluating ∇f, each quarter tested again
+                        split_cells[k] = len(q)
+                    p, nodes = p[~off], nodes[~off]
             if p.size:
-                nodes = index[r0[p, None] + h * _NODES[:, 0], c0[p, None] + h * _NODES[:, 1]]  # (P, 9)
                 run(nodes.reshape(-1))
                 acc[p] = _surplus_ok(store, points, nodes, opt, dtype)
                 fail = ~acc[p]
@@ -404,7 +402,6 @@ def adaptive_evaluate(
                 levels[k] = int(acc.sum() + quad.sum())
             if given.any():
                 given_cells[k] = int(given.sum())
-                sourced_cells[k] = int(sum(len(a) for a, _, kk in sourced if kk == k))
             split = ~(acc | quad | given)
             if k == 4 and p.size:  # pure cells that failed at the last level: the fields vary too fast there
                 f = p[split[p]]

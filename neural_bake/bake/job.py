@@ -250,8 +250,7 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
               hybrid_tol: float, hybrid_angle: float, hybrid_color_tol: float, hybrid_color_psnr: float | None = None,
               hybrid_color_within: float | None = None, bits: int = 8, hybrid_decide: str = "lattice",
               hybrid_detail: int = HYBRID_DETAIL_SIDE, cage: float | None = None, keep_baseline: bool = False,
-              adaptive=None,
-              precision: str = "auto", layout_cache: LayoutCache | None = None) -> TexelBake:
+              adaptive=None, precision: str = "auto", layout_cache: LayoutCache | None = None) -> TexelBake:
     """Bake the texel maps (``maps`` "normal", "albedo") of ``inputs`` onto ``coarse_m`` (:class:`TexelBake`).
 
     The hybrid fallback runs when ``hybrid`` and a source mesh is there: normals always, colours where a
@@ -259,8 +258,8 @@ def bake_maps(inputs: BakeInputs, coarse_m: Mesh, *, maps: list[str], size: int,
     ``hybrid_color_within`` set; ``bits``: the albedo map's, which the last compares in; ``hybrid_detail``: the
     widest cell given up as too fine for the lattice, :class:`~.hybrid.HybridFallback`'s ``detail_side``).
     ``keep_baseline``: the hybrid keeps its classical bake of every sample for the report (when the report
-    measures every texel: a map up to the report's lattice side). ``keep``: the coarse mesh is the source itself (the texture is read at the point).
-    ``layout_cache``: a coarse mesh without UVs takes its layout from it (:meth:`LayoutCache.unwrap`)."""
+    measures every texel: a map up to the report's lattice side). ``keep``: the coarse mesh is the source itself
+    (the texture is read at the point). ``layout_cache``: a coarse mesh without UVs takes its layout from it (:meth:`LayoutCache.unwrap`)."""
     from .baker import Baker
     from .report import lattice_step
 
