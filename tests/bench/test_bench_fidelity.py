@@ -56,6 +56,8 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     assert row["classical_median_deg"] < 2.0 < row["coarse_median_deg"]
     # a field of a second's training is poor: the hybrid takes the classical normal where it is off
     assert row["hybrid_pct"] > 0 and row["map_median_deg"] <= row["neural_median_deg"]
+    # ∇f alone is a bake of its own at every texel; the hybrid bake's own figure only where it evaluated ∇f
+    assert row["neural_evaluated_median_deg"] is not None and row["neural_p95_deg"] >= row["neural_median_deg"]
     assert row["map_max_deg"] >= row["map_p95_deg"] and row["classical_max_deg"] >= row["classical_p95_deg"]
     params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
     assert row["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
