@@ -274,7 +274,7 @@ def import_open3d() -> types.ModuleType:
     return open3d
 
 
-_SCENES: OrderedDict[bytes, object] = OrderedDict()
+_SCENES: OrderedDict[bytes, RaycastScene] = OrderedDict()
 _SCENES_LOCK = threading.Lock()
 _PREFETCH: list[threading.Thread] = []
 
@@ -315,10 +315,46 @@ def raycasting_prefetched() -> Iterator[None]:
         finish_prefetch()
 
 
-def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
-    """open3d ``RaycastingScene`` of the triangles ``vertices[faces]`` (float32 BVH), built once per triangle
-    set: scenes are cached by the content of both arrays (the last ``RAYCAST_SCENE_CACHE`` sets), so every
-    stage that queries the same mesh shares one BVH. Query it; do not add geometry to it."""
+#: The queries of open3d's ``RaycastingScene`` that take ``nthreads`` (0: every core).
+SCENE_QUERIES = ("cast_rays", "compute_closest_points", "compute_distance", "compute_signed_distance",
+                 "compute_occupancy", "count_intersections", "list_intersections", "test_occlusions")
+
+
+def query_threads() -> int:
+    """The threads an open3d query runs with when its caller names none: torch's thread count (what the thread
+    probe or ``--threads`` set), so a query shares the cores the run chose instead of taking every core (which
+    slows it many times when another program holds one); 0 (open3d's every core) where torch is not loaded."""
+    torch = sys.modules.get("torch")
+    return max(1, int(torch.get_num_threads())) if torch is not None else 0
+
+
+class RaycastScene:
+    """An open3d ``RaycastingScene`` whose queries (:data:`SCENE_QUERIES`) run with :func:`query_threads`
+    unless given ``nthreads``; everything else is the scene's own (``scene.scene``: the open3d object)."""
+
+    __slots__ = ("scene",)
+
+    def __init__(self, scene) -> None:
+        self.scene = scene
+
+    def __getattr__(self, name: str):
+        if name == "scene":  # not set yet (a copy being built): no recursion through it
+            raise AttributeError(name)
+        attr = getattr(self.scene, name)
+        if name not in SCENE_QUERIES:
+            return attr
+
+        def query(*args, nthreads: int | None = None, **kwargs):
+            return attr(*args, nthreads=query_threads() if nthreads is None else int(nthreads), **kwargs)
+
+        return query
+
+
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray) -> RaycastScene:
+    """open3d ``RaycastingScene`` of the triangles ``vertices[faces]`` (float32 BVH) as a :class:`RaycastScene`
+    (its queries on the run's threads), built once per triangle set: scenes are cached by the content of both
+    arrays (the last ``RAYCAST_SCENE_CACHE`` sets), so every stage that queries the same mesh shares one BVH.
+    Query it; do not add geometry to it."""
     o3d = import_open3d()
 
     v = np.ascontiguousarray(vertices, dtype=np.float32)
@@ -332,8 +368,9 @@ def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
         if scene is not None:
             _SCENES.move_to_end(digest)
             return scene
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+    built = o3d.t.geometry.RaycastingScene()
+    built.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+    scene = RaycastScene(built)
     with _SCENES_LOCK:
         _SCENES[digest] = scene
         while len(_SCENES) > RAYCAST_SCENE_CACHE:

@@ -102,6 +102,45 @@ def test_scene_is_built_once_per_triangle_set_and_answers_correctly():
     assert d[0] == pytest.approx(2.0, abs=0.02)
 
 
+def test_scene_queries_run_on_torchs_threads_unless_told():
+    """Every query of a cached scene takes the run's thread count (torch's), not open3d's every core; a caller's
+    nthreads wins; the rest of the scene is open3d's own, and answers as it does unwrapped."""
+    import open3d as o3d
+    import torch
+
+    class Recording:
+        def __init__(self):
+            self.asked = []
+
+        def cast_rays(self, rays, nthreads=0):
+            self.asked.append(nthreads)
+            return rays
+
+        def test_occlusions(self, rays, tnear=0.0, tfar=float("inf"), nthreads=0):
+            self.asked.append(nthreads)
+            return tfar
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert geometry.query_threads() == 1
+        rec = Recording()
+        scene = geometry.RaycastScene(rec)
+        assert scene.cast_rays("r") == "r" and scene.cast_rays("r", nthreads=2) == "r"
+        assert scene.test_occlusions("r", 0.0, 3.0) == 3.0
+        assert rec.asked == [1, 2, 1]
+    finally:
+        torch.set_num_threads(before)
+    s = trimesh.creation.icosphere(subdivisions=2)
+    wrapped = raycasting_scene(s.vertices, s.faces)
+    assert isinstance(wrapped, geometry.RaycastScene) and isinstance(wrapped.scene, o3d.t.geometry.RaycastingScene)
+    bare = o3d.t.geometry.RaycastingScene()
+    bare.add_triangles(o3d.core.Tensor(s.vertices.astype(np.float32)), o3d.core.Tensor(s.faces.astype(np.uint32)))
+    rays = o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0], [3, 0, 0, -1, 0, 0]], np.float32))
+    np.testing.assert_array_equal(wrapped.cast_rays(rays)["t_hit"].numpy(), bare.cast_rays(rays)["t_hit"].numpy())
+    assert wrapped.INVALID_ID == bare.INVALID_ID
+
+
 def test_scene_cache_is_bounded():
     geometry._SCENES.clear()
     s = trimesh.creation.icosphere(subdivisions=1)
