@@ -288,9 +288,10 @@ def _with_ratios(rows: list[dict]) -> None:
 
 def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, alone) -> dict:
     """One normal row: ``rep`` the hybrid bake's report, ``alone`` the report of the same bake without the
-    hybrid (∇f at every texel; ``neural_evaluated_*``: ∇f where the hybrid bake evaluated or interpolated it)."""
+    hybrid (``neural_*``: ∇f at every texel, as computed, before the map's 8-bit encoding, like the classical
+    bake's column; ``neural_evaluated_*``: ∇f where the hybrid bake evaluated or interpolated it)."""
     med, p95 = _stats(rep, "vs_truth_deg")
-    n_med, n_p95 = _stats(alone, "vs_truth_deg")
+    n_med, n_p95 = _stats(alone, "gradient_vs_truth_deg")
     e_med, e_p95 = _stats(rep, "neural_vs_truth_deg")
     b_med, b_p95 = _stats(rep, "baseline.vs_truth_deg")
     g_med, g_p95 = _stats(rep, "geometric_vs_truth_deg")
