@@ -5,9 +5,9 @@ skipped, saying so, when absent) and each preset at its time budget: fit the SDF
 distance (an open mesh's also without the caps the SDF puts over its holes, and those caps on their own),
 decimate (or keep, for game assets), bake a normal map and report the angle between the baked normal and the
 source mesh's (median, p95) for the hybrid map, ∇f alone (the same bake without the hybrid: the network at
-every texel), the classical mesh-to-mesh bake and the coarse mesh's own normals, all on the same texels; the share of hybrid texels; times of each stage; the texture
-PSNR of textured assets (a texture fit at the same preset name); and storage (the networks' KB against the
-source file's MB).
+every texel), the classical mesh-to-mesh bake and the coarse mesh's own normals, all on the same texels; the
+share of hybrid texels; times of each stage; the texture PSNR of textured assets (a texture fit at the same
+preset name); and storage (the networks' KB against the source file's MB).
 
 Textured assets also get a texture row (:mod:`neural_bake.bench.fidelity_texture`): the albedo of the network
 alone, of the hybrid colour rule and of the classical transfer, each against the source texture at the
