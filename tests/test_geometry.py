@@ -116,9 +116,9 @@ def test_scene_queries_run_on_torchs_threads_unless_told():
             self.asked.append(nthreads)
             return rays
 
-        def test_occlusions(self, rays, tnear=0.0, tfar=float("inf"), nthreads=0):
+        def compute_signed_distance(self, points, nthreads=0, nsamples=1):
             self.asked.append(nthreads)
-            return tfar
+            return nsamples
 
     before = torch.get_num_threads()
     try:
@@ -127,7 +127,7 @@ def test_scene_queries_run_on_torchs_threads_unless_told():
         rec = Recording()
         scene = geometry.RaycastScene(rec)
         assert scene.cast_rays("r") == "r" and scene.cast_rays("r", nthreads=2) == "r"
-        assert scene.test_occlusions("r", 0.0, 3.0) == 3.0
+        assert scene.compute_signed_distance("r", nsamples=3) == 3  # the query's other arguments pass through
         assert rec.asked == [1, 2, 1]
     finally:
         torch.set_num_threads(before)

@@ -28,6 +28,7 @@ import tempfile
 import threading
 from pathlib import Path
 
+from ..geometry import query_threads
 from .compiled import env_switch
 
 __all__ = ["Kernel", "build", "cache_dir", "compiler", "torch_openmp", "openmp_runtimes", "threads", "FLAGS"]
@@ -104,9 +105,9 @@ def torch_openmp() -> tuple[bool, str]:
 def threads() -> int:
     """The thread count a parallel kernel call runs with: torch's (``torch.get_num_threads()``, what the thread
     probe of :mod:`neural_bake.nets.threads` or ``--threads`` set)."""
-    import torch
+    import torch  # noqa: F401  (loaded, so query_threads reads its count)
 
-    return max(1, int(torch.get_num_threads()))
+    return query_threads()
 
 
 def build(source: Path, *, switch: str, flags: tuple[str, ...] = FLAGS,
