@@ -55,6 +55,8 @@ __all__ = [
     "sample_uniform",
     "signed_distance",
     "unsigned_distance",
+    "distance_gradient_targets",
+    "NEAR_TARGET_MAX_DEG",
     "inside_mask",
     "SIGN_METHODS",
 ]
@@ -100,6 +102,9 @@ class VolumeSamples:
     """(N,) float32 signed distance to the mesh in unit-frame units, negative inside."""
     sure: np.ndarray | None = None
     """(N,) bool: the sign is sure (:func:`signed_distance_sure`); None: not known."""
+    normals: np.ndarray | None = None
+    """(N, 3) float32 direction of the signed distance's gradient where it is known, zero rows elsewhere
+    (:func:`sample_near` with ``normals``); None: not computed."""
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -157,15 +162,7 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     tri = mesh.vertices[mesh.faces[face]]  # (n, 3, 3)
     points = np.einsum("nk,nkd->nd", bary, tri)
 
-    fn = mesh.face_normals[face]
-    if normals == "vertex":
-        vn = vertex_normals(mesh)[mesh.faces[face]]
-        nrm = np.einsum("nk,nkd->nd", bary, vn)
-        length = np.linalg.norm(nrm, axis=1, keepdims=True)
-        good = length[:, 0] > DIRECTION_EPS
-        nrm = np.where(good[:, None], nrm / np.where(length > 0, length, 1.0), fn)
-    else:
-        nrm = fn
+    nrm = _interp_normals(mesh, face, bary) if normals == "vertex" else mesh.face_normals[face]
 
     uv = rgb = None
     if mesh.uv is not None:
@@ -257,12 +254,16 @@ def sample_near(
     seed: int = 0,
     sign: str = "auto",
     face_weights: np.ndarray | None = None,
+    normals: float = 0.0,
 ) -> VolumeSamples:
     """``n`` points near the surface with their signed distance (unit frame).
 
     Surface points (:func:`sample_surface`, same ``seed`` and ``face_weights``) are moved by isotropic Gaussian noise
     N(0, σ² I). A sequence of σ mixes them in equal parts (the first ones get the remainder of ``n``),
     e.g. ``sigma=(0.01, 0.003)``. The signed distance is :func:`signed_distance` with ``sign``.
+
+    ``normals`` > 0 also gives each point within that distance of the mesh the gradient of its signed distance,
+    :func:`distance_gradient_targets` (``VolumeSamples.normals``; zero rows where there is none).
     """
     n = _check_count(n, "sample_near")
     sigmas = _sigmas(sigma)
@@ -271,8 +272,45 @@ def sample_near(
     counts = [n // len(sigmas) + (1 if i < n % len(sigmas) else 0) for i in range(len(sigmas))]
     scale = np.repeat(np.asarray(sigmas), counts)
     points = surf.points.astype(np.float64) + rng.standard_normal((n, 3)) * scale[:, None]
-    sdf, sure = signed_distance_sure(mesh, points, sign=sign) if n else (np.zeros(0), np.zeros(0, dtype=bool))
-    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure)
+    if not n:
+        return VolumeSamples(points.astype(np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool),
+                             np.zeros((0, 3), np.float32) if normals > 0 else None)
+    closest = _closest_points(mesh, points)
+    dist = np.linalg.norm(points - closest["points"], axis=1)
+    inside, sure = _inside_and_sure(mesh, points, sign)
+    sdf = np.where(inside, -dist, dist)
+    grad = distance_gradient_targets(mesh, points, sdf, closest, normals).astype(np.float32) if normals > 0 else None
+    return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure, grad)
+
+
+#: Largest angle between the offset from a point's closest point of the mesh and the mesh's interpolated
+#: normal there for :func:`distance_gradient_targets` to give the point that normal (degrees): past it the
+#: closest point is on an open boundary or a sharp edge, where the distance's gradient is not the shading normal.
+NEAR_TARGET_MAX_DEG = 30.0
+
+
+def distance_gradient_targets(mesh: Mesh, points: np.ndarray, sdf: np.ndarray, closest: dict,
+                              reach: float) -> np.ndarray:
+    """(N, 3) float64 unit directions the gradient of the signed distance takes at ``points`` (N, 3) within
+    ``reach`` of ``mesh``: the interpolated vertex normal (the shading a bake scores against) at each point's
+    closest point (``closest``: :func:`_closest_points`), which an exact SDF's gradient equals off a smooth
+    surface, inside and out. Zero rows where the distance is 0 or beyond ``reach``, or where the offset from the
+    closest point is more than :data:`NEAR_TARGET_MAX_DEG` off that normal (an open boundary, a crease)."""
+    n = _interp_normals(mesh, closest["face"], closest["bary"])
+    offset = (points - closest["points"]) * np.sign(sdf)[:, None]
+    dist = np.linalg.norm(offset, axis=1)
+    cos = np.einsum("ij,ij->i", offset, n) / np.maximum(dist, DIRECTION_EPS)
+    ok = (dist > DIRECTION_EPS) & (np.abs(sdf) <= reach) & (cos >= math.cos(math.radians(NEAR_TARGET_MAX_DEG)))
+    return np.where(ok[:, None], n, 0.0)
+
+
+def _interp_normals(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """(N, 3) unit interpolated vertex normals at barycentrics ``bary`` (N, 3) of faces ``face`` (N,); the
+    face's own normal where the interpolation vanishes."""
+    vn = vertex_normals(mesh)[mesh.faces[face]]
+    nrm = np.einsum("nk,nkd->nd", bary, vn)
+    norm = np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.where(norm > DIRECTION_EPS, nrm / np.maximum(norm, DIRECTION_EPS), mesh.face_normals[face])
 
 
 def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sign: str = "auto") -> VolumeSamples:
@@ -295,15 +333,25 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     open3d's BVH finds the closest point (in float32); the distance to it is taken in float64.
     """
     p = check_points(points, "signed_distance")
-    idx, _ = sampleable_faces(mesh)
     if p.shape[0] == 0:
         return np.zeros(0)
+    return np.linalg.norm(p - _closest_points(mesh, p)["points"], axis=1)
+
+
+def _closest_points(mesh: Mesh, points: np.ndarray) -> dict:
+    """Closest points of the mesh's non-degenerate faces to ``points`` (N, 3) by open3d's BVH: ``{"points"
+    (N, 3) float64, "face" (N,) int64 (the mesh's face index), "bary" (N, 3) (weights of its corners)}``."""
+    idx, _ = sampleable_faces(mesh)
     o3d = import_open3d()
 
     scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
     # on the fit's threads (measured or fixed), not open3d's default of every core
-    closest = scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)), nthreads=threads())["points"].numpy()
-    return np.linalg.norm(p - closest.astype(np.float64), axis=1)
+    res = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)),
+                                       nthreads=threads())
+    uv = res["primitive_uvs"].numpy().astype(np.float64)
+    return {"points": res["points"].numpy().astype(np.float64),
+            "face": idx[res["primitive_ids"].numpy().astype(np.int64)],
+            "bary": np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1)}
 
 
 def signed_distance(mesh: Mesh, points, *, sign: str = "auto") -> np.ndarray:

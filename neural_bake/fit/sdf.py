@@ -49,7 +49,7 @@ from .sdf_config import _DTYPES, PRESETS, SdfFitConfig, config_from
 from .sdf_loss import (FIRST_ORDER_MIN_SLOPE, FOCUS_CAP, first_order_distance, focused_squares, mixed_gradient,
                        sdf_loss_terms, sdf_step_backward)
 from .sdf_pools import (BASE_KEYS, _draw, _error_cdf, _hard_indices, _Pools, _sign_errors, _zero_set_samples,
-                        band_pools, remine_due)
+                        band_pools, near_reach, remine_due)
 from .sdf_tuning import TRAIN_CHUNK_ELEMENTS, TUNE_EVERY, MicroBatchTuner, _bf16_pays, micro_batch_count
 from .training import train
 
@@ -253,6 +253,9 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
             model.layers[-1].bias.zero_()
         base = copy.deepcopy(base).to(device=device, dtype=dtype).eval()  # the caller's network untouched
         prepare, extra = band_pools(base, float(band or 0.0), audit=audit), BASE_KEYS
+    n_base = len(extra)
+    if near_reach(cfg):  # the near points' gradient targets, drawn beside them
+        extra = (*extra, "vol_n")
     model.train()
     # a budgeted run keeps its pools longer where rebuilding them would eat its steps (POOL_REFRESH_MAX_SHARE)
     pools = _Pools(mesh, cfg, device, dtype, max_share=POOL_REFRESH_MAX_SHARE if cfg.minutes else None,
@@ -310,7 +313,7 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
     def step_fn(step: int, g: torch.Generator) -> dict:
         t_sample = now()
         data = pools.get(step)
-        sp, sn, vp, vd, *at_base = _draw(data, cfg, g, hard_set(step, data), extra=extra)
+        sp, sn, vp, vd, *more = _draw(data, cfg, g, hard_set(step, data), extra=extra)
         sampling["seconds"] += now() - t_sample
         sampling["steps"] += 1
         low = low_precision(step)
@@ -321,7 +324,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
         t0 = time.perf_counter()  # the tuner measures the machine's real speed, whatever the budget's clock
         # back-propagated here, part by part (the loop sees a detached loss and skips its own backward)
         terms = sdf_step_backward(loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=k, low_precision=low,
-                                  base=tuple(at_base) if extra else None)
+                                  base=tuple(more[:n_base]) if n_base else None,
+                                  vol_n=more[n_base] if len(more) > n_base else None)
         if timed:
             tuner.record(k, time.perf_counter() - t0)
         return terms

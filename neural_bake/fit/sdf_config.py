@@ -44,6 +44,14 @@ class SdfFitConfig(PresetLoopSettings):
     2 sin(θ/2) ≈ θ in radians, smoothed below ε = :data:`~neural_bake.constants.NORMAL_ANGLE_EPS`. Every
     angle pulls alike, so the many small angles that set a map's median get a larger share of each step
     than under the normal term's θ²/2 (docs/findings.md)."""
+    w_near_normal: float = 0.0
+    """Weight of the angle term at the near-surface samples within ``near_normal_reach`` of the mesh, towards
+    the interpolated normal at each one's closest point (:func:`~neural_bake.fit.sampling.distance_gradient_targets`:
+    what an exact SDF's gradient is there), as a mean over the step's off-surface points. A bake reads ∇f at
+    the coarse mesh's points, off the surface by up to the coarse mesh's distance from it; the surface terms
+    alone leave ∇f there to the distances (docs/findings.md). 0: off (no target computed)."""
+    near_normal_reach: float = 0.03
+    """Distance from the mesh (unit frame) out to which a near-surface sample gets a normal target."""
     w_eikonal: float = 50.0
     """Weight of mean (1 − |∇f|)² on every point of the step."""
     w_sdf: float = 3000.0
@@ -201,6 +209,8 @@ class SdfFitConfig(PresetLoopSettings):
                      "audit_candidates"}
         if self.construction != "tiles":
             skip |= {"tile_grid", "tile_width", "tile_depth", "tile_margin"}
+        if not self.w_near_normal:
+            skip |= {"w_near_normal", "near_normal_reach"}
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -208,14 +218,15 @@ class SdfFitConfig(PresetLoopSettings):
 _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 100_000}
 
 #: What the 2- and 5-minute presets add for the shading a map shows: no hard-example mining (every sample
-#: uniform, so the median normal is fitted everywhere), a stronger normal term, the angle term beside it and
+#: uniform, so the median normal is fitted everywhere), a stronger normal term, the angle term beside it,
+#: the angle term at the near-surface samples (where a bake reads ∇f: off the surface, at the coarse mesh) and
 #: ω0 = 45 (docs/findings.md).
-_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "omega_0": 45.0}
+_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0, "omega_0": 45.0}
 
-#: What the 10-minute preset takes of them: no mining, the stronger normal term and the angle term, at half the
-#: learning rate (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with the stronger normal
-#: term; docs/findings.md).
-_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "lr": 1.5e-4}
+#: What the 10-minute preset takes of them: no mining, the stronger normal term, the angle term and the near
+#: one, at half the learning rate (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with
+#: the stronger normal term; docs/findings.md).
+_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0, "lr": 1.5e-4}
 
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
@@ -292,8 +303,11 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError("fit_sdf: a non-empty batch needs a non-empty pool (pool_near / pool_uniform)")
     if not (math.isfinite(cfg.omega_0) and cfg.omega_0 > 0):
         raise FitError(f"fit_sdf: omega_0 must be positive, got {cfg.omega_0!r}")
-    check_weights(cfg, "fit_sdf", ("w_surface", "w_normal", "w_angle", "w_eikonal", "w_sdf", "focus_tau"))
+    check_weights(cfg, "fit_sdf", ("w_surface", "w_normal", "w_angle", "w_near_normal", "w_eikonal", "w_sdf",
+                                  "focus_tau"))
     check_sigmas(cfg, "fit_sdf")
+    if not (math.isfinite(cfg.near_normal_reach) and cfg.near_normal_reach > 0):
+        raise FitError(f"fit_sdf: near_normal_reach must be a positive distance, got {cfg.near_normal_reach!r}")
     if not (0.0 <= cfg.hard_fraction <= 1.0) or not (0.0 < cfg.hard_pool <= 1.0):
         raise FitError(f"fit_sdf: hard_fraction must be in [0, 1] and hard_pool in (0, 1], got "
                        f"{cfg.hard_fraction!r}, {cfg.hard_pool!r}")

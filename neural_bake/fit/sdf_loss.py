@@ -46,7 +46,7 @@ def mixed_gradient(model: Siren, points: torch.Tensor, gemm_dtype: torch.dtype =
 
 def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig, *, low_precision: bool = False,
                    totals: tuple[int, int] | None = None, power_weight: float = 0.0,
-                   power_scale: float = 1.0, base: tuple | None = None) -> dict:
+                   power_scale: float = 1.0, base: tuple | None = None, vol_n: torch.Tensor | None = None) -> dict:
     """The loss terms of one step (scalar tensors) and their weighted sum ``"loss"``.
 
     Args:
@@ -65,6 +65,8 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         base: None, or a fixed field's values and gradients at these points, ``(surface values (S,),
             surface gradients (S, 3), off-surface values (V,), off-surface gradients (V, 3))``, added to the
             model's: every term is then of the sum (a residual level trained on a frozen coarse one).
+        vol_n: None, or (V, 3) unit gradient targets at the off-surface points (zero rows: none), for the
+            near-normal term (``cfg.w_near_normal``).
 
     ∇f of all S + V points comes from one differentiable GEMM pass (no double-backward).
     """
@@ -80,15 +82,16 @@ def sdf_loss_terms(model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig
         f = f + torch.cat([base[0], base[2]])
         grads = grads + torch.cat([base[1], base[3]])
     return loss_terms_of(f, grads, surf_n, vol_d, cfg, totals=(n_s, n_v), power_weight=power_weight,
-                         power_scale=power_scale)
+                         power_scale=power_scale, vol_n=vol_n)
 
 
 def loss_terms_of(f: torch.Tensor, grads: torch.Tensor, surf_n: torch.Tensor, vol_d: torch.Tensor,
                   cfg: SdfFitConfig, *, totals: tuple[int, int] | None = None, power_weight: float = 0.0,
-                  power_scale: float = 1.0) -> dict:
+                  power_scale: float = 1.0, vol_n: torch.Tensor | None = None) -> dict:
     """The terms of :func:`sdf_loss_terms` from a field's values ``f`` (S + V,) and gradients (S + V, 3) at the
     step's points, the S surface points first (``surf_n`` (S, 3) their normals, ``vol_d`` (V,) the others'
-    distances): for a network evaluated by other means (a tile level's batched product, :mod:`.tiles`)."""
+    distances; ``vol_n`` (V, 3) or None their gradient targets): for a network evaluated by other means (a tile
+    level's batched product, :mod:`.tiles`)."""
     s = surf_n.shape[0]
     n_s, n_v = totals if totals is not None else (s, vol_d.shape[0])
     gnorm = torch.linalg.vector_norm(grads, dim=1)
@@ -106,6 +109,11 @@ def loss_terms_of(f: torch.Tensor, grads: torch.Tensor, surf_n: torch.Tensor, vo
     if cfg.w_angle > 0:
         terms["angle"] = smooth_angle(miss).sum() / max(n_s, 1)
         terms["loss"] = terms["loss"] + cfg.w_angle * terms["angle"]
+    if cfg.w_near_normal > 0 and vol_n is not None:  # zero rows (no target) add nothing
+        has = (vol_n * vol_n).sum(dim=1)
+        near_miss = has - (grads[s:] * vol_n).sum(dim=1) / gnorm[s:].clamp_min(LOSS_GRAD_FLOOR)
+        terms["near_angle"] = smooth_angle(near_miss).sum() / max(n_v, 1)
+        terms["loss"] = terms["loss"] + cfg.w_near_normal * terms["near_angle"]
     if power_weight > 0:
         r = f[:s] / (gnorm[:s].clamp_min(FIRST_ORDER_MIN_SLOPE) * power_scale)
         terms["power"] = r.abs().pow(cfg.polish_max_p).sum() / max(n_s, 1)
@@ -150,23 +158,28 @@ def focused_squares(sq: torch.Tensor, tau: float) -> torch.Tensor:
 
 
 def sdf_step_backward(loss_fn, model: Siren, surf_p, surf_n, vol_p, vol_d, cfg: SdfFitConfig, *,
-                      micro_batches: int = 1, low_precision: bool = False, base: tuple | None = None) -> dict:
+                      micro_batches: int = 1, low_precision: bool = False, base: tuple | None = None,
+                      vol_n: torch.Tensor | None = None) -> dict:
     """Forward and backward of one training step in ``micro_batches`` parts; the detached loss terms.
 
     Each part (a slice of the surface points and one of the off-surface points) runs ``loss_fn``
     (:func:`sdf_loss_terms` or its compiled form) with the step's totals and is back-propagated at once,
     so its graph is freed before the next part is built; the parameters' ``.grad`` add up to the whole
     step's. ``base``: a fixed field's values and gradients at the points (:func:`sdf_loss_terms`), split
-    with them. Returns the terms summed over the parts (the whole step's, detached).
+    with them; ``vol_n``: the off-surface points' gradient targets (:func:`sdf_loss_terms`), likewise. Returns
+    the terms summed over the parts (the whole step's, detached).
     """
     totals = (surf_p.shape[0], vol_p.shape[0])
     k = max(1, min(int(micro_batches), totals[0] + totals[1]))
     out: dict = {}
-    parts = zip(*(torch.tensor_split(t, k) for t in (surf_p, surf_n, vol_p, vol_d, *(base or ()))))
-    for sp, sn, vp, vd, *part_base in parts:
+    split = (*(base or ()), *(() if vol_n is None else (vol_n,)))
+    parts = zip(*(torch.tensor_split(t, k) for t in (surf_p, surf_n, vol_p, vol_d, *split)))
+    for sp, sn, vp, vd, *more in parts:
         if sp.shape[0] + vp.shape[0] == 0:
             continue
-        extra = {"base": tuple(part_base)} if base is not None else {}
+        extra: dict = {"base": tuple(more[: len(base)])} if base is not None else {}
+        if vol_n is not None:
+            extra["vol_n"] = more[-1]
         terms = loss_fn(model, sp, sn, vp, vd, cfg, low_precision=low_precision, totals=totals, **extra)
         terms["loss"].backward()
         for key, val in terms.items():

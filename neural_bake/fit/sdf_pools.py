@@ -21,6 +21,12 @@ from ..types import Mesh
 from .sdf_config import SdfFitConfig
 
 
+def near_reach(cfg: SdfFitConfig) -> float:
+    """How far from the mesh the pools' near points get gradient targets ("vol_n"): the config's
+    ``near_normal_reach`` when its near-normal term is on, else 0 (no targets computed)."""
+    return float(cfg.near_normal_reach) if cfg.w_near_normal > 0 else 0.0
+
+
 class _Pools:
     """Sample pools drawn from the mesh, rebuilt for every refresh index (deterministic in (seed, index)).
 
@@ -69,7 +75,7 @@ class _Pools:
     def _build(self, idx: int) -> None:
         cfg = self.cfg
         key = (idx, cfg.seed, cfg.pool_surface, cfg.pool_near, cfg.pool_uniform, tuple(cfg.sigmas),
-               cfg.curvature_sampling, cfg.surface_normals, str(self.device), self.dtype)
+               cfg.curvature_sampling, cfg.surface_normals, near_reach(cfg), str(self.device), self.dtype)
         data = None if self.cache is None else self.cache.get(key)
         if data is None:
             data = self._sample(idx)
@@ -89,8 +95,8 @@ class _Pools:
             w = self.face_weights
             surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
                                   colors=False)
-            near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w)
-                    if cfg.pool_near else None)
+            near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w,
+                                normals=near_reach(cfg)) if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
         except (ValueError, RuntimeError) as exc:
             raise FitError(f"{mesh.name}: cannot sample the mesh for fitting ({exc})") from None
@@ -110,8 +116,14 @@ class _Pools:
         vs = np.concatenate(vol_s) if vol_s else np.zeros(0, bool)
         finite = np.isfinite(vd) & np.isfinite(vp).all(axis=1)
         n_near = int(finite[: near.points.shape[0]].sum()) if near is not None else 0
-        return {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]), "vol_d": t(vd[finite]),
-                "vol_sure": torch.as_tensor(vs[finite], device=self.device), "n_near": n_near}
+        out = {"surf_p": t(surf.points), "surf_n": t(surf.normals), "vol_p": t(vp[finite]), "vol_d": t(vd[finite]),
+               "vol_sure": torch.as_tensor(vs[finite], device=self.device), "n_near": n_near}
+        if near_reach(cfg):  # the near points' gradient targets, zero rows for the others
+            vn = np.zeros((len(vp), 3), np.float32)
+            if near is not None and near.normals is not None:
+                vn[: len(near)] = near.normals
+            out["vol_n"] = t(vn[finite])
+        return out
 
 
 #: The keys :func:`band_pools` adds to a pool: the base field's values and gradients at its points, in the
@@ -158,6 +170,9 @@ def band_pools(base: Siren, band: float, chunk: int = 65536, audit: tuple | None
         out = {"surf_p": data["surf_p"][ks], "surf_n": data["surf_n"][ks], "vol_p": vol_p[keep],
                "vol_d": vol_d[keep], "vol_sure": vol_s[keep], "n_near": n_near, "surf_base": sv[ks],
                "surf_base_grad": sg[ks], "vol_base": vv[keep], "vol_base_grad": vg[keep]}
+        if "vol_n" in data:  # the audit's points have no gradient target
+            vol_n = data["vol_n"]
+            out["vol_n"] = torch.cat([vol_n, vol_n.new_zeros(vol_p.shape[0] - vol_n.shape[0], 3)])[keep]
         if far:
             out["vol_far"] = ~kv[keep]
         return out
@@ -308,7 +323,8 @@ def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | Non
     (``error_sampling`` of it) is drawn by it.
     ``extra``: keys of further per-point pool arrays ("surf_*" beside the surface points, "vol_*" beside the
     off-surface ones, e.g. :data:`BASE_KEYS`) drawn with the same indices, returned after the four (not with
-    mined zero-set points, which no pool array covers)."""
+    mined zero-set points, which no pool array covers, but "vol_n", the near points' gradient targets: none at
+    mined points)."""
     dev = pools["surf_p"].device
     hard = hard or {}
     si = torch.randint(0, pools["surf_p"].shape[0], (cfg.batch,), generator=gen).to(dev)
@@ -331,11 +347,13 @@ def _draw(pools: dict, cfg: SdfFitConfig, gen: torch.Generator, hard: dict | Non
     zero = hard.get("zero")
     n_zero = int(cfg.batch_near * cfg.zero_fraction) if zero is not None and cfg.batch_near and n_near else 0
     if n_zero:  # the head of the near batch: mined zero-set points with their true distances
-        if extra:
+        if set(extra) - {"vol_n"}:
             raise FitError("_draw: mined zero-set points have no pool arrays to draw beside them")
         pick = torch.randint(0, zero[0].shape[0], (n_zero,), generator=gen).to(dev)
         vp[:n_zero] = take(zero[0], 0, pick)
         vd[:n_zero] = take(zero[1], 0, pick)
     more = tuple(take(pools[k], 0, si if k.startswith("surf") else vi) for k in extra)
+    if n_zero and extra:  # mined points carry no gradient target
+        more[extra.index("vol_n")][:n_zero] = 0.0
     return (take(pools["surf_p"], 0, si), take(pools["surf_n"], 0, si), vp, vd, *more)
 

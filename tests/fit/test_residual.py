@@ -93,6 +93,26 @@ def test_band_pools_keep_the_band_and_refuse_an_empty_one(fit_sphere_siren):
         band_pools(h, 0.05)(dict(data, surf_p=surf * 0.1))
 
 
+def test_band_pools_keep_the_near_points_gradient_targets_beside_them(fit_sphere_siren):
+    # the targets ("vol_n") are kept with their points, and the band audit's points, appended, get none
+    h = fit_sphere_siren(r=R, steps=300)
+    gen = torch.Generator().manual_seed(1)
+    cube = torch.rand(20000, 3, generator=gen) * 2 - 1
+    surf = torch.nn.functional.normalize(torch.randn(500, 3, generator=gen), dim=1)
+    radial = torch.nn.functional.normalize(cube, dim=1)
+    vol_n = torch.where((torch.arange(20000) < 5000)[:, None], radial, torch.zeros(()))
+    data = {"surf_p": surf * R, "surf_n": surf, "vol_p": cube, "vol_d": cube.norm(dim=1) - R, "n_near": 5000,
+            "vol_n": vol_n}
+    audit = (torch.tensor([[0.0, 0.0, R + 0.01]]), torch.tensor([0.01]))
+    kept = band_pools(h, 0.05, audit=audit)(data)
+    assert kept["vol_n"].shape == kept["vol_p"].shape
+    near = kept["n_near"]
+    torch.testing.assert_close(kept["vol_n"][:near], torch.nn.functional.normalize(kept["vol_p"][:near], dim=1))
+    assert (kept["vol_n"][near:] == 0).all()  # the uniform points and the audit's point (the last row)
+    assert torch.equal(kept["vol_p"][-1], audit[0][0])
+    assert "vol_n" not in band_pools(h, 0.05)({k: v for k, v in data.items() if k != "vol_n"})
+
+
 _VALLEY = torch.tensor([0.0, 0.0, 0.35])  # 0.35 inside the sphere of radius R
 
 

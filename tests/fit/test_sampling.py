@@ -240,6 +240,50 @@ def test_near_samples_mix_the_sigmas_in_equal_parts(sphere):
     np.testing.assert_allclose(v.sdf, np.linalg.norm(v.points, axis=1) - R, atol=_gap(sphere) + 1e-5)
 
 
+def test_near_samples_gradient_targets_are_the_spheres_radial_direction(sphere, open_sphere):
+    # analytic oracle: off a sphere the signed distance's gradient is x/|x|, inside and out; the interpolated
+    # normals of the closest points are it within the tessellation's normal error. Beyond the reach, and
+    # where the closest point is on the open sphere's rim (the offset leaves the normal), there is none.
+    v = sample_near(sphere, 6000, sigma=(0.003, 0.05), seed=2, normals=0.02)
+    assert v.normals.dtype == np.float32 and v.normals.shape == (6000, 3)
+    has = np.linalg.norm(v.normals, axis=1) > 0
+    np.testing.assert_array_equal(has, np.abs(v.sdf) <= 0.02)
+    radial = v.points / np.linalg.norm(v.points, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", v.normals[has], radial[has])
+    assert cos.min() > math.cos(math.radians(3.0)) and (v.sdf[has] < 0).any() and (v.sdf[has] > 0).any()
+    np.testing.assert_allclose(np.linalg.norm(v.normals[has], axis=1), 1.0, atol=1e-5)
+    assert sample_near(sphere, 100, seed=2).normals is None  # not asked for: not computed
+    # the same points and distances with or without the targets
+    plain = sample_near(sphere, 6000, sigma=(0.003, 0.05), seed=2)
+    np.testing.assert_array_equal(plain.points, v.points)
+    np.testing.assert_array_equal(plain.sdf, v.sdf)
+    # over the open sphere's hole the closest points are on its rim, the offset far from the normal there
+    from neural_bake.fit.sampling import _closest_points, distance_gradient_targets
+
+    axis = np.stack([np.zeros(8), np.linspace(-0.05, 0.05, 8), np.linspace(0.7, 0.95, 8)], axis=1)
+    d = signed_distance(open_sphere, axis)
+    assert (distance_gradient_targets(open_sphere, axis, d, _closest_points(open_sphere, axis), 1.0) == 0).all()
+    empty = sample_near(sphere, 0, normals=0.01)
+    assert empty.normals.shape == (0, 3) and empty.sdf.shape == (0,)
+
+
+def test_distance_gradient_targets_skip_points_on_the_surface_and_past_a_crease():
+    # a unit cube with flat-shaded faces (each its own vertices): off a face the target is the face's normal;
+    # off an edge (the offset between the two faces' normals, 45° from each) there is none; a point on the
+    # surface (distance 0) has none
+    from neural_bake.fit.sampling import _closest_points, distance_gradient_targets
+
+    tri = trimesh.creation.box().triangles.reshape(-1, 3)
+    mesh = Mesh(np.asarray(tri, dtype=np.float64), np.arange(len(tri), dtype=np.int64).reshape(-1, 3))
+    pts = np.array([[0.0, 0.0, 0.51], [0.1, -0.2, 0.45], [0.55, 0.0, 0.55], [0.0, 0.0, 0.5]])
+    sdf = np.array([0.01, -0.05, math.sqrt(2) * 0.05, 0.0])
+    out = distance_gradient_targets(mesh, pts, sdf, _closest_points(mesh, pts), reach=1.0)
+    np.testing.assert_allclose(out[0], [0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(out[1], [0, 0, 1], atol=1e-6)  # inside: still the outward normal
+    np.testing.assert_array_equal(out[2:], 0.0)
+    assert (distance_gradient_targets(mesh, pts, sdf, _closest_points(mesh, pts), reach=0.005) == 0).all()
+
+
 def test_uniform_samples_fill_the_cube(sphere):
     v = sample_uniform(sphere, 4000, seed=1, bound=1.5)
     assert np.abs(v.points).max() <= 1.5 and np.abs(v.points).max() > 1.45

@@ -148,6 +148,9 @@ def test_presets_and_config():
     for c in (q, d):  # aimed at the map's shading
         assert (c.hard_fraction, c.w_normal, c.w_angle, c.omega_0, c.lr) == (0.0, 300.0, 300.0, 45.0, 3e-4)
     assert (h.hard_fraction, h.w_normal, h.w_angle, h.omega_0, h.lr) == (0.0, 300.0, 300.0, 30.0, 1.5e-4)
+    for c in (q, d, h):  # ∇f where a bake reads it, off the surface
+        assert (c.w_near_normal, c.near_normal_reach) == (1000.0, 0.03)
+    assert config_from(preset="256x3").w_near_normal == 0.0
     assert (q.zero_fraction, d.zero_fraction, h.zero_fraction) == (0.0, 0.1, 0.0)  # default's stray pieces
     assert (d.width, d.depth, d.minutes) == (192, 3, 5.0) and d != config_from(preset="128x2")
     assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
@@ -214,6 +217,8 @@ def test_slow_sdf_fit_warns_and_records(tmp_path, monkeypatch):
     ({"focus_tau": math.inf}, "focus_tau must be a non-negative number"),
     ({"surface_normals": "smooth"}, "surface_normals must be 'face' or 'vertex'"),
     ({"w_angle": -1.0}, "w_angle must be a non-negative number"),
+    ({"w_near_normal": math.nan}, "w_near_normal must be a non-negative number"),
+    ({"near_normal_reach": 0.0}, "near_normal_reach must be a positive distance"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -388,6 +393,80 @@ def test_angle_term_is_the_angle_and_stays_finite_where_it_vanishes(dtype):
     flat = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig(w_angle=7.0))
     flat["loss"].backward()
     assert torch.isfinite(flat["loss"]) and all(torch.isfinite(p.grad).all() for p in model.parameters())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_near_normal_term_is_the_angle_at_the_points_with_a_target(dtype):
+    """The near-normal term is the sum of the chords 2 sin(θ/2) ≈ θ between ∇f and the targets at the
+    off-surface points that have one (zero rows add nothing) over all the step's off-surface points; the other
+    terms are unchanged, micro-batches add up to the whole step, and its gradient stays finite where ∇f
+    meets the target exactly or vanishes."""
+    from neural_bake.constants import NORMAL_ANGLE_EPS
+    from neural_bake.fit.sdf import sdf_loss_terms, sdf_step_backward
+    from neural_bake.nets.siren import Siren
+
+    g = torch.Generator().manual_seed(6)
+    model = Siren(16, 1, generator=g).to(dtype)
+    sp, sn, vp, vd = _step_data(dtype, s=20, v=64)
+    with torch.no_grad():
+        _, grads = gemm_gradient(model, vp, "reverse")
+    unit = torch.nn.functional.normalize(grads, dim=1)
+    axis = torch.nn.functional.normalize(torch.linalg.cross(unit, torch.randn(64, 3, generator=g, dtype=dtype)), dim=1)
+    theta = torch.linspace(0.0, 1.0, 64, dtype=dtype)
+    vn = unit * torch.cos(theta)[:, None] + axis * torch.sin(theta)[:, None]
+    has = torch.arange(64) % 3 != 0
+    vn = torch.where(has[:, None], vn, torch.zeros((), dtype=dtype))
+    cfg = SdfFitConfig(w_near_normal=5.0)
+    plain = sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig())
+    ours = sdf_loss_terms(model, sp, sn, vp, vd, cfg, vol_n=vn)
+    tol = 1e-3 if dtype == torch.float32 else 1e-9
+    chord = 2 * torch.sin(theta / 2)
+    assert float(ours["near_angle"]) == pytest.approx(float(chord[has].sum()) / 64, abs=NORMAL_ANGLE_EPS + tol)
+    for key in ("surface", "normal", "eikonal", "sdf"):
+        assert float(ours[key]) == float(plain[key])
+    assert float(ours["loss"]) == pytest.approx(float(plain["loss"]) + 5.0 * float(ours["near_angle"]), rel=1e-5)
+    assert "near_angle" not in sdf_loss_terms(model, sp, sn, vp, vd, SdfFitConfig(), vol_n=vn)  # weight 0: off
+    assert "near_angle" not in sdf_loss_terms(model, sp, sn, vp, vd, cfg)  # no targets: off
+    model.zero_grad()
+    ours["loss"].backward()
+    ref_grads = [p.grad.clone() for p in model.parameters()]
+    assert all(torch.isfinite(r).all() for r in ref_grads)
+    model.zero_grad(set_to_none=True)
+    out = sdf_step_backward(sdf_loss_terms, model, sp, sn, vp, vd, cfg, micro_batches=5, vol_n=vn)
+    rtol = 1e-4 if dtype == torch.float32 else 1e-11
+    assert float(out["near_angle"]) == pytest.approx(float(ours["near_angle"]), rel=rtol)
+    for p, r in zip(model.parameters(), ref_grads):
+        assert torch.allclose(p.grad, r, rtol=rtol, atol=rtol * float(r.abs().max()))
+    with torch.no_grad():  # a network whose gradient vanishes everywhere
+        for p in model.parameters():
+            p.zero_()
+    model.zero_grad()
+    flat = sdf_loss_terms(model, sp, sn, vp, vd, cfg, vol_n=vn)
+    flat["loss"].backward()
+    assert torch.isfinite(flat["loss"]) and all(torch.isfinite(p.grad).all() for p in model.parameters())
+
+
+def test_fit_with_the_near_normal_term_draws_targets_beside_the_near_points():
+    # the pools carry the targets only when the term is on; the term changes the trajectory and is in the
+    # fingerprint only then; mined zero-set points (the head of the near batch) get no target
+    from neural_bake.fit.sdf import _draw
+
+    on = fit_sdf(sphere(), steps=20, seed=3, **dict(TINY, w_near_normal=50.0))
+    off = fit_sdf(sphere(), steps=20, seed=3, **TINY)
+    assert np.isfinite(on.history[-1]["near_angle"]) and "near_angle" not in off.history[-1]
+    assert not torch.equal(weights(on.model), weights(off.model))
+    assert "w_near_normal" in on.config.fingerprint_dict()
+    assert "w_near_normal" not in off.config.fingerprint_dict()
+    assert "near_normal_reach" not in off.config.fingerprint_dict()
+    cfg = SdfFitConfig(batch=40, batch_near=200, batch_uniform=40, hard_fraction=0.0, zero_fraction=0.25)
+    pools = {"surf_p": torch.zeros(100, 3), "surf_n": torch.zeros(100, 3), "vol_p": torch.rand(500, 3),
+             "vol_d": torch.zeros(500), "n_near": 400, "vol_n": torch.ones(500, 3)}
+    zero = (torch.full((3, 3), -7.0), torch.tensor([0.1, 0.2, 0.3]))
+    _, _, vp, _, vn = _draw(pools, cfg, torch.Generator().manual_seed(0), {"zero": zero}, extra=("vol_n",))
+    assert (vp[:50] == -7.0).all() and (vn[:50] == 0).all() and (vn[50:] == 1).all()
+    with pytest.raises(FitError, match="no pool arrays"):
+        _draw(dict(pools, vol_base=torch.zeros(500)), cfg, torch.Generator().manual_seed(0), {"zero": zero},
+              extra=("vol_base", "vol_n"))
 
 
 def test_focus_weights_the_worst_residuals_and_micro_batches_still_add_up():
