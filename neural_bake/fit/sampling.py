@@ -104,7 +104,7 @@ class VolumeSamples:
     """(N,) bool: the sign is sure (:func:`signed_distance_sure`); None: not known."""
     normals: np.ndarray | None = None
     """(N, 3) float32 direction of the signed distance's gradient where it is known, zero rows elsewhere
-    (:func:`sample_near` with ``normals``); None: not computed."""
+    (:func:`sample_near` with ``targets``); None: not computed."""
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -254,7 +254,8 @@ def sample_near(
     seed: int = 0,
     sign: str = "auto",
     face_weights: np.ndarray | None = None,
-    normals: float = 0.0,
+    targets: float = 0.0,
+    target_normals: str = "vertex",
 ) -> VolumeSamples:
     """``n`` points near the surface with their signed distance (unit frame).
 
@@ -262,8 +263,9 @@ def sample_near(
     N(0, σ² I). A sequence of σ mixes them in equal parts (the first ones get the remainder of ``n``),
     e.g. ``sigma=(0.01, 0.003)``. The signed distance is :func:`signed_distance` with ``sign``.
 
-    ``normals`` > 0 also gives each point within that distance of the mesh the gradient of its signed distance,
-    :func:`distance_gradient_targets` (``VolumeSamples.normals``; zero rows where there is none).
+    ``targets`` > 0 also gives each point within that distance of the mesh the gradient of its signed distance,
+    :func:`distance_gradient_targets` with ``target_normals`` (``VolumeSamples.normals``; zero rows where there
+    is none).
     """
     n = _check_count(n, "sample_near")
     sigmas = _sigmas(sigma)
@@ -274,29 +276,35 @@ def sample_near(
     points = surf.points.astype(np.float64) + rng.standard_normal((n, 3)) * scale[:, None]
     if not n:
         return VolumeSamples(points.astype(np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool),
-                             np.zeros((0, 3), np.float32) if normals > 0 else None)
+                             np.zeros((0, 3), np.float32) if targets > 0 else None)
     closest = _closest_points(mesh, points)
     dist = np.linalg.norm(points - closest["points"], axis=1)
     inside, sure = _inside_and_sure(mesh, points, sign)
     sdf = np.where(inside, -dist, dist)
-    grad = distance_gradient_targets(mesh, points, sdf, closest, normals).astype(np.float32) if normals > 0 else None
+    grad = (distance_gradient_targets(mesh, points, sdf, closest, targets, target_normals).astype(np.float32)
+            if targets > 0 else None)
     return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure, grad)
 
 
-#: Largest angle between the offset from a point's closest point of the mesh and the mesh's interpolated
-#: normal there for :func:`distance_gradient_targets` to give the point that normal (degrees): past it the
-#: closest point is on an open boundary or a sharp edge, where the distance's gradient is not the shading normal.
+#: Largest angle between the offset from a point's closest point of the mesh and the mesh's normal there for
+#: :func:`distance_gradient_targets` to give the point that normal (degrees): past it the closest point is on an
+#: open boundary or a sharp edge, where the distance's gradient is not the surface's normal.
 NEAR_TARGET_MAX_DEG = 30.0
 
 
 def distance_gradient_targets(mesh: Mesh, points: np.ndarray, sdf: np.ndarray, closest: dict,
-                              reach: float) -> np.ndarray:
+                              reach: float, normals: str = "vertex") -> np.ndarray:
     """(N, 3) float64 unit directions the gradient of the signed distance takes at ``points`` (N, 3) within
-    ``reach`` of ``mesh``: the interpolated vertex normal (the shading a bake scores against) at each point's
-    closest point (``closest``: :func:`_closest_points`), which an exact SDF's gradient equals off a smooth
-    surface, inside and out. Zero rows where the distance is 0 or beyond ``reach``, or where the offset from the
-    closest point is more than :data:`NEAR_TARGET_MAX_DEG` off that normal (an open boundary, a crease)."""
-    n = _interp_normals(mesh, closest["face"], closest["bary"])
+    ``reach`` of ``mesh``: the normal at each point's closest point (``closest``: :func:`_closest_points`),
+    which an exact SDF's gradient equals off a smooth surface, inside and out — ``normals="vertex"``: the
+    interpolated vertex normal (the shading a bake scores against), ``"face"``: the face's own (the gradient of
+    the piecewise-flat mesh's distance). Zero rows where the distance is 0 or beyond ``reach``, or where the
+    offset from the closest point is more than :data:`NEAR_TARGET_MAX_DEG` off that normal (an open boundary,
+    a crease)."""
+    if normals not in ("face", "vertex"):
+        raise ValueError(f"distance_gradient_targets: normals must be 'face' or 'vertex', got {normals!r}")
+    n = (_interp_normals(mesh, closest["face"], closest["bary"]) if normals == "vertex"
+         else np.asarray(mesh.face_normals[closest["face"]], dtype=np.float64))
     offset = (points - closest["points"]) * np.sign(sdf)[:, None]
     dist = np.linalg.norm(offset, axis=1)
     cos = np.einsum("ij,ij->i", offset, n) / np.maximum(dist, DIRECTION_EPS)

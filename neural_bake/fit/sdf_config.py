@@ -46,10 +46,11 @@ class SdfFitConfig(PresetLoopSettings):
     than under the normal term's θ²/2 (docs/findings.md)."""
     w_near_normal: float = 0.0
     """Weight of the angle term at the near-surface samples within ``near_normal_reach`` of the mesh, towards
-    the interpolated normal at each one's closest point (:func:`~neural_bake.fit.sampling.distance_gradient_targets`:
-    what an exact SDF's gradient is there), as a mean over the step's off-surface points. A bake reads ∇f at
-    the coarse mesh's points, off the surface by up to the coarse mesh's distance from it; the surface terms
-    alone leave ∇f there to the distances (docs/findings.md). 0: off (no target computed)."""
+    the normal (of ``surface_normals``' kind) at each one's closest point, what an exact SDF's gradient is
+    there (:func:`~neural_bake.fit.sampling.distance_gradient_targets`), as a mean over the step's off-surface
+    points. A bake reads ∇f at the coarse mesh's points, off the surface by up to the coarse mesh's distance
+    from it; the surface terms alone leave ∇f there to the distances (docs/findings.md). The SIREN levels'
+    term (a tile level does not read it). 0: off (no target computed)."""
     near_normal_reach: float = 0.03
     """Distance from the mesh (unit frame) out to which a near-surface sample gets a normal target."""
     w_eikonal: float = 50.0

@@ -97,7 +97,13 @@ def loss_terms_of(f: torch.Tensor, grads: torch.Tensor, surf_n: torch.Tensor, vo
     gnorm = torch.linalg.vector_norm(grads, dim=1)
     sq_surf = focused_squares(f[:s] ** 2, cfg.focus_tau)
     sq_vol = focused_squares((f[s:] - vol_d) ** 2, cfg.focus_tau)
-    miss = 1.0 - (grads[:s] * surf_n).sum(dim=1) / gnorm[:s].clamp_min(LOSS_GRAD_FLOOR)
+    near_n = vol_n if cfg.w_near_normal > 0 else None
+    # the targets of the normal terms: the surface points' normals and, for the near-normal term, the
+    # off-surface points' gradient targets (zero rows: none), in one pass (a term's every op costs a dispatch
+    # per micro-batch, forward and backward)
+    targets, g, slope = (surf_n, grads[:s], gnorm[:s]) if near_n is None else (torch.cat([surf_n, near_n]), grads, gnorm)
+    misses = 1.0 - (g * targets).sum(dim=1) / slope.clamp_min(LOSS_GRAD_FLOOR)
+    miss = misses[:s]
     terms = {
         "surface": sq_surf.sum() / max(n_s, 1),
         "normal": miss.sum() / max(n_s, 1),
@@ -106,13 +112,12 @@ def loss_terms_of(f: torch.Tensor, grads: torch.Tensor, surf_n: torch.Tensor, vo
     terms["sdf"] = sq_vol.sum() / max(n_v, 1) if vol_d.shape[0] else f.new_zeros(())
     terms["loss"] = (cfg.w_surface * terms["surface"] + cfg.w_normal * terms["normal"]
                      + cfg.w_eikonal * terms["eikonal"] + cfg.w_sdf * terms["sdf"])
-    if cfg.w_angle > 0:
-        terms["angle"] = smooth_angle(miss).sum() / max(n_s, 1)
+    chords = smooth_angle(misses) if cfg.w_angle > 0 or near_n is not None else None
+    if chords is not None and cfg.w_angle > 0:
+        terms["angle"] = chords[:s].sum() / max(n_s, 1)
         terms["loss"] = terms["loss"] + cfg.w_angle * terms["angle"]
-    if cfg.w_near_normal > 0 and vol_n is not None:  # zero rows (no target) add nothing
-        has = (vol_n * vol_n).sum(dim=1)
-        near_miss = has - (grads[s:] * vol_n).sum(dim=1) / gnorm[s:].clamp_min(LOSS_GRAD_FLOOR)
-        terms["near_angle"] = smooth_angle(near_miss).sum() / max(n_v, 1)
+    if chords is not None and near_n is not None:  # a row without a target (miss 1) is weighed 0
+        terms["near_angle"] = (chords[s:] * (near_n * near_n).sum(dim=1)).sum() / max(n_v, 1)
         terms["loss"] = terms["loss"] + cfg.w_near_normal * terms["near_angle"]
     if power_weight > 0:
         r = f[:s] / (gnorm[:s].clamp_min(FIRST_ORDER_MIN_SLOPE) * power_scale)

@@ -96,7 +96,8 @@ class _Pools:
             surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
                                   colors=False)
             near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w,
-                                normals=near_reach(cfg)) if cfg.pool_near else None)
+                                targets=near_reach(cfg), target_normals=cfg.surface_normals)
+                    if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
         except (ValueError, RuntimeError) as exc:
             raise FitError(f"{mesh.name}: cannot sample the mesh for fitting ({exc})") from None

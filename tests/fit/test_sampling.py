@@ -244,7 +244,7 @@ def test_near_samples_gradient_targets_are_the_spheres_radial_direction(sphere, 
     # analytic oracle: off a sphere the signed distance's gradient is x/|x|, inside and out; the interpolated
     # normals of the closest points are it within the tessellation's normal error. Beyond the reach, and
     # where the closest point is on the open sphere's rim (the offset leaves the normal), there is none.
-    v = sample_near(sphere, 6000, sigma=(0.003, 0.05), seed=2, normals=0.02)
+    v = sample_near(sphere, 6000, sigma=(0.003, 0.05), seed=2, targets=0.02)
     assert v.normals.dtype == np.float32 and v.normals.shape == (6000, 3)
     has = np.linalg.norm(v.normals, axis=1) > 0
     np.testing.assert_array_equal(has, np.abs(v.sdf) <= 0.02)
@@ -263,7 +263,7 @@ def test_near_samples_gradient_targets_are_the_spheres_radial_direction(sphere, 
     axis = np.stack([np.zeros(8), np.linspace(-0.05, 0.05, 8), np.linspace(0.7, 0.95, 8)], axis=1)
     d = signed_distance(open_sphere, axis)
     assert (distance_gradient_targets(open_sphere, axis, d, _closest_points(open_sphere, axis), 1.0) == 0).all()
-    empty = sample_near(sphere, 0, normals=0.01)
+    empty = sample_near(sphere, 0, targets=0.01)
     assert empty.normals.shape == (0, 3) and empty.sdf.shape == (0,)
 
 
@@ -282,6 +282,16 @@ def test_distance_gradient_targets_skip_points_on_the_surface_and_past_a_crease(
     np.testing.assert_allclose(out[1], [0, 0, 1], atol=1e-6)  # inside: still the outward normal
     np.testing.assert_array_equal(out[2:], 0.0)
     assert (distance_gradient_targets(mesh, pts, sdf, _closest_points(mesh, pts), reach=0.005) == 0).all()
+    # the cube with shared corners: its interpolated normals lean towards the corners, its faces' do not
+    box = trimesh.creation.box()
+    shared = Mesh(np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int64))
+    closest = _closest_points(shared, pts[:2])
+    face = distance_gradient_targets(shared, pts[:2], sdf[:2], closest, reach=1.0, normals="face")
+    vertex = distance_gradient_targets(shared, pts[:2], sdf[:2], closest, reach=1.0)
+    np.testing.assert_allclose(face, [[0, 0, 1], [0, 0, 1]], atol=1e-6)
+    assert vertex[1, 2] < 0.95  # 0.1, -0.2: off the face's centre
+    with pytest.raises(ValueError, match="normals must be 'face' or 'vertex'"):
+        distance_gradient_targets(shared, pts[:2], sdf[:2], closest, reach=1.0, normals="smooth")
 
 
 def test_uniform_samples_fill_the_cube(sphere):

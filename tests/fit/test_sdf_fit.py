@@ -228,21 +228,27 @@ def test_bad_settings(kw, msg):
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_surface_normals_target_the_faces_or_the_smooth_surface(dtype):
     """On a coarse icosphere the interpolated vertex normals are far closer to the sphere's own normals (the
-    positions) than the faces' normals are; the pools carry the kind asked for."""
+    positions) than the faces' normals are; the pools carry the kind asked for, at the surface samples and as
+    the near samples' gradient targets (of the closest points)."""
     from neural_bake.fit.sdf_config import config_from
     from neural_bake.fit.sdf_pools import _Pools
 
     mesh = sphere(sub=1)
+    faces = torch.as_tensor(mesh.face_normals, dtype=dtype)
     err = {}
     for kind in ("face", "vertex"):
-        pools = _Pools(mesh, config_from(surface_normals=kind, pool_surface=5000, pool_near=0, batch_near=0,
-                                         pool_uniform=0, batch_uniform=0), torch.device("cpu"), dtype)
+        pools = _Pools(mesh, config_from(surface_normals=kind, pool_surface=5000, pool_near=3000, batch_near=8,
+                                         pool_uniform=0, batch_uniform=0, w_near_normal=1.0),
+                       torch.device("cpu"), dtype)
         data = pools.get(0)
         p, n = data["surf_p"], data["surf_n"]
         assert p.dtype == n.dtype == dtype
         assert torch.allclose(n.norm(dim=1), torch.ones(len(n), dtype=dtype), atol=1e-5)
         cos = (n * torch.nn.functional.normalize(p, dim=1)).sum(1).clamp(-1, 1)
         err[kind] = float(torch.rad2deg(torch.acos(cos)).median())
+        vn = data["vol_n"][(data["vol_n"] != 0).any(dim=1)]
+        on_a_face = (vn @ faces.T).max(dim=1).values > 1 - 1e-5
+        assert len(vn) > 1000 and (bool(on_a_face.all()) if kind == "face" else float(on_a_face.float().mean()) < 0.1)
     assert err["vertex"] < 0.5 * err["face"], err
 
 
