@@ -274,15 +274,11 @@ def sample_near(
     counts = [n // len(sigmas) + (1 if i < n % len(sigmas) else 0) for i in range(len(sigmas))]
     scale = np.repeat(np.asarray(sigmas), counts)
     points = surf.points.astype(np.float64) + rng.standard_normal((n, 3)) * scale[:, None]
-    if not n:
-        return VolumeSamples(points.astype(np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool),
-                             np.zeros((0, 3), np.float32) if targets > 0 else None)
-    closest = _closest_points(mesh, points)
-    dist = np.linalg.norm(points - closest["points"], axis=1)
-    inside, sure = _inside_and_sure(mesh, points, sign)
-    sdf = np.where(inside, -dist, dist)
-    grad = (distance_gradient_targets(mesh, points, sdf, closest, targets, target_normals).astype(np.float32)
-            if targets > 0 else None)
+    sdf, sure, closest = _signed_distance_closest(mesh, points, sign)
+    grad = None
+    if targets > 0:
+        grad = (np.zeros((0, 3)) if closest is None
+                else distance_gradient_targets(mesh, points, sdf, closest, targets, target_normals)).astype(np.float32)
     return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure, grad)
 
 
@@ -376,14 +372,22 @@ def signed_distance_sure(mesh: Mesh, points, *, sign: str = "auto") -> tuple[np.
     """(:func:`signed_distance` (N,), sure (N,) bool): whether each point's sign is sure, i.e. the ray parity of
     a watertight mesh, every ray of the "hybrid" test agreeing, or a winding number at least
     :data:`~neural_bake.constants.SIGN_SURE_MARGIN` from 1/2 (an open sheet reads about 1/2 on both sides)."""
+    sdf, sure, _ = _signed_distance_closest(mesh, points, sign)
+    return sdf, sure
+
+
+def _signed_distance_closest(mesh: Mesh, points, sign: str) -> tuple[np.ndarray, np.ndarray, dict | None]:
+    """:func:`signed_distance_sure`'s (signed distance, sure) and the closest points they were measured to
+    (:func:`_closest_points`; None for no points)."""
     if sign not in SIGN_METHODS:
         raise ValueError(f"signed_distance: sign must be one of {SIGN_METHODS}, got {sign!r}")
     p = check_points(points, "signed_distance")
-    dist = unsigned_distance(mesh, p)
     if p.shape[0] == 0:
-        return dist, np.zeros(0, dtype=bool)
+        return np.zeros(0), np.zeros(0, dtype=bool), None
+    closest = _closest_points(mesh, p)
+    dist = np.linalg.norm(p - closest["points"], axis=1)
     inside, sure = _inside_and_sure(mesh, p, sign)
-    return np.where(inside, -dist, dist), sure
+    return np.where(inside, -dist, dist), sure, closest
 
 
 def inside_mask(mesh: Mesh, points, *, method: str = "auto") -> np.ndarray:
