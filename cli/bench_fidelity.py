@@ -47,10 +47,13 @@ from .bench import bench_options, report
               help="Time budget of every texture fit (equal time; the steps made follow the machine).")
 @click.option("--only-textures", is_flag=True,
               help="Only the texture rows, on the textured assets (default: all of them; --quick: spot).")
+@click.option("--sdf-set", "sdf_set", multiple=True, metavar="FIELD=VALUE",
+              help="An SDF fit setting (a field of fit sdf's config, e.g. coarse_share=0.1) set on every fit over the "
+                   "preset's; repeatable. Rows and saved models' names carry it.")
 @click.option("--save-models", "save_dir", type=click.Path(file_okay=False), default=None, metavar="DIRECTORY",
               help="Also save every fitted SDF as DIR/MESH-PRESET.sdf (e.g. for bench bake --anchor-model).")
 def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sampling, constructions, steps,
-            texture_steps, texture_networks, texture_minutes, only_textures, save_dir) -> None:
+            texture_steps, texture_networks, texture_minutes, only_textures, sdf_set, save_dir) -> None:
     """Per real mesh and preset at its budget: baked normal error (median, p95) against the source mesh beside
     ∇f alone, the classical mesh-to-mesh bake and the coarse mesh's own normals; Hausdorff (open meshes also
     without their caps); times; texture PSNR; storage. Textured assets add a texture row: the albedo of the
@@ -82,8 +85,15 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
     if counts is not None and (not counts or min(counts) < 1):
         raise click.BadParameter(f"expected positive integers separated by commas, got {steps!r}",
                                  param_hint="--steps")
+    settings = {}
+    for item in sdf_set:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise click.BadParameter(f"expected FIELD=VALUE, got {item!r}", param_hint="--sdf-set")
+        settings[key.strip().replace("-", "_")] = value.strip()
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
                minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir,
                texture_steps=texture_steps, only_textures=only_textures, texture_networks=nets,
-               texture_minutes=texture_minutes, constructions=kinds, log=click.echo),
+               texture_minutes=texture_minutes, constructions=kinds, sdf_settings=settings or None,
+               log=click.echo),
            json_path)

@@ -66,6 +66,24 @@ GRID_TEXTURE = {"network": "grid", "width": 64, "depth": 1, "lr": 1e-2, "edge_sh
 _GRID_NORMALS = {"grid": "off", "grid-normals": "on", "grid-auto": "auto"}
 
 
+def _sdf_settings(given: dict | None) -> dict:
+    """``{field: value}`` of SDF fit settings checked against :class:`~neural_bake.fit.sdf_config.SdfFitConfig`'s
+    fields and types (text read as the field's type); NeuralBakeError naming the first bad one."""
+    from ..configs import convert, field_types
+    from ..fit.sdf_config import SdfFitConfig
+
+    types = field_types(SdfFitConfig)
+    out = {}
+    for key, value in (given or {}).items():
+        if key in ("minutes", "steps", "budget"):
+            raise NeuralBakeError(f"fidelity: sdf_settings cannot set {key!r}; the budget is the benchmark's own "
+                                  "(minutes, steps)", parameter="sdf_settings")
+        if key not in types:
+            raise NeuralBakeError(f"fidelity: sdf_settings: unknown SDF fit setting {key!r}", parameter="sdf_settings")
+        out[key] = convert(value, types[key], f"fidelity: sdf_settings: {key}")
+    return out
+
+
 def texture_network_settings(name: str, preset: str) -> dict:
     """The texture-fit overrides of construction ``name`` (:data:`TEXTURE_NETWORKS`) at texture ``preset``:
     empty when the construction is the preset's own network."""
@@ -329,7 +347,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         data: str | os.PathLike | None = None, sampling: list[str] | None = None, steps: list[int] | None = None,
         save_dir: str | os.PathLike | None = None, texture_steps: int | None = None, only_textures: bool = False,
         texture_networks: list[str] | None = None, texture_minutes: float | None = None,
-        constructions: list[str] | None = None, log=None) -> dict:
+        constructions: list[str] | None = None, sdf_settings: dict | None = None, log=None) -> dict:
     """Run the fidelity benchmark; returns ``{"name", "machine", "quick", "rows", "notes"}``.
 
     - ``meshes``: names of :data:`MESHES` or :data:`SAMPLE_MESHES`, or mesh file paths (default: every mesh the
@@ -362,6 +380,11 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
       at the same budget and baked side by side, one row each; rows get ratios against "plain" of the same
       mesh, preset, step count and sampling (``plain_median_ratio``, ``plain_p95_ratio``,
       ``plain_hausdorff_ratio``; add "plain" to have them).
+    - ``sdf_settings``: ``{field: value}`` of :class:`~neural_bake.fit.sdf_config.SdfFitConfig` set on every SDF
+      fit over the preset's (e.g. ``{"coarse_share": 0.1}``: a preset's setting measured before it is changed);
+      text values are read as the field's type. Rows carry them as ``sdf_settings``, labels and saved models'
+      names as ``field=value``. NeuralBakeError for an unknown field, a bad value, or a budget field (``minutes``,
+      ``steps``: the benchmark's own options).
 
     The result has ``"texture_rows"`` (one per textured case with a texture fit) and, when there are any,
     ``"tables"`` (the normal rows and the texture rows, as the bench report prints them).
@@ -434,6 +457,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
     if only_textures and kinds not in ([None], ["plain"]):
         raise NeuralBakeError("fidelity: only_textures fits the plain SDF (its reference steps); constructions "
                               f"{', '.join(map(str, kinds))} are for the normal rows", parameter="constructions")
+    settings = _sdf_settings(sdf_settings)
     caps_of_steps = [None] if not steps else [int(n) for n in steps]
     if any(n is not None and n < 1 for n in caps_of_steps):
         raise NeuralBakeError(f"fidelity: steps must be positive integers, got {steps!r}")
@@ -454,20 +478,22 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
         cases = [(p, n, v, c) for p in presets for n in caps_of_steps for v in sampling for c in kinds]
         for preset, step_cap, variant, construction in cases:
             label = f"{name} {preset}" + ("" if step_cap is None else f" {step_cap} steps") + (
-                "" if variant == "preset" else f" {variant}") + ("" if construction is None else f" {construction}")
+                "" if variant == "preset" else f" {variant}") + ("" if construction is None else f" {construction}") + (
+                "".join(f" {k}={v}" for k, v in settings.items()))
             say(f"{label}: fitting the SDF")
             t0 = time.perf_counter()
             over = {} if minutes is None else {"minutes": minutes}
             if step_cap is not None:
                 over = {"minutes": None, "steps": step_cap}
             sdf_over = {"budget": "steps"} if only_textures and not over else over
-            fit = fit_sdf_construction(mesh, construction, preset=preset, progress=False, **sdf_over,
-                                       **SAMPLINGS[variant])
+            fit = fit_sdf_construction(mesh, construction, preset=preset, progress=False,
+                                       **{**sdf_over, **SAMPLINGS[variant], **settings})
             fit_s = time.perf_counter() - t0
             if save_dir is not None:
                 stem = "-".join([Path(name).stem, preset, *([] if step_cap is None else [str(step_cap)]),
                                  *([] if variant == "preset" else [variant]),
-                                 *([] if construction is None else [construction])])
+                                 *([] if construction is None else [construction]),
+                                 *(f"{k}={v}" for k, v in settings.items())])
                 fit.save(Path(save_dir) / f"{stem}.sdf")
             n, res = (20_000, 96) if quick else (50_000, 128)
             metrics = caps = None
@@ -519,7 +545,7 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                 tex["psnr"] = rep.get("color_psnr_db")
                 tex["classical_psnr"] = (rep.get("baseline") or {}).get("color_psnr_db")
             row = _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, alone)
-            row.update(sampling=variant, step_cap=step_cap)
+            row.update(sampling=variant, step_cap=step_cap, sdf_settings=dict(settings) or None)
             rows.append(row)
             for w in rep.get("warnings", []):
                 notes.append(f"{label}: {w}")

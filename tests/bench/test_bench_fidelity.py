@@ -287,3 +287,32 @@ def test_unknown_sdf_construction_is_refused_in_one_line(capsys):
         assert main(["bench", "fidelity", "--quick", "--sdf-construction", value]) == 2
         err = capsys.readouterr().err.strip()
         assert "Invalid value for --sdf-construction" in err and len(err.splitlines()) == 1, err
+
+
+def test_sdf_settings_are_set_on_every_fit_and_named(tmp_path):
+    path = tmp_path / "block.obj"
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(path)
+    res = run(quick=True, meshes=[str(path)], steps=[8], size=32, faces=100, save_dir=tmp_path / "models",
+              sdf_settings={"coarse_share": "0.5"})
+    (row,) = res["rows"]
+    # the quick preset's residual construction, its 8 steps split in half instead of a quarter
+    assert (row["steps"], row["coarse_steps"]) == (4, 4)
+    assert row["sdf_settings"] == {"coarse_share": 0.5}
+    assert load_sdf(tmp_path / "models" / "block-quick-8-coarse_share=0.5.sdf").steps == 4
+    json.dumps(res)
+
+
+def test_bad_sdf_settings_are_refused_in_one_line(capsys):
+    from neural_bake.cli.main import main
+
+    for settings, match in (({"coarse_shar": 0.1}, "unknown SDF fit setting 'coarse_shar'"),
+                            ({"coarse_share": "a lot"}, r"coarse_share='a lot': expected float"),
+                            ({"minutes": 3}, "cannot set 'minutes'")):
+        with pytest.raises(NeuralBakeError, match=match):
+            run(quick=True, meshes=["x.obj"], sdf_settings=settings)
+    assert main(["bench", "fidelity", "--quick", "--sdf-set", "coarse_share"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Invalid value for --sdf-set" in err and len(err.splitlines()) == 1, err
+    assert main(["bench", "fidelity", "--quick", "--sdf-set", "stpes=3"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "unknown SDF fit setting 'stpes'" in err and len(err.splitlines()) == 1, err
