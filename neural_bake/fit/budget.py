@@ -45,7 +45,7 @@ REFERENCE_STEP = (128, 2, 4096)
 #: "quick" entry is its plain 192x3 network's), texture presets by "texture:NAME". Measured: quick/coarse (64x3)
 #: and quick/fine (128x3 on the coarse level) in one ``neural-bake bench budget`` run, quiet; default's and
 #: high's levels (64x3 with zero-set mining and 128x3; 64x4 and 192x4) against quick's in another, scaled by
-#: quick's levels' table ÷ measured (uncompiled; high's fine level compiles at its 7.5 minutes, so it makes
+#: quick's levels' table ÷ measured (uncompiled; high's fine level compiles at its 9 minutes, so it makes
 #: more steps than its cost predicts); quick (192x3,
 #: loss not compiled: nefertiti, the tea set and Spot in 2 minutes, plainly), default (192x3, compiled: the
 #: tea set and Spot in 5 minutes), high (256x4, compiled: nefertiti in 10 minutes), texture:quick and

@@ -94,13 +94,15 @@ def test_reference_steps_are_each_presets_budget_at_one_reference_rate():
     from neural_bake.fit.budget import reference_steps
     from neural_bake.fit.presets import REFERENCE_STEPS
     from neural_bake.fit.sdf_config import PRESETS as SDF
+    from neural_bake.fit.sdf_config import SdfFitConfig
     from neural_bake.fit.texture import PRESETS as TEXTURE
 
     def adam_seconds(key):
         if key.startswith("texture:"):
             return 60.0 * TEXTURE[key.split(":", 1)[1]]["minutes"]
         preset, _, level = key.partition("/")  # a construction's level: its share of the preset's time
-        share = {"": 1.0, "coarse": 0.25, "fine": 0.75}[level]
+        coarse = SDF[preset].get("coarse_share", SdfFitConfig().coarse_share)
+        share = {"": 1.0, "coarse": coarse, "fine": 1.0 - coarse}[level]
         return 60.0 * SDF[preset]["minutes"] * (1.0 - SDF[preset].get("polish_share", 0.0)) * share
 
     assert set(REFERENCE_STEPS) == set(STEP_COST)

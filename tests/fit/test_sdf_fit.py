@@ -154,6 +154,7 @@ def test_presets_and_config():
     assert (q.zero_fraction, d.zero_fraction, h.zero_fraction) == (0.0, 0.1, 0.0)  # default's stray pieces
     assert (d.width, d.depth, d.minutes) == (192, 3, 5.0) and d != config_from(preset="128x2")
     assert (h.width, h.depth, h.minutes) == (256, 4, 10.0) and h != config_from(preset="256x3")
+    assert (q.coarse_share, d.coarse_share, h.coarse_share) == (0.25, 0.25, 0.1)  # high's fine level: 9 minutes
 
 
 def test_slow_sdf_fit_warns_and_records(tmp_path, monkeypatch):
