@@ -256,6 +256,7 @@ def sample_near(
     face_weights: np.ndarray | None = None,
     targets: float = 0.0,
     target_normals: str = "vertex",
+    target_gap_share: float = 0.0,
 ) -> VolumeSamples:
     """``n`` points near the surface with their signed distance (unit frame).
 
@@ -264,8 +265,8 @@ def sample_near(
     e.g. ``sigma=(0.01, 0.003)``. The signed distance is :func:`signed_distance` with ``sign``.
 
     ``targets`` > 0 also gives each point within that distance of the mesh the gradient of its signed distance,
-    :func:`distance_gradient_targets` with ``target_normals`` (``VolumeSamples.normals``; zero rows where there
-    is none).
+    :func:`distance_gradient_targets` with ``target_normals`` and ``target_gap_share`` (``VolumeSamples.normals``;
+    zero rows where there is none).
     """
     n = _check_count(n, "sample_near")
     sigmas = _sigmas(sigma)
@@ -278,7 +279,8 @@ def sample_near(
     grad = None
     if targets > 0:
         grad = (np.zeros((0, 3)) if closest is None
-                else distance_gradient_targets(mesh, points, sdf, closest, targets, target_normals)).astype(np.float32)
+                else distance_gradient_targets(mesh, points, sdf, closest, targets, target_normals,
+                                               target_gap_share)).astype(np.float32)
     return VolumeSamples(points.astype(np.float32), sdf.astype(np.float32), sure, grad)
 
 
@@ -289,23 +291,51 @@ NEAR_TARGET_MAX_DEG = 30.0
 
 
 def distance_gradient_targets(mesh: Mesh, points: np.ndarray, sdf: np.ndarray, closest: dict,
-                              reach: float, normals: str = "vertex") -> np.ndarray:
+                              reach: float, normals: str = "vertex", gap_share: float = 0.0) -> np.ndarray:
     """(N, 3) float64 unit directions the gradient of the signed distance takes at ``points`` (N, 3) within
     ``reach`` of ``mesh``: the normal at each point's closest point (``closest``: :func:`_closest_points`),
     which an exact SDF's gradient equals off a smooth surface, inside and out — ``normals="vertex"``: the
     interpolated vertex normal (the shading a bake scores against), ``"face"``: the face's own (the gradient of
     the piecewise-flat mesh's distance). Zero rows where the distance is 0 or beyond ``reach``, or where the
     offset from the closest point is more than :data:`NEAR_TARGET_MAX_DEG` off that normal (an open boundary,
-    a crease)."""
+    a crease). ``gap_share`` > 0 also gives none where the point is further from its closest point than that
+    share of the gap on its side: the distance from the closest point along the normal (outwards for a point
+    outside, inwards inside) to the next piece of the mesh. Between two sheets closer than the reach (a thin
+    wall, the inside of a narrow cup) the exact gradient turns over halfway; the share keeps the targets away
+    from that turn."""
     if normals not in ("face", "vertex"):
         raise ValueError(f"distance_gradient_targets: normals must be 'face' or 'vertex', got {normals!r}")
+    if not (math.isfinite(gap_share) and 0.0 <= gap_share <= 1.0):
+        raise ValueError(f"distance_gradient_targets: gap_share must be in [0, 1], got {gap_share!r}")
     n = (_interp_normals(mesh, closest["face"], closest["bary"]) if normals == "vertex"
          else np.asarray(mesh.face_normals[closest["face"]], dtype=np.float64))
     offset = (points - closest["points"]) * np.sign(sdf)[:, None]
     dist = np.linalg.norm(offset, axis=1)
     cos = np.einsum("ij,ij->i", offset, n) / np.maximum(dist, DIRECTION_EPS)
     ok = (dist > DIRECTION_EPS) & (np.abs(sdf) <= reach) & (cos >= math.cos(math.radians(NEAR_TARGET_MAX_DEG)))
+    if gap_share > 0 and ok.any():
+        gap = np.full(len(points), np.inf)
+        gap[ok] = _gap_along(mesh, closest["points"][ok], n[ok] * np.sign(sdf[ok])[:, None])
+        ok &= dist <= gap_share * gap
     return np.where(ok[:, None], n, 0.0)
+
+
+def _gap_along(mesh: Mesh, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(N,) distance from ``origins`` (N, 3) on the mesh along unit ``directions`` (N, 3) to the next piece of
+    the mesh's non-degenerate faces (inf where the ray leaves it); the origins are lifted by
+    :data:`GAP_LIFT` off their own face first (the BVH is float32)."""
+    idx, _ = sampleable_faces(mesh)
+    o3d = import_open3d()
+
+    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
+    rays = np.concatenate([origins + GAP_LIFT * directions, directions], axis=1).astype(np.float32)
+    t = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)), nthreads=threads())["t_hit"].numpy()
+    return t.astype(np.float64) + GAP_LIFT
+
+
+#: How far :func:`distance_gradient_targets`' gap rays start off the surface (unit frame): above float32's
+#: error at the unit cube's scale, far below any gap a target is kept for.
+GAP_LIFT = 1e-5
 
 
 def _interp_normals(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:

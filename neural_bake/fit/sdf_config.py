@@ -53,6 +53,10 @@ class SdfFitConfig(PresetLoopSettings):
     term (a tile level does not read it). 0: off (no target computed)."""
     near_normal_reach: float = 0.03
     """Distance from the mesh (unit frame) out to which a near-surface sample gets a normal target."""
+    near_normal_gap_share: float = 0.0
+    """Share of the gap on a near sample's side of the mesh (from its closest point along the normal to the
+    next piece of the mesh) within which it gets a normal target: between sheets closer than the reach (thin
+    walls) the exact gradient turns over halfway across. 0: no bound but the reach."""
     w_eikonal: float = 50.0
     """Weight of mean (1 − |∇f|)² on every point of the step."""
     w_sdf: float = 3000.0
@@ -211,7 +215,9 @@ class SdfFitConfig(PresetLoopSettings):
         if self.construction != "tiles":
             skip |= {"tile_grid", "tile_width", "tile_depth", "tile_margin"}
         if not self.w_near_normal:
-            skip |= {"w_near_normal", "near_normal_reach"}
+            skip |= {"w_near_normal", "near_normal_reach", "near_normal_gap_share"}
+        elif not self.near_normal_gap_share:
+            skip.add("near_normal_gap_share")
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
 
@@ -310,6 +316,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
     check_sigmas(cfg, "fit_sdf")
     if not (math.isfinite(cfg.near_normal_reach) and cfg.near_normal_reach > 0):
         raise FitError(f"fit_sdf: near_normal_reach must be a positive distance, got {cfg.near_normal_reach!r}")
+    if not (math.isfinite(cfg.near_normal_gap_share) and 0.0 <= cfg.near_normal_gap_share <= 1.0):
+        raise FitError(f"fit_sdf: near_normal_gap_share must be in [0, 1], got {cfg.near_normal_gap_share!r}")
     if not (0.0 <= cfg.hard_fraction <= 1.0) or not (0.0 < cfg.hard_pool <= 1.0):
         raise FitError(f"fit_sdf: hard_fraction must be in [0, 1] and hard_pool in (0, 1], got "
                        f"{cfg.hard_fraction!r}, {cfg.hard_pool!r}")

@@ -75,7 +75,8 @@ class _Pools:
     def _build(self, idx: int) -> None:
         cfg = self.cfg
         key = (idx, cfg.seed, cfg.pool_surface, cfg.pool_near, cfg.pool_uniform, tuple(cfg.sigmas),
-               cfg.curvature_sampling, cfg.surface_normals, near_reach(cfg), str(self.device), self.dtype)
+               cfg.curvature_sampling, cfg.surface_normals, near_reach(cfg), cfg.near_normal_gap_share,
+               str(self.device), self.dtype)
         data = None if self.cache is None else self.cache.get(key)
         if data is None:
             data = self._sample(idx)
@@ -96,7 +97,8 @@ class _Pools:
             surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
                                   colors=False)
             near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w,
-                                targets=near_reach(cfg), target_normals=cfg.surface_normals)
+                                targets=near_reach(cfg), target_normals=cfg.surface_normals,
+                                target_gap_share=cfg.near_normal_gap_share)
                     if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
         except (ValueError, RuntimeError) as exc:

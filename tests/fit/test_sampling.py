@@ -294,6 +294,44 @@ def test_distance_gradient_targets_skip_points_on_the_surface_and_past_a_crease(
         distance_gradient_targets(shared, pts[:2], sdf[:2], closest, reach=1.0, normals="smooth")
 
 
+def test_distance_gradient_targets_stay_within_a_share_of_the_gap_across_a_thin_wall():
+    # a flat-shaded slab 0.02 thick: inside, the exact gradient turns over at its mid-plane; with a gap share of
+    # 0.25 a point keeps its face's normal only within 0.005 of that face. Outside, the gap runs to the other
+    # slab 0.1 above (0.025 of it), or to nothing below (no bound).
+    from neural_bake.fit.sampling import _closest_points, distance_gradient_targets
+
+    def slab(z0, z1):
+        b = trimesh.creation.box(extents=(1.0, 1.0, z1 - z0))
+        b.apply_translation((0, 0, (z0 + z1) / 2))
+        return b.triangles.reshape(-1, 3)
+
+    tri = np.concatenate([slab(-0.01, 0.01), slab(0.11, 0.13)])
+    mesh = Mesh(np.asarray(tri, dtype=np.float64), np.arange(len(tri), dtype=np.int64).reshape(-1, 3))
+    z = np.array([0.008, 0.004, 0.002, -0.007, 0.012, 0.04, -0.012, -0.04])
+    pts = np.stack([np.full(len(z), 0.05), np.full(len(z), -0.1), z], axis=1)
+    sdf = signed_distance(mesh, pts, sign="raycast")
+    np.testing.assert_allclose(sdf, [-0.002, -0.006, -0.008, -0.003, 0.002, 0.03, 0.002, 0.03], atol=1e-6)
+    closest = _closest_points(mesh, pts)
+    every = distance_gradient_targets(mesh, pts, sdf, closest, reach=0.05)
+    want = np.array([1, 1, 1, -1, 1, 1, -1, -1])[:, None] * [0.0, 0.0, 1.0]
+    np.testing.assert_allclose(every, want, atol=1e-6)  # no gap bound: every point its face's normal
+    bounded = distance_gradient_targets(mesh, pts, sdf, closest, reach=0.05, gap_share=0.25)
+    keep = np.array([True, False, False, True, True, False, True, True])  # 0.04: 0.03 > 0.25 × 0.1
+    np.testing.assert_allclose(bounded, np.where(keep[:, None], want, 0.0), atol=1e-6)
+    # the gap rays see the other slab: at a share of one the point 0.03 above keeps its target
+    assert distance_gradient_targets(mesh, pts[5:6], sdf[5:6], _closest_points(mesh, pts[5:6]), reach=0.05,
+                                     gap_share=1.0)[0, 2] == pytest.approx(1.0)
+    for bad in (-0.1, 1.5, math.nan):
+        with pytest.raises(ValueError, match="gap_share must be in"):
+            distance_gradient_targets(mesh, pts, sdf, closest, reach=0.05, gap_share=bad)
+    # sample_near passes it on: the bounded targets are a subset of the unbounded ones at the same points
+    a = sample_near(mesh, 3000, sigma=0.01, seed=4, targets=0.05, sign="raycast")
+    b = sample_near(mesh, 3000, sigma=0.01, seed=4, targets=0.05, sign="raycast", target_gap_share=0.25)
+    has_a, has_b = np.linalg.norm(a.normals, axis=1) > 0, np.linalg.norm(b.normals, axis=1) > 0
+    assert (has_b <= has_a).all() and has_b.sum() < has_a.sum() and has_b.sum() > 0.3 * has_a.sum()
+    np.testing.assert_array_equal(a.normals[has_b], b.normals[has_b])
+
+
 def test_uniform_samples_fill_the_cube(sphere):
     v = sample_uniform(sphere, 4000, seed=1, bound=1.5)
     assert np.abs(v.points).max() <= 1.5 and np.abs(v.points).max() > 1.45

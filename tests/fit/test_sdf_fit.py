@@ -220,6 +220,8 @@ def test_slow_sdf_fit_warns_and_records(tmp_path, monkeypatch):
     ({"w_angle": -1.0}, "w_angle must be a non-negative number"),
     ({"w_near_normal": math.nan}, "w_near_normal must be a non-negative number"),
     ({"near_normal_reach": 0.0}, "near_normal_reach must be a positive distance"),
+    ({"near_normal_gap_share": 1.5}, "near_normal_gap_share must be in"),
+    ({"near_normal_gap_share": math.nan}, "near_normal_gap_share must be in"),
 ])
 def test_bad_settings(kw, msg):
     with pytest.raises(FitError, match=msg):
@@ -465,6 +467,8 @@ def test_fit_with_the_near_normal_term_draws_targets_beside_the_near_points():
     assert "w_near_normal" in on.config.fingerprint_dict()
     assert "w_near_normal" not in off.config.fingerprint_dict()
     assert "near_normal_reach" not in off.config.fingerprint_dict()
+    assert "near_normal_gap_share" not in on.config.fingerprint_dict()  # 0: no bound, fingerprints as before
+    assert replace(on.config, near_normal_gap_share=0.25).fingerprint_dict()["near_normal_gap_share"] == 0.25
     cfg = SdfFitConfig(batch=40, batch_near=200, batch_uniform=40, hard_fraction=0.0, zero_fraction=0.25)
     pools = {"surf_p": torch.zeros(100, 3), "surf_n": torch.zeros(100, 3), "vol_p": torch.rand(500, 3),
              "vol_d": torch.zeros(500), "n_near": 400, "vol_n": torch.ones(500, 3)}
