@@ -8,12 +8,13 @@ __all__ = ["command"]
 
 def _stage_option(ctx, param, values):
     """``--set STAGE.FIELD=VALUE`` pairs as ``{stage: {field: text}}``."""
+    from .options import key_values
+
     out: dict[str, dict] = {}
-    for item in values:
-        key, eq, value = item.partition("=")
-        stage, dot, name = key.strip().partition(".")
-        if not eq or not dot or not name:
-            raise click.BadParameter(f"{item!r}: expected STAGE.FIELD=VALUE, e.g. bake.size=1024")
+    for key, value in key_values(values, form="STAGE.FIELD=VALUE", example="bake.size=1024"):
+        stage, dot, name = key.partition(".")
+        if not dot or not name:
+            raise click.BadParameter(f"{key}={value!r}: expected STAGE.FIELD=VALUE, e.g. bake.size=1024")
         out.setdefault(stage, {})[name] = value
     return out
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .bench import bench_options, report
+from .options import key_values
 
 
 @click.command("fidelity")
@@ -85,12 +86,8 @@ def command(quick, json_path, meshes, presets, faces, size, minutes, texture, sa
     if counts is not None and (not counts or min(counts) < 1):
         raise click.BadParameter(f"expected positive integers separated by commas, got {steps!r}",
                                  param_hint="--steps")
-    settings = {}
-    for item in sdf_set:
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip():
-            raise click.BadParameter(f"expected FIELD=VALUE, got {item!r}", param_hint="--sdf-set")
-        settings[key.strip().replace("-", "_")] = value.strip()
+    settings = {key.replace("-", "_"): value for key, value in key_values(
+        sdf_set, form="FIELD=VALUE", example="coarse_share=0.1", param_hint="--sdf-set")}
     report(run(quick=quick, meshes=list(meshes) or None, presets=list(presets) or None, faces=faces, size=size,
                minutes=minutes, texture=texture, sampling=variants, steps=counts, save_dir=save_dir,
                texture_steps=texture_steps, only_textures=only_textures, texture_networks=nets,

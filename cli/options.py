@@ -6,7 +6,7 @@ import math
 
 import click
 
-__all__ = ["refuse_nonpositive", "lock_outputs", "output_option", "verbosity_options", "verbosity", "say"]
+__all__ = ["refuse_nonpositive", "key_values", "lock_outputs", "output_option", "verbosity_options", "verbosity", "say"]
 
 
 def refuse_nonpositive(**options) -> None:
@@ -17,6 +17,19 @@ def refuse_nonpositive(**options) -> None:
     for name, value in options.items():
         if value is not None and not (math.isfinite(value) and value > 0):
             raise NeuralBakeError(f"--{name.replace('_', '-')} {value}: must be a positive number")
+
+
+def key_values(values, *, form: str, example: str, param_hint: str | None = None) -> list[tuple[str, str]]:
+    """``KEY=VALUE`` option values as ``(key, value)`` pairs, both stripped; click's BadParameter (one line,
+    exit 2) for an item without ``=`` or without a key, naming the ``form`` expected and an ``example`` (and the
+    option, ``param_hint``, when called from a verb's body rather than the option's callback)."""
+    pairs = []
+    for item in values:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise click.BadParameter(f"{item!r}: expected {form}, e.g. {example}", param_hint=param_hint)
+        pairs.append((key.strip(), value.strip()))
+    return pairs
 
 
 def lock_outputs(*paths) -> None:

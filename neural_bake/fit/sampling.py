@@ -324,10 +324,8 @@ def _gap_along(mesh: Mesh, origins: np.ndarray, directions: np.ndarray) -> np.nd
     """(N,) distance from ``origins`` (N, 3) on the mesh along unit ``directions`` (N, 3) to the next piece of
     the mesh's non-degenerate faces (inf where the ray leaves it); the origins are lifted by
     :data:`GAP_LIFT` off their own face first (the BVH is float32)."""
-    idx, _ = sampleable_faces(mesh)
     o3d = import_open3d()
-
-    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
+    _, scene = _faces_scene(mesh)
     rays = np.concatenate([origins + GAP_LIFT * directions, directions], axis=1).astype(np.float32)
     t = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)), nthreads=threads())["t_hit"].numpy()
     return t.astype(np.float64) + GAP_LIFT
@@ -372,13 +370,18 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     return np.linalg.norm(p - _closest_points(mesh, p)["points"], axis=1)
 
 
+def _faces_scene(mesh: Mesh):
+    """(indices of the mesh's non-degenerate faces, the cached BVH of those faces): what the distances, their
+    closest points and the gap rays query."""
+    idx, _ = sampleable_faces(mesh)
+    return idx, raycasting_scene(mesh.vertices, mesh.faces[idx])
+
+
 def _closest_points(mesh: Mesh, points: np.ndarray) -> dict:
     """Closest points of the mesh's non-degenerate faces to ``points`` (N, 3) by open3d's BVH: ``{"points"
     (N, 3) float64, "face" (N,) int64 (the mesh's face index), "bary" (N, 3) (weights of its corners)}``."""
-    idx, _ = sampleable_faces(mesh)
     o3d = import_open3d()
-
-    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
+    idx, scene = _faces_scene(mesh)
     # on the fit's threads (measured or fixed), not open3d's default of every core
     res = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)),
                                        nthreads=threads())
@@ -436,8 +439,7 @@ def _inside_and_sure(mesh: Mesh, points, method: str) -> tuple[np.ndarray, np.nd
     if method == "raycast":
         o3d = import_open3d()
 
-        idx, _ = sampleable_faces(mesh)
-        scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
+        _, scene = _faces_scene(mesh)
         occ = scene.compute_occupancy(o3d.core.Tensor(p.astype(np.float32)), nsamples=RAY_SAMPLES)
         inside = occ.numpy().astype(bool)
         return inside, np.ones(len(inside), dtype=bool)
@@ -459,8 +461,7 @@ def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:
     """(k, N) bool: odd number of crossings along each of ``k`` fixed, well-spread, non-axis directions."""
     o3d = import_open3d()
 
-    idx, _ = sampleable_faces(mesh)
-    scene = raycasting_scene(mesh.vertices, mesh.faces[idx])
+    _, scene = _faces_scene(mesh)
     i = np.arange(k) + 0.5
     z = 1.0 - 2.0 * i / k
     phi = i * math.pi * (3.0 - math.sqrt(5.0)) + 0.3  # golden-angle spiral, turned off the axes
