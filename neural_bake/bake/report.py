@@ -171,28 +171,34 @@ class _ErrorImage:
 
 class _Truth:
     """Ground-truth normals (and colours) at any texel samples: analytic callables, or the fine mesh's at
-    the closest point (its ray-casting scene built once)."""
+    the closest point (its ray-casting scene built once). ``hidden``, after each call with the fine mesh:
+    (M,) bool, the samples whose closest point lies on a face buried in another of its shells
+    (:func:`~neural_bake.mesh.shells.buried_faces`): inside the solid, never seen; None for analytic truth."""
 
     def __init__(self, baker, truth, fine, truth_colors):
         self.baker, self.truth, self.fine, self.truth_colors = baker, truth, fine, truth_colors
         self.label = "analytic" if truth is not None else "fine mesh, closest point" if fine is not None else None
-        self._scene = None
+        self._scene = self._buried = None
+        self.hidden: np.ndarray | None = None
 
     def __call__(self, texels, colours: bool = True):
         """(normals (M, 3) or None, linear colours (M, C) or None) at ``texels``' points."""
+        from ..mesh.shells import buried_faces
         from .baseline import closest_surface, raycasting_scene
 
         pts = texels.points
         normals = cols = closest = None
+        self.hidden = None
         if self.truth is not None:
             normals = np.asarray(self.truth(pts), dtype=np.float64)
         elif self.fine is not None:
             fine, frame = self.fine, self.baker.mesh.frame
             if self._scene is None:
-                self._scene = raycasting_scene(fine)
+                self._scene, self._buried = raycasting_scene(fine), buried_faces(fine)
             q = pts if fine.frame == frame else fine.frame.to_unit(frame.to_source(pts))
             closest = closest_surface(fine, q, scene=self._scene)
             normals = closest["normals"]
+            self.hidden = self._buried[closest["face"]]
         if not colours:
             return normals, None
         if self.truth_colors is not None:
@@ -249,7 +255,10 @@ def bake_report(
     invalid-gradient counts, seams and the masks cover every texel.
 
     - ``truth``: callable, unit-frame points (M, 3) -> ground-truth unit normals (M, 3) (analytic);
-      otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point.
+      otherwise ``fine`` (the high-resolution mesh): its interpolated normal at the closest point. Samples
+      whose closest point of ``fine`` lies on a face buried in another of its shells (inside the solid, never
+      seen: :func:`~neural_bake.mesh.shells.buried_faces`) are counted in ``"hidden_texels"`` and left out of
+      every figure against the truth and the baseline and of the error maps.
     - ``truth_colors``: callable points -> linear RGB (M, 3); otherwise ``fine``'s texture at the closest
       point (when it has one). Colour PSNR is measured on sRGB-encoded values (what the file holds).
     - ``baseline``: :func:`baseline_bake`'s result on the texels the report measures (``baker.texels``, or
@@ -286,13 +295,11 @@ def bake_report(
             tx = _texel_subset(tx, pick)
             normals, valid = normals[pick], valid[pick]
             replaced, neural, neural_colors = (None if a is None else a[pick] for a in (replaced, neural, neural_colors))
-            if baseline is not None:
-                baseline = {**baseline, **{k: None if baseline.get(k) is None else baseline[k][pick]
-                                           for k in ("normals", "colors", "points", "hit", "distance")}}
+            baseline = _baseline_subset(baseline, pick)
     elif getattr(result, "sample", None) is not None:
         smp = result.sample
         tx, normals, valid, total = smp.texels, smp.normals, smp.valid, smp.total
-        replaced, neural = smp.replaced, smp.neural
+        replaced, neural, neural_colors = smp.replaced, smp.neural, None
     else:
         raise NeuralBakeError("bake_report: needs the per-sample values (a cached Baker with keep_samples=True, "
                               "or a streamed bake with report_samples > 0)")
@@ -312,6 +319,17 @@ def bake_report(
     truth_n, truth_c = ground(tx)
     if ground.label:
         rep["truth"] = ground.label
+    if ground.hidden is not None and ground.hidden.any():
+        # samples whose nearest source surface is buried in another shell: never seen, left out of every figure
+        # against the truth and the baseline and of the error maps
+        rep["hidden_texels"] = int(ground.hidden.sum())
+        keep = np.flatnonzero(~ground.hidden)
+        tx, decoded, normals, valid, truth_n = _texel_subset(tx, keep), decoded[keep], normals[keep], valid[keep], \
+            truth_n[keep]
+        truth_c = None if truth_c is None else truth_c[keep]
+        replaced, neural, neural_colors = (None if a is None else a[keep] for a in (replaced, neural, neural_colors))
+        baseline = _baseline_subset(baseline, keep)
+        n = len(keep)
     err = None
     if truth_n is not None:
         err = angular_error(decoded, truth_n)
@@ -462,6 +480,14 @@ def _texel_subset(texels, pick: np.ndarray):
                                           for k in _TEXEL_FIELDS})
 
 
+def _baseline_subset(baseline: dict | None, pick: np.ndarray) -> dict | None:
+    """A :func:`baseline_bake` result on the samples ``pick`` of the texels it was run on."""
+    if baseline is None:
+        return None
+    return {**baseline, **{k: None if baseline.get(k) is None else baseline[k][pick]
+                           for k in ("normals", "colors", "points", "hit", "distance")}}
+
+
 def _has(rep: dict, key: str) -> bool:
     head, _, tail = key.partition(".")
     return head in rep and (not tail or tail in rep[head])
@@ -480,11 +506,12 @@ def _stream_error_maps(result, baker, ground: _Truth, baseline_fn, bits, err_img
         if band.n_samples == 0:
             continue
         truth_n, _ = ground(band, colours=False)
+        seen = 1.0 if ground.hidden is None else (~ground.hidden).astype(np.float64)  # hidden samples: no error
         decoded = decode_map(result.normal_map, band, baker.normal_space, baker.y_convention, bits)
-        err_img.add(angular_error(decoded, truth_n), band)
+        err_img.add(angular_error(decoded, truth_n) * seen, band)
         if baseline_fn is not None and base_img is not None:
             b = baseline_fn(band)
-            base_img.add(angular_error(b["normals"], truth_n), band)
+            base_img.add(angular_error(b["normals"], truth_n) * seen, band)
             seconds += b["seconds"]["total"]
             fallback += b["fallback"]
             count += band.n_samples

@@ -338,8 +338,17 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, a
         "classical_texture_psnr_db": None if tex is None else tex.get("classical_psnr"),
         "networks_kb": (params + (0 if tex is None else tex["params"])) * 4 / 1024.0, "source_mb": source_mb,
         "target": target_text(name, fit.config.minutes, med),
+        "hidden_pct": _hidden_pct(rep),
     }
     return row
+
+
+def _hidden_pct(rep: dict) -> float:
+    """The share (%) of the measured texels left out of the figures as hidden: their nearest source surface is
+    buried in another of its shells (:func:`~neural_bake.bake.report.bake_report`)."""
+    hidden = int(rep.get("hidden_texels", 0))
+    seen = int((rep.get("vs_truth_deg") or {}).get("count") or 0)
+    return 100.0 * hidden / (hidden + seen) if hidden + seen else 0.0
 
 
 def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[str] | None = None,
@@ -562,7 +571,9 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                      "(the hybrid share says how much of its map is classical)")
         notes.append("errors: angle between the baked normal (as a renderer decodes the 8-bit map) and the source "
                      "mesh's interpolated normal at the closest point, on the same texels for every column; a "
-                     "glTF's own vertex normals are the reference")
+                     "glTF's own vertex normals are the reference; texels whose closest point lies on a face buried "
+                     "in another shell of the source (inside the solid, never seen) are left out of every column "
+                     "(hidden_pct)")
     notes.append(load_note())
     out = {"name": "fidelity", "title": "fidelity on real assets (normal error in degrees vs the source mesh)",
            "machine": machine_info(), "quick": quick, "faces": faces, "size": size, "rows": rows,

@@ -180,7 +180,8 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
 
     Args:
         model: a :class:`~neural_bake.nets.siren.Siren` f: R³ → R in the mesh's unit frame.
-        mesh: the source :class:`~neural_bake.types.Mesh`.
+        mesh: the source :class:`~neural_bake.types.Mesh`; its surface faces
+            (:func:`~neural_bake.fit.sampling.surface_faces`, not those buried in another shell) are compared.
         n: samples on each surface.
         seed: seeds the samples.
         resolution: marching-cubes grid resolution over [-1, 1]³.
@@ -207,7 +208,7 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         raise FitError(f"sdf_metrics: n must be a positive integer, got {n!r}")
     if int(resolution) != resolution or resolution < 8:
         raise FitError(f"sdf_metrics: resolution must be an integer >= 8, got {resolution!r}")
-    from .sampling import sample_surface
+    from .sampling import sample_surface, surface_faces
 
     rng = np.random.default_rng([seed, 7])
     surf = sample_surface(mesh, int(n), seed=seed)
@@ -220,7 +221,7 @@ def sdf_metrics(model, mesh: Mesh, *, n: int = 100_000, seed: int = 0, resolutio
         # keep the projection only where it stayed close (a Newton step can jump off near critical points)
         moved = np.linalg.norm(proj - net_pts, axis=1)
         net_pts = np.where((moved < 4 * 2.0 / (resolution - 1))[:, None] & np.isfinite(proj), proj, net_pts)
-    keep = ~mesh.degenerate if mesh.degenerate is not None else np.ones(mesh.n_faces, bool)
+    keep, _ = surface_faces(mesh)  # the solid's boundary: not the faces buried in another shell
     d_net = _closest_distance(mesh.vertices, mesh.faces[keep], net_pts)
     d_mesh, closest = _closest(mv, mf, surf_pts)
     fallback = int(n)

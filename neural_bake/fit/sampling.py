@@ -3,7 +3,7 @@
 Everything here works in the mesh's *unit frame* (``Mesh.vertices``; docs/design.md, "Frame"). Randomness comes
 from ``numpy.random.default_rng(seed)``, so a seed gives identical arrays on every run.
 
-- :func:`sample_surface` — area-uniform points on the non-degenerate faces, with the outward normal, the
+- :func:`sample_surface` — area-uniform points on the surface faces (:func:`surface_faces`), with the outward normal, the
   interpolated UV and the bilinear texture colour (linear RGB) at each point.
 - :func:`curvature_face_weights` — per-face sampling probabilities rising with the mesh's integrated mean
   curvature (dihedral angle × edge length), mixed with a uniform-by-area share (i3d-style detail sampling).
@@ -27,7 +27,14 @@ Sign methods (``sign=`` of :func:`signed_distance`, :func:`sample_near`, :func:`
   Faster than ``"winding"`` when holes are small (most points see none; docs/findings.md has the figures for a
   holed mesh), but a point that sees a hole along none (or all) of the directions keeps the rays' answer: a
   heuristic, not the winding number's sign everywhere.
-- ``"auto"`` (default) — ``"raycast"`` for watertight meshes (``mesh.watertight``), ``"winding"`` otherwise.
+- ``"auto"`` (default) — ``"raycast"`` for watertight meshes (``mesh.watertight``) none of whose faces is
+  buried in another shell, ``"winding"`` otherwise (ray parity counts a point inside two overlapping closed
+  shells as outside; the winding number counts 2, inside).
+
+The solid is the union of the mesh's shells. Faces inside another shell (:func:`neural_bake.mesh.shells.
+buried_faces`: teeth set into gums, a belt pushed into a body) are not on its boundary: surface samples, the
+distances' closest points and the gap rays use the surface faces only (:func:`surface_faces`), so the signed
+distance is the union's; the inside tests count every face.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ import numpy as np
 from ..constants import DIRECTION_EPS, SIGN_SURE_MARGIN
 from ..geometry import check_points, import_open3d, raycasting_scene, sampleable_faces, vertex_normals
 from ..io.colour import sample_texture
+from ..mesh.shells import buried_faces
 from ..mesh.winding import winding_number
 from ..nets.native import threads
 from ..types import Mesh
@@ -50,6 +58,7 @@ __all__ = [
     "SurfaceSamples",
     "VolumeSamples",
     "sample_surface",
+    "surface_faces",
     "curvature_face_weights",
     "sample_near",
     "sample_uniform",
@@ -86,7 +95,7 @@ class SurfaceSamples:
     colors: np.ndarray | None
     """(N, C) float32 linear colour, bilinear lookup of the texture at ``uv``, or None without texture."""
     face_index: np.ndarray
-    """(N,) int64 index of the face each point lies on (never a degenerate face)."""
+    """(N,) int64 index of the face each point lies on (never a degenerate or buried face)."""
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -124,14 +133,14 @@ def _check_count(n, what: str) -> int:
 
 def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
                    face_weights: np.ndarray | None = None, colors: bool = True) -> SurfaceSamples:
-    """``n`` points uniform by area on the non-degenerate faces of ``mesh`` (unit frame).
+    """``n`` points uniform by area on the surface faces of ``mesh`` (:func:`surface_faces`; unit frame).
 
     A face is drawn with probability proportional to its area (degenerate faces — ``mesh.degenerate`` or
-    area ≤ ``DEGENERATE_AREA`` — never), then a point uniform in it by the square-root trick:
+    area ≤ ``DEGENERATE_AREA`` — and faces buried in another shell never), then a point uniform in it by the square-root trick:
     barycentrics (1 - √r1, √r1 (1 - r2), √r1 r2) for r1, r2 ~ U[0, 1).
 
     - ``face_weights``: (F,) non-negative probabilities of drawing each face instead of the area's (e.g.
-      :func:`curvature_face_weights`); degenerate faces are still never drawn.
+      :func:`curvature_face_weights`); degenerate and buried faces are still never drawn.
 
     - ``normals="face"``: the sampled face's geometric normal (exact for the piecewise-flat mesh);
       ``"vertex"``: the interpolated area-weighted vertex normals, renormalised (a smooth-surface estimate;
@@ -145,7 +154,7 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     n = _check_count(n, "sample_surface")
     if normals not in ("face", "vertex"):
         raise ValueError(f"sample_surface: normals must be 'face' or 'vertex', got {normals!r}")
-    idx, areas = sampleable_faces(mesh)
+    idx, areas = surface_faces(mesh)
     rng = np.random.default_rng(seed)
     if face_weights is not None:
         w = np.asarray(face_weights, dtype=np.float64)
@@ -171,6 +180,16 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
             rgb = sample_texture(mesh.texture, uv, mesh.uv_policy).astype(np.float32)
         uv = uv.astype(np.float32)
     return SurfaceSamples(points.astype(np.float32), nrm.astype(np.float32), uv, rgb, face)
+
+
+def surface_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (K,) int64 and areas (K,) float64 of the faces on the solid's boundary: the non-degenerate faces
+    (:func:`~neural_bake.geometry.sampleable_faces`) less those buried in another shell
+    (:func:`~neural_bake.mesh.shells.buried_faces`; the outermost shell never is one). Raises
+    :class:`MeshError` when the mesh has no non-degenerate face."""
+    idx, areas = sampleable_faces(mesh)
+    keep = ~buried_faces(mesh)[idx]
+    return idx[keep], areas[keep]
 
 
 def curvature_face_weights(mesh: Mesh, uniform_share: float = 0.5) -> np.ndarray:
@@ -370,10 +389,11 @@ def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     return np.linalg.norm(p - _closest_points(mesh, p)["points"], axis=1)
 
 
-def _faces_scene(mesh: Mesh):
-    """(indices of the mesh's non-degenerate faces, the cached BVH of those faces): what the distances, their
-    closest points and the gap rays query."""
-    idx, _ = sampleable_faces(mesh)
+def _faces_scene(mesh: Mesh, *, buried: bool = False):
+    """(indices of faces, the cached BVH of those faces): the surface faces (:func:`surface_faces`), what the
+    distances, their closest points and the gap rays query; ``buried``: every non-degenerate face, what ray
+    parity counts."""
+    idx, _ = sampleable_faces(mesh) if buried else surface_faces(mesh)
     return idx, raycasting_scene(mesh.vertices, mesh.faces[idx])
 
 
@@ -435,11 +455,11 @@ def _inside_and_sure(mesh: Mesh, points, method: str) -> tuple[np.ndarray, np.nd
         raise ValueError(f"inside_mask: method must be one of {SIGN_METHODS}, got {method!r}")
     p = check_points(points, "signed_distance")
     if method == "auto":
-        method = "raycast" if mesh.watertight else "winding"
+        method = "raycast" if mesh.watertight and not buried_faces(mesh).any() else "winding"
     if method == "raycast":
         o3d = import_open3d()
 
-        _, scene = _faces_scene(mesh)
+        _, scene = _faces_scene(mesh, buried=True)
         occ = scene.compute_occupancy(o3d.core.Tensor(p.astype(np.float32)), nsamples=RAY_SAMPLES)
         inside = occ.numpy().astype(bool)
         return inside, np.ones(len(inside), dtype=bool)
@@ -461,7 +481,7 @@ def _ray_parities(mesh: Mesh, p: np.ndarray, k: int) -> np.ndarray:
     """(k, N) bool: odd number of crossings along each of ``k`` fixed, well-spread, non-axis directions."""
     o3d = import_open3d()
 
-    _, scene = _faces_scene(mesh)
+    _, scene = _faces_scene(mesh, buried=True)
     i = np.arange(k) + 0.5
     z = 1.0 - 2.0 * i / k
     phi = i * math.pi * (3.0 - math.sqrt(5.0)) + 0.3  # golden-angle spiral, turned off the axes

@@ -182,7 +182,8 @@ def fit_sdf(mesh: Mesh, config: SdfFitConfig | None = None, *, preset: str | Non
 
     Args:
         mesh: a :class:`~neural_bake.types.Mesh` (unit frame; e.g. from ``load_mesh``). Open meshes are
-            signed by the generalised winding number (see :mod:`neural_bake.fit.sampling`).
+            signed by the generalised winding number, and the field is the union of the mesh's shells: faces
+            buried inside another shell are not its surface (see :mod:`neural_bake.fit.sampling`).
         config: the settings (default :class:`SdfFitConfig`).
         preset: ``"64x1"``, ``"128x2"``, ``"256x2"`` or ``"256x3"`` (:data:`PRESETS`), or the shared names
             ``"quick"`` (192x3 for 2 minutes), ``"default"`` (192x3 for 5), ``"high"`` (256x4 for 10 minutes),

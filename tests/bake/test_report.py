@@ -283,3 +283,42 @@ def test_large_map_is_compared_on_a_lattice_of_its_texels(tmp_path, baked, monke
     # masks and counts still cover every texel
     assert read_image(tmp_path / "lat" / "miss.png", colour="data").shape[:2] == (64, 64)
     assert lat["texels_covered"] == every["texels_covered"]
+
+
+def test_texels_on_faces_buried_in_another_shell_are_left_out(tmp_path):
+    # two overlapping boxes baked onto themselves: the faces of each inside the other are never seen
+    def box(lo, hi, k):
+        t = trimesh.creation.box(extents=np.subtract(hi, lo))
+        t.apply_translation(np.add(lo, hi) / 2)
+        for _ in range(k):
+            t = t.subdivide()
+        return np.asarray(t.vertices), np.asarray(t.faces, dtype=np.int64)
+
+    (va, fa), (vb, fb) = box((-0.75, -0.5, -0.5), (0.25, 0.5, 0.5), 4), box((-0.25, -0.25, -0.25), (0.75, 0.25, 0.25), 4)
+    fine = Mesh(np.concatenate([va, vb]), np.concatenate([fa, fb + len(va)]))
+    from neural_bake.mesh.shells import buried_faces
+
+    m = unwrap(fine, resolution=128)
+    baker = Baker(m, 128)
+    lo_a, hi_a = torch.tensor([-0.75, -0.5, -0.5]), torch.tensor([0.25, 0.5, 0.5])
+    lo_b, hi_b = torch.tensor([-0.25, -0.25, -0.25]), torch.tensor([0.75, 0.25, 0.25])
+
+    def box_sdf(p, lo, hi):
+        q = (p - (lo + hi) / 2).abs() - (hi - lo) / 2
+        return q.clamp(min=0).norm(dim=1) + q.max(dim=1).values.clamp(max=0)
+
+    res = baker.bake(SdfField(lambda p: torch.minimum(box_sdf(p, lo_a.to(p), hi_a.to(p)),
+                                                      box_sdf(p, lo_b.to(p), hi_b.to(p)))))
+    on_buried = buried_faces(m)[baker.texels.face]
+    assert 0 < on_buried.sum() < len(on_buried)
+    rep = bake_report(res, baker, fine=fine, out_dir=tmp_path)
+    assert rep["hidden_texels"] == pytest.approx(int(on_buried.sum()), rel=0.02)
+    assert rep["vs_truth_deg"]["count"] == len(on_buried) - rep["hidden_texels"]
+    # what is seen is the union's surface, whose face normals the field gives (the truth's interpolated vertex
+    # normals bend only on the faces along the boxes' edges, fewer than half)
+    assert rep["gradient_vs_truth_deg"]["median"] < 1e-3 and rep["vs_truth_deg"]["median"] < 1.0
+    # a single box: nothing is hidden
+    one = Mesh(va, fa)  # A alone
+    baker1 = Baker(unwrap(one, resolution=64), 64)
+    res1 = baker1.bake(SdfField(lambda p: box_sdf(p, lo_a.to(p), hi_a.to(p))))
+    assert "hidden_texels" not in bake_report(res1, baker1, fine=one)
