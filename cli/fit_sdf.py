@@ -54,6 +54,7 @@ def command(mesh, output, config, preset, metrics):
 
     from neural_bake.fit.sdf import fit_sdf
     from neural_bake.io.mesh_io import load_mesh
+    from neural_bake.mesh.shells import buried_faces
 
     refuse_nonpositive(steps=config.steps, minutes=config.minutes, lr=config.lr, batch=config.batch)
     if config.resume and config.checkpoint is None:
@@ -92,6 +93,10 @@ def command(mesh, output, config, preset, metrics):
         + (f"; {fit.restarts} divergence restart(s)" if fit.restarts else ""))
     if b is not None and b.get("note"):
         say(b["note"])
+    buried = int(buried_faces(m).sum())  # kept from the fit's sampling
+    if buried:
+        say(f"{m.name}: {buried:,} of {m.n_faces:,} faces lie inside another of its shells; the field is the shells' "
+            "union, and those faces are not its surface")
     if fit.micro_batch_tuning:
         last_tuning = fit.micro_batch_tuning[-1]
         ms = ", ".join(f"{k}: {1e3 * t:.1f} ms" for k, t in last_tuning["seconds"].items())

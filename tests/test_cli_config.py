@@ -136,6 +136,22 @@ def test_a_config_file_drives_a_real_fit(tmp_path, capsys):
     assert (fit.config.width, fit.config.depth, fit.steps, fit.config.seed, fit.config.pool_surface) == (16, 1, 4, 6, 2000)
 
 
+def test_fit_sdf_says_when_faces_lie_inside_another_shell(tmp_path, capsys):
+    import trimesh
+
+    src, f = _tiny_fit_inputs(tmp_path, steps=2, subdivisions=1)
+    a = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    b = trimesh.creation.box(extents=(0.5, 0.5, 0.5))
+    b.apply_translation((0.5, 0.1, 0.05))  # half inside a
+    both = tmp_path / "boxes.obj"
+    trimesh.util.concatenate([a, b]).export(both)
+    for mesh, says in ((src, False), (both, True)):
+        code, printed, err = run(capsys, "fit", "sdf", str(mesh), "-o", str(tmp_path / f"{mesh.stem}.sdf"),
+                                 "--config", str(f), "--no-metrics")
+        assert code == 0, err
+        assert ("faces lie inside another of its shells" in printed) is says, printed
+
+
 def test_fit_sdf_tiles_construction_writes_a_tiled_sdf(tmp_path, capsys):
     """`fit sdf --construction tiles`: the coarse level and its tiles in one file that loads as a field."""
     from neural_bake.fields import load_field

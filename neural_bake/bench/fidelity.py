@@ -519,11 +519,11 @@ def run(quick: bool = False, *, meshes: list[str] | None = None, presets: list[s
                     from ..fit.texture import fit_texture
 
                     names = networks or [own_texture_network(preset)]
-                    settings = [texture_network_settings(net, preset) for net in names]
+                    net_settings = [texture_network_settings(net, preset) for net in names]
                     # the preset's own network alone: its steps on the reference machine (not the load's); any
                     # other construction: every fit at the preset's time budget (equal time)
-                    budget = texture_budget or ({"budget": "steps"} if not any(settings) else {"budget": "time"})
-                    for k, (net, over) in enumerate(zip(names, settings)):
+                    budget = texture_budget or ({"budget": "steps"} if not any(net_settings) else {"budget": "time"})
+                    for k, (net, over) in enumerate(zip(names, net_settings)):
                         say(f"{label}: fitting the texture ({net})")
                         tfit = fit_texture(mesh, str(sdf_path), preset=preset, **budget, **over)
                         path_k = Path(tmp) / f"g{k}.tex"

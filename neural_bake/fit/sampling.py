@@ -3,8 +3,8 @@
 Everything here works in the mesh's *unit frame* (``Mesh.vertices``; docs/design.md, "Frame"). Randomness comes
 from ``numpy.random.default_rng(seed)``, so a seed gives identical arrays on every run.
 
-- :func:`sample_surface` — area-uniform points on the surface faces (:func:`surface_faces`), with the outward normal, the
-  interpolated UV and the bilinear texture colour (linear RGB) at each point.
+- :func:`sample_surface` — area-uniform points on the surface faces (:func:`surface_faces`), with the outward
+  normal, the interpolated UV and the bilinear texture colour (linear RGB) at each point.
 - :func:`curvature_face_weights` — per-face sampling probabilities rising with the mesh's integrated mean
   curvature (dihedral angle × edge length), mixed with a uniform-by-area share (i3d-style detail sampling).
 - :func:`sample_near` — surface points moved by isotropic Gaussian noise N(0, σ² I) (NGLOD, Appendix A.2),
@@ -136,8 +136,8 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     """``n`` points uniform by area on the surface faces of ``mesh`` (:func:`surface_faces`; unit frame).
 
     A face is drawn with probability proportional to its area (degenerate faces — ``mesh.degenerate`` or
-    area ≤ ``DEGENERATE_AREA`` — and faces buried in another shell never), then a point uniform in it by the square-root trick:
-    barycentrics (1 - √r1, √r1 (1 - r2), √r1 r2) for r1, r2 ~ U[0, 1).
+    area ≤ ``DEGENERATE_AREA`` — and faces buried in another shell never), then a point uniform in it by the
+    square-root trick: barycentrics (1 - √r1, √r1 (1 - r2), √r1 r2) for r1, r2 ~ U[0, 1).
 
     - ``face_weights``: (F,) non-negative probabilities of drawing each face instead of the area's (e.g.
       :func:`curvature_face_weights`); degenerate and buried faces are still never drawn.
@@ -341,7 +341,7 @@ def distance_gradient_targets(mesh: Mesh, points: np.ndarray, sdf: np.ndarray, c
 
 def _gap_along(mesh: Mesh, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """(N,) distance from ``origins`` (N, 3) on the mesh along unit ``directions`` (N, 3) to the next piece of
-    the mesh's non-degenerate faces (inf where the ray leaves it); the origins are lifted by
+    the mesh's surface faces (inf where the ray leaves it); the origins are lifted by
     :data:`GAP_LIFT` off their own face first (the BVH is float32)."""
     o3d = import_open3d()
     _, scene = _faces_scene(mesh)
@@ -379,7 +379,8 @@ def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sig
 
 
 def unsigned_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
-    """(N,) float64 distance from ``points`` (N, 3) to the closest point of the mesh's non-degenerate faces.
+    """(N,) float64 distance from ``points`` (N, 3) to the closest point of the mesh's surface faces
+    (:func:`surface_faces`).
 
     open3d's BVH finds the closest point (in float32); the distance to it is taken in float64.
     """
@@ -398,7 +399,7 @@ def _faces_scene(mesh: Mesh, *, buried: bool = False):
 
 
 def _closest_points(mesh: Mesh, points: np.ndarray) -> dict:
-    """Closest points of the mesh's non-degenerate faces to ``points`` (N, 3) by open3d's BVH: ``{"points"
+    """Closest points of the mesh's surface faces to ``points`` (N, 3) by open3d's BVH: ``{"points"
     (N, 3) float64, "face" (N,) int64 (the mesh's face index), "bary" (N, 3) (weights of its corners)}``."""
     o3d = import_open3d()
     idx, scene = _faces_scene(mesh)
@@ -414,9 +415,10 @@ def _closest_points(mesh: Mesh, points: np.ndarray) -> dict:
 def signed_distance(mesh: Mesh, points, *, sign: str = "auto") -> np.ndarray:
     """(N,) float64 signed distance from ``points`` (N, 3, unit frame) to ``mesh``; negative inside.
 
-    The magnitude is the distance to the nearest non-degenerate triangle (open3d BVH closest point, length
-    in float64); the sign is the inside test ``sign`` (module docstring): ``"auto"`` ray parity for
-    watertight meshes, accelerated generalised winding number (inside where w > 1/2) otherwise.
+    The magnitude is the distance to the nearest surface face (:func:`surface_faces`; open3d BVH closest point,
+    length in float64); the sign is the inside test ``sign`` (module docstring): ``"auto"`` ray parity for
+    watertight meshes of shells that do not overlap, accelerated generalised winding number (inside where
+    w > 1/2) otherwise.
     """
     return signed_distance_sure(mesh, points, sign=sign)[0]
 

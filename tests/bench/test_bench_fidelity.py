@@ -185,6 +185,21 @@ def test_shrunken_texture_rows_on_a_generated_textured_mesh(tmp_path):
         run(quick=True, meshes=[str(path)], only_textures=True, texture_steps=0)
 
 
+def test_normal_and_texture_rows_of_one_run(tmp_path):
+    """A textured mesh without --no-texture: its normal row carries the texture network's PSNR beside the
+    classical transfer's, and its texture row is of the same SDF."""
+    from neural_bake.samples import Sphere
+    from neural_bake.samples.generate import write_sample
+
+    path = write_sample(Sphere().mesh(1000, 32), tmp_path, "ball")
+    res = run(quick=True, meshes=[str(path)], steps=[3], size=32, faces=200, texture=True, texture_steps=5,
+              texture_networks=["siren"], constructions=["plain"])
+    (row,), (tex,) = res["rows"], res["texture_rows"]
+    assert row["mesh"] == tex["mesh"] == "ball" and row["sdf_settings"] is None and tex["texture_steps"] == 5
+    assert row["texture_psnr_db"] is not None and row["classical_texture_psnr_db"] is not None
+    json.dumps(res)
+
+
 def test_texture_network_constructions():
     from neural_bake.bench.fidelity import GRID_TEXTURE, own_texture_network, texture_network_settings
 
