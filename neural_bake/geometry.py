@@ -25,7 +25,7 @@ from .constants import DEGENERATE_AREA, DIRECTION_EPS, FRAME_MISMATCH_TOL, RAYCA
 __all__ = ["angular_error", "area_weighted_normals", "check_points", "edge_report", "finish_prefetch",
            "frame_mismatch", "import_open3d", "interpolate_corners", "mismatch_problem", "prefetch_raycasting",
            "raycasting_prefetched", "raycasting_scene", "sampleable_faces", "vertex_normals",
-           "web_visualiser_deferrable"]
+           "web_visualiser_deferrable", "welded_edges"]
 
 
 def angular_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -161,6 +161,20 @@ def check_points(points, caller: str) -> np.ndarray:
     if not np.isfinite(p).all():
         raise ValueError(f"{caller}: points contain NaN or infinite values")
     return p
+
+
+def welded_edges(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """The undirected edges of a :class:`~neural_bake.types.Mesh` whose vertices at the same position are one
+    (a mesh split along its UV seams keeps its edges): ``(edge (3F,) int64, count (E,) int64)``, the edge of
+    each face side — sides (0, 1) of every face, then (1, 2), then (2, 0), so side k of face f is row
+    k·F + f — and the number of face sides on each edge (2 inside a manifold surface)."""
+    _, weld = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0, return_inverse=True)
+    f = weld.reshape(-1)[np.asarray(mesh.faces, dtype=np.int64)]
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    lo, hi = e.min(axis=1), e.max(axis=1)
+    base = int(hi.max()) + 1 if len(hi) else 1  # one int64 key per undirected edge (a 1-D unique)
+    _, edge, count = np.unique(lo * base + hi, return_inverse=True, return_counts=True)
+    return edge.reshape(-1).astype(np.int64), count.astype(np.int64)
 
 
 def edge_report(faces: np.ndarray) -> dict:

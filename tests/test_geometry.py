@@ -6,7 +6,8 @@ import trimesh
 
 from neural_bake import geometry
 from neural_bake.constants import RAYCAST_SCENE_CACHE
-from neural_bake.geometry import area_weighted_normals, edge_report, raycasting_scene
+from neural_bake.types import Mesh
+from neural_bake.geometry import area_weighted_normals, edge_report, raycasting_scene, welded_edges
 
 TETRA_V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
 TETRA_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -284,3 +285,15 @@ def test_installed_open3d_is_one_the_stand_in_knows():
     spec = importlib.util.find_spec("open3d")
     init = Path(list(spec.submodule_search_locations)[0]) / "visualization" / "__init__.py"
     assert geometry.web_visualiser_deferrable(init.read_text(encoding="utf-8"))
+
+
+def test_welded_edges_join_a_mesh_split_along_its_seams():
+    box = trimesh.creation.box()
+    whole = Mesh(np.asarray(box.vertices, float), np.asarray(box.faces, np.int64))
+    split = Mesh(whole.triangles.reshape(-1, 3), np.arange(3 * whole.n_faces).reshape(-1, 3))  # every face its own
+    for mesh in (whole, split):
+        edge, count = welded_edges(mesh)
+        assert edge.shape == (36,) and len(count) == 18 and (count == 2).all()
+        assert np.bincount(edge).tolist() == count.tolist()
+    # side k of face f is row k·F + f: face 0's three sides are three different edges
+    assert len({int(welded_edges(whole)[0][k * 12]) for k in range(3)}) == 3

@@ -46,7 +46,8 @@ from typing import Sequence
 import numpy as np
 
 from ..constants import DIRECTION_EPS, SIGN_SURE_MARGIN
-from ..geometry import check_points, import_open3d, raycasting_scene, sampleable_faces, vertex_normals
+from ..geometry import (check_points, import_open3d, raycasting_scene, sampleable_faces, vertex_normals,
+                        welded_edges)
 from ..io.colour import sample_texture
 from ..mesh.shells import buried_faces
 from ..mesh.winding import winding_number
@@ -215,12 +216,9 @@ def curvature_face_weights(mesh: Mesh, uniform_share: float = 0.5) -> np.ndarray
     p_area = area / area.sum()
     if u >= 1.0:
         return p_area
-    _, weld = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0, return_inverse=True)
-    f = weld.reshape(-1)[np.asarray(mesh.faces)]
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)  # (3F, 2)
+    inverse, counts = welded_edges(mesh)  # (3F,): side k of face f is row k·F + f
     owner = np.tile(np.arange(mesh.n_faces), 3)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    order = np.argsort(inverse.reshape(-1), kind="stable")
+    order = np.argsort(inverse, kind="stable")
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     pair = starts[counts == 2]  # manifold interior edges: their two occurrences are adjacent in ``order``
     a, b = order[pair], order[pair + 1]

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..geometry import sampleable_faces
+from ..geometry import sampleable_faces, welded_edges
 from ..types import Mesh
 from .winding import winding_number
 
@@ -41,15 +41,11 @@ def shell_labels(mesh: Mesh) -> tuple[int, np.ndarray]:
     """(number of shells, (F,) int64 shell of each face): the connected components of the faces joined by
     shared edges, an edge being its two corners' positions (a mesh split along its UV seams is one shell; two
     shells that touch at a corner are two)."""
-    _, weld = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0, return_inverse=True)
-    f = weld.reshape(-1)[np.asarray(mesh.faces, dtype=np.int64)]
-    n_f = f.shape[0]
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    _, edge = np.unique(edges, axis=0, return_inverse=True)
-    edge = edge.reshape(-1)
+    edge, count = welded_edges(mesh)
+    n_f = mesh.n_faces
     # faces and edges as one bipartite graph: its components, read at the faces
     face = np.tile(np.arange(n_f), 3)
-    size = n_f + int(edge.max()) + 1
+    size = n_f + len(count)
     graph = coo_matrix((np.ones(face.size, dtype=np.int8), (face, n_f + edge)), shape=(size, size))
     _, labels = connected_components(graph, directed=False)
     used, face_labels = np.unique(labels[:n_f], return_inverse=True)
