@@ -64,6 +64,9 @@ class Mesh:
     - ``texture``: (H, W, C) float32 linear RGB (C = 3) or RGBA (C = 4, alpha straight), or None.
       Row 0 is the *top* row of the image as stored in the file.
     - ``vertex_normals``: (V, 3) float64 unit, area-weighted, outward.
+    - ``corner_normals``: (F, 3, 3) float64 unit normals per face corner as the source file gives them (a
+      glTF's NORMAL attribute: its hard edges kept, the shading the asset is drawn with), or None (the file
+      has none; a mesh made with other faces). Face-aligned with ``faces``.
     - ``frame``: the transform back to the source frame.
     - ``degenerate``: (F,) bool, faces of (near) zero area, excluded from sampling.
     - ``uv_policy``: "wrap" (repeat) or "clamp" for UVs outside [0, 1].
@@ -77,6 +80,7 @@ class Mesh:
     uv: np.ndarray | None = None
     texture: np.ndarray | None = None
     vertex_normals: np.ndarray | None = None
+    corner_normals: np.ndarray | None = None
     frame: Frame = field(default_factory=Frame)
     degenerate: np.ndarray | None = None
     uv_policy: str = "wrap"

@@ -354,9 +354,16 @@ GAP_LIFT = 1e-5
 
 
 def _interp_normals(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """(N, 3) unit interpolated vertex normals at barycentrics ``bary`` (N, 3) of faces ``face`` (N,); the
-    face's own normal where the interpolation vanishes."""
-    vn = vertex_normals(mesh)[mesh.faces[face]]
+    """(N, 3) unit interpolated vertex normals at barycentrics ``bary`` (N, 3) of faces ``face`` (N,): the
+    file's own per corner where it has them (``mesh.corner_normals``: a glTF's hard edges stay hard, where the
+    welded vertices' normals would round a box's faces by tens of degrees), each turned to the face's outward
+    side; the face's own normal where the interpolation vanishes."""
+    if mesh.corner_normals is not None:
+        vn = mesh.corner_normals[face]
+        side = np.einsum("nkd,nd->nk", vn, mesh.face_normals[face])
+        vn = np.where((side < 0)[..., None], -vn, vn)
+    else:
+        vn = vertex_normals(mesh)[mesh.faces[face]]
     nrm = np.einsum("nk,nkd->nd", bary, vn)
     norm = np.linalg.norm(nrm, axis=1, keepdims=True)
     return np.where(norm > DIRECTION_EPS, nrm / np.maximum(norm, DIRECTION_EPS), mesh.face_normals[face])

@@ -19,7 +19,7 @@ from ..constants import CORNER_NORMAL_MATCH_TOL, DIRECTION_EPS, FACE_MATCH_REL_T
 from ..errors import MeshError
 from ..types import Mesh
 
-__all__ = ["Asset", "read_asset", "shading_mesh", "MATERIAL_MAPS"]
+__all__ = ["Asset", "file_corner_normals", "read_asset", "shading_mesh", "MATERIAL_MAPS"]
 
 #: The material maps :func:`read_asset` keeps: glTF material slot -> name in :attr:`Asset.maps`.
 MATERIAL_MAPS = {"normalTexture": "normal", "metallicRoughnessTexture": "metallic_roughness",
@@ -51,12 +51,57 @@ def _image_data(img) -> np.ndarray:
     return np.ascontiguousarray(a[..., :3] if a.shape[-1] == 4 else a, dtype=np.float32) / np.float32(scale)
 
 
-def read_asset(path: str | os.PathLike, mesh: Mesh) -> Asset:
-    """The vertex normals and material maps of the glTF/GLB file ``path`` that ``mesh`` was loaded from.
+def _placed(loaded) -> list[tuple]:
+    """(geometry as the file stores it, (4, 4) node transform) of each triangle geometry with faces of a
+    ``trimesh.load`` result, in the order of Scene.dump."""
+    import trimesh
 
-    Other formats give an empty :class:`Asset`. The file's normals are matched to ``mesh.faces`` face by
+    if isinstance(loaded, trimesh.Scene):
+        placed = [(loaded.geometry[name], np.asarray(t, dtype=np.float64))
+                  for t, name in (loaded.graph[node] for node in loaded.graph.nodes_geometry)]
+    else:
+        placed = [(loaded, np.eye(4))]
+    return [(g, t) for g, t in placed if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+
+
+def file_corner_normals(loaded, mesh: Mesh, path) -> np.ndarray | None:
+    """(F, 3, 3) float64 unit normals per corner of ``mesh``'s faces, as the glTF/GLB file ``path`` gives them
+    (node transforms applied, inverse transpose), from ``loaded`` (that file read by ``trimesh.load`` with
+    ``process=False``; the order of Scene.dump, which :func:`~neural_bake.io.mesh_io.load_mesh` uses); None
+    when a geometry of the file has no NORMAL attribute. The file's faces are matched to ``mesh.faces`` face by
     face (``load_mesh`` keeps the face order and may reverse every face's winding; both are handled).
-    Raises :class:`MeshError` naming the file when its faces do not match ``mesh``.
+    Raises :class:`MeshError` naming the file when its faces do not match ``mesh``."""
+    corners, positions = [], []
+    for g, t in _placed(loaded):
+        if "vertex_normals" not in g._cache.cache:  # the file's NORMAL attribute (trimesh computes none on load)
+            return None
+        f = np.asarray(g.faces, dtype=np.int64)
+        v = np.asarray(g.vertices, dtype=np.float64)
+        positions.append((v @ t[:3, :3].T + t[:3, 3])[f])
+        corners.append((np.asarray(g.vertex_normals, dtype=np.float64) @ np.linalg.inv(t[:3, :3]))[f])
+    if not corners:
+        return None
+    normals = np.concatenate(corners)
+    pos = np.concatenate(positions)
+    if len(pos) != mesh.n_faces:
+        raise MeshError(f"{path}: {len(pos)} faces in the file against {mesh.n_faces} loaded; not the same mesh")
+    ours = mesh.frame.to_source(mesh.vertices[mesh.faces])
+    scale = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), MIN_SPAN)
+    same = np.abs(ours - pos).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
+    flipped = np.abs(ours - pos[:, ::-1]).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
+    if not (same | flipped).all():
+        raise MeshError(f"{path}: the file's faces do not match the loaded mesh's")
+    normals = np.where(same[:, None, None], normals, normals[:, ::-1])
+    norm = np.linalg.norm(normals, axis=2, keepdims=True)
+    return np.divide(normals, norm, out=np.zeros_like(normals), where=norm > DIRECTION_EPS)
+
+
+def read_asset(path: str | os.PathLike, mesh: Mesh) -> Asset:
+    """The vertex normals (:func:`file_corner_normals`) and material maps of the glTF/GLB file ``path`` that
+    ``mesh`` was loaded from.
+
+    Other formats give an empty :class:`Asset`. Raises :class:`MeshError` naming the file when its faces do not
+    match ``mesh``.
     """
     p = Path(path)
     if p.suffix.lower() not in (".glb", ".gltf"):
@@ -66,38 +111,8 @@ def read_asset(path: str | os.PathLike, mesh: Mesh) -> Asset:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         loaded = trimesh.load(str(p), file_type=p.suffix.lower()[1:], process=False)
-    if isinstance(loaded, trimesh.Scene):  # the order of Scene.dump, which load_mesh uses
-        placed = [(loaded.geometry[name], np.asarray(t, dtype=np.float64))
-                  for t, name in (loaded.graph[node] for node in loaded.graph.nodes_geometry)]
-    else:
-        placed = [(loaded, np.eye(4))]
-    placed = [(g, t) for g, t in placed if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-    geoms = [g for g, _ in placed]
-    corners, positions, have_normals = [], [], True
-    for g, t in placed:
-        f = np.asarray(g.faces, dtype=np.int64)
-        v = np.asarray(g.vertices, dtype=np.float64)
-        positions.append((v @ t[:3, :3].T + t[:3, 3])[f])
-        if "vertex_normals" in g._cache.cache:  # the file's NORMAL attribute (trimesh computes none on load)
-            n = np.asarray(g.vertex_normals, dtype=np.float64) @ np.linalg.inv(t[:3, :3])  # inverse transpose
-            corners.append(n[f])
-        else:
-            have_normals = False
-    asset = Asset()
-    if have_normals and corners:
-        normals = np.concatenate(corners)
-        pos = np.concatenate(positions)
-        if len(pos) != mesh.n_faces:
-            raise MeshError(f"{path}: {len(pos)} faces in the file against {mesh.n_faces} loaded; not the same mesh")
-        ours = mesh.frame.to_source(mesh.vertices[mesh.faces])
-        scale = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), MIN_SPAN)
-        same = np.abs(ours - pos).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
-        flipped = np.abs(ours - pos[:, ::-1]).max(axis=(1, 2)) <= FACE_MATCH_REL_TOL * scale
-        if not (same | flipped).all():
-            raise MeshError(f"{path}: the file's faces do not match the loaded mesh's")
-        normals = np.where(same[:, None, None], normals, normals[:, ::-1])
-        norm = np.linalg.norm(normals, axis=2, keepdims=True)
-        asset.corner_normals = np.divide(normals, norm, out=np.zeros_like(normals), where=norm > DIRECTION_EPS)
+    asset = Asset(corner_normals=file_corner_normals(loaded, mesh, path))
+    geoms = [g for g, _ in _placed(loaded)]
     images: dict[int, str] = {}
     for g in geoms:
         mat = getattr(g.visual, "material", None)

@@ -10,6 +10,8 @@ Conventions of the returned :class:`~neural_bake.types.Mesh`:
 - uv (F, 3, 2) float64 per face corner, v = 0 at the *bottom* of the texture (OBJ and glTF-as-read-by-trimesh
   convention; glTF files store v downward and trimesh flips it on read and write).
 - texture (H, W, 3|4) float32 *linear* RGB(A), row 0 = top row of the image file.
+- corner_normals (F, 3, 3) of a glTF/GLB with a NORMAL attribute (:func:`~neural_bake.io.asset.file_corner_normals`:
+  the asset's own shading, hard edges kept, which the welded vertices' ``vertex_normals`` average away).
 
 OBJ is parsed here (exact line-numbered errors, per-corner UVs, MTL ``map_Kd``); PLY, GLB and glTF are read
 with trimesh (``process=False``): any file, whatever wrote it; a multi-geometry scene is concatenated with its
@@ -84,10 +86,11 @@ def load_mesh(
     if ext not in MESH_FORMATS:
         raise MeshError(f"{name}: unknown mesh format {p.suffix!r} (expected one of {', '.join(MESH_FORMATS)})")
     notes: list[str] = []
+    loaded = None
     if ext == ".obj":
         vertices, faces, uv, tex_array, tex_path = _read_obj(p, name, notes, texture is None)
     else:
-        vertices, faces, uv, tex_array, tex_path = _read_with_trimesh(p, name, ext, notes, texture is None)
+        vertices, faces, uv, tex_array, tex_path, loaded = _read_with_trimesh(p, name, ext, notes, texture is None)
     tex_label = None
     if texture is not None:
         tex_array, tex_label = None, str(texture)
@@ -101,7 +104,12 @@ def load_mesh(
         from .images import read_image
 
         tex_array = read_image(tex_path)  # ImageError names the image
-    return _assemble(vertices, faces, uv, tex_array, name=name, uv_policy=uv_policy, normalise=normalise, notes=notes)
+    mesh = _assemble(vertices, faces, uv, tex_array, name=name, uv_policy=uv_policy, normalise=normalise, notes=notes)
+    if ext in (".glb", ".gltf"):  # the asset's own shading normals, hard edges kept
+        from .asset import file_corner_normals
+
+        mesh.corner_normals = file_corner_normals(loaded, mesh, name)
+    return mesh
 
 
 def mesh_from_arrays(
@@ -819,7 +827,7 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_text
         if distinct > 1:
             _warn(notes, f"{name}: geometries use {distinct} different base-colour textures; only the first is used")
     if not want_texture:
-        return vertices, faces, uv, None, None
+        return vertices, faces, uv, None, None, loaded
     if ext == ".gltf":
         for uri in _gltf_missing_images(p):
             _warn(notes, f"{name}: texture {uri} named by the file not found; loading without it")
@@ -830,7 +838,7 @@ def _read_with_trimesh(p: Path, name: str, ext: str, notes: list[str], want_text
             tex_path = cand
         else:
             _warn(notes, f"{name}: texture {named_texture} named by the file not found; loading without texture")
-    return vertices, faces, uv, texture, tex_path
+    return vertices, faces, uv, texture, tex_path, loaded
 
 
 def _split_seams(vertices, faces, uv, normals=None):

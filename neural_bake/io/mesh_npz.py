@@ -17,7 +17,7 @@ from .atomic import atomic_write_bytes
 __all__ = ["mesh_npz_bytes", "save_mesh_npz", "load_mesh_npz"]
 
 #: The array fields of a Mesh kept in the file (the ones that are not None).
-_ARRAYS = ("vertices", "faces", "uv", "texture", "vertex_normals", "degenerate")
+_ARRAYS = ("vertices", "faces", "uv", "texture", "vertex_normals", "corner_normals", "degenerate")
 
 
 def mesh_npz_bytes(mesh: Mesh, extra: dict | None = None) -> bytes:

@@ -1,5 +1,6 @@
 """Sampling: area-uniform surface points, colours, signed distance and its sign, determinism, errors."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -115,6 +116,32 @@ def test_face_normals_are_the_faces_and_vertex_normals_are_smoother(sphere):
     err_vertex = 1 - (sv.normals * exact).sum(1)
     assert err_vertex.mean() < 0.2 * err_face.mean()
     assert err_vertex.max() < 2e-3
+
+
+def test_vertex_normals_are_the_files_own_where_it_has_them():
+    """A box whose file gives every corner its face's normal (hard edges): the "vertex" normals are the box's
+    axis directions, where the welded vertices' averaged normals round every side by up to 54.7°; corner
+    normals given inward are turned to the face's outward side."""
+    box = trimesh.creation.box(extents=(1.0, 0.4, 0.7))
+    welded = mesh_from_arrays(box.vertices, box.faces)
+    exact = np.repeat(welded.face_normals[:, None], 3, axis=1)
+    hard = dataclasses.replace(welded, corner_normals=exact)
+    inward = dataclasses.replace(welded, corner_normals=-exact)
+    rounded = sample_surface(welded, 4000, seed=3, normals="vertex")
+    err = np.degrees(np.arccos(np.clip((rounded.normals * welded.face_normals[rounded.face_index]).sum(1), -1, 1)))
+    assert err.max() > 30.0  # near the corners the averaged normal is far from the side's
+    for mesh in (hard, inward):
+        s = sample_surface(mesh, 4000, seed=3, normals="vertex")
+        np.testing.assert_array_equal(s.points, rounded.points)
+        np.testing.assert_allclose(s.normals, welded.face_normals[s.face_index], atol=1e-6)
+    # the near samples' gradient targets read the same normals at their closest points: off a side near its
+    # corner, straight out of that side
+    p = np.array([[0.8, 0.3, 0.66], [0.85, 0.39, 0.5], [-0.85, -0.39, 0.5]])  # the box spans ±(0.9, 0.36, 0.63)
+    d = signed_distance(hard, p)
+    closest = S._closest_points(hard, p)
+    got = S.distance_gradient_targets(hard, p, d, closest, reach=0.1)
+    np.testing.assert_allclose(got, [[0, 0, 1], [0, 1, 0], [0, -1, 0]], atol=1e-9)
+    assert (S.distance_gradient_targets(welded, p, d, S._closest_points(welded, p), reach=0.1)[:, :2] != 0).any()
 
 
 def test_colours_and_uv_match_the_analytic_texture(textured_sphere):

@@ -74,6 +74,25 @@ def test_node_transforms_turn_the_normals(tmp_path):
     np.testing.assert_allclose(asset.corner_normals, np.repeat(mesh.face_normals[:, None], 3, axis=1), atol=1e-6)
 
 
+def test_load_mesh_keeps_the_files_corner_normals(tmp_path):
+    """The loaded (welded) mesh carries the file's own normals per corner, face-aligned, turned by node
+    transforms; an OBJ has none; a mesh file of the batch keeps them."""
+    from neural_bake.io.mesh_npz import load_mesh_npz, save_mesh_npz
+
+    for rotate in (False, True):
+        p = tmp_path / f"box{int(rotate)}.glb"
+        write_box_glb(p, rotate=rotate)
+        mesh = load_mesh(p)
+        assert mesh.n_vertices == 8 and mesh.corner_normals.shape == (12, 3, 3)
+        np.testing.assert_allclose(mesh.corner_normals, np.repeat(mesh.face_normals[:, None], 3, axis=1), atol=1e-6)
+        np.testing.assert_array_equal(mesh.corner_normals, read_asset(p, mesh).corner_normals)
+    save_mesh_npz(mesh, tmp_path / "m.npz")
+    np.testing.assert_array_equal(load_mesh_npz(tmp_path / "m.npz")[0].corner_normals, mesh.corner_normals)
+    obj = tmp_path / "box.obj"
+    trimesh.creation.box(extents=EXTENTS).export(obj)
+    assert load_mesh(obj).corner_normals is None
+
+
 def test_read_asset_other_formats_and_mismatch(tmp_path):
     obj = tmp_path / "box.obj"
     trimesh.creation.box().export(obj)
