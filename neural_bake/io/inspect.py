@@ -61,7 +61,9 @@ def inspect_mesh(mesh_or_path: Mesh | str | os.PathLike, texture: str | os.PathL
     "channels"}`` or None), ``watertight``, ``genus`` (None unless closed), ``euler_characteristic`` (per
     component), ``components``, ``boundary_edges``, ``non_manifold_edges``, ``winding`` ("outward",
     "inward (fixed)", or "n/a (open mesh)"), ``bounding_box`` (``{"min", "max", "size"}`` in source units),
-    ``frame`` (centre and scale of the unit frame), ``warnings`` (the load warnings, one line each).
+    ``frame`` (centre and scale of the unit frame), ``own_normals`` (the file gives its normals per face corner:
+    a glTF's NORMAL attribute, which the fit and a bake onto the asset itself follow, hard edges kept),
+    ``warnings`` (the load warnings, one line each).
 
     Loading a path raises what :func:`load_mesh` raises (MeshError/ImageError naming the file); its warnings
     are not re-issued, they are in the report.
@@ -108,6 +110,7 @@ def inspect_mesh(mesh_or_path: Mesh | str | os.PathLike, texture: str | os.PathL
         "winding": winding,
         "bounding_box": {k: [float(f"{x:.12g}") for x in a] for k, a in (("min", lo), ("max", hi), ("size", hi - lo))},
         "frame": mesh.frame.to_dict(),
+        "own_normals": mesh.corner_normals is not None,
         "warnings": list(mesh.warnings),
     }
 
@@ -137,6 +140,8 @@ def format_report(report: dict) -> str:
         ("genus", "n/a (open mesh)" if r["genus"] is None else str(r["genus"])),
         ("components", f"{r['components']:,}"),
         ("winding", r["winding"]),
+        ("normals", "the file's own, per face corner (hard edges kept)" if r["own_normals"] else
+         "averaged over the faces at each vertex (the file gives none per corner)"),
         ("bounding box", f"min {_vec(bb['min'])}, max {_vec(bb['max'])}, size {_vec(bb['size'])} (source units)"),
     ]
     lines = [r["source"]] + [f"  {k:<13} {v}" for k, v in rows]

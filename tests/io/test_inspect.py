@@ -54,8 +54,18 @@ def test_report_of_generated_textured_mesh():
     assert r["watertight"] and r["genus"] == 0 and r["components"] == 1 and r["winding"] == "outward"
     np.testing.assert_allclose(r["bounding_box"]["min"], src.min(0), atol=1e-9)  # source units
     np.testing.assert_allclose(r["bounding_box"]["size"], src.max(0) - src.min(0), atol=1e-9)
-    assert r["warnings"] == []
+    assert r["warnings"] == [] and not r["own_normals"]
+    assert "averaged over the faces at each vertex" in format_report(r)
     json.dumps(r)  # JSON-ready
+
+
+def test_report_says_a_gltf_gives_its_own_normals(tmp_path):
+    box = trimesh.creation.box()
+    corners = box.triangles.reshape(-1, 3)  # every face its own corners, its normal theirs: hard edges
+    trimesh.Trimesh(corners, np.arange(len(corners)).reshape(-1, 3), process=False,
+                    vertex_normals=np.repeat(box.face_normals, 3, axis=0)).export(tmp_path / "box.glb")
+    r = inspect_mesh(tmp_path / "box.glb")
+    assert r["own_normals"] and "normals       the file's own, per face corner (hard edges kept)" in format_report(r)
 
 
 def test_report_inward_and_open_and_degenerate():
