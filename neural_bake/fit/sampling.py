@@ -358,15 +358,16 @@ def _interp_normals(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarra
     file's own per corner where it has them (``mesh.corner_normals``: a glTF's hard edges stay hard, where the
     welded vertices' normals would round a box's faces by tens of degrees), each turned to the face's outward
     side; the face's own normal where the interpolation vanishes."""
+    own = mesh.face_normals[face]
     if mesh.corner_normals is not None:
         vn = mesh.corner_normals[face]
-        side = np.einsum("nkd,nd->nk", vn, mesh.face_normals[face])
+        side = np.einsum("nkd,nd->nk", vn, own)
         vn = np.where((side < 0)[..., None], -vn, vn)
     else:
         vn = vertex_normals(mesh)[mesh.faces[face]]
     nrm = np.einsum("nk,nkd->nd", bary, vn)
     norm = np.linalg.norm(nrm, axis=1, keepdims=True)
-    return np.where(norm > DIRECTION_EPS, nrm / np.maximum(norm, DIRECTION_EPS), mesh.face_normals[face])
+    return np.where(norm > DIRECTION_EPS, nrm / np.maximum(norm, DIRECTION_EPS), own)
 
 
 def sample_uniform(mesh: Mesh, n: int, *, seed: int = 0, bound: float = 1.0, sign: str = "auto") -> VolumeSamples:
