@@ -173,13 +173,16 @@ class _Truth:
     """Ground-truth normals (and colours) at any texel samples: analytic callables, or the fine mesh's at
     the closest point (its ray-casting scene built once). ``hidden``, after each call with the fine mesh:
     (M,) bool, the samples whose closest point lies on a face buried in another of its shells
-    (:func:`~neural_bake.mesh.shells.buried_faces`): inside the solid, never seen; None for analytic truth."""
+    (:func:`~neural_bake.mesh.shells.buried_faces`): inside the solid, never seen; ``faces``: (M, 3) the
+    fine mesh's own face normals at the same closest points (the exact SDF's gradient on its surface); both
+    None for analytic truth."""
 
     def __init__(self, baker, truth, fine, truth_colors):
         self.baker, self.truth, self.fine, self.truth_colors = baker, truth, fine, truth_colors
         self.label = "analytic" if truth is not None else "fine mesh, closest point" if fine is not None else None
         self._scene = self._buried = None
         self.hidden: np.ndarray | None = None
+        self.faces: np.ndarray | None = None
 
     def __call__(self, texels, colours: bool = True):
         """(normals (M, 3) or None, linear colours (M, C) or None) at ``texels``' points."""
@@ -188,7 +191,7 @@ class _Truth:
 
         pts = texels.points
         normals = cols = closest = None
-        self.hidden = None
+        self.hidden = self.faces = None
         if self.truth is not None:
             normals = np.asarray(self.truth(pts), dtype=np.float64)
         elif self.fine is not None:
@@ -199,6 +202,7 @@ class _Truth:
             closest = closest_surface(fine, q, scene=self._scene)
             normals = closest["normals"]
             self.hidden = self._buried[closest["face"]]
+            self.faces = np.asarray(fine.face_normals, dtype=np.float64)[closest["face"]]
         if not colours:
             return normals, None
         if self.truth_colors is not None:
@@ -226,6 +230,7 @@ def _median_ci95(err: np.ndarray) -> list[float] | None:
 
 #: Report entries measured on the texel samples the report holds (a subsample for a streamed bake).
 SAMPLED_FIGURES = ("vs_gradient_deg", "vs_truth_deg", "gradient_vs_truth_deg", "geometric_vs_truth_deg",
+                   "faces_vs_truth_deg",
                    "neural_vs_truth_deg", "hybrid.replaced_vs_truth_deg", "color_psnr_db", "neural_color_psnr_db", "baseline.vs_truth_deg", "baseline.color_psnr_db", "baseline.seconds",
                    "baseline.fallback")
 
@@ -259,6 +264,9 @@ def bake_report(
       whose closest point of ``fine`` lies on a face buried in another of its shells (inside the solid, never
       seen: :func:`~neural_bake.mesh.shells.buried_faces`) are counted in ``"hidden_texels"`` and left out of
       every figure against the truth and the baseline and of the error maps.
+      ``"faces_vs_truth_deg"`` (with ``fine``): ``fine``'s own face normals at the same closest points against
+      its interpolated ones, the error of any field whose zero set is ``fine``'s surface (its exact SDF's):
+      0 for a flat-shaded mesh, above 0 where the file shades away from its geometry (smoothed hard edges).
     - ``truth_colors``: callable points -> linear RGB (M, 3); otherwise ``fine``'s texture at the closest
       point (when it has one). Colour PSNR is measured on sRGB-encoded values (what the file holds).
     - ``baseline``: :func:`baseline_bake`'s result on the texels the report measures (``baker.texels``, or
@@ -317,6 +325,7 @@ def bake_report(
     rep["miss_fraction"] = float(np.sum(result.miss) / max(1, np.sum(result.coverage)))
     ground = _Truth(baker, truth, fine, truth_colors)
     truth_n, truth_c = ground(tx)
+    own_faces = ground.faces
     if ground.label:
         rep["truth"] = ground.label
     if ground.hidden is not None and ground.hidden.any():
@@ -327,6 +336,7 @@ def bake_report(
         tx, decoded, normals, valid, truth_n = _texel_subset(tx, keep), decoded[keep], normals[keep], valid[keep], \
             truth_n[keep]
         truth_c = None if truth_c is None else truth_c[keep]
+        own_faces = None if own_faces is None else own_faces[keep]
         replaced, neural, neural_colors = (None if a is None else a[keep] for a in (replaced, neural, neural_colors))
         baseline = _baseline_subset(baseline, keep)
         n = len(keep)
@@ -336,6 +346,8 @@ def bake_report(
         rep["vs_truth_deg"] = stats(err)
         rep["gradient_vs_truth_deg"] = stats(angular_error(normals, truth_n))
         rep["geometric_vs_truth_deg"] = stats(angular_error(tx.normal, truth_n))
+        if own_faces is not None:
+            rep["faces_vs_truth_deg"] = stats(angular_error(own_faces, truth_n))
         if neural is not None:  # a hybrid bake: what ∇f alone would have given, where it was evaluated or
             # interpolated (not at the texels of cells given up to the classical bake: NaN)
             known = np.isfinite(neural).all(axis=1)

@@ -307,12 +307,15 @@ def _with_ratios(rows: list[dict]) -> None:
 def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, alone) -> dict:
     """One normal row: ``rep`` the hybrid bake's report, ``alone`` the report of the same bake without the
     hybrid (``neural_*``: ∇f at every texel, as computed, before the map's 8-bit encoding, like the classical
-    bake's column; ``neural_evaluated_*``: ∇f where the hybrid bake evaluated or interpolated it)."""
+    bake's column; ``neural_evaluated_*``: ∇f where the hybrid bake evaluated or interpolated it; ``faces_*``:
+    the source's own face normals at the same closest points, what its exact SDF's gradient gives there: the
+    floor of any field that keeps to the surface, above 0 where the file shades away from its geometry)."""
     med, p95 = _stats(rep, "vs_truth_deg")
     n_med, n_p95 = _stats(alone, "gradient_vs_truth_deg")
     e_med, e_p95 = _stats(rep, "neural_vs_truth_deg")
     b_med, b_p95 = _stats(rep, "baseline.vs_truth_deg")
     g_med, g_p95 = _stats(rep, "geometric_vs_truth_deg")
+    f_med, f_p95 = _stats(rep, "faces_vs_truth_deg")
     net, params = _networks(fit)
     coarse = getattr(fit, "coarse", None)
     row = {
@@ -330,7 +333,7 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, a
         "map_median_deg": med, "map_p95_deg": p95, "neural_median_deg": n_med, "neural_p95_deg": n_p95,
         "neural_evaluated_median_deg": e_med, "neural_evaluated_p95_deg": e_p95,
         "classical_median_deg": b_med, "classical_p95_deg": b_p95, "coarse_median_deg": g_med,
-        "coarse_p95_deg": g_p95, "map_max_deg": _stats(rep, "vs_truth_deg", ("max",))[0],
+        "coarse_p95_deg": g_p95, "faces_median_deg": f_med, "faces_p95_deg": f_p95, "map_max_deg": _stats(rep, "vs_truth_deg", ("max",))[0],
         "classical_max_deg": _stats(rep, "baseline.vs_truth_deg", ("max",))[0],
         "coarse_max_deg": _stats(rep, "geometric_vs_truth_deg", ("max",))[0], "hybrid_pct": 100.0 * (rep.get("hybrid") or {}).get("hybrid_fraction", 0.0),
         "bake_s": bake_s, "classical_s": (rep.get("baseline") or {}).get("seconds", {}).get("total"),

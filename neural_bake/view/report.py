@@ -426,7 +426,8 @@ def _html(folder: Path, report: dict, s: dict, uv_maps, heat_views, fit_plot: bo
     parts.append("<h2>Bake metrics (report.json)</h2><table><tr><th>figure</th><th>median</th><th>p95</th>"
                  "<th>max</th></tr>")
     for key, label in (("vs_truth_deg", "normal error vs truth, °"), ("vs_gradient_deg", "encoding error vs ∇f, °"),
-                       ("gradient_vs_truth_deg", "∇f vs truth, °"), ("geometric_vs_truth_deg", "coarse geometry vs truth, °")):
+                       ("gradient_vs_truth_deg", "∇f vs truth, °"), ("geometric_vs_truth_deg", "coarse geometry vs truth, °"),
+                       ("faces_vs_truth_deg", "source face normals vs truth (its exact SDF), °")):
         st = report.get(key)
         if isinstance(st, dict):
             parts.append(f"<tr><td>{_esc(label)}</td><td>{_fmt(st.get('median'))}</td><td>{_fmt(st.get('p95'))}</td>"

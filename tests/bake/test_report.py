@@ -322,3 +322,38 @@ def test_texels_on_faces_buried_in_another_shell_are_left_out(tmp_path):
     baker1 = Baker(unwrap(one, resolution=64), 64)
     res1 = baker1.bake(SdfField(lambda p: box_sdf(p, lo_a.to(p), hi_a.to(p))))
     assert "hidden_texels" not in bake_report(res1, baker1, fine=one)
+
+
+def test_faces_figure_is_the_source_geometry_against_its_own_shading():
+    # a box baked onto itself with its exact SDF (∇f: each face's normal): flat-shaded (split corners, as a
+    # file's hard edges) its faces read 0 against its normals; welded, its averaged normals bend on the faces
+    # along the edges, up to the worst corner's angle to its face
+    from neural_bake.geometry import vertex_normals
+
+    t = trimesh.creation.box(extents=(1.0, 0.8, 0.6)).subdivide().subdivide().subdivide()
+    half = torch.tensor([0.5, 0.4, 0.3])
+
+    def box_sdf(p):
+        q = p.abs() - half.to(p)
+        return q.clamp(min=0).norm(dim=1) + q.max(dim=1).values.clamp(max=0)
+
+    welded = Mesh(np.asarray(t.vertices), np.asarray(t.faces, dtype=np.int64))
+    corners = np.asarray(t.vertices)[np.asarray(t.faces)].reshape(-1, 3)
+    split = Mesh(corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3))
+    split.vertex_normals = np.repeat(np.asarray(t.face_normals), 3, axis=0)
+    reps = {}
+    for name, fine in (("welded", welded), ("split", split)):
+        baker = Baker(unwrap(fine, resolution=96), 96)
+        reps[name] = bake_report(baker.bake(SdfField(box_sdf)), baker, fine=fine)
+    assert reps["split"]["faces_vs_truth_deg"]["max"] < 1e-3
+    faces = reps["welded"]["faces_vs_truth_deg"]
+    worst = angular_error(vertex_normals(welded)[welded.faces].reshape(-1, 3),
+                          np.repeat(np.asarray(t.face_normals), 3, axis=0)).max()
+    assert faces["count"] == reps["welded"]["gradient_vs_truth_deg"]["count"] > 0
+    assert faces["median"] < 1e-3 and faces["p95"] > 30.0 and 0.9 * worst < faces["max"] <= worst + 1e-6
+    assert reps["welded"]["gradient_vs_truth_deg"]["median"] < 1e-3  # the exact SDF's ∇f reads the faces
+    ico = trimesh.creation.icosphere(subdivisions=1, radius=R)
+    baker = Baker(unwrap(Mesh(np.asarray(ico.vertices), np.asarray(ico.faces, dtype=np.int64)), resolution=32), 32)
+    c = torch.as_tensor(C)
+    sphere = baker.bake(SdfField(lambda p: (p - c).norm(dim=1) - R))
+    assert "faces_vs_truth_deg" not in bake_report(sphere, baker, truth=truth)  # analytic truth: no faces

@@ -59,6 +59,8 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     # ∇f alone is a bake of its own at every texel; the hybrid bake's own figure only where it evaluated ∇f
     assert row["neural_evaluated_median_deg"] is not None and row["neural_p95_deg"] >= row["neural_median_deg"]
     assert row["map_max_deg"] >= row["map_p95_deg"] and row["classical_max_deg"] >= row["classical_p95_deg"]
+    # the source's own faces against its averaged normals: what its exact SDF would read, above 0 on a tessellation
+    assert row["faces_p95_deg"] >= row["faces_median_deg"] > 0
     params = lambda w: 3 * w + w + 3 * (w * w + w) + w + 1  # noqa: E731
     assert row["networks_kb"] == pytest.approx((params(64) + params(128)) * 4 / 1024)
     assert row["source_mb"] == pytest.approx(path.stat().st_size / 2**20)

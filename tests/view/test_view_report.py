@@ -24,6 +24,7 @@ def bake_folder(tmp_path_factory, make_analytic_bake):
                                                      (128, 1, 3)), colour="data")
     (folder / "report.json").write_text(json.dumps({
         "mesh": str(sample_path("bumpy_sphere")), "vs_truth_deg": {"median": 1.5, "p95": 3.0, "max": 9.0},
+        "faces_vs_truth_deg": {"median": 0.25, "p95": 7.5, "max": 40.0},
         "coverage": 0.7, "seconds": {"load": 0.5, "bake": 2.0, "total": 3.0}, "seconds_total": 3.0}))
     return folder, bake
 
@@ -41,6 +42,8 @@ def test_report_renders_compares_and_stays_offline(bake_folder):
     refs = _referenced_files(page)
     assert refs and all((index.parent / r).is_file() for r in refs), refs
     assert "http://" not in page and "https://" not in page
+    # the bake's figures, with the source's own faces against its shading (the exact SDF's floor)
+    assert "source face normals vs truth (its exact SDF), °</td><td>0.25</td><td>7.5" in page
     models_js = (index.parent / "models.js").read_text()
     assert "data:model/gltf-binary;base64," in models_js and "#sun.hdr" in models_js
     view = json.loads((index.parent / "view.json").read_text())
