@@ -326,7 +326,7 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, a
         "audit_s": (getattr(fit, "audit", None) or {}).get("seconds"),
         "sampling_share": (None if not fit.sampling_seconds or not fit.seconds
                            else fit.sampling_seconds / (_adam_seconds_per_step(fit) * fit.steps)),
-        "expected_steps": (fit.budget or {}).get("expected_steps"), "fit_s": fit_s,
+        "expected_steps": _fine_account(fit).get("expected_steps"), "fit_s": fit_s,
         "hausdorff": metrics["hausdorff"], "chamfer_l1": metrics["chamfer_l1"],
         "hausdorff_without_caps": None if caps is None else caps["hausdorff_without_caps"],
         "cap_max": None if caps is None else caps["cap_max"],
@@ -344,6 +344,13 @@ def _row(name, preset, fit, fit_s, metrics, caps, rep, bake_s, source_mb, tex, a
         "hidden_pct": _hidden_pct(rep),
     }
     return row
+
+
+def _fine_account(fit) -> dict:
+    """The budget account of the level ``steps`` counts: a construction's fine level (its coarse level's steps
+    are ``coarse_steps``), or the plain fit's whole account; {} without one."""
+    budget = fit.budget or {}
+    return (budget.get("levels") or {}).get("fine") or budget
 
 
 def _hidden_pct(rep: dict) -> float:

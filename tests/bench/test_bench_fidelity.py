@@ -48,6 +48,10 @@ def test_shrunken_run_on_a_generated_open_mesh(tmp_path):
     (row,) = res["rows"]
     saved = load_sdf(tmp_path / "models" / "cup-quick.sdf")  # the fitted field, kept to re-bake or time
     assert saved.steps == row["steps"] and (saved.config.width, saved.config.depth) == (192, 3)
+    # the steps expected of the level the row's steps count (the fine one; the coarse level's are apart)
+    levels = saved.budget["levels"]
+    assert row["expected_steps"] == levels["fine"]["expected_steps"] is not None
+    assert saved.budget["expected_steps"] == levels["fine"]["expected_steps"] + levels["coarse"]["expected_steps"]
     # the preset's own construction: a 64-wide coarse level and a 128-wide residual, one 192x3 SIREN
     assert row["mesh"] == "cup" and row["preset"] == "quick" and row["net"] == "64x3+128x3" and row["steps"] >= 1
     assert row["construction"] == "residual" and saved.config.construction == "residual"
@@ -333,3 +337,14 @@ def test_bad_sdf_settings_are_refused_in_one_line(capsys):
     assert main(["bench", "fidelity", "--quick", "--sdf-set", "stpes=3"]) != 0
     err = capsys.readouterr().err.strip()
     assert "unknown SDF fit setting 'stpes'" in err and len(err.splitlines()) == 1, err
+
+
+def test_expected_steps_are_the_counted_levels():
+    from types import SimpleNamespace
+
+    from neural_bake.bench.fidelity import _fine_account
+
+    levels = {"coarse": {"expected_steps": 300}, "fine": {"expected_steps": 700}}
+    assert _fine_account(SimpleNamespace(budget={"expected_steps": 1000, "levels": levels}))["expected_steps"] == 700
+    assert _fine_account(SimpleNamespace(budget={"expected_steps": 1000}))["expected_steps"] == 1000  # plain
+    assert _fine_account(SimpleNamespace(budget=None)) == {}
