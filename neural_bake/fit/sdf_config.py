@@ -91,6 +91,11 @@ class SdfFitConfig(PresetLoopSettings):
     """Part of the surface and near-surface pools drawn by the mesh's curvature (0: off, all uniform by
     area): faces are drawn with :func:`~neural_bake.fit.sampling.curvature_face_weights` with a uniform share
     of 1 − this, so creases and fine relief get more of each step's points (i3d's curvature-aware sampling)."""
+    texel_sampling: float = 0.0
+    """Part of the surface and near-surface pools drawn by the mesh's UV area (0: off): faces are drawn as
+    densely as its texture's texels lie on them (:func:`~neural_bake.fit.texture.texel_face_weights`), the
+    rest as ``curvature_sampling`` says; for an asset baked onto itself, whose map's texels are where its
+    normals are read (a layout that gives small parts many texels gives them as many samples). No UVs: off."""
     error_sampling: float = 0.0
     """Part of each step's surface batch drawn by the network's current normal error (0: off): every
     ``hard_every`` steps the angle error 1 − cos(∇f, n) is measured at every surface pool point, and this
@@ -214,6 +219,8 @@ class SdfFitConfig(PresetLoopSettings):
                      "audit_candidates"}
         if self.construction != "tiles":
             skip |= {"tile_grid", "tile_width", "tile_depth", "tile_margin"}
+        if not self.texel_sampling:  # off: the trajectory of the settings before it
+            skip.add("texel_sampling")
         if not self.w_near_normal:
             skip |= {"w_near_normal", "near_normal_reach", "near_normal_gap_share"}
         elif not self.near_normal_gap_share:
@@ -332,6 +339,8 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError(f"fit_sdf: surface_normals must be 'face' or 'vertex', got {cfg.surface_normals!r}")
     if not (0.0 <= cfg.curvature_sampling <= 1.0):
         raise FitError(f"fit_sdf: curvature_sampling must be in [0, 1], got {cfg.curvature_sampling!r}")
+    if not (0.0 <= cfg.texel_sampling <= 1.0):
+        raise FitError(f"fit_sdf: texel_sampling must be in [0, 1], got {cfg.texel_sampling!r}")
     if not (0.0 <= cfg.error_sampling <= 1.0 - cfg.hard_fraction):
         raise FitError(f"fit_sdf: error_sampling must be in [0, 1 - hard_fraction], got {cfg.error_sampling!r} "
                        f"(hard_fraction {cfg.hard_fraction!r})")

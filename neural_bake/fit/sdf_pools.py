@@ -27,6 +27,20 @@ def near_reach(cfg: SdfFitConfig) -> float:
     return float(cfg.near_normal_reach) if cfg.w_near_normal > 0 else 0.0
 
 
+def _face_weights(mesh: Mesh, curvature: float, texel: float) -> np.ndarray | None:
+    """The pools' per-face probabilities: ``texel`` of them by UV area
+    (:func:`~neural_bake.fit.texture.texel_face_weights`; none without UVs), the rest by area with a
+    ``curvature`` share by curvature (:func:`~neural_bake.fit.sampling.curvature_face_weights`); None: by area."""
+    from .sampling import curvature_face_weights
+    from .texture import texel_face_weights
+
+    by_uv = texel_face_weights(mesh, 1.0) if texel > 0 else None
+    if curvature <= 0 and by_uv is None:
+        return None
+    rest = curvature_face_weights(mesh, 1.0 - curvature)
+    return rest if by_uv is None else (1.0 - texel) * rest + texel * by_uv
+
+
 class _Pools:
     """Sample pools drawn from the mesh, rebuilt for every refresh index (deterministic in (seed, index)).
 
@@ -75,7 +89,7 @@ class _Pools:
     def _build(self, idx: int) -> None:
         cfg = self.cfg
         key = (idx, cfg.seed, cfg.pool_surface, cfg.pool_near, cfg.pool_uniform, tuple(cfg.sigmas),
-               cfg.curvature_sampling, cfg.surface_normals, near_reach(cfg), cfg.near_normal_gap_share,
+               cfg.curvature_sampling, cfg.texel_sampling, cfg.surface_normals, near_reach(cfg), cfg.near_normal_gap_share,
                str(self.device), self.dtype)
         data = None if self.cache is None else self.cache.get(key)
         if data is None:
@@ -86,13 +100,13 @@ class _Pools:
         self.index = idx
 
     def _sample(self, idx: int) -> dict:
-        from .sampling import curvature_face_weights, sample_near, sample_surface, sample_uniform
+        from .sampling import sample_near, sample_surface, sample_uniform
 
         cfg, mesh = self.cfg, self.mesh
         seed = int(cfg.seed) * 10_007 + idx
         try:
-            if cfg.curvature_sampling > 0 and self.face_weights is None:
-                self.face_weights = curvature_face_weights(mesh, 1.0 - cfg.curvature_sampling)
+            if self.face_weights is None and (cfg.curvature_sampling > 0 or cfg.texel_sampling > 0):
+                self.face_weights = _face_weights(mesh, cfg.curvature_sampling, cfg.texel_sampling)
             w = self.face_weights
             surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
                                   colors=False)
