@@ -22,7 +22,8 @@ from .options import key_values
 @click.option("--sampling", default=None, metavar="LIST",
               help="Comma-separated SDF sampling variants to compare in one run: uniform, curvature, error, "
                    "curvature+error, sign / no-sign (the sign-error mining of the uniform batch on or off), audit / "
-                   "no-audit (the residual construction's band audit with sign mining, or without the audit), preset "
+                   "no-audit (the residual construction's band audit with sign mining, or without the audit), texel / "
+                   "no-texel (half the surface samples by UV area, or none), preset "
                    "(default: the preset's own). Rows get ratios against uniform.")
 @click.option("--sdf-construction", "constructions", default=None, metavar="LIST",
               help="Comma-separated SDF constructions fitted at the same budget, one row each: plain (one network "

@@ -135,10 +135,11 @@ def network_label(model) -> str:
 #: Surface-sampling variants the benchmark can compare in one run (``sampling=``): their SDF fit settings.
 #: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings; "sign" and
 #: "no-sign" set the sign-error mining of the uniform batch (``SdfFitConfig.sign_fraction``) on and off; "audit"
-#: adds the residual construction's band audit to it (``SdfFitConfig.audit_candidates``), "no-audit" removes it.
+#: adds the residual construction's band audit to it (``SdfFitConfig.audit_candidates``), "no-audit" removes it;
+#: "texel" and "no-texel" draw half the surface and near pools by UV area or none (``SdfFitConfig.texel_sampling``).
 SAMPLINGS: dict[str, dict] = {
     "preset": {},
-    "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0},
+    "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0, "texel_sampling": 0.0},
     "curvature": {"curvature_sampling": 0.5, "error_sampling": 0.0},
     "error": {"curvature_sampling": 0.0, "error_sampling": 0.25},
     "curvature+error": {"curvature_sampling": 0.5, "error_sampling": 0.25},
@@ -146,6 +147,8 @@ SAMPLINGS: dict[str, dict] = {
     "no-sign": {"sign_fraction": 0.0},
     "audit": {"sign_fraction": 0.5, "audit_candidates": 100_000},
     "no-audit": {"audit_candidates": 0},
+    "texel": {"texel_sampling": 0.5},
+    "no-texel": {"texel_sampling": 0.0},
 }
 
 #: The targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the

@@ -203,6 +203,8 @@ def test_fit_with_detail_sampling_reproduces_and_stays_finite():
     ({"curvature_sampling": 1.1}, "curvature_sampling must be in"),
     ({"error_sampling": 0.8, "hard_fraction": 0.25}, r"error_sampling must be in \[0, 1 - hard_fraction\]"),
     ({"error_sampling": -0.5}, "error_sampling must be in"),
+    ({"texel_sampling": -0.1}, "texel_sampling must be in"),
+    ({"texel_sampling": 1.5}, "texel_sampling must be in"),
 ])
 def test_bad_detail_sampling_settings(kw, msg):
     m = trimesh.creation.icosphere(subdivisions=1, radius=0.8)
@@ -222,3 +224,53 @@ def test_curvature_pools_are_denser_on_creases():
         # share of surface pool points within 0.05 of a crease (two coordinates near ±0.4)
         near_crease[c] = (np.isclose(np.abs(p), 0.4, atol=0.05).sum(axis=1) >= 2).mean()
     assert near_crease[0.6] > 2.0 * near_crease[0.0]
+
+
+def _uv_box() -> Mesh:
+    """The subdivided cube with a UV layout that gives its faces on the +x side 9 times their area's texels."""
+    mesh = _box()
+    c = mesh.vertices[mesh.faces]  # (F, 3, 3)
+    axis = np.abs(mesh.face_normals).argmax(axis=1)  # each side flattened along its own normal
+    keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+    uv = np.take_along_axis(c, np.repeat(keep[:, None, :], 3, axis=1), axis=2)
+    plus_x = (c[:, :, 0] > 0.399).all(axis=1)
+    uv = uv * np.where(plus_x, 3.0, 1.0)[:, None, None]  # 9× the UV area on +x
+    return replace(mesh, uv=uv)
+
+
+def test_texel_weights_follow_the_uv_area_and_mix_with_curvature():
+    from neural_bake.fit.sdf_pools import _face_weights
+    from neural_bake.fit.texture import texel_face_weights
+
+    mesh = _uv_box()
+    d1, d2 = mesh.uv[:, 1] - mesh.uv[:, 0], mesh.uv[:, 2] - mesh.uv[:, 0]
+    uv_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    assert np.allclose(_face_weights(mesh, 0.0, 1.0), uv_area / uv_area.sum())
+    assert np.allclose(_face_weights(mesh, 0.0, 0.4), texel_face_weights(mesh, 0.4))
+    both = _face_weights(mesh, 0.5, 0.4)
+    assert np.allclose(both, 0.6 * curvature_face_weights(mesh, 0.5) + 0.4 * uv_area / uv_area.sum())
+    assert both.sum() == pytest.approx(1.0)
+    # without UVs the texel share has nothing to follow: curvature's weights, or the area's (None)
+    bare = replace(mesh, uv=None)
+    assert _face_weights(bare, 0.0, 0.5) is None
+    assert np.allclose(_face_weights(bare, 0.3, 0.5), curvature_face_weights(bare, 0.7))
+
+
+def test_texel_pools_are_denser_where_the_layout_gives_texels():
+    from neural_bake.fit.sdf_pools import _Pools
+
+    mesh = _uv_box()
+    cfg = replace(SdfFitConfig(), pool_surface=20_000, pool_near=2000, pool_uniform=100)
+    share = {}
+    for t in (0.0, 1.0):
+        p = _Pools(mesh, replace(cfg, texel_sampling=t), torch.device("cpu"), torch.float32).get(0)["surf_p"].numpy()
+        share[t] = (p[:, 0] > 0.399).mean()
+    # one side of six by area; by UV area 9 of 14 (the other five sides 1 each)
+    assert share[0.0] == pytest.approx(1 / 6, abs=0.02) and share[1.0] == pytest.approx(9 / 14, abs=0.02)
+
+
+def test_texel_sampling_off_keeps_the_fingerprint():
+    cfg = SdfFitConfig()
+    assert cfg.fingerprint_dict() == replace(cfg, texel_sampling=0.0).fingerprint_dict()
+    assert "texel_sampling" not in cfg.fingerprint_dict()
+    assert replace(cfg, texel_sampling=0.5).fingerprint_dict()["texel_sampling"] == 0.5
