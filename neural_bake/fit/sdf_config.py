@@ -266,7 +266,7 @@ PRESETS: dict[str, dict] = {
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1,
                 "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH, "construction": "residual",
-             "coarse_share": 0.1, "sign_fraction": 0.5, "audit_candidates": 100_000},
+             "coarse_share": 0.1, "sign_fraction": 0.5, "audit_candidates": 100_000, "texel_sampling": 0.5},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},
