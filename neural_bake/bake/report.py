@@ -173,16 +173,15 @@ class _Truth:
     """Ground-truth normals (and colours) at any texel samples: analytic callables, or the fine mesh's at
     the closest point (its ray-casting scene built once). ``hidden``, after each call with the fine mesh:
     (M,) bool, the samples whose closest point lies on a face buried in another of its shells
-    (:func:`~neural_bake.mesh.shells.buried_faces`): inside the solid, never seen; ``faces``: (M, 3) the
-    fine mesh's own face normals at the same closest points (the exact SDF's gradient on its surface); both
-    None for analytic truth."""
+    (:func:`~neural_bake.mesh.shells.buried_faces`): inside the solid, never seen; ``face``: (M,) the fine
+    mesh's face at each closest point; both None for analytic truth."""
 
     def __init__(self, baker, truth, fine, truth_colors):
         self.baker, self.truth, self.fine, self.truth_colors = baker, truth, fine, truth_colors
         self.label = "analytic" if truth is not None else "fine mesh, closest point" if fine is not None else None
         self._scene = self._buried = None
         self.hidden: np.ndarray | None = None
-        self.faces: np.ndarray | None = None
+        self.face: np.ndarray | None = None
 
     def __call__(self, texels, colours: bool = True):
         """(normals (M, 3) or None, linear colours (M, C) or None) at ``texels``' points."""
@@ -191,7 +190,7 @@ class _Truth:
 
         pts = texels.points
         normals = cols = closest = None
-        self.hidden = self.faces = None
+        self.hidden = self.face = None
         if self.truth is not None:
             normals = np.asarray(self.truth(pts), dtype=np.float64)
         elif self.fine is not None:
@@ -202,7 +201,7 @@ class _Truth:
             closest = closest_surface(fine, q, scene=self._scene)
             normals = closest["normals"]
             self.hidden = self._buried[closest["face"]]
-            self.faces = np.asarray(fine.face_normals, dtype=np.float64)[closest["face"]]
+            self.face = closest["face"]
         if not colours:
             return normals, None
         if self.truth_colors is not None:
@@ -325,7 +324,8 @@ def bake_report(
     rep["miss_fraction"] = float(np.sum(result.miss) / max(1, np.sum(result.coverage)))
     ground = _Truth(baker, truth, fine, truth_colors)
     truth_n, truth_c = ground(tx)
-    own_faces = ground.faces
+    # the fine mesh's own face normals there: what its exact SDF's gradient is on its surface
+    own_faces = None if ground.face is None else np.asarray(fine.face_normals, dtype=np.float64)[ground.face]
     if ground.label:
         rep["truth"] = ground.label
     if ground.hidden is not None and ground.hidden.any():
