@@ -61,6 +61,8 @@ __all__ = [
     "sample_surface",
     "surface_faces",
     "curvature_face_weights",
+    "map_texel_weights",
+    "TEXEL_WEIGHT_SIZE",
     "sample_near",
     "sample_uniform",
     "signed_distance",
@@ -191,6 +193,46 @@ def surface_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     idx, areas = sampleable_faces(mesh)
     keep = ~buried_faces(mesh)[idx]
     return idx[keep], areas[keep]
+
+
+#: The map on which :func:`map_texel_weights` counts each face's texels where a layout overlaps or tiles.
+TEXEL_WEIGHT_SIZE = 1024
+
+
+def map_texel_weights(mesh: Mesh, size=TEXEL_WEIGHT_SIZE) -> np.ndarray | None:
+    """(F,) float64 probabilities of drawing each face as densely as a bake onto the mesh reads its map's
+    texels there; None without UVs or without any texel.
+
+    A layout inside [0, 1]² whose triangles do not overlap gives each face its UV area's share. Where triangles
+    overlap (mirrored parts) or UVs leave [0, 1]² (tiling, as ``mesh.uv_policy`` wraps or clamps them), a face
+    gets the texels of a ``size`` map it holds (:func:`~neural_bake.mesh.texels.texel_counts`: the lowest face
+    where triangles overlap, as the bake writes them), so an overlapped copy or a repeated tile does not count
+    its texels twice; a face smaller than a texel keeps its UV area's expected count (a clamped face whose
+    centre lies outside the map, none).
+    """
+    from ..mesh.texels import _parse_size, texel_counts
+
+    if mesh.uv is None:
+        return None
+    uv = np.asarray(mesh.uv, dtype=np.float64)
+    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    uv_area = np.nan_to_num(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]), nan=0.0, posinf=0.0)
+    if uv_area.sum() <= 0:
+        return None
+    counts, overlaps = texel_counts(mesh, size)
+    if overlaps == 0 and not ((uv < 0) | (uv > 1)).any():
+        return uv_area / uv_area.sum()
+    h, w = _parse_size(size)
+    expected = uv_area * h * w
+    small = expected < 1.0
+    weight = counts.astype(np.float64)
+    in_map = np.ones(len(uv), dtype=bool)
+    if mesh.uv_policy != "wrap":
+        centre = uv.mean(axis=1)
+        in_map = ((centre >= 0) & (centre <= 1)).all(axis=1)
+    weight[small] = np.where(in_map[small], expected[small], 0.0)
+    total = weight.sum()
+    return weight / total if total > 0 else None
 
 
 def curvature_face_weights(mesh: Mesh, uniform_share: float = 0.5) -> np.ndarray:

@@ -93,9 +93,10 @@ class SdfFitConfig(PresetLoopSettings):
     of 1 − this, so creases and fine relief get more of each step's points (i3d's curvature-aware sampling)."""
     texel_sampling: float = 0.0
     """Part of the surface and near-surface pools drawn by the mesh's UV area (0: off): faces are drawn as
-    densely as its texture's texels lie on them (:func:`~neural_bake.fit.texture.texel_face_weights`), the
-    rest as ``curvature_sampling`` says; for an asset baked onto itself, whose map's texels are where its
-    normals are read (a layout that gives small parts many texels gives them as many samples). No UVs: off."""
+    densely as a map's texels lie on them (:func:`~neural_bake.fit.sampling.map_texel_weights`: by UV area,
+    an overlapped or repeated texel counted once), the rest as ``curvature_sampling`` says; for an asset baked
+    onto itself, whose map's texels are where its normals are read (a layout that gives small parts many
+    texels gives them as many samples). No UVs: off."""
     error_sampling: float = 0.0
     """Part of each step's surface batch drawn by the network's current normal error (0: off): every
     ``hard_every`` steps the angle error 1 − cos(∇f, n) is measured at every surface pool point, and this

@@ -28,13 +28,12 @@ def near_reach(cfg: SdfFitConfig) -> float:
 
 
 def _face_weights(mesh: Mesh, curvature: float, texel: float) -> np.ndarray | None:
-    """The pools' per-face probabilities: ``texel`` of them by UV area
-    (:func:`~neural_bake.fit.texture.texel_face_weights`; none without UVs), the rest by area with a
+    """The pools' per-face probabilities: ``texel`` of them by the map's texels
+    (:func:`~neural_bake.fit.sampling.map_texel_weights`; none without UVs), the rest by area with a
     ``curvature`` share by curvature (:func:`~neural_bake.fit.sampling.curvature_face_weights`); None: by area."""
-    from .sampling import curvature_face_weights
-    from .texture import texel_face_weights
+    from .sampling import curvature_face_weights, map_texel_weights
 
-    by_uv = texel_face_weights(mesh, 1.0) if texel > 0 else None
+    by_uv = map_texel_weights(mesh) if texel > 0 else None
     if curvature <= 0 and by_uv is None:
         return None
     rest = curvature_face_weights(mesh, 1.0 - curvature)

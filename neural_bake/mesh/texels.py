@@ -19,8 +19,8 @@ from ..geometry import vertex_normals
 from ..nets.native import Kernel
 from .tangents import tangent_frames, vertex_uv
 
-__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "texel_centres", "kernel_status",
-           "ENV_SWITCH"]
+__all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "texel_centres", "texel_counts",
+           "kernel_status", "ENV_SWITCH"]
 
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
@@ -476,6 +476,21 @@ def texel_centres(mesh: Mesh, size) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     uv_faces, uv = _face_uv_copies(mesh)
     k, rr, cc, bary, _ = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
     return uv_faces[k].astype(np.int64, copy=False), rr, cc, bary
+
+
+def texel_counts(mesh: Mesh, size) -> tuple[np.ndarray, int]:
+    """(F,) int64: the texel centres of an (H, W) map that each face holds, as :func:`texel_centres` assigns
+    them (the lowest face where triangles overlap, UVs outside [0, 1] as ``mesh.uv_policy`` says: the texels a
+    bake writes from the face), and the number of texel centres strictly inside several triangles. Without
+    the warning about UVs outside [0, 1] (the bake gives it)."""
+    if mesh.uv is None:
+        raise MeshError(f"{mesh.name}: mesh has no UVs; unwrap it first (neural_bake.unwrap)")
+    h, w = _parse_size(size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NeuralBakeWarning)
+        uv_faces, uv = _face_uv_copies(mesh)
+    k, _, _, _, overlaps = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
+    return np.bincount(uv_faces[k], minlength=len(mesh.faces)).astype(np.int64, copy=False), overlaps
 
 
 def iter_texels(

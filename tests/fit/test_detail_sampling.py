@@ -226,16 +226,33 @@ def test_curvature_pools_are_denser_on_creases():
     assert near_crease[0.6] > 2.0 * near_crease[0.0]
 
 
-def _uv_box() -> Mesh:
-    """The subdivided cube with a UV layout that gives its faces on the +x side 9 times their area's texels."""
+#: Where each side of :func:`_uv_box`'s cube lies in its layout (lower-left corner), by (axis, +/−): +x at
+#: three times the others' scale, so with nine times their texels, and no two sides overlapping.
+_SIDES = {(0, 1): (0.02, 0.02), (0, 0): (0.66, 0.02), (1, 1): (0.66, 0.24), (1, 0): (0.66, 0.46),
+          (2, 1): (0.02, 0.70), (2, 0): (0.26, 0.70)}
+
+
+def _uv_box(mirror: bool = False) -> Mesh:
+    """The subdivided cube with a UV layout in [0, 1]² that gives its faces on the +x side 9 times their
+    area's texels (each side flattened along its own normal, 0.2 across, +x 0.6). ``mirror``: the −x side
+    takes the +x side's place in the layout (as a mirrored part shares its texels)."""
     mesh = _box()
     c = mesh.vertices[mesh.faces]  # (F, 3, 3)
-    axis = np.abs(mesh.face_normals).argmax(axis=1)  # each side flattened along its own normal
+    axis = np.abs(mesh.face_normals).argmax(axis=1)
+    plus = np.take_along_axis(mesh.face_normals, axis[:, None], axis=1)[:, 0] > 0
     keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]
-    uv = np.take_along_axis(c, np.repeat(keep[:, None, :], 3, axis=1), axis=2)
-    plus_x = (c[:, :, 0] > 0.399).all(axis=1)
-    uv = uv * np.where(plus_x, 3.0, 1.0)[:, None, None]  # 9× the UV area on +x
-    return replace(mesh, uv=uv)
+    local = (np.take_along_axis(c, np.repeat(keep[:, None, :], 3, axis=1), axis=2) + 0.4) / 0.8  # [0, 1]²
+    side = [(int(a), int(p)) for a, p in zip(axis, plus)]
+    if mirror:
+        side = [(0, 1) if s == (0, 0) else s for s in side]
+    scale = np.array([0.6 if s == (0, 1) else 0.2 for s in side])
+    corner = np.array([_SIDES[s] for s in side])
+    return replace(mesh, uv=local * scale[:, None, None] + corner[:, None, :])
+
+
+def _uv_areas(mesh: Mesh) -> np.ndarray:
+    d1, d2 = mesh.uv[:, 1] - mesh.uv[:, 0], mesh.uv[:, 2] - mesh.uv[:, 0]
+    return 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
 
 
 def test_texel_weights_follow_the_uv_area_and_mix_with_curvature():
@@ -243,9 +260,8 @@ def test_texel_weights_follow_the_uv_area_and_mix_with_curvature():
     from neural_bake.fit.texture import texel_face_weights
 
     mesh = _uv_box()
-    d1, d2 = mesh.uv[:, 1] - mesh.uv[:, 0], mesh.uv[:, 2] - mesh.uv[:, 0]
-    uv_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    assert np.allclose(_face_weights(mesh, 0.0, 1.0), uv_area / uv_area.sum())
+    uv_area = _uv_areas(mesh)
+    assert np.array_equal(_face_weights(mesh, 0.0, 1.0), uv_area / uv_area.sum())  # a clean layout: UV area
     assert np.allclose(_face_weights(mesh, 0.0, 0.4), texel_face_weights(mesh, 0.4))
     both = _face_weights(mesh, 0.5, 0.4)
     assert np.allclose(both, 0.6 * curvature_face_weights(mesh, 0.5) + 0.4 * uv_area / uv_area.sum())
@@ -254,6 +270,39 @@ def test_texel_weights_follow_the_uv_area_and_mix_with_curvature():
     bare = replace(mesh, uv=None)
     assert _face_weights(bare, 0.0, 0.5) is None
     assert np.allclose(_face_weights(bare, 0.3, 0.5), curvature_face_weights(bare, 0.7))
+
+
+def test_map_texel_weights_count_a_shared_or_repeated_texel_once():
+    from neural_bake.fit.sampling import map_texel_weights
+
+    # the mirrored side shares +x's texels: the bake writes them from one face each, so the two sides hold
+    # +x's 9 parts between them (by UV area they would take 18 of 22)
+    mesh = _uv_box(mirror=True)
+    c = mesh.vertices[mesh.faces]
+    px, mx = (c[:, :, 0] > 0.399).all(axis=1), (c[:, :, 0] < -0.399).all(axis=1)
+    w = map_texel_weights(mesh)
+    assert w.sum() == pytest.approx(1.0) and (w >= 0).all()
+    assert w[px | mx].sum() == pytest.approx(9 / 13, abs=0.01)
+    uv_area = _uv_areas(mesh)
+    assert uv_area[px | mx].sum() / uv_area.sum() == pytest.approx(18 / 22, abs=1e-9)
+    # a tile repeated twice across the map (u in [0, 2], wrapped) holds one map's worth of texels, not two
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
+    uv = np.array([[[0, 0], [1, 0], [1, 0.5]], [[0, 0], [1, 0.5], [0, 0.5]],
+                   [[0, 0.5], [2, 0.5], [2, 1]], [[0, 0.5], [2, 1], [0, 1]]], dtype=np.float64)
+    tiled = Mesh(v, f, uv=uv)
+    w = map_texel_weights(tiled, 64)
+    assert w[:2].sum() == pytest.approx(0.5, abs=0.02) and w[2:].sum() == pytest.approx(0.5, abs=0.02)
+    # clamped, the part outside the map holds no texel: the second quad's half inside, half the map's texels
+    w = map_texel_weights(replace(tiled, uv_policy="clamp"), 64)
+    assert w[2:].sum() == pytest.approx(0.5, abs=0.02)
+    # below a texel a face keeps its UV area's expected texels (a 4² map: a twenty-fifth of a texel each);
+    # wholly outside a clamped map, none
+    small = Mesh(v, f, uv=np.concatenate([uv[:2] * 0.1, uv[2:] * 0.1 + 1.5]))
+    w = map_texel_weights(replace(small, uv_policy="clamp"), 4)
+    assert np.allclose(w, [0.5, 0.5, 0.0, 0.0])
+    assert map_texel_weights(replace(mesh, uv=None)) is None
+    assert map_texel_weights(replace(mesh, uv=np.zeros_like(mesh.uv))) is None
 
 
 def test_texel_pools_are_denser_where_the_layout_gives_texels():

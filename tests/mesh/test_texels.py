@@ -5,7 +5,8 @@ import pytest
 import trimesh
 
 from neural_bake.errors import MeshError, NeuralBakeError, NeuralBakeWarning
-from neural_bake.mesh.texels import TexelSet, iter_texels, rasterize_texels, texel_centres, texel_grid_points
+from neural_bake.mesh.texels import (TexelSet, iter_texels, rasterize_texels, texel_centres, texel_counts,
+                                    texel_grid_points)
 from neural_bake.types import Mesh
 
 
@@ -194,6 +195,31 @@ def test_texel_centres_are_the_rasteriser_s_own_samples(shift, policy):
         np.testing.assert_allclose(bary[order], ts.bary[keep], atol=1e-12)
     with pytest.raises(MeshError, match="no UVs"):
         texel_centres(Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]])), 8)
+
+
+def test_texel_counts_are_the_centres_each_face_holds_and_count_overlaps():
+    """Per face, the texel centres :func:`texel_centres` gives it; strict overlaps counted; no warning for
+    UVs outside [0, 1]; no UVs refused."""
+    import warnings
+
+    rng = np.random.default_rng(5)
+    tris = rng.uniform(-0.5, 1.5, size=(30, 3, 2))
+    mesh = Mesh(vertices=rng.normal(size=(90, 3)), faces=np.arange(90).reshape(30, 3), uv=tris)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NeuralBakeWarning)
+        counts, overlaps = texel_counts(mesh, (20, 24))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NeuralBakeWarning)
+        face, _, _, _ = texel_centres(mesh, (20, 24))
+    np.testing.assert_array_equal(counts, np.bincount(face, minlength=30))
+    assert overlaps > 0  # random triangles over the square overlap
+    # two copies of one triangle: every centre strictly inside is an overlap, held by the first face
+    one = np.array([[[0.1, 0.1], [0.93, 0.1], [0.1, 0.93]]])  # no centre on its edges
+    twice = Mesh(vertices=rng.normal(size=(6, 3)), faces=np.arange(6).reshape(2, 3), uv=np.concatenate([one, one]))
+    counts, overlaps = texel_counts(twice, 16)
+    assert counts[1] == 0 and counts[0] > 0 and overlaps > 0.9 * counts[0]
+    with pytest.raises(MeshError, match="no UVs"):
+        texel_counts(Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]])), 8)
 
 
 def test_uvs_outside_unit_square_clamp_reports_and_skips():
