@@ -199,18 +199,18 @@ def surface_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
 TEXEL_WEIGHT_SIZE = 1024
 
 
-def map_texel_weights(mesh: Mesh, size=TEXEL_WEIGHT_SIZE) -> np.ndarray | None:
+def map_texel_weights(mesh: Mesh, size: int = TEXEL_WEIGHT_SIZE) -> np.ndarray | None:
     """(F,) float64 probabilities of drawing each face as densely as a bake onto the mesh reads its map's
     texels there; None without UVs or without any texel.
 
     A layout inside [0, 1]² whose triangles do not overlap gives each face its UV area's share. Where triangles
     overlap (mirrored parts) or UVs leave [0, 1]² (tiling, as ``mesh.uv_policy`` wraps or clamps them), a face
-    gets the texels of a ``size`` map it holds (:func:`~neural_bake.mesh.texels.texel_counts`: the lowest face
+    gets the texels of a ``size`` × ``size`` map it holds (:func:`~neural_bake.mesh.texels.texel_counts`: the lowest face
     where triangles overlap, as the bake writes them), so an overlapped copy or a repeated tile does not count
     its texels twice; a face smaller than a texel keeps its UV area's expected count (a clamped face whose
     centre lies outside the map, none).
     """
-    from ..mesh.texels import _parse_size, texel_counts
+    from ..mesh.texels import texel_counts
 
     if mesh.uv is None:
         return None
@@ -222,8 +222,7 @@ def map_texel_weights(mesh: Mesh, size=TEXEL_WEIGHT_SIZE) -> np.ndarray | None:
     counts, overlaps = texel_counts(mesh, size)
     if overlaps == 0 and not ((uv < 0) | (uv > 1)).any():
         return uv_area / uv_area.sum()
-    h, w = _parse_size(size)
-    expected = uv_area * h * w
+    expected = uv_area * float(size) ** 2
     small = expected < 1.0
     weight = counts.astype(np.float64)
     in_map = np.ones(len(uv), dtype=bool)
