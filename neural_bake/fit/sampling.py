@@ -205,18 +205,17 @@ def map_texel_weights(mesh: Mesh, size: int = TEXEL_WEIGHT_SIZE) -> np.ndarray |
 
     A layout inside [0, 1]² whose triangles do not overlap gives each face its UV area's share. Where triangles
     overlap (mirrored parts) or UVs leave [0, 1]² (tiling, as ``mesh.uv_policy`` wraps or clamps them), a face
-    gets the texels of a ``size`` × ``size`` map it holds (:func:`~neural_bake.mesh.texels.texel_counts`: the lowest face
-    where triangles overlap, as the bake writes them), so an overlapped copy or a repeated tile does not count
-    its texels twice; a face smaller than a texel keeps its UV area's expected count (a clamped face whose
+    gets the texels of a ``size`` × ``size`` map it holds (:func:`~neural_bake.mesh.texels.texel_counts`: the
+    lowest face where triangles overlap, as the bake writes them), so an overlapped copy or a repeated tile does
+    not count its texels twice; a face smaller than a texel keeps its UV area's expected count (a clamped face whose
     centre lies outside the map, none).
     """
-    from ..mesh.texels import texel_counts
+    from ..mesh.texels import face_uv_areas, texel_counts
 
     if mesh.uv is None:
         return None
     uv = np.asarray(mesh.uv, dtype=np.float64)
-    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    uv_area = np.nan_to_num(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]), nan=0.0, posinf=0.0)
+    uv_area = face_uv_areas(uv)
     if uv_area.sum() <= 0:
         return None
     counts, overlaps = texel_counts(mesh, size)

@@ -56,6 +56,7 @@ from ..fields import (ENCODINGS, NestedSequence, SdfField, TextureField, closest
                       save_model, to_sdf_field, unit_normals)
 from ..geometry import frame_mismatch, interpolate_corners
 from ..io.colour import linear_to_srgb, sample_texture, srgb_to_linear
+from ..mesh.texels import face_uv_areas, texel_centres
 from ..mesh.views import render_views
 from ..nets.gemm import sin_cos
 from ..nets.grid import GridNet, check_grid_settings
@@ -352,8 +353,7 @@ def texel_face_weights(mesh: Mesh, share: float) -> np.ndarray | None:
     (the texels a face covers in the texture); None for ``share`` 0 or a mesh without UVs or without UV area."""
     if share <= 0 or mesh.uv is None:
         return None
-    d1, d2 = mesh.uv[:, 1] - mesh.uv[:, 0], mesh.uv[:, 2] - mesh.uv[:, 0]
-    uv_area = np.nan_to_num(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]), nan=0.0, posinf=0.0)
+    uv_area = face_uv_areas(mesh.uv)
     area = np.nan_to_num(np.asarray(mesh.face_areas, dtype=np.float64), nan=0.0, posinf=0.0)
     if uv_area.sum() <= 0 or area.sum() <= 0:
         return None
@@ -432,11 +432,6 @@ def _edge_samples(mesh: Mesh, rgb: np.ndarray, n: int, rng: np.random.Generator)
     proportional to :func:`edge_strength` among those a face covers (:func:`~neural_bake.mesh.texels.
     texel_centres`; a multinomial draw, so the samples come grouped by texel), each sample at a uniform random
     place in its texel on that face (:func:`_jittered`); texels drawn uniformly where the texture has no edge."""
-    import warnings
-
-    from ..errors import NeuralBakeWarning
-    from ..mesh.texels import texel_centres
-
     with warnings.catch_warnings():  # UVs outside [0, 1]: the bake says so where it matters
         warnings.simplefilter("ignore", NeuralBakeWarning)
         face, rows, cols, bary = texel_centres(mesh, rgb.shape[:2])

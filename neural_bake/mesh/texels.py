@@ -20,7 +20,7 @@ from ..nets.native import Kernel
 from .tangents import tangent_frames, vertex_uv
 
 __all__ = ["TexelSet", "rasterize_texels", "iter_texels", "texel_grid_points", "texel_centres", "texel_counts",
-           "kernel_status", "ENV_SWITCH"]
+           "face_uv_areas", "kernel_status", "ENV_SWITCH"]
 
 #: Candidate (sample, face) pairs processed at once; bounds the working memory (~40 bytes x this x 10).
 _MAX_CANDIDATES = 1 << 21
@@ -132,7 +132,7 @@ def _parse_size(size) -> tuple[int, int]:
     return h, w
 
 
-def _face_uv_copies(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+def _face_uv_copies(mesh: Mesh, stacklevel: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """(K,) face index and (K, 3, 2) UVs of the face copies to rasterise.
 
     ``uv_policy == "wrap"``: a face is moved by the integer offset that brings its centroid into [0, 1)²,
@@ -161,14 +161,14 @@ def _face_uv_copies(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
         warnings.warn(
             f"{mesh.name}: {int(outside.sum())} faces have UVs outside [0, 1]; wrapped (uv_policy 'wrap')",
             NeuralBakeWarning,
-            stacklevel=3,
+            stacklevel=stacklevel,
         )
         return np.concatenate(faces), np.concatenate(uvs)
     warnings.warn(
         f"{mesh.name}: {int(outside.sum())} faces have UVs outside [0, 1]; the parts outside cover no texel"
         " (uv_policy 'clamp')",
         NeuralBakeWarning,
-        stacklevel=3,
+        stacklevel=stacklevel,
     )
     return np.arange(nf), uv
 
@@ -470,12 +470,17 @@ def texel_centres(mesh: Mesh, size) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     lie inside a UV triangle of ``mesh``: the samples :func:`rasterize_texels` places at one sample per texel
     (the lowest face where triangles overlap, UVs outside [0, 1] as ``mesh.uv_policy`` says), without their
     frames, border samples or points."""
+    return _centres(mesh, size)[:4]
+
+
+def _centres(mesh: Mesh, size):
+    """:func:`texel_centres`' arrays and the number of texel centres strictly inside several triangles."""
     if mesh.uv is None:
         raise MeshError(f"{mesh.name}: mesh has no UVs; unwrap it first (neural_bake.unwrap)")
     h, w = _parse_size(size)
-    uv_faces, uv = _face_uv_copies(mesh)
-    k, rr, cc, bary, _ = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
-    return uv_faces[k].astype(np.int64, copy=False), rr, cc, bary
+    uv_faces, uv = _face_uv_copies(mesh, stacklevel=4)  # the warning names the public function's caller
+    k, rr, cc, bary, overlaps = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
+    return uv_faces[k].astype(np.int64, copy=False), rr, cc, bary, overlaps
 
 
 def texel_counts(mesh: Mesh, size) -> tuple[np.ndarray, int]:
@@ -483,14 +488,17 @@ def texel_counts(mesh: Mesh, size) -> tuple[np.ndarray, int]:
     them (the lowest face where triangles overlap, UVs outside [0, 1] as ``mesh.uv_policy`` says: the texels a
     bake writes from the face), and the number of texel centres strictly inside several triangles. Without
     the warning about UVs outside [0, 1] (the bake gives it)."""
-    if mesh.uv is None:
-        raise MeshError(f"{mesh.name}: mesh has no UVs; unwrap it first (neural_bake.unwrap)")
-    h, w = _parse_size(size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NeuralBakeWarning)
-        uv_faces, uv = _face_uv_copies(mesh)
-    k, _, _, _, overlaps = _sample_hits(uv[..., 0] * w - 0.5, (1.0 - uv[..., 1]) * h - 0.5, h, w, (0, h))
-    return np.bincount(uv_faces[k], minlength=len(mesh.faces)).astype(np.int64, copy=False), overlaps
+        face, _, _, _, overlaps = _centres(mesh, size)
+    return np.bincount(face, minlength=len(mesh.faces)).astype(np.int64, copy=False), overlaps
+
+
+def face_uv_areas(uv) -> np.ndarray:
+    """(F,) float64 areas of (F, 3, 2) per-corner UV triangles, in UV units; 0 where not finite."""
+    uv = np.asarray(uv, dtype=np.float64)
+    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return np.nan_to_num(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]), nan=0.0, posinf=0.0)
 
 
 def iter_texels(
