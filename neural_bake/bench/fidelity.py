@@ -136,7 +136,8 @@ def network_label(model) -> str:
 #: "uniform" is the baseline every ratio is taken against; "preset" keeps the preset's own settings; "sign" and
 #: "no-sign" set the sign-error mining of the uniform batch (``SdfFitConfig.sign_fraction``) on and off; "audit"
 #: adds the residual construction's band audit to it (``SdfFitConfig.audit_candidates``), "no-audit" removes it;
-#: "texel" and "no-texel" draw half the surface and near pools by UV area or none (``SdfFitConfig.texel_sampling``).
+#: "texel" and "no-texel" draw half the surface and near pools by UV area or none (``SdfFitConfig.texel_sampling``);
+#: "edge" and "no-edge" a quarter of them along the hard edges or none (``SdfFitConfig.edge_sampling``).
 SAMPLINGS: dict[str, dict] = {
     "preset": {},
     "uniform": {"curvature_sampling": 0.0, "error_sampling": 0.0, "texel_sampling": 0.0},
@@ -149,6 +150,8 @@ SAMPLINGS: dict[str, dict] = {
     "no-audit": {"audit_candidates": 0},
     "texel": {"texel_sampling": 0.5},
     "no-texel": {"texel_sampling": 0.0},
+    "edge": {"edge_sampling": 0.25},
+    "no-edge": {"edge_sampling": 0.0},
 }
 
 #: The targets on nefertiti (decimated to 3,000 faces, 1024² map): median baked normal error, by the

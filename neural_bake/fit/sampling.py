@@ -61,6 +61,9 @@ __all__ = [
     "sample_surface",
     "surface_faces",
     "curvature_face_weights",
+    "hard_edge_sides",
+    "HARD_EDGE_DEG",
+    "EDGE_BAND",
     "map_texel_weights",
     "TEXEL_WEIGHT_SIZE",
     "sample_near",
@@ -79,6 +82,15 @@ SIGN_METHODS = ("auto", "winding", "winding_exact", "raycast", "hybrid")
 RAY_SAMPLES = 3
 #: Ray directions of the "hybrid" test; points whose parities disagree get the winding number.
 HYBRID_RAYS = 5
+
+#: Width (unit frame, across the face) of the strips along hard edges that ``sample_surface``'s ``edge_share``
+#: draws from: a few times the width over which a fitted field rounds a board's edge (docs/findings.md).
+EDGE_BAND = 0.01
+
+#: Smallest angle (degrees) between a file's normals on the two sides of an edge for :func:`hard_edge_sides` to
+#: take it as a hard edge: a smooth file gives both sides one normal (to float precision); a hard edge splits them
+#: by the angle its faces make (a board's 90°).
+HARD_EDGE_DEG = 10.0
 
 
 @dataclass
@@ -135,7 +147,8 @@ def _check_count(n, what: str) -> int:
 
 
 def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
-                   face_weights: np.ndarray | None = None, colors: bool = True) -> SurfaceSamples:
+                   face_weights: np.ndarray | None = None, colors: bool = True, edge_share: float = 0.0,
+                   edge_band: float = EDGE_BAND) -> SurfaceSamples:
     """``n`` points uniform by area on the surface faces of ``mesh`` (:func:`surface_faces`; unit frame).
 
     A face is drawn with probability proportional to its area (degenerate faces — ``mesh.degenerate`` or
@@ -144,6 +157,10 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
 
     - ``face_weights``: (F,) non-negative probabilities of drawing each face instead of the area's (e.g.
       :func:`curvature_face_weights`); degenerate and buried faces are still never drawn.
+    - ``edge_share``: this part of the points (shuffled among the others) uniform by area within ``edge_band``
+      (across the face) of the mesh's hard edges (:func:`hard_edge_sides`), on both faces of each, where a
+      fitted field rounds a board's right angle and area sampling puts few points; all of them by
+      ``face_weights`` when the mesh has no hard edge.
 
     - ``normals="face"``: the sampled face's geometric normal (exact for the piecewise-flat mesh);
       ``"vertex"``: the interpolated area-weighted vertex normals, renormalised (a smooth-surface estimate;
@@ -157,6 +174,13 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     n = _check_count(n, "sample_surface")
     if normals not in ("face", "vertex"):
         raise ValueError(f"sample_surface: normals must be 'face' or 'vertex', got {normals!r}")
+    if not (math.isfinite(edge_share) and 0.0 <= edge_share <= 1.0):
+        raise ValueError(f"sample_surface: edge_share must be in [0, 1], got {edge_share!r}")
+    if not (math.isfinite(edge_band) and edge_band > 0):
+        raise ValueError(f"sample_surface: edge_band must be positive and finite, got {edge_band!r}")
+    edges = _edge_band_draw(mesh, int(round(n * edge_share)), edge_band, seed) if edge_share > 0 else None
+    if edges is not None:
+        n -= len(edges[0])
     idx, areas = surface_faces(mesh)
     rng = np.random.default_rng(seed)
     if face_weights is not None:
@@ -171,6 +195,9 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     r = rng.random((n, 2))
     s = np.sqrt(r[:, 0])
     bary = np.stack([1.0 - s, s * (1.0 - r[:, 1]), s * r[:, 1]], axis=1)  # (n, 3)
+    if edges is not None:  # shuffled in, so that any run of the points (sample_near's σ groups) has its share
+        order = np.random.default_rng([seed, 3]).permutation(n + len(edges[0]))
+        face, bary = np.concatenate([face, edges[0]])[order], np.concatenate([bary, edges[1]])[order]
     tri = mesh.vertices[mesh.faces[face]]  # (n, 3, 3)
     points = np.einsum("nk,nkd->nd", bary, tri)
 
@@ -183,6 +210,79 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
             rgb = sample_texture(mesh.texture, uv, mesh.uv_policy).astype(np.float32)
         uv = uv.astype(np.float32)
     return SurfaceSamples(points.astype(np.float32), nrm.astype(np.float32), uv, rgb, face)
+
+
+def hard_edge_sides(mesh: Mesh, min_deg: float = HARD_EDGE_DEG) -> tuple[np.ndarray, np.ndarray]:
+    """The face sides on the mesh's hard edges: ``(face (K,) int64, slot (K,) int64)``, side ``slot`` of
+    ``face`` the edge from its corner ``slot`` to corner ``slot + 1 mod 3``, both sides of every hard edge.
+
+    A hard edge is one the file declares: an edge inside the surface (two faces once vertices at one position
+    are welded) where the file's own normals (``mesh.corner_normals``, each turned to its face's outward side)
+    differ between the two faces by more than ``min_deg`` at either end, the split a glTF or OBJ gives an edge
+    it shades hard. A mesh without its own normals has none; degenerate faces and faces buried in another
+    shell never count (:func:`surface_faces`).
+    """
+    empty = np.zeros(0, dtype=np.int64)
+    if mesh.corner_normals is None or mesh.n_faces == 0:
+        return empty, empty
+    idx, _ = surface_faces(mesh)
+    valid = np.zeros(mesh.n_faces, dtype=bool)
+    valid[idx] = True
+    edge, counts = welded_edges(mesh)
+    nf = mesh.n_faces
+    order = np.argsort(edge, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pair = starts[counts == 2]  # an interior edge's two sides are adjacent in ``order``
+    a, b = order[pair], order[pair + 1]
+    fa, fb, sa, sb = a % nf, b % nf, a // nf, b // nf
+    ok = valid[fa] & valid[fb]
+    fa, fb, sa, sb = fa[ok], fb[ok], sa[ok], sb[ok]
+    own = np.asarray(mesh.face_normals, dtype=np.float64)
+    cn = np.asarray(mesh.corner_normals, dtype=np.float64)
+    cn = np.where((np.einsum("fkd,fd->fk", cn, own) < 0)[..., None], -cn, cn)
+    _, weld = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0, return_inverse=True)
+    wf = weld.reshape(-1)[np.asarray(mesh.faces, dtype=np.int64)]
+    same = wf[fa, sa] == wf[fb, sb]  # the two sides run the edge the same way (else opposite ways)
+    ends_a = np.stack([sa, (sa + 1) % 3], axis=1)
+    ends_b = np.where(same[:, None], np.stack([sb, (sb + 1) % 3], axis=1), np.stack([(sb + 1) % 3, sb], axis=1))
+    na = np.take_along_axis(cn[fa], ends_a[..., None], axis=1)  # (E, 2, 3): both ends' normals on a's side
+    nb = np.take_along_axis(cn[fb], ends_b[..., None], axis=1)
+    hard = (np.einsum("ekd,ekd->ek", na, nb) < math.cos(math.radians(min_deg))).any(axis=1)
+    return np.concatenate([fa[hard], fb[hard]]), np.concatenate([sa[hard], sb[hard]])
+
+
+def _edge_band_draw(mesh: Mesh, n: int, band: float, seed: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Faces (n,) and barycentrics (n, 3) of ``n`` points uniform by area over the strips within ``band``
+    (across the face) of the hard edges (:func:`hard_edge_sides`), on both faces of each; None without a hard edge.
+
+    A side is drawn with probability proportional to its strip's area, then a point at fraction λ of the face's
+    height over the edge (λ ≤ min(1, band / height), with density ∝ 1 − λ, the strip's length there), uniform
+    along it."""
+    face, slot = hard_edge_sides(mesh)
+    if face.size == 0 or n == 0:
+        return None
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    tri = v[np.asarray(mesh.faces, dtype=np.int64)[face]]  # (K, 3, 3)
+    rows = np.arange(face.size)
+    length = np.linalg.norm(tri[rows, (slot + 1) % 3] - tri[rows, slot], axis=1)
+    height = 2.0 * np.asarray(mesh.face_areas, dtype=np.float64)[face] / np.maximum(length, DIRECTION_EPS)
+    top = np.minimum(1.0, band / np.maximum(height, DIRECTION_EPS))  # the strip's share of the height
+    strip = length * height * (top - 0.5 * top**2)
+    if not strip.sum() > 0:
+        return None
+    rng = np.random.default_rng([seed, 2])
+    cdf = np.cumsum(strip)
+    pick = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"), face.size - 1)
+    r = rng.random((n, 2))
+    a = top[pick]
+    lam = 1.0 - np.sqrt(1.0 - 2.0 * r[:, 0] * (a - 0.5 * a**2))  # the inverse of (λ − λ²/2) / (a − a²/2)
+    k, t = slot[pick], r[:, 1]
+    bary = np.zeros((n, 3))
+    at = np.arange(n)
+    bary[at, k] = (1.0 - lam) * (1.0 - t)
+    bary[at, (k + 1) % 3] = (1.0 - lam) * t
+    bary[at, (k + 2) % 3] = lam
+    return face[pick].astype(np.int64), bary
 
 
 def surface_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -314,12 +414,14 @@ def sample_near(
     targets: float = 0.0,
     target_normals: str = "vertex",
     target_gap_share: float = 0.0,
+    edge_share: float = 0.0,
+    edge_band: float = EDGE_BAND,
 ) -> VolumeSamples:
     """``n`` points near the surface with their signed distance (unit frame).
 
-    Surface points (:func:`sample_surface`, same ``seed`` and ``face_weights``) are moved by isotropic Gaussian noise
-    N(0, σ² I). A sequence of σ mixes them in equal parts (the first ones get the remainder of ``n``),
-    e.g. ``sigma=(0.01, 0.003)``. The signed distance is :func:`signed_distance` with ``sign``.
+    Surface points (:func:`sample_surface`, same ``seed``, ``face_weights``, ``edge_share`` and ``edge_band``)
+    are moved by isotropic Gaussian noise N(0, σ² I). A sequence of σ mixes them in equal parts (the first ones
+    get the remainder of ``n``), e.g. ``sigma=(0.01, 0.003)``. The signed distance is :func:`signed_distance` with ``sign``.
 
     ``targets`` > 0 also gives each point within that distance of the mesh the gradient of its signed distance,
     :func:`distance_gradient_targets` with ``target_normals`` and ``target_gap_share`` (``VolumeSamples.normals``;
@@ -327,7 +429,8 @@ def sample_near(
     """
     n = _check_count(n, "sample_near")
     sigmas = _sigmas(sigma)
-    surf = sample_surface(mesh, n, seed=seed, face_weights=face_weights)
+    surf = sample_surface(mesh, n, seed=seed, face_weights=face_weights, colors=False, edge_share=edge_share,
+                          edge_band=edge_band)
     rng = np.random.default_rng([seed, 1])
     counts = [n // len(sigmas) + (1 if i < n % len(sigmas) else 0) for i in range(len(sigmas))]
     scale = np.repeat(np.asarray(sigmas), counts)

@@ -97,6 +97,13 @@ class SdfFitConfig(PresetLoopSettings):
     an overlapped or repeated texel counted once), the rest as ``curvature_sampling`` says; for an asset baked
     onto itself, whose map's texels are where its normals are read (a layout that gives small parts many
     texels gives them as many samples). No UVs: off."""
+    edge_sampling: float = 0.0
+    """Part of the surface and near-surface pools drawn within ``edge_band`` of the mesh's hard edges, on both
+    faces of each (0: off; :func:`~neural_bake.fit.sampling.hard_edge_sides`: where the file's own normals
+    split, so a mesh without normals has none and keeps its draws): where the field rounds a board's right
+    angle, which area sampling gives a few points of a large face."""
+    edge_band: float = 0.01
+    """Width of ``edge_sampling``'s strips (unit frame, across the face)."""
     error_sampling: float = 0.0
     """Part of each step's surface batch drawn by the network's current normal error (0: off): every
     ``hard_every`` steps the angle error 1 − cos(∇f, n) is measured at every surface pool point, and this
@@ -222,6 +229,8 @@ class SdfFitConfig(PresetLoopSettings):
             skip |= {"tile_grid", "tile_width", "tile_depth", "tile_margin"}
         if not self.texel_sampling:  # off: the trajectory of the settings before it
             skip.add("texel_sampling")
+        if not self.edge_sampling:
+            skip |= {"edge_sampling", "edge_band"}
         if not self.w_near_normal:
             skip |= {"w_near_normal", "near_normal_reach", "near_normal_gap_share"}
         elif not self.near_normal_gap_share:
@@ -345,6 +354,10 @@ def _check_config(cfg: SdfFitConfig) -> None:
         raise FitError(f"fit_sdf: curvature_sampling must be in [0, 1], got {cfg.curvature_sampling!r}")
     if not (0.0 <= cfg.texel_sampling <= 1.0):
         raise FitError(f"fit_sdf: texel_sampling must be in [0, 1], got {cfg.texel_sampling!r}")
+    if not (0.0 <= cfg.edge_sampling <= 1.0):
+        raise FitError(f"fit_sdf: edge_sampling must be in [0, 1], got {cfg.edge_sampling!r}")
+    if not (math.isfinite(cfg.edge_band) and cfg.edge_band > 0):
+        raise FitError(f"fit_sdf: edge_band must be positive, got {cfg.edge_band!r}")
     if not (0.0 <= cfg.error_sampling <= 1.0 - cfg.hard_fraction):
         raise FitError(f"fit_sdf: error_sampling must be in [0, 1 - hard_fraction], got {cfg.error_sampling!r} "
                        f"(hard_fraction {cfg.hard_fraction!r})")

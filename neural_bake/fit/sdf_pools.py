@@ -89,6 +89,7 @@ class _Pools:
         cfg = self.cfg
         key = (idx, cfg.seed, cfg.pool_surface, cfg.pool_near, cfg.pool_uniform, tuple(cfg.sigmas),
                cfg.curvature_sampling, cfg.texel_sampling, cfg.surface_normals, near_reach(cfg), cfg.near_normal_gap_share,
+               cfg.edge_sampling, cfg.edge_band,
                str(self.device), self.dtype)
         data = None if self.cache is None else self.cache.get(key)
         if data is None:
@@ -107,11 +108,12 @@ class _Pools:
             if self.face_weights is None and (cfg.curvature_sampling > 0 or cfg.texel_sampling > 0):
                 self.face_weights = _face_weights(mesh, cfg.curvature_sampling, cfg.texel_sampling)
             w = self.face_weights
+            edges = {"edge_share": cfg.edge_sampling, "edge_band": cfg.edge_band}
             surf = sample_surface(mesh, cfg.pool_surface, seed=seed, face_weights=w, normals=cfg.surface_normals,
-                                  colors=False)
+                                  colors=False, **edges)
             near = (sample_near(mesh, cfg.pool_near, sigma=cfg.sigmas, seed=seed + 1, face_weights=w,
                                 targets=near_reach(cfg), target_normals=cfg.surface_normals,
-                                target_gap_share=cfg.near_normal_gap_share)
+                                target_gap_share=cfg.near_normal_gap_share, **edges)
                     if cfg.pool_near else None)
             uni = sample_uniform(mesh, cfg.pool_uniform, seed=seed + 2) if cfg.pool_uniform else None
         except (ValueError, RuntimeError) as exc:

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from neural_bake.errors import FitError
-from neural_bake.fit.sampling import curvature_face_weights, sample_near, sample_surface
+from neural_bake.fit.sampling import curvature_face_weights, hard_edge_sides, sample_near, sample_surface
 from neural_bake.fit.sdf import SdfFitConfig, fit_sdf
 from neural_bake.fit.sdf_pools import _draw, _error_cdf, _importance_draw
 from neural_bake.io.mesh_io import mesh_from_arrays
@@ -205,6 +205,10 @@ def test_fit_with_detail_sampling_reproduces_and_stays_finite():
     ({"error_sampling": -0.5}, "error_sampling must be in"),
     ({"texel_sampling": -0.1}, "texel_sampling must be in"),
     ({"texel_sampling": 1.5}, "texel_sampling must be in"),
+    ({"edge_sampling": -0.1}, "edge_sampling must be in"),
+    ({"edge_sampling": 1.5}, "edge_sampling must be in"),
+    ({"edge_band": 0.0}, "edge_band must be positive"),
+    ({"edge_band": float("nan")}, "edge_band must be positive"),
 ])
 def test_bad_detail_sampling_settings(kw, msg):
     m = trimesh.creation.icosphere(subdivisions=1, radius=0.8)
@@ -323,3 +327,101 @@ def test_texel_sampling_off_keeps_the_fingerprint():
     assert cfg.fingerprint_dict() == replace(cfg, texel_sampling=0.0).fingerprint_dict()
     assert "texel_sampling" not in cfg.fingerprint_dict()
     assert replace(cfg, texel_sampling=0.5).fingerprint_dict()["texel_sampling"] == 0.5
+
+
+def _hard_box(size=0.8, max_edge=0.1, split=True) -> Mesh:
+    """:func:`_box` with its file's own normals: every corner its face's (hard edges) or, ``split=False``, the
+    welded vertices' averaged normals (a smooth file: one normal per vertex)."""
+    mesh = _box(size, max_edge)
+    if split:
+        normals = np.repeat(mesh.face_normals[:, None], 3, axis=1)
+    else:
+        from neural_bake.geometry import vertex_normals
+
+        normals = vertex_normals(mesh)[mesh.faces]
+    return replace(mesh, corner_normals=np.asarray(normals, dtype=np.float64))
+
+
+def _edge_distance(p: np.ndarray, half: float) -> np.ndarray:
+    """Distance from points on the cube's sides to its nearest edge, across the side."""
+    a = np.sort(np.abs(p), axis=1)  # the largest coordinate is the side's own (±half)
+    return half - a[:, 1]
+
+
+def test_hard_edges_are_where_the_files_normals_split():
+    mesh = _hard_box()
+    face, slot = hard_edge_sides(mesh)
+    tri, rows = mesh.vertices[mesh.faces[face]], np.arange(len(face))
+    ends = np.stack([tri[rows, slot], tri[rows, (slot + 1) % 3]], axis=1)
+    # every side lies on one of the cube's 12 edges (two coordinates at ±0.4 at both ends), and the pieces the
+    # subdivision cut them into are there twice (once per face): twice 12 edges of 0.8
+    assert (np.isclose(np.abs(ends), 0.4).sum(axis=2) >= 2).all()
+    assert np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).sum() == pytest.approx(2 * 12 * 0.8)
+    # a smooth file, a file without normals, a split of less than the threshold: none
+    for other in (_hard_box(split=False), replace(mesh, corner_normals=None)):
+        assert hard_edge_sides(other)[0].size == 0
+    assert hard_edge_sides(mesh, min_deg=91.0)[0].size == 0
+
+
+def test_edge_band_points_lie_uniformly_in_the_strips_with_one_sided_normals():
+    # two triangles of height 1 meeting at a right angle along the x axis, hard-shaded: the strip within
+    # ``band`` of the edge on each face, uniform by area, has its distance d from the edge with density ∝ 1 − d
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, 0, 1]])
+    book = Mesh(v, np.array([[0, 1, 2], [1, 0, 3]]))
+    book = replace(book, corner_normals=np.repeat(book.face_normals[:, None], 3, axis=1).astype(np.float64))
+    band = 0.2
+    s = sample_surface(book, 40_000, seed=4, normals="vertex", colors=False, edge_share=1.0, edge_band=band)
+    p = s.points.astype(np.float64)
+    d = np.hypot(p[:, 1], p[:, 2])
+    assert d.max() <= band + 1e-6 and (np.bincount(s.face_index, minlength=2) / len(d) == pytest.approx(0.5, abs=0.01))
+    edges = np.linspace(0, band, 5)
+    expected = np.diff(edges - edges**2 / 2) / (band - band**2 / 2)
+    assert np.histogram(d, bins=edges)[0] / len(d) == pytest.approx(expected, abs=0.01)
+    # along the edge, uniform over the strip's length at that distance: x - 0.5 d is uniform on [0, 1 - d]
+    u = (p[:, 0] - 0.5 * d) / (1.0 - d)
+    assert np.histogram(u, bins=4, range=(0, 1))[0] / len(u) == pytest.approx(0.25, abs=0.01)
+    # each point keeps its own face's normal: one side of the edge, not the average across it
+    np.testing.assert_allclose(s.normals, book.face_normals[s.face_index], atol=1e-6)
+    # on a subdivided cube, every point lies within the band of one of its edges
+    cube = _hard_box()
+    c = sample_surface(cube, 5000, seed=4, normals="vertex", colors=False, edge_share=1.0, edge_band=0.02)
+    assert _edge_distance(c.points.astype(np.float64), 0.4).max() <= 0.02 + 1e-6
+    np.testing.assert_allclose(c.normals, cube.face_normals[c.face_index], atol=1e-6)
+
+
+def test_edge_share_draws_its_part_along_the_hard_edges_and_nothing_else_changes():
+    mesh, band, n = _hard_box(), 0.02, 40_000
+    plain = sample_surface(mesh, n, seed=2, colors=False)
+    in_band = lambda s: (_edge_distance(s.points.astype(np.float64), 0.4) <= band).mean()  # noqa: E731
+    area_share = 4 * band * 0.8 * 6 / (6 * 0.8**2) - 4 * band**2 * 6 / (6 * 0.8**2)  # strips less corner overlaps
+    assert in_band(plain) == pytest.approx(area_share, abs=0.01)
+    edged = sample_surface(mesh, n, seed=2, colors=False, edge_share=0.25, edge_band=band)
+    assert len(edged) == n and in_band(edged) == pytest.approx(0.25 + 0.75 * area_share, abs=0.01)
+    # a mesh without hard edges keeps the same draws, points and normals alike
+    smooth = _hard_box(split=False)
+    a = sample_surface(smooth, 5000, seed=7, normals="vertex")
+    b = sample_surface(smooth, 5000, seed=7, normals="vertex", edge_share=0.5)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.normals, b.normals)
+    # the near points start from the same draws: every σ group has its share along the edges
+    near = sample_near(mesh, 30_000, sigma=(1e-4, 2e-4, 3e-4), seed=3, edge_share=1.0, edge_band=band)
+    closest = np.clip(near.points.astype(np.float64), -0.4, 0.4)
+    assert (_edge_distance(closest, 0.4) <= band + 1e-3).all()
+    with pytest.raises(ValueError, match="edge_share must be in"):
+        sample_surface(mesh, 10, edge_share=1.5)
+    with pytest.raises(ValueError, match="edge_band must be positive"):
+        sample_surface(mesh, 10, edge_share=0.5, edge_band=-1.0)
+
+
+def test_edge_pools_and_fingerprint():
+    from neural_bake.fit.sdf_pools import _Pools
+
+    mesh = _hard_box()
+    cfg = replace(SdfFitConfig(), pool_surface=20_000, pool_near=2000, pool_uniform=100, edge_band=0.02)
+    share = {}
+    for e in (0.0, 0.5):
+        p = _Pools(mesh, replace(cfg, edge_sampling=e), torch.device("cpu"), torch.float32).get(0)["surf_p"].numpy()
+        share[e] = (_edge_distance(p.astype(np.float64), 0.4) <= 0.02).mean()
+    assert share[0.5] == pytest.approx(0.5 + 0.5 * share[0.0], abs=0.015)
+    assert "edge_sampling" not in cfg.fingerprint_dict() and "edge_band" not in cfg.fingerprint_dict()
+    assert replace(cfg, edge_sampling=0.25).fingerprint_dict()["edge_band"] == 0.02
