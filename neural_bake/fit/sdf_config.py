@@ -267,9 +267,10 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_n
 #: between their levels (where the coarse level is small away from the mesh, the fine level grew a stray
 #: bubble on the rocker arm without it); ``high``'s near targets stay within a quarter of the gap as
 #: ``quick``'s (the tea set's thin walls keep their zero set: Hausdorff 0.15 against 0.47, ∇f 0.19° against
-#: 0.49°); ``default``'s coarse level also spends a tenth of each near batch on
-#: its own zero set where it is furthest from the mesh (plainly fitted, 5 minutes left stray pieces of
-#: surface on two of eight meshes without it).
+#: 0.49°), and it draws a quarter of the pools not drawn by texels by curvature (every mesh's ∇f p95 lower, the
+#: ogre's 5.1° → 4.5°; the medians within 0.02° but the cabinet's); ``default``'s coarse level also spends a
+#: tenth of each near batch on its own zero set where it is furthest from the mesh (plainly fitted, 5 minutes
+#: left stray pieces of surface on two of eight meshes without it).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
@@ -279,7 +280,7 @@ PRESETS: dict[str, dict] = {
                 "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH, "construction": "residual",
              "coarse_share": 0.1, "sign_fraction": 0.5, "audit_candidates": 100_000, "texel_sampling": 0.5,
-             "near_normal_gap_share": 0.25},
+             "near_normal_gap_share": 0.25, "curvature_sampling": 0.25},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},
