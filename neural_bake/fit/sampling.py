@@ -213,6 +213,27 @@ def sample_surface(mesh: Mesh, n: int, *, seed: int = 0, normals: str = "face",
     return SurfaceSamples(points.astype(np.float32), nrm.astype(np.float32), uv, rgb, face)
 
 
+def _interior_sides(mesh: Mesh, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two face sides of every manifold interior edge (welded: :func:`~neural_bake.geometry.welded_edges`)
+    whose faces are both ``valid`` ((F,) bool): ``(a (E,), b (E,))`` int64 rows k·F + f, side k of face f the
+    edge from its corner k to corner k + 1 mod 3."""
+    edge, counts = welded_edges(mesh)
+    order = np.argsort(edge, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pair = starts[counts == 2]  # an interior edge's two sides are adjacent in ``order``
+    a, b = order[pair], order[pair + 1]
+    ok = valid[a % mesh.n_faces] & valid[b % mesh.n_faces]
+    return a[ok], b[ok]
+
+
+def _outward_corner_normals(mesh: Mesh, face: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) the file's own corner normals (``mesh.corner_normals``) of faces ``face`` (N,), each turned to
+    its face's outward side."""
+    vn = np.asarray(mesh.corner_normals, dtype=np.float64)[face]
+    side = np.einsum("nkd,nd->nk", vn, mesh.face_normals[face])
+    return np.where((side < 0)[..., None], -vn, vn)
+
+
 def hard_edge_sides(mesh: Mesh, min_deg: float = HARD_EDGE_DEG) -> tuple[np.ndarray, np.ndarray]:
     """The face sides on the mesh's hard edges: ``(face (K,) int64, slot (K,) int64)``, side ``slot`` of
     ``face`` the edge from its corner ``slot`` to corner ``slot + 1 mod 3``, both sides of every hard edge.
@@ -229,21 +250,14 @@ def hard_edge_sides(mesh: Mesh, min_deg: float = HARD_EDGE_DEG) -> tuple[np.ndar
     idx, _ = surface_faces(mesh)
     valid = np.zeros(mesh.n_faces, dtype=bool)
     valid[idx] = True
-    edge, counts = welded_edges(mesh)
+    a, b = _interior_sides(mesh, valid)
     nf = mesh.n_faces
-    order = np.argsort(edge, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pair = starts[counts == 2]  # an interior edge's two sides are adjacent in ``order``
-    a, b = order[pair], order[pair + 1]
     fa, fb, sa, sb = a % nf, b % nf, a // nf, b // nf
-    ok = valid[fa] & valid[fb]
-    fa, fb, sa, sb = fa[ok], fb[ok], sa[ok], sb[ok]
-    own = np.asarray(mesh.face_normals, dtype=np.float64)
-    cn = np.asarray(mesh.corner_normals, dtype=np.float64)
-    cn = np.where((np.einsum("fkd,fd->fk", cn, own) < 0)[..., None], -cn, cn)
-    _, weld = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0, return_inverse=True)
-    wf = weld.reshape(-1)[np.asarray(mesh.faces, dtype=np.int64)]
-    same = wf[fa, sa] == wf[fb, sb]  # the two sides run the edge the same way (else opposite ways)
+    cn = _outward_corner_normals(mesh, np.arange(nf))
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    # the two sides run the edge the same way, else opposite ways (welded corners share their position exactly)
+    same = (v[faces[fa, sa]] == v[faces[fb, sb]]).all(axis=1)
     ends_a = np.stack([sa, (sa + 1) % 3], axis=1)
     ends_b = np.where(same[:, None], np.stack([sb, (sb + 1) % 3], axis=1), np.stack([(sb + 1) % 3, sb], axis=1))
     na = np.take_along_axis(cn[fa], ends_a[..., None], axis=1)  # (E, 2, 3): both ends' normals on a's side
@@ -357,15 +371,8 @@ def curvature_face_weights(mesh: Mesh, uniform_share: float = 0.5) -> np.ndarray
     p_area = area / area.sum()
     if u >= 1.0:
         return p_area
-    inverse, counts = welded_edges(mesh)  # (3F,): side k of face f is row k·F + f
-    owner = np.tile(np.arange(mesh.n_faces), 3)
-    order = np.argsort(inverse, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pair = starts[counts == 2]  # manifold interior edges: their two occurrences are adjacent in ``order``
-    a, b = order[pair], order[pair + 1]
-    fa, fb = owner[a], owner[b]
-    ok = valid[fa] & valid[fb]
-    a, fa, fb = a[ok], fa[ok], fb[ok]
+    a, b = _interior_sides(mesh, valid)
+    fa, fb = a % mesh.n_faces, b % mesh.n_faces
     n = np.asarray(mesh.face_normals, dtype=np.float64)
     theta = np.arccos(np.clip((n[fa] * n[fb]).sum(axis=1), -1.0, 1.0))
     v = np.asarray(mesh.vertices, dtype=np.float64)
@@ -504,9 +511,7 @@ def _interp_normals(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarra
     side; the face's own normal where the interpolation vanishes."""
     own = mesh.face_normals[face]
     if mesh.corner_normals is not None:
-        vn = mesh.corner_normals[face]
-        side = np.einsum("nkd,nd->nk", vn, own)
-        vn = np.where((side < 0)[..., None], -vn, vn)
+        vn = _outward_corner_normals(mesh, face)
     else:
         vn = vertex_normals(mesh)[mesh.faces[face]]
     nrm = np.einsum("nk,nkd->nd", bary, vn)
