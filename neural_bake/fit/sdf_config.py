@@ -265,9 +265,9 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_n
 #: ``default`` and ``high`` are fitted by the same construction (``high``: 64x4 for a tenth of its time, then
 #: 192x4: the fine level's extra minute and a half took the ogre's ∇f from 0.63° to 0.58°), with the band audit
 #: between their levels (where the coarse level is small away from the mesh, the fine level grew a stray
-#: bubble on the rocker arm without it); ``high``'s near targets stay within a quarter of the gap as
-#: ``quick``'s (the tea set's thin walls keep their zero set: Hausdorff 0.15 against 0.47, ∇f 0.19° against
-#: 0.49°), and it draws a quarter of the pools not drawn by texels by curvature (every mesh's ∇f p95 lower, the
+#: bubble on the rocker arm without it); their near targets stay within a quarter of the gap as
+#: ``quick``'s (the tea set's thin walls keep their zero set: at ``high`` Hausdorff 0.15 against 0.47, ∇f 0.19°
+#: against 0.49°; at ``default`` the cabinet's 0.13 against 0.25), and ``high`` draws a quarter of the pools not drawn by texels by curvature (every mesh's ∇f p95 lower, the
 #: ogre's 5.1° → 4.5°; the medians within 0.02° but the cabinet's); ``default``'s coarse level also spends a
 #: tenth of each near batch on its own zero set where it is furthest from the mesh (plainly fitted, 5 minutes
 #: left stray pieces of surface on two of eight meshes without it).
@@ -277,7 +277,8 @@ PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual",
               "sign_fraction": 0.5, "audit_candidates": 25_000, "near_normal_gap_share": 0.25},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1,
-                "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
+                "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000,
+                "near_normal_gap_share": 0.25},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH, "construction": "residual",
              "coarse_share": 0.1, "sign_fraction": 0.5, "audit_candidates": 100_000, "texel_sampling": 0.5,
              "near_normal_gap_share": 0.25, "curvature_sampling": 0.25},

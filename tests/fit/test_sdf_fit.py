@@ -150,7 +150,7 @@ def test_presets_and_config():
     assert (h.hard_fraction, h.w_normal, h.w_angle, h.omega_0, h.lr) == (0.0, 300.0, 300.0, 30.0, 1.5e-4)
     for c in (q, d, h):  # ∇f where a bake reads it, off the surface
         assert (c.w_near_normal, c.near_normal_reach) == (1000.0, 0.03)
-    assert (q.near_normal_gap_share, d.near_normal_gap_share, h.near_normal_gap_share) == (0.25, 0.0, 0.25)
+    assert (q.near_normal_gap_share, d.near_normal_gap_share, h.near_normal_gap_share) == (0.25, 0.25, 0.25)
     assert (q.curvature_sampling, d.curvature_sampling, h.curvature_sampling) == (0.0, 0.0, 0.25)
     assert (q.edge_sampling, d.edge_sampling, h.edge_sampling) == (0.0, 0.0, 0.0)
     assert config_from(preset="256x3").w_near_normal == 0.0
