@@ -266,11 +266,11 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_n
 #: 192x4: the fine level's extra minute and a half took the ogre's ∇f from 0.63° to 0.58°), with the band audit
 #: between their levels (where the coarse level is small away from the mesh, the fine level grew a stray
 #: bubble on the rocker arm without it); their near targets stay within a quarter of the gap as
-#: ``quick``'s (the tea set's thin walls keep their zero set: at ``high`` Hausdorff 0.15 against 0.47, ∇f 0.19°
-#: against 0.49°; at ``default`` the cabinet's 0.13 against 0.25), and ``high`` draws a quarter of the pools not drawn by texels by curvature (every mesh's ∇f p95 lower, the
-#: ogre's 5.1° → 4.5°; the medians within 0.02° but the cabinet's); ``default``'s coarse level also spends a
-#: tenth of each near batch on its own zero set where it is furthest from the mesh (plainly fitted, 5 minutes
-#: left stray pieces of surface on two of eight meshes without it).
+#: ``quick``'s (the tea set's thin walls keep their zero set: Hausdorff 0.057 against 0.99 at ``default``, 0.15
+#: against 0.47 at ``high``), and ``high`` draws a quarter of the pools not drawn by texels by curvature (every
+#: mesh's ∇f p95 lower, the ogre's 5.1° → 4.5°; the medians within 0.02° but the cabinet's); ``default``'s
+#: coarse level also spends a tenth of each near batch on its own zero set where it is furthest from the mesh
+#: (plainly fitted, 5 minutes left stray pieces of surface on two of eight meshes without it).
 #: The 64x1 preset weighs the eikonal term less and sets a quarter of its budget aside for an L-BFGS polish.
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
