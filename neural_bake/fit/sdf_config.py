@@ -243,14 +243,16 @@ _MULTI_LAYER = {"lr": 3e-4, "lr_min_factor": 0.01, "hard_pool": 0.05, "steps": 1
 
 #: What the 2- and 5-minute presets add for the shading a map shows: no hard-example mining (every sample
 #: uniform, so the median normal is fitted everywhere), a stronger normal term, the angle term beside it,
-#: the angle term at the near-surface samples (where a bake reads ∇f: off the surface, at the coarse mesh) and
-#: ω0 = 45 (docs/findings.md).
-_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0, "omega_0": 45.0}
+#: the angle term at the near-surface samples (where a bake reads ∇f: off the surface, at the coarse mesh; their
+#: targets only within a quarter of the gap to the next sheet) and ω0 = 45 (docs/findings.md).
+_SHADING = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0,
+            "near_normal_gap_share": 0.25, "omega_0": 45.0}
 
 #: What the 10-minute preset takes of them: no mining, the stronger normal term, the angle term and the near
 #: one, at half the learning rate (at 3e-4 the (256, 4) network collapsed to a constant near step 1,900 with
 #: the stronger normal term; docs/findings.md).
-_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0, "lr": 1.5e-4}
+_SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_near_normal": 1000.0,
+                 "near_normal_gap_share": 0.25, "lr": 1.5e-4}
 
 #: Presets with their time budgets (minutes; the step cap is only a safety net): ``"quick"``, ``"default"``
 #: and ``"high"`` (the best networks found for 2, 5 and 10 minutes: (192, 3), (192, 3) and (256, 4) Sirens,
@@ -275,13 +277,12 @@ _SHADING_HIGH = {"hard_fraction": 0.0, "w_normal": 300.0, "w_angle": 300.0, "w_n
 #: What each preset costs and reaches: BENCHMARKS.md; how its settings were chosen: docs/findings.md.
 PRESETS: dict[str, dict] = {
     "quick": {"width": 192, "depth": 3, "minutes": 2.0, **_MULTI_LAYER, **_SHADING, "construction": "residual",
-              "sign_fraction": 0.5, "audit_candidates": 25_000, "near_normal_gap_share": 0.25},
+              "sign_fraction": 0.5, "audit_candidates": 25_000},
     "default": {"width": 192, "depth": 3, "minutes": 5.0, **_MULTI_LAYER, **_SHADING, "zero_fraction": 0.1,
-                "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000,
-                "near_normal_gap_share": 0.25},
+                "construction": "residual", "sign_fraction": 0.5, "audit_candidates": 100_000},
     "high": {"width": 256, "depth": 4, "minutes": 10.0, **_MULTI_LAYER, **_SHADING_HIGH, "construction": "residual",
              "coarse_share": 0.1, "sign_fraction": 0.5, "audit_candidates": 100_000, "texel_sampling": 0.5,
-             "near_normal_gap_share": 0.25, "curvature_sampling": 0.25},
+             "curvature_sampling": 0.25},
     "64x1": {"width": 64, "depth": 1, "lr": 1e-3, "minutes": 2.0, "steps": 100_000, "w_eikonal": 10.0,
              "pool_surface": 100_000, "pool_near": 100_000, "pool_uniform": 25_000, "polish_evals": 400,
              "polish_share": 0.25},
